@@ -1,0 +1,27 @@
+# The two commands of the README:
+#   make demo   -> the main job (bootstraps .venv on first use)
+#   make test   -> the whole test suite (bootstraps .venv on first use)
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test bench clean
+
+$(STAMP): pyproject.toml
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[test]'
+	@touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/ramps sim paper
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	$(BIN)/ramps bench sim
+
+clean:
+	rm -rf $(VENV) build dist .pytest_cache .hypothesis

@@ -1,0 +1,65 @@
+"""Tunable settings of the core: timeouts, back-off, placement tolerances.
+
+Rules: plain data, validated when built; every duration is in seconds of the
+driver's clock (virtual time in the simulator, monotonic time on a robot).
+The defaults are for a team on WiFi running programs that take seconds to
+minutes; the paper's own settings are available as ``RampsConfig.paper()``.
+"""
+
+from __future__ import annotations
+
+import msgspec
+
+
+class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    #: how long an origin waits for a host to accept an offload before it
+    #: writes the host off (the paper's connection timeout)
+    connect_timeout: float = 2.0
+    #: how often a host tells an origin that its programs are still running
+    heartbeat_period: float = 0.5
+    #: silence after which an origin writes a host off (the paper's healthcheck)
+    heartbeat_timeout: float = 2.0
+    #: a failed program waits uniform(0, backoff_max) before it is re-placed
+    backoff_max: float = 2.0
+    #: a host resends an unacknowledged result this often
+    result_resend: float = 1.0
+    #: a host keeps an unacknowledged result this long (origin cut off)
+    result_retention: float = 600.0
+    #: load reports older than this are ignored when placing (robot gone quiet)
+    max_report_age: float = 10.0
+    #: costs within this relative margin count as equal; ties are then broken
+    #: towards the least utilised robot (ramps policy only)
+    tie_tolerance: float = 0.02
+    #: how many times in a row a program may be turned away by busy hosts
+    #: before the next host is asked to take it regardless (ramps negotiation)
+    max_rejections: int = 3
+    #: extra runnable tasks a host tolerates over the origin's estimate before
+    #: it turns an offload away (ramps negotiation)
+    admission_slack: float = 1.0
+    #: with no report from any teammate for this long, an origin treats itself
+    #: as cut off and runs displaced programs locally
+    isolation_timeout: float = 5.0
+    #: a program that lost this many hosts or workers ends with an error
+    max_attempts: int = 50
+
+    def __post_init__(self) -> None:
+        for name in self.__struct_fields__:
+            value = getattr(self, name)
+            if value < 0:
+                raise ValueError(f"{name} must be >= 0, got {value}")
+        if self.heartbeat_timeout <= self.heartbeat_period:
+            raise ValueError(
+                f"heartbeat_timeout ({self.heartbeat_timeout}) must exceed "
+                f"heartbeat_period ({self.heartbeat_period})"
+            )
+
+    @classmethod
+    def paper(cls) -> "RampsConfig":
+        """Settings close to the paper's prototype (ROS actionlib timeouts,
+        1 s pings, back-off of up to 10 s for minute-long programs)."""
+        return cls(
+            connect_timeout=5.0,
+            heartbeat_period=1.0,
+            heartbeat_timeout=5.0,
+            backoff_max=10.0,
+        )

@@ -1,0 +1,131 @@
+"""Local events that drive a node's core, and the actions it asks for.
+
+Rules: the core's inputs are wire messages (``ramps.core.messages``) plus the
+local events below, each with ``now`` passed alongside; its outputs are the
+actions below. A driver (the simulator, or the Zenoh runtime) applies the
+actions: it sends, starts and stops programs, and hands results to the
+application. ``Note`` actions carry no obligation: they exist so a driver can
+trace what the core decided (placements, blacklisting) without the core
+logging anything itself.
+"""
+
+from __future__ import annotations
+
+import msgspec
+
+from ramps.core.messages import Message, ProgramResult
+
+
+class _Rec(msgspec.Struct, frozen=True, kw_only=True):
+    pass
+
+
+# ---------------------------------------------------------------- events in
+class Submit(_Rec, frozen=True, kw_only=True):
+    """The application on this robot asks for a computation."""
+
+    program_id: str
+    program: str
+    args: bytes = b""
+    payload_size: int = 0
+    #: expected work in work units (from the program's declared profile)
+    work: float = 1.0
+    result_size: int = 0
+    #: never leave this robot (e.g. the program drives hardware)
+    local_only: bool = False
+
+
+class Cancel(_Rec, frozen=True, kw_only=True):
+    """The application withdraws a computation it submitted."""
+
+    program_id: str
+
+
+class ProgramFinished(_Rec, frozen=True, kw_only=True):
+    """A program the executor started has ended (driver -> core)."""
+
+    program_id: str
+    attempt: int
+    ok: bool
+    value: bytes = b""
+    error: str = ""
+    result_size: int = 0
+    #: the worker died (killed, out of memory) rather than the program failing
+    retryable: bool = False
+
+
+class PeerLost(_Rec, frozen=True, kw_only=True):
+    """The transport says a teammate is gone (Zenoh liveliness DELETE)."""
+
+    robot: str
+
+
+class PeerAlive(_Rec, frozen=True, kw_only=True):
+    """The transport says a teammate is (back) in the team."""
+
+    robot: str
+
+
+class Received(_Rec, frozen=True, kw_only=True):
+    """A wire message from a teammate."""
+
+    sender: str
+    msg: Message
+
+
+Event = Submit | Cancel | ProgramFinished | PeerLost | PeerAlive | Received
+
+
+# ---------------------------------------------------------------- actions out
+class Send(_Rec, frozen=True, kw_only=True):
+    to: str
+    msg: Message
+
+
+class StartProgram(_Rec, frozen=True, kw_only=True):
+    """Run a registered program in the executor (its own worker)."""
+
+    program_id: str
+    attempt: int
+    origin: str
+    program: str
+    args: bytes
+    work: float
+
+
+class StopProgram(_Rec, frozen=True, kw_only=True):
+    """Kill a running program: it was cancelled or is no longer wanted."""
+
+    program_id: str
+    attempt: int
+
+
+class Deliver(_Rec, frozen=True, kw_only=True):
+    """The one and only outcome of a submitted program, for the application."""
+
+    program_id: str
+    ok: bool
+    value: bytes = b""
+    error: str = ""
+    host: str = ""
+    attempts: int = 0
+
+
+class Note(_Rec, frozen=True, kw_only=True):
+    """Something the core decided, for traces and logs. ``what`` is one of:
+    placed, accepted, rejected, blacklisted, unblacklisted, failed, backoff,
+    discarded, anomaly, isolated."""
+
+    what: str
+    program_id: str = ""
+    robot: str = ""
+    attempt: int = 0
+    detail: str = ""
+
+
+Action = Send | StartProgram | StopProgram | Deliver | Note
+
+__all__ = [
+    "Submit", "Cancel", "ProgramFinished", "PeerLost", "PeerAlive", "Received", "Event",
+    "Send", "StartProgram", "StopProgram", "Deliver", "Note", "Action", "ProgramResult",
+]

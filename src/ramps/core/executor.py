@@ -1,0 +1,161 @@
+"""The program executor: runs registered programs for any teammate.
+
+How this works: an ``OffloadRequest`` is accepted (``StartProgram`` for the
+driver, ``OffloadAccepted`` for the origin) or turned away with a reason:
+``unknown_program`` and ``bad_request`` are permanent, ``busy`` means the
+host has more runnable work than the origin expected (ramps negotiation) and
+the origin should place again at once. While programs run, the executor
+sends each origin one ``Heartbeat`` per period listing its programs. A result
+is sent to the origin and kept, resent every ``result_resend`` seconds, until
+the origin acknowledges it, so a result survives a lost message or an origin
+that is briefly cut off.
+
+Requests are idempotent: the same (program, attempt) twice is accepted once.
+``accepted_total`` and ``finished_total`` only ever grow; the load publisher
+puts them in every report so origins can tell what a report includes.
+"""
+
+from __future__ import annotations
+
+from ramps.core.config import RampsConfig
+from ramps.core.events import Action, Note, ProgramFinished, Send, StartProgram, StopProgram
+from ramps.core.messages import (
+    CancelProgram,
+    Heartbeat,
+    OffloadAccepted,
+    OffloadRejected,
+    OffloadRequest,
+    ProgramRef,
+    ProgramResult,
+    ResultAck,
+)
+
+Key = tuple[str, int]
+
+
+class _Job:
+    __slots__ = ("origin", "program", "started_at")
+
+    def __init__(self, origin: str, program: str, started_at: float) -> None:
+        self.origin = origin
+        self.program = program
+        self.started_at = started_at
+
+
+class Executor:
+    def __init__(
+        self,
+        me: str,
+        *,
+        config: RampsConfig,
+        registry: frozenset[str] | None = None,
+        incarnation: int = 0,
+    ) -> None:
+        self.me = me
+        self.config = config
+        #: names of the programs installed here; None accepts any name
+        self.registry = registry
+        self.incarnation = incarnation
+        self.running: dict[Key, _Job] = {}
+        self._outbox: dict[Key, tuple[str, ProgramResult, float, float]] = {}
+        self._next_tick: float | None = None
+        #: runnable tasks that are not ramps programs, as the driver measures
+        self.background = 0.0
+        self.accepted_total = 0
+        self.finished_total = 0
+        self.refused = 0
+
+    # ------------------------------------------------------------ inputs
+    def on_offload(self, req: OffloadRequest, now: float, out: list[Action], report_now=None) -> None:
+        key = (req.program_id, req.attempt)
+        if key in self.running or key in self._outbox:
+            # a repeated request: say yes again, start nothing
+            out.append(Send(to=req.origin, msg=OffloadAccepted(
+                program_id=req.program_id, attempt=req.attempt, host=self.me, accept_seq=self.accepted_total)))
+            return
+        reject = None
+        if req.host != self.me:
+            reject = ("bad_request", True, f"request for host {req.host!r} reached {self.me!r}")
+        elif self.registry is not None and req.program not in self.registry:
+            reject = ("unknown_program", True, f"no program {req.program!r} is registered on {self.me}")
+        elif req.expected_runnable is not None and not req.force:
+            actual = self.background + len(self.running)
+            if actual > req.expected_runnable + self.config.admission_slack:
+                reject = ("busy", False, f"{actual:.1f} runnable here, origin expected {req.expected_runnable:.1f}")
+        if reject is not None:
+            self.refused += 1
+            reason, permanent, detail = reject
+            out.append(Note(what="refused", program_id=req.program_id, robot=req.origin,
+                            attempt=req.attempt, detail=detail))
+            out.append(Send(to=req.origin, msg=OffloadRejected(
+                program_id=req.program_id, attempt=req.attempt, host=self.me, reason=reason,
+                permanent=permanent, detail=detail,
+                report=report_now() if (report_now is not None and not permanent) else None)))
+            return
+        self.accepted_total += 1
+        self.running[key] = _Job(req.origin, req.program, now)
+        out.append(StartProgram(program_id=req.program_id, attempt=req.attempt, origin=req.origin,
+                                program=req.program, args=req.args, work=req.work))
+        out.append(Send(to=req.origin, msg=OffloadAccepted(
+            program_id=req.program_id, attempt=req.attempt, host=self.me, accept_seq=self.accepted_total)))
+        if self._next_tick is None:
+            self._next_tick = now + self.config.heartbeat_period
+
+    def on_finished(self, ev: ProgramFinished, now: float, out: list[Action]) -> None:
+        key = (ev.program_id, ev.attempt)
+        job = self.running.pop(key, None)
+        if job is None:
+            return  # cancelled before it ended: nobody wants it
+        self.finished_total += 1
+        result = ProgramResult(
+            program_id=ev.program_id, attempt=ev.attempt, host=self.me, ok=ev.ok, value=ev.value,
+            error=ev.error, result_size=ev.result_size, retryable=ev.retryable, finish_seq=self.finished_total,
+        )
+        self._outbox[key] = (job.origin, result, now + self.config.result_resend, now + self.config.result_retention)
+        out.append(Send(to=job.origin, msg=result))
+        if self._next_tick is None:
+            self._next_tick = now + self.config.result_resend
+
+    def on_cancel(self, msg: CancelProgram, now: float, out: list[Action]) -> None:
+        key = (msg.program_id, msg.attempt)
+        job = self.running.get(key)
+        if job is not None and job.origin == msg.origin:
+            del self.running[key]
+            self.finished_total += 1
+            out.append(StopProgram(program_id=msg.program_id, attempt=msg.attempt))
+        entry = self._outbox.get(key)
+        if entry is not None and entry[0] == msg.origin:
+            del self._outbox[key]
+
+    def on_ack(self, msg: ResultAck) -> None:
+        entry = self._outbox.get((msg.program_id, msg.attempt))
+        if entry is not None and entry[0] == msg.origin:
+            del self._outbox[(msg.program_id, msg.attempt)]
+
+    # ------------------------------------------------------------ timers
+    def next_deadline(self) -> float | None:
+        return self._next_tick
+
+    def tick(self, now: float, out: list[Action]) -> None:
+        if self._next_tick is None or now < self._next_tick:
+            return
+        by_origin: dict[str, list[ProgramRef]] = {}
+        for (pid, attempt), job in self.running.items():
+            by_origin.setdefault(job.origin, []).append(ProgramRef(pid, attempt))
+        for origin, refs in by_origin.items():
+            out.append(Send(to=origin, msg=Heartbeat(host=self.me, incarnation=self.incarnation, programs=refs)))
+        for key, (origin, result, resend_at, expires) in list(self._outbox.items()):
+            if now >= expires:
+                del self._outbox[key]
+            elif now >= resend_at:
+                out.append(Send(to=origin, msg=result))
+                self._outbox[key] = (origin, result, now + self.config.result_resend, expires)
+        if self.running:
+            self._next_tick = now + self.config.heartbeat_period
+        elif self._outbox:
+            self._next_tick = now + min(self.config.heartbeat_period, self.config.result_resend)
+        else:
+            self._next_tick = None
+
+    def unacked_results(self) -> int:
+        return len(self._outbox)

@@ -1,0 +1,217 @@
+"""The load server: one robot's view of its team's load.
+
+How this works: the view keeps the latest ``LoadReport`` of every robot with
+the time it arrived, a blacklist of robots written off, and the *bookings*
+this robot's own programs made on hosts that the hosts' reports may not show
+yet. Two readings of the same data serve the two families of policy:
+
+* the paper's: a booking raises the stored load until the target's next
+  report arrives and overwrites it, even if that report was measured before
+  the program started (stale information, as in the ROS prototype);
+* ramps': a booking counts until a report *proves* it is included, using the
+  host's monotonic ``accepted_total``/``finished_total`` counters; so nothing
+  is counted twice and nothing is forgotten early.
+
+A blacklisted robot is lifted only when it publishes again (a report with a
+higher sequence number, or from a new incarnation). Pure state: no clock, no
+I/O; ``now`` is passed in.
+"""
+
+from __future__ import annotations
+
+from ramps.core.messages import LoadReport
+
+
+class _Booking:
+    __slots__ = ("accept_seq", "finish_seq")
+
+    def __init__(self) -> None:
+        self.accept_seq: int | None = None
+        self.finish_seq: int | None = None
+
+
+class _Robot:
+    __slots__ = ("report", "received_at", "bookings", "unseen_accept", "unseen_finish", "paper_booked", "lost")
+
+    def __init__(self) -> None:
+        self.report: LoadReport | None = None
+        self.received_at = 0.0
+        self.bookings: dict[tuple[str, int], _Booking] = {}
+        #: bookings a report does not include yet / finished ones it still shows
+        self.unseen_accept = 0
+        self.unseen_finish = 0
+        #: the paper's counter: bookings since the last report overwrote them
+        self.paper_booked = 0
+        #: liveliness says the robot is gone
+        self.lost = False
+
+
+class LoadView:
+    def __init__(self, me: str, *, cores: int, speed: float, max_report_age: float = 10.0) -> None:
+        self.me = me
+        self.cores = cores
+        self.speed = speed
+        self.max_report_age = max_report_age
+        self._robots: dict[str, _Robot] = {me: _Robot()}
+        self._blacklist: dict[str, tuple[int, int]] = {}
+        self.last_remote_report: float | None = None
+        self.reports_received = 0
+
+    # ------------------------------------------------------------ reports
+    def on_report(self, report: LoadReport, now: float, *, fresh: bool = False) -> bool:
+        """Take a report in. Returns True if it lifted a blacklisting.
+
+        ``fresh`` marks a report made on the spot (sent with a rejection): it
+        replaces a periodic report with the same sequence number."""
+        rob = self._robots.get(report.robot)
+        if rob is None:
+            rob = self._robots[report.robot] = _Robot()
+        old = rob.report
+        if old is not None and old.incarnation == report.incarnation and (
+            report.seq < old.seq or (report.seq == old.seq and not fresh)
+        ):
+            return False  # duplicate or reordered: keep the newer one
+        if old is not None and old.incarnation != report.incarnation:
+            # the robot restarted: whatever we booked there died with it
+            rob.bookings.clear()
+        rob.report = report
+        rob.received_at = now
+        rob.paper_booked = 0
+        rob.lost = False
+        self.reports_received += 1
+        if report.robot != self.me:
+            self.last_remote_report = now
+        self._recount(rob)
+        bl = self._blacklist.get(report.robot)
+        if bl is not None and (report.incarnation != bl[0] or report.seq > bl[1]):
+            del self._blacklist[report.robot]
+            return True
+        return False
+
+    def _recount(self, rob: _Robot) -> None:
+        rep = rob.report
+        acc_total = rep.accepted_total if rep else -1
+        fin_total = rep.finished_total if rep else -1
+        unseen_accept = unseen_finish = 0
+        for key, b in list(rob.bookings.items()):
+            if b.accept_seq is None or b.accept_seq > acc_total:
+                unseen_accept += 1
+            elif b.finish_seq is not None:
+                if b.finish_seq > fin_total:
+                    unseen_finish += 1
+                else:
+                    del rob.bookings[key]  # report shows it started and ended
+        rob.unseen_accept = unseen_accept
+        rob.unseen_finish = unseen_finish
+
+    def report_of(self, robot: str) -> LoadReport | None:
+        rob = self._robots.get(robot)
+        return rob.report if rob else None
+
+    def report_age(self, robot: str, now: float) -> float | None:
+        rob = self._robots.get(robot)
+        if rob is None or rob.report is None:
+            return None
+        return now - rob.received_at
+
+    def robots(self) -> list[str]:
+        return list(self._robots)
+
+    # ------------------------------------------------------------ bookings
+    def book(self, robot: str, program_id: str, attempt: int) -> None:
+        rob = self._robots.get(robot)
+        if rob is None:
+            rob = self._robots[robot] = _Robot()
+        rob.bookings[(program_id, attempt)] = _Booking()
+        rob.unseen_accept += 1
+        rob.paper_booked += 1
+
+    def accepted(self, robot: str, program_id: str, attempt: int, accept_seq: int) -> None:
+        rob = self._robots.get(robot)
+        b = rob.bookings.get((program_id, attempt)) if rob else None
+        if b is None or b.accept_seq is not None:
+            return
+        b.accept_seq = accept_seq
+        self._recount(rob)
+
+    def released(self, robot: str, program_id: str, attempt: int, finish_seq: int | None) -> None:
+        """The program ended (``finish_seq`` known) or left the host (None)."""
+        rob = self._robots.get(robot)
+        b = rob.bookings.get((program_id, attempt)) if rob else None
+        if b is None:
+            return
+        if finish_seq is None or b.accept_seq is None:
+            del rob.bookings[(program_id, attempt)]
+        else:
+            b.finish_seq = finish_seq
+        self._recount(rob)
+
+    # ------------------------------------------------------------ estimates
+    def ramps_programs(self, robot: str) -> float:
+        """Ramps programs on ``robot`` now, by ramps' reading of the view."""
+        rob = self._robots[robot]
+        base = rob.report.ramps_running if rob.report else 0
+        return max(0, base + rob.unseen_accept - rob.unseen_finish)
+
+    def background(self, robot: str) -> float:
+        """Competing tasks on ``robot`` that are not ramps programs."""
+        rep = self._robots[robot].report
+        if rep is None:
+            return 0.0
+        return max(0.0, rep.runnable - rep.ramps_avg)
+
+    def paper_load(self, robot: str) -> float:
+        """Busy cores as the paper's load server sees them: the last report's
+        CPU load (which saturates at 100%) plus bookings made since it came."""
+        rob = self._robots[robot]
+        cpu = rob.report.cpu_busy if rob.report else 0.0
+        return cpu + rob.paper_booked
+
+    def capacity(self, robot: str) -> tuple[int, float]:
+        rep = self._robots[robot].report if robot in self._robots else None
+        if rep is None:
+            return (self.cores, self.speed) if robot == self.me else (1, 1.0)
+        return rep.cores, rep.speed
+
+    # ------------------------------------------------------------ blacklist / liveness
+    def blacklist(self, robot: str) -> bool:
+        """Write a robot off until it publishes again. False if it already was."""
+        if robot == self.me or robot in self._blacklist:
+            return False
+        rep = self.report_of(robot)
+        self._blacklist[robot] = (rep.incarnation, rep.seq) if rep else (-1, -1)
+        return True
+
+    def is_blacklisted(self, robot: str) -> bool:
+        return robot in self._blacklist
+
+    def blacklisted(self) -> list[str]:
+        return sorted(self._blacklist)
+
+    def set_lost(self, robot: str, lost: bool) -> None:
+        rob = self._robots.get(robot)
+        if rob is not None:
+            rob.lost = lost
+
+    def candidates(self, now: float) -> list[str]:
+        """Robots a program may be placed on now: this robot, and every
+        teammate with a fresh report that is neither blacklisted nor lost."""
+        out = [self.me]
+        horizon = now - self.max_report_age
+        for name, rob in self._robots.items():
+            if name == self.me or rob.report is None or rob.lost:
+                continue
+            if rob.received_at < horizon or name in self._blacklist:
+                continue
+            out.append(name)
+        return out
+
+    def isolated(self, now: float, timeout: float) -> bool:
+        """True when this robot has heard from teammates before but from none
+        for ``timeout`` seconds, or liveliness says all of them are gone."""
+        if self.last_remote_report is None:
+            return False
+        others = [r for n, r in self._robots.items() if n != self.me and r.report is not None]
+        if others and all(r.lost for r in others):
+            return True
+        return now - self.last_remote_report > timeout

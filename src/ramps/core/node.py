@@ -1,0 +1,206 @@
+"""One robot's ramps node, as pure logic: load server + origin + executor.
+
+How this works: ``Node.handle(event, now)`` routes an event to the part that
+owns it and returns the actions the driver must carry out; ``tick(now)``
+fires due timers and ``next_deadline()`` says when to call it next. A message
+a robot sends to itself (a program it placed locally, that program's
+heartbeats and result) never leaves the node: it is handed straight back in,
+so running locally is just another placement and needs no special path.
+
+``make_report`` builds this robot's ``LoadReport`` from what the driver
+measured (CPU, run queue) and what the executor knows (programs running,
+accepted and finished counts). Drivers publish it to every teammate and
+feed it to this node too, as the paper's local load server hears the local
+load publisher.
+"""
+
+from __future__ import annotations
+
+import random
+from collections import deque
+
+import msgspec
+
+from ramps.core.config import RampsConfig
+from ramps.core.cost import NetworkEstimate
+from ramps.core.events import (
+    Action,
+    Cancel,
+    Event,
+    Note,
+    PeerAlive,
+    PeerLost,
+    ProgramFinished,
+    Received,
+    Send,
+    Submit,
+)
+from ramps.core.executor import Executor
+from ramps.core.loadview import LoadView
+from ramps.core.messages import (
+    CancelProgram,
+    Heartbeat,
+    LoadReport,
+    OffloadAccepted,
+    OffloadRejected,
+    OffloadRequest,
+    ProgramResult,
+    ResultAck,
+)
+from ramps.core.origin import Origin
+from ramps.core.policy import Policy, make_policy
+
+
+class NodeStatistics(msgspec.Struct, frozen=True, kw_only=True):
+    robot: str
+    placements: int
+    delivered: int
+    discarded: int
+    anomalies: int
+    host_failures: int
+    rejections: int
+    refused: int
+    accepted_total: int
+    finished_total: int
+    running: int
+    active_programs: int
+    blacklisted: list[str]
+    reports_received: int
+
+
+class Node:
+    def __init__(
+        self,
+        robot: str,
+        *,
+        cores: int,
+        speed: float,
+        policy: Policy | str = "ramps",
+        config: RampsConfig | None = None,
+        rng: random.Random | None = None,
+        incarnation: int = 0,
+        registry: frozenset[str] | None = None,
+        net: NetworkEstimate | None = None,
+    ) -> None:
+        self.robot = robot
+        self.cores = cores
+        self.speed = speed
+        self.incarnation = incarnation
+        self.config = config or RampsConfig()
+        self.rng = rng or random.Random(0)
+        self.policy = make_policy(policy) if isinstance(policy, str) else policy
+        self.view = LoadView(robot, cores=cores, speed=speed, max_report_age=self.config.max_report_age)
+        self.origin = Origin(robot, self.view, self.policy, self.config, self.rng, net or NetworkEstimate())
+        self.executor = Executor(robot, config=self.config, registry=registry, incarnation=incarnation)
+        self._report_seq = 0
+        self._last_report: LoadReport | None = None
+
+    # ------------------------------------------------------------ driving
+    def handle(self, event: Event, now: float) -> list[Action]:
+        out: list[Action] = []
+        self._dispatch(event, now, out)
+        return self._loopback(out, now)
+
+    def tick(self, now: float) -> list[Action]:
+        out: list[Action] = []
+        self.origin.tick(now, out)
+        self.executor.tick(now, out)
+        return self._loopback(out, now)
+
+    def next_deadline(self) -> float | None:
+        a = self.origin.next_deadline()
+        b = self.executor.next_deadline()
+        if a is None:
+            return b
+        return a if b is None else min(a, b)
+
+    def _loopback(self, out: list[Action], now: float) -> list[Action]:
+        """Hand messages addressed to this robot straight back in."""
+        if not any(isinstance(a, Send) and a.to == self.robot for a in out):
+            return out
+        result: list[Action] = []
+        queue = deque(out)
+        while queue:
+            action = queue.popleft()
+            if isinstance(action, Send) and action.to == self.robot:
+                more: list[Action] = []
+                self._dispatch(Received(sender=self.robot, msg=action.msg), now, more)
+                queue.extend(more)
+            else:
+                result.append(action)
+        return result
+
+    def _dispatch(self, event: Event, now: float, out: list[Action]) -> None:
+        if isinstance(event, Received):
+            self._receive(event.sender, event.msg, now, out)
+        elif isinstance(event, Submit):
+            self.origin.submit(event, now, out)
+        elif isinstance(event, ProgramFinished):
+            self.executor.on_finished(event, now, out)
+        elif isinstance(event, Cancel):
+            self.origin.cancel(event.program_id, now, out)
+        elif isinstance(event, PeerLost):
+            if event.robot != self.robot:
+                self.origin.on_peer_lost(event.robot, now, out)
+        elif isinstance(event, PeerAlive):
+            self.origin.on_peer_alive(event.robot)
+        else:
+            raise TypeError(f"not a ramps event: {event!r}")
+
+    def _receive(self, sender: str, msg, now: float, out: list[Action]) -> None:
+        if isinstance(msg, LoadReport):
+            if self.view.on_report(msg, now):
+                out.append(Note(what="unblacklisted", robot=msg.robot))
+        elif isinstance(msg, OffloadRequest):
+            self.executor.on_offload(msg, now, out, report_now=self.current_report)
+        elif isinstance(msg, OffloadAccepted):
+            self.origin.on_accepted(msg, now, out)
+        elif isinstance(msg, OffloadRejected):
+            self.origin.on_rejected(msg, now, out)
+        elif isinstance(msg, Heartbeat):
+            self.origin.on_heartbeat(msg, now, out)
+        elif isinstance(msg, ProgramResult):
+            self.origin.on_result(msg, now, out)
+        elif isinstance(msg, ResultAck):
+            self.executor.on_ack(msg)
+        elif isinstance(msg, CancelProgram):
+            self.executor.on_cancel(msg, now, out)
+        else:
+            self.origin.anomalies += 1
+            out.append(Note(what="anomaly", robot=sender, detail=f"unexpected message {type(msg).__name__}"))
+
+    # ------------------------------------------------------------ load publisher
+    def make_report(self, *, cpu_busy: float, runnable: float, ramps_avg: float, window: float,
+                    mem_free: int = 0) -> LoadReport:
+        """This robot's load report, from the driver's measurements."""
+        self._report_seq += 1
+        self._last_report = LoadReport(
+            robot=self.robot, incarnation=self.incarnation, seq=self._report_seq, cores=self.cores,
+            speed=self.speed, cpu_busy=cpu_busy, runnable=runnable,
+            ramps_running=len(self.executor.running), ramps_avg=ramps_avg,
+            accepted_total=self.executor.accepted_total, finished_total=self.executor.finished_total,
+            window=window, mem_free=mem_free,
+        )
+        return self._last_report
+
+    def current_report(self) -> LoadReport:
+        """A report of this instant (sent with a 'busy' rejection)."""
+        running = len(self.executor.running)
+        bg = self.executor.background
+        return LoadReport(
+            robot=self.robot, incarnation=self.incarnation, seq=self._report_seq, cores=self.cores,
+            speed=self.speed, cpu_busy=min(float(self.cores), bg + running), runnable=bg + running,
+            ramps_running=running, ramps_avg=float(running),
+            accepted_total=self.executor.accepted_total, finished_total=self.executor.finished_total,
+            window=0.0,
+        )
+
+    def statistics(self) -> NodeStatistics:
+        o, e = self.origin, self.executor
+        return NodeStatistics(
+            robot=self.robot, placements=o.placements, delivered=o.delivered, discarded=o.discarded,
+            anomalies=o.anomalies, host_failures=o.host_failures, rejections=o.rejections,
+            refused=e.refused, accepted_total=e.accepted_total, finished_total=e.finished_total,
+            running=len(e.running), active_programs=o.active(), blacklisted=self.view.blacklisted(),
+            reports_received=self.view.reports_received,
+        )

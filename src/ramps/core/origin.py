@@ -1,0 +1,324 @@
+"""The origin side of the protocol: every autonomous program this robot owns.
+
+How this works: ``Origin`` keeps the robot's autonomous programs, their
+timers (connect timeout, heartbeat timeout, back-off) in one heap, and an
+index of programs by host. Each input is turned into a program event and
+dispatched through ``ramps.core.program.TRANSITIONS``; handlers return
+actions into the list they are given. Results are delivered exactly once:
+a program keeps the set of attempts whose results it still wants (``live``);
+anything else is acknowledged, so the host stops resending, and discarded.
+
+Rules: no clock (``now`` comes in), no I/O, randomness from the injected
+``rng``. Remote misbehaviour (a message about a program we never had, an
+illegal transition caused by a peer) is counted in ``anomalies`` and never
+raises.
+"""
+
+from __future__ import annotations
+
+import heapq
+import random
+
+from ramps.core.config import RampsConfig
+from ramps.core.cost import NetworkEstimate
+from ramps.core.events import Action, Deliver, Note, Send, Submit
+from ramps.core.loadview import LoadView
+from ramps.core.messages import (
+    CancelProgram,
+    Heartbeat,
+    OffloadAccepted,
+    OffloadRejected,
+    OffloadRequest,
+    ProgramResult,
+    ResultAck,
+)
+from ramps.core.policy import Policy, PlacementRequest
+from ramps.core.program import FINAL, AutonomousProgram, ProgramState, ProtocolError
+
+S = ProgramState
+
+
+class Origin:
+    def __init__(
+        self,
+        me: str,
+        view: LoadView,
+        policy: Policy,
+        config: RampsConfig,
+        rng: random.Random,
+        net: NetworkEstimate,
+    ) -> None:
+        self.me = me
+        self.view = view
+        self.policy = policy
+        self.config = config
+        self.rng = rng
+        self.net = net
+        self.programs: dict[str, AutonomousProgram] = {}
+        self._by_host: dict[str, set[str]] = {}
+        self._timers: list[tuple[float, int, str]] = []
+        self._seq = 0
+        # statistics
+        self.delivered = 0
+        self.discarded = 0
+        self.anomalies = 0
+        self.placements = 0
+        self.host_failures = 0
+        self.rejections = 0
+
+    # ================================================================ inputs
+    def submit(self, sub: Submit, now: float, out: list[Action]) -> None:
+        if sub.program_id in self.programs:
+            raise ValueError(f"program id {sub.program_id!r} was already submitted")
+        ap = AutonomousProgram(sub, now)
+        self.programs[sub.program_id] = ap
+        self.place(ap, now, out)
+
+    def cancel(self, program_id: str, now: float, out: list[Action]) -> None:
+        ap = self.programs.get(program_id)
+        if ap is None:
+            raise KeyError(f"no program {program_id!r} was submitted here")
+        if ap.state not in FINAL:
+            self._step(ap, "cancel", now, out, None)
+
+    def on_accepted(self, msg: OffloadAccepted, now: float, out: list[Action]) -> None:
+        self._route(msg.program_id, msg.attempt, msg.host, "accepted", now, out, msg)
+
+    def on_rejected(self, msg: OffloadRejected, now: float, out: list[Action]) -> None:
+        self._route(msg.program_id, msg.attempt, msg.host, "rejected", now, out, msg)
+
+    def on_result(self, msg: ProgramResult, now: float, out: list[Action]) -> None:
+        self._route(msg.program_id, msg.attempt, msg.host, "result", now, out, msg)
+
+    def on_heartbeat(self, msg: Heartbeat, now: float, out: list[Action]) -> None:
+        for ref in msg.programs:
+            self._route(ref.program_id, ref.attempt, msg.host, "heartbeat", now, out, None)
+
+    def on_peer_lost(self, robot: str, now: float, out: list[Action]) -> None:
+        self.view.set_lost(robot, True)
+        for pid in list(self._by_host.get(robot, ())):
+            ap = self.programs[pid]
+            if ap.host == robot and ap.state in (S.OFFERED, S.RUNNING):
+                self._step(ap, "host_lost", now, out, None)
+
+    def on_peer_alive(self, robot: str) -> None:
+        self.view.set_lost(robot, False)
+
+    # ================================================================ timers
+    def next_deadline(self) -> float | None:
+        while self._timers:
+            when, _, pid = self._timers[0]
+            ap = self.programs.get(pid)
+            if ap is not None and ap.deadline == when:
+                return when
+            heapq.heappop(self._timers)  # stale entry
+        return None
+
+    def tick(self, now: float, out: list[Action]) -> None:
+        while self._timers and self._timers[0][0] <= now:
+            when, _, pid = heapq.heappop(self._timers)
+            ap = self.programs.get(pid)
+            if ap is None or ap.deadline != when or ap.state in FINAL:
+                continue
+            ap.deadline = None
+            kind = ap.timer
+            if kind == "heartbeat_timeout":
+                due = ap.last_heard + self.config.heartbeat_timeout
+                if due > now:  # heard from the host since the timer was set
+                    self._set_timer(ap, due, kind)
+                    continue
+            self._step(ap, kind, now, out, None)
+
+    def _set_timer(self, ap: AutonomousProgram, when: float, kind: str) -> None:
+        ap.deadline = when
+        ap.timer = kind
+        self._seq += 1
+        heapq.heappush(self._timers, (when, self._seq, ap.program_id))
+
+    # ================================================================ dispatch
+    def _route(self, pid: str, attempt: int, host: str, event: str, now: float, out: list[Action], msg) -> None:
+        ap = self.programs.get(pid)
+        if ap is None:
+            self._anomaly(out, pid, host, f"{event} for a program this robot never submitted")
+            if event == "result":
+                out.append(Send(to=host, msg=ResultAck(program_id=pid, attempt=attempt, origin=self.me)))
+            return
+        if attempt == ap.attempt and host == ap.host and ap.state not in FINAL:
+            self._step(ap, event, now, out, msg)
+            return
+        # about an attempt that is not the current one
+        if event == "result":
+            out.append(Send(to=host, msg=ResultAck(program_id=pid, attempt=attempt, origin=self.me)))
+            if ap.state not in FINAL and ap.live.get(attempt) == host:
+                self._finish_with(ap, msg, now, out)
+            else:
+                self.discarded += 1
+                out.append(Note(what="discarded", program_id=pid, robot=host, attempt=attempt,
+                                detail="stale result from an attempt no longer wanted"))
+        elif event in ("accepted", "heartbeat"):
+            if ap.live.get(attempt) == host and ap.state not in FINAL:
+                return  # an attempt kept alive while the origin was cut off
+            # the host runs a copy nobody wants: stop it
+            out.append(Send(to=host, msg=CancelProgram(program_id=pid, attempt=attempt, origin=self.me)))
+        # a rejection of an old attempt needs nothing
+
+    def _step(self, ap: AutonomousProgram, event: str, now: float, out: list[Action], msg) -> None:
+        try:
+            name = ap.handler_for(event)
+        except ProtocolError as exc:
+            if event in ("cancel",):
+                raise
+            self._anomaly(out, ap.program_id, ap.host or "", str(exc))
+            return
+        getattr(self, "_" + name)(ap, now, out, msg, event)
+
+    def _anomaly(self, out: list[Action], pid: str, robot: str, detail: str) -> None:
+        self.anomalies += 1
+        out.append(Note(what="anomaly", program_id=pid, robot=robot, detail=detail))
+
+    # ================================================================ handlers
+    def _ignore(self, ap, now, out, msg, event) -> None:
+        pass
+
+    def _place(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
+        self.place(ap, now, out)
+
+    def place(self, ap: AutonomousProgram, now: float, out: list[Action], *, host: str | None = None) -> None:
+        sub = ap.submit
+        expected = None
+        if host is None and sub.local_only:
+            host = self.me
+        if host is None:
+            placement = self.policy.choose(
+                PlacementRequest(program_id=ap.program_id, work=sub.work,
+                                 payload_size=sub.payload_size, result_size=sub.result_size),
+                self.view, now, self.rng, net=self.net, config=self.config,
+                exclude=frozenset(ap.excluded),
+            )
+            host = placement.host
+            if self.policy.negotiates:
+                expected = placement.expected_runnable
+        if ap.host is not None and ap.host not in ap.live.values():
+            self._by_host.get(ap.host, set()).discard(ap.program_id)
+        ap.attempt += 1
+        ap.host = host
+        ap.live[ap.attempt] = host
+        ap.state = S.OFFERED
+        ap.last_heard = now
+        self._by_host.setdefault(host, set()).add(ap.program_id)
+        self.view.book(host, ap.program_id, ap.attempt)
+        self.placements += 1
+        out.append(Note(what="placed", program_id=ap.program_id, robot=host, attempt=ap.attempt))
+        out.append(Send(to=host, msg=OffloadRequest(
+            program_id=ap.program_id, attempt=ap.attempt, origin=self.me, host=host,
+            program=sub.program, args=sub.args, payload_size=sub.payload_size, work=sub.work,
+            expected_runnable=expected, force=ap.rejections >= self.config.max_rejections,
+        )))
+        self._set_timer(ap, now + self.config.connect_timeout, "connect_timeout")
+
+    def _on_accepted(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
+        if isinstance(msg, OffloadAccepted):
+            self.view.accepted(ap.host, ap.program_id, ap.attempt, msg.accept_seq)
+        ap.state = S.RUNNING
+        ap.last_heard = now
+        ap.rejections = 0
+        ap.excluded.clear()
+        out.append(Note(what="accepted", program_id=ap.program_id, robot=ap.host, attempt=ap.attempt))
+        self._set_timer(ap, now + self.config.heartbeat_timeout, "heartbeat_timeout")
+
+    def _on_heartbeat(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
+        ap.last_heard = now
+
+    def _on_rejected(self, ap: AutonomousProgram, now: float, out: list[Action], msg: OffloadRejected, event) -> None:
+        self.rejections += 1
+        host = ap.host
+        self._leave_host(ap, host, None)
+        ap.live.pop(ap.attempt, None)
+        out.append(Note(what="rejected", program_id=ap.program_id, robot=host, attempt=ap.attempt,
+                        detail=f"{msg.reason}: {msg.detail}"))
+        if msg.permanent:
+            self._deliver(ap, now, out, ok=False, error=f"{host} refused program {ap.submit.program!r}: {msg.reason}"
+                          + (f" ({msg.detail})" if msg.detail else ""), host=host)
+            return
+        if msg.report is not None:
+            self.view.on_report(msg.report, now, fresh=True)
+        ap.rejections += 1
+        ap.excluded.add(host)
+        self.place(ap, now, out)
+
+    def _on_host_failed(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
+        host = ap.host
+        reason = event
+        self.host_failures += 1
+        ap.failures += 1
+        ap.deadline = None
+        out.append(Note(what="failed", program_id=ap.program_id, robot=host, attempt=ap.attempt, detail=reason))
+        if host != self.me and self.view.isolated(now, self.config.isolation_timeout):
+            # we are the ones cut off: keep the remote attempt's result wanted
+            # and run the program here meanwhile; first result wins
+            out.append(Note(what="isolated", program_id=ap.program_id, robot=host, attempt=ap.attempt))
+            self.place(ap, now, out, host=self.me)
+            return
+        self._leave_host(ap, host, None)
+        ap.live.pop(ap.attempt, None)
+        out.append(Send(to=host, msg=CancelProgram(program_id=ap.program_id, attempt=ap.attempt, origin=self.me)))
+        if self.view.blacklist(host):
+            out.append(Note(what="blacklisted", robot=host, program_id=ap.program_id, detail=reason))
+        self._backoff(ap, now, out)
+
+    def _backoff(self, ap: AutonomousProgram, now: float, out: list[Action]) -> None:
+        if ap.failures >= self.config.max_attempts:
+            self._deliver(ap, now, out, ok=False, host=ap.host or "",
+                          error=f"gave up after {ap.failures} failed attempts")
+            return
+        ap.state = S.BACKOFF
+        wait = self.rng.uniform(0.0, self.config.backoff_max)
+        out.append(Note(what="backoff", program_id=ap.program_id, attempt=ap.attempt, detail=f"{wait:.3f}"))
+        self._set_timer(ap, now + wait, "backoff_done")
+
+    def _on_result(self, ap: AutonomousProgram, now: float, out: list[Action], msg: ProgramResult, event) -> None:
+        out.append(Send(to=msg.host, msg=ResultAck(program_id=ap.program_id, attempt=msg.attempt, origin=self.me)))
+        self._finish_with(ap, msg, now, out)
+
+    def _finish_with(self, ap: AutonomousProgram, msg: ProgramResult, now: float, out: list[Action]) -> None:
+        if not msg.ok and msg.retryable:
+            # the worker died under the program, not the program's own error
+            self._leave_host(ap, msg.host, msg.finish_seq, attempt=msg.attempt)
+            ap.live.pop(msg.attempt, None)
+            ap.failures += 1
+            out.append(Note(what="failed", program_id=ap.program_id, robot=msg.host, attempt=msg.attempt,
+                            detail=f"worker lost: {msg.error}"))
+            if ap.live:
+                return  # another live attempt may still deliver
+            ap.deadline = None
+            self._backoff(ap, now, out)
+            return
+        self._leave_host(ap, msg.host, msg.finish_seq, attempt=msg.attempt)
+        ap.live.pop(msg.attempt, None)
+        self._deliver(ap, now, out, ok=msg.ok, value=msg.value, error=msg.error, host=msg.host)
+
+    def _on_cancel(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
+        self._deliver(ap, now, out, ok=False, error="cancelled by the application", host=ap.host or "")
+
+    # ================================================================ helpers
+    def _deliver(self, ap: AutonomousProgram, now: float, out: list[Action], *, ok: bool,
+                 value: bytes = b"", error: str = "", host: str = "") -> None:
+        for attempt, h in ap.live.items():  # stop every other copy
+            out.append(Send(to=h, msg=CancelProgram(program_id=ap.program_id, attempt=attempt, origin=self.me)))
+            self._leave_host(ap, h, None, attempt=attempt)
+        ap.live.clear()
+        for ids in self._by_host.values():  # the index only serves live programs
+            ids.discard(ap.program_id)
+        ap.state = S.DONE if ok else S.FAILED
+        ap.deadline = None
+        self.delivered += 1
+        out.append(Deliver(program_id=ap.program_id, ok=ok, value=value, error=error, host=host, attempts=ap.attempt))
+
+    def _leave_host(self, ap: AutonomousProgram, host: str | None, finish_seq: int | None,
+                    *, attempt: int | None = None) -> None:
+        if host is None:
+            return
+        self.view.released(host, ap.program_id, ap.attempt if attempt is None else attempt, finish_seq)
+
+    def active(self) -> int:
+        return sum(1 for ap in self.programs.values() if ap.state not in FINAL)

@@ -1,0 +1,121 @@
+"""The autonomous program: states, and the one table of legal transitions.
+
+How this works: an autonomous program (AP) is created on its origin robot by
+``Submit``. It places itself with the origin's policy, offers its parameters
+to the chosen host (``OFFERED``), runs there under heartbeat watch
+(``RUNNING``), and ends exactly once (``DONE``/``FAILED``) by delivering its
+result or a clear error. When its host fails (no acceptance in time, silence,
+or the transport reports the host lost) it blacklists the host, waits a
+random back-off (``BACKOFF``) and places itself again; when a host turns it
+away because it is busier than the origin thought, it re-places at once.
+
+``TRANSITIONS[state][event]`` names the handler (a method of ``Origin``) for
+every legal pair. Events about an attempt other than the current one never
+reach the table: the origin settles them first (cancel the stray copy, or
+discard a stale result). A pair missing from the table is an error that names
+the program, state and event: for remote input the origin counts it as an
+anomaly and drops it; for local misuse it raises.
+
+    state      event             handler            next
+    offered    accepted          on_accepted        running
+    offered    rejected          on_rejected        offered | failed
+    offered    connect_timeout   on_host_failed     backoff (or offered locally, if cut off)
+    offered    host_lost         on_host_failed     backoff
+    offered    heartbeat         on_accepted        running  (acceptance lost/reordered)
+    offered    result            on_result          done | failed | backoff
+    running    heartbeat         on_heartbeat       running
+    running    heartbeat_timeout on_host_failed     backoff
+    running    host_lost         on_host_failed     backoff
+    running    result            on_result          done | failed | backoff
+    running    accepted          ignore             running  (duplicate)
+    backoff    backoff_done      place              offered
+    any live   cancel            on_cancel          failed
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+
+from ramps.core.events import Submit
+
+
+class ProgramState(StrEnum):
+    OFFERED = "offered"
+    RUNNING = "running"
+    BACKOFF = "backoff"
+    DONE = "done"
+    FAILED = "failed"
+
+
+class ProtocolError(Exception):
+    """An event that has no transition from the program's current state."""
+
+    def __init__(self, program_id: str, state: ProgramState, event: str) -> None:
+        super().__init__(f"program {program_id}: no transition from state {state.value!r} on event {event!r}")
+        self.program_id = program_id
+        self.state = state
+        self.event = event
+
+
+S = ProgramState
+TRANSITIONS: dict[ProgramState, dict[str, str]] = {
+    S.OFFERED: {
+        "accepted": "on_accepted",
+        "rejected": "on_rejected",
+        "connect_timeout": "on_host_failed",
+        "host_lost": "on_host_failed",
+        "heartbeat": "on_accepted",
+        "result": "on_result",
+        "cancel": "on_cancel",
+    },
+    S.RUNNING: {
+        "heartbeat": "on_heartbeat",
+        "heartbeat_timeout": "on_host_failed",
+        "host_lost": "on_host_failed",
+        "result": "on_result",
+        "accepted": "ignore",
+        "cancel": "on_cancel",
+    },
+    S.BACKOFF: {
+        "backoff_done": "place",
+        "cancel": "on_cancel",
+    },
+    S.DONE: {},
+    S.FAILED: {},
+}
+
+FINAL = frozenset({S.DONE, S.FAILED})
+
+
+class AutonomousProgram:
+    """One submitted computation, as its origin tracks it."""
+
+    __slots__ = (
+        "program_id", "submit", "state", "attempt", "host", "live", "deadline", "timer",
+        "last_heard", "rejections", "excluded", "submitted_at", "failures",
+    )
+
+    def __init__(self, submit: Submit, now: float) -> None:
+        self.program_id = submit.program_id
+        self.submit = submit
+        self.state = S.OFFERED
+        #: number of the current attempt (1 for the first placement)
+        self.attempt = 0
+        self.host: str | None = None
+        #: attempts whose results are still wanted: attempt -> host
+        self.live: dict[int, str] = {}
+        #: absolute time of the pending timer, and which timer it is
+        self.deadline: float | None = None
+        self.timer: str | None = None
+        self.last_heard = now
+        self.rejections = 0
+        self.excluded: set[str] = set()
+        self.submitted_at = now
+        #: host failures and lost workers so far
+        self.failures = 0
+
+    def handler_for(self, event: str) -> str:
+        try:
+            return TRANSITIONS[self.state][event]
+        except KeyError:
+            raise ProtocolError(self.program_id, self.state, event) from None

@@ -1,0 +1,104 @@
+"""A simulated robot's processors: processor sharing over ``cores``.
+
+How this works: with ``k`` ramps programs and ``b`` background processes on
+``c`` cores, every task runs at ``speed * min(1, c / (k + b))`` work units
+per second. Time only moves forward through ``advance(now)``; adding or
+removing a job first advances, then the rate changes. The CPU also keeps
+running integrals of busy cores, runnable tasks and ramps programs, so the
+load publisher can average them over its window exactly as a real robot's
+``/proc/stat`` sampling would. A frozen robot (SIGSTOP) makes no progress.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+Key = tuple[str, int]
+
+
+class CPU:
+    __slots__ = ("cores", "speed", "background", "jobs", "t", "frozen", "_hist", "_ib", "_ir", "_ik")
+
+    def __init__(self, cores: int, speed: float, background: int, now: float) -> None:
+        self.cores = cores
+        self.speed = speed
+        self.background = background
+        #: remaining work per running program
+        self.jobs: dict[Key, float] = {}
+        self.t = now
+        self.frozen = False
+        # integrals of busy cores, runnable tasks, ramps programs since start
+        self._ib = self._ir = self._ik = 0.0
+        self._hist: deque[tuple[float, float, float, float, float, float, float]] = deque()
+        self._mark()
+
+    # ------------------------------------------------------------ rates
+    def runnable(self) -> int:
+        return 0 if self.frozen else len(self.jobs) + self.background
+
+    def rate(self) -> float:
+        """Work units per second each task gets now."""
+        n = self.runnable()
+        return 0.0 if n == 0 else self.speed * min(1.0, self.cores / n)
+
+    def _rates(self) -> tuple[float, float, float]:
+        n = self.runnable()
+        return float(min(self.cores, n)), float(n), 0.0 if self.frozen else float(len(self.jobs))
+
+    def _mark(self) -> None:
+        rb, rr, rk = self._rates()
+        self._hist.append((self.t, self._ib, self._ir, self._ik, rb, rr, rk))
+
+    # ------------------------------------------------------------ time
+    def advance(self, now: float) -> None:
+        dt = now - self.t
+        if dt <= 0:
+            return
+        rb, rr, rk = self._rates()
+        self._ib += rb * dt
+        self._ir += rr * dt
+        self._ik += rk * dt
+        if self.jobs and not self.frozen:
+            done = self.rate() * dt
+            for key in self.jobs:
+                self.jobs[key] -= done
+        self.t = now
+
+    def add(self, key: Key, work: float, now: float) -> None:
+        self.advance(now)
+        self.jobs[key] = work
+        self._mark()
+
+    def remove(self, key: Key, now: float) -> bool:
+        self.advance(now)
+        found = self.jobs.pop(key, None) is not None
+        self._mark()
+        return found
+
+    def set_frozen(self, frozen: bool, now: float) -> None:
+        self.advance(now)
+        self.frozen = frozen
+        self._mark()
+
+    def next_completion(self) -> tuple[float, Key] | None:
+        """When the next job finishes if nothing changes, and which."""
+        if not self.jobs or self.frozen:
+            return None
+        key = min(self.jobs, key=self.jobs.__getitem__)
+        return self.t + max(0.0, self.jobs[key]) / self.rate(), key
+
+    # ------------------------------------------------------------ measurement
+    def averages(self, now: float, window: float) -> tuple[float, float, float]:
+        """Mean busy cores, runnable tasks and ramps programs over the last
+        ``window`` seconds (what a load publisher measures)."""
+        self.advance(now)
+        start = now - window
+        hist = self._hist
+        while len(hist) > 1 and hist[1][0] <= start:
+            hist.popleft()
+        t0, ib0, ir0, ik0, rb, rr, rk = hist[0]
+        if start < t0:  # the robot has not been up for a whole window
+            start, window = t0, max(now - t0, 1e-9)
+        d = start - t0
+        ib, ir, ik = ib0 + rb * d, ir0 + rr * d, ik0 + rk * d
+        return (self._ib - ib) / window, (self._ir - ir) / window, (self._ik - ik) / window

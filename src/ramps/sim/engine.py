@@ -1,0 +1,439 @@
+"""The discrete-event simulator: a team of robots in virtual time.
+
+How this works: one heap of timed events drives everything. Each simulated
+robot has a ``CPU`` (processor sharing), a load publisher that reports every
+``publisher.period`` seconds averaged over ``publisher.window`` (so decisions
+use stale information, as on real robots), and a ``ramps.core.node.Node``,
+the very same object the real runtime drives. The simulator only applies the
+node's actions: ``Send`` becomes a message on a link with latency, bandwidth
+and queueing; ``StartProgram`` a job on the CPU; ``Deliver`` a record. No
+placement or recovery logic lives here.
+
+Faults: ``crash`` removes the robot and all its state (a new incarnation
+starts on ``recover``); ``network`` isolates it while it keeps computing;
+``freeze`` stops it entirely (SIGSTOP) with its state kept. Messages in
+flight across a link that goes down are lost. With liveliness on, teammates
+learn of a crash after ``network.crash_detect`` and of a cut or freeze after
+``network.lease``, as Zenoh reports them.
+
+Determinism: one ``random.Random(seed)`` feeds the simulator, and each node
+gets its own generator seeded from it; ties in time are broken by insertion
+order. The same scenario and seed give the same trace.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import random
+import time as _wallclock  # only for reporting how long a run took
+from typing import Any, Callable
+
+import msgspec
+
+from ramps.core.cost import NetworkEstimate
+from ramps.core.events import Deliver, Note, PeerAlive, PeerLost, ProgramFinished, Received, Send, StartProgram, StopProgram, Submit
+from ramps.core.messages import LoadReport, wire_size
+from ramps.core.node import Node, NodeStatistics
+from ramps.sim.cpu import CPU
+from ramps.sim.scenario import FaultSpec, RobotSpec, Scenario
+
+
+class ProgramRecord(msgspec.Struct, kw_only=True):
+    program_id: str
+    origin: str
+    submitted_at: float
+    delivered_at: float | None = None
+    host: str | None = None
+    ok: bool | None = None
+    attempts: int = 0
+    error: str = ""
+    deliveries: int = 0
+
+
+class TraceEntry(msgspec.Struct, frozen=True, array_like=True):
+    t: float
+    robot: str
+    what: str
+    program_id: str
+    other: str
+    attempt: int
+    detail: str
+
+
+class SimResult(msgspec.Struct, kw_only=True):
+    scenario: str
+    policy: str
+    seed: int
+    robots: list[str]
+    #: delivered programs per robot that ran them (the paper's distribution)
+    distribution: dict[str, int]
+    #: seconds from the first submission to the last delivery
+    makespan: float
+    completed: int
+    failed: int
+    #: programs of a surviving origin never delivered / delivered more than once
+    lost: int
+    duplicated: int
+    programs: list[ProgramRecord]
+    statistics: list[NodeStatistics]
+    snapshots: dict[str, dict[str, int]]
+    events: int
+    messages_sent: int
+    messages_dropped: int
+    end_time: float
+    wall_seconds: float
+    trace: list[TraceEntry] = []
+
+
+class _Robot:
+    __slots__ = ("spec", "node", "cpu", "alive", "net_up", "frozen", "incarnation", "epoch",
+                 "wake_at", "wake_token", "done_token", "pub_phase")
+
+    def __init__(self, spec: RobotSpec) -> None:
+        self.spec = spec
+        self.node: Node | None = None
+        self.cpu: CPU | None = None
+        self.alive = False
+        self.net_up = True
+        self.frozen = False
+        self.incarnation = 0
+        #: bumped whenever the robot's links break, to drop messages in flight
+        self.epoch = 0
+        self.wake_at = math.inf
+        self.wake_token = 0
+        self.done_token = 0
+        self.pub_phase = 0.0
+
+    @property
+    def reachable(self) -> bool:
+        return self.alive and self.net_up and not self.frozen
+
+
+class Simulator:
+    def __init__(self, scenario: Scenario, *, policy: str | None = None, seed: int | None = None,
+                 trace: bool = False, snapshots: list[float] | None = None) -> None:
+        self.sc = scenario.check()
+        self.policy = policy or scenario.policy
+        self.seed = scenario.seed if seed is None else seed
+        self.rng = random.Random(self.seed)
+        self.now = 0.0
+        self._heap: list[tuple[float, int, Callable[..., None], Any]] = []
+        self._seq = 0
+        self.robots: dict[str, _Robot] = {r.name: _Robot(r) for r in self.sc.team()}
+        self.names = list(self.robots)
+        self.net = self.sc.network
+        self._link_free: dict[tuple[str, str], float] = {}
+        self.records: dict[str, ProgramRecord] = {}
+        self._true_work: dict[str, float] = {}
+        self._result_size: dict[str, int] = {}
+        self.subscribers = sorted({p.origin for p in self.sc.programs})
+        self._pending = 0
+        self.events = 0
+        self.sent = 0
+        self.dropped = 0
+        self._trace_on = trace
+        self.trace: list[TraceEntry] = []
+        self._snap_times = sorted(snapshots or [])
+        self.snapshots: dict[str, dict[str, int]] = {}
+        self._first_submit = math.inf
+        self._last_delivery = 0.0
+
+    # ================================================================ event heap
+    def _at(self, t: float, fn: Callable[..., None], arg: Any = None) -> None:
+        self._seq += 1
+        heapq.heappush(self._heap, (t, self._seq, fn, arg))
+
+    def run(self) -> SimResult:
+        started = _wallclock.perf_counter()
+        self._setup()
+        until = self.sc.until if self.sc.until is not None else 86_400.0
+        heap = self._heap
+        while heap and self._pending > 0:
+            t, _, fn, arg = heapq.heappop(heap)
+            if t > until:
+                self.now = until
+                break
+            self.now = t
+            self.events += 1
+            fn(arg)
+        return self._result(_wallclock.perf_counter() - started)
+
+    # ================================================================ setup
+    def _setup(self) -> None:
+        for r in self.robots.values():
+            self._boot(r, 0.0)
+        w = self.sc.warmup
+        for entry in self.sc.programs:
+            t = w + entry.at
+            for i in range(entry.count):
+                jitter = self.rng.uniform(-entry.jitter, entry.jitter) if entry.jitter else 0.0
+                when = max(w, t + i * entry.spacing + jitter)
+                self._pending += 1
+                self._at(when, self._submit, entry)
+        for f in self.sc.faults:
+            self._at(w + f.at, self._fault, f)
+        for t in self._snap_times:
+            self._at(w + t, self._snapshot, t)
+
+    def _boot(self, r: _Robot, now: float) -> None:
+        spec = r.spec
+        r.incarnation += 1
+        r.alive, r.net_up, r.frozen = True, True, False
+        r.epoch += 1
+        r.cpu = CPU(spec.cores, spec.speed, spec.background, now)
+        r.node = Node(
+            spec.name, cores=spec.cores, speed=spec.speed, policy=self.policy, config=self.sc.config,
+            rng=random.Random(self.rng.getrandbits(64)), incarnation=r.incarnation,
+            net=NetworkEstimate(latency=self.net.latency, bandwidth=self.net.bandwidth),
+        )
+        r.node.executor.background = float(spec.background)
+        r.wake_at = math.inf
+        r.pub_phase = self.rng.uniform(0.0, self.sc.publisher.period)
+        self._at(now + r.pub_phase, self._publish, (r, r.incarnation))
+
+    # ================================================================ node driving
+    def _apply(self, r: _Robot, actions: list) -> None:
+        node = r.node
+        for a in actions:
+            if isinstance(a, Send):
+                self._send(r, a.to, a.msg)
+            elif isinstance(a, StartProgram):
+                work = self._true_work.get(a.program_id, a.work)
+                r.cpu.add((a.program_id, a.attempt), work, self.now)
+                self._cpu_changed(r)
+            elif isinstance(a, StopProgram):
+                if r.cpu.remove((a.program_id, a.attempt), self.now):
+                    self._cpu_changed(r)
+            elif isinstance(a, Deliver):
+                self._delivered(r, a)
+            elif isinstance(a, Note):
+                if self._trace_on:
+                    self.trace.append(TraceEntry(self.now, node.robot, a.what, a.program_id, a.robot, a.attempt, a.detail))
+        self._schedule_wake(r)
+
+    def _handle(self, r: _Robot, event) -> None:
+        self._apply(r, r.node.handle(event, self.now))
+
+    def _schedule_wake(self, r: _Robot) -> None:
+        d = r.node.next_deadline()
+        if d is None or d >= r.wake_at:
+            return
+        r.wake_at = d
+        r.wake_token += 1
+        self._at(max(d, self.now), self._wake, (r, r.wake_token))
+
+    def _wake(self, arg) -> None:
+        r, token = arg
+        if token != r.wake_token or not r.alive:
+            return
+        r.wake_at = math.inf
+        if r.frozen:
+            return  # a frozen robot's timers fire when it thaws
+        self._apply(r, r.node.tick(self.now))
+
+    # ================================================================ CPU
+    def _cpu_changed(self, r: _Robot) -> None:
+        r.done_token += 1
+        nxt = r.cpu.next_completion()
+        if nxt is not None:
+            self._at(nxt[0], self._cpu_done, (r, r.done_token, r.incarnation))
+
+    def _cpu_done(self, arg) -> None:
+        r, token, inc = arg
+        if token != r.done_token or inc != r.incarnation or not r.alive:
+            return
+        cpu = r.cpu
+        cpu.advance(self.now)
+        finished = [k for k, left in cpu.jobs.items() if left <= 1e-9]
+        for key in finished:
+            cpu.remove(key, self.now)
+        self._cpu_changed(r)
+        for pid, attempt in finished:
+            self._handle(r, ProgramFinished(program_id=pid, attempt=attempt, ok=True,
+                                            value=b"", result_size=self._result_size.get(pid, 0)))
+
+    # ================================================================ load publisher
+    def _publish(self, arg) -> None:
+        r, inc = arg
+        if inc != r.incarnation or not r.alive:
+            return
+        pub = self.sc.publisher
+        self._at(self.now + pub.period, self._publish, arg)
+        if r.frozen:
+            return
+        busy, runnable, ramps_avg = r.cpu.averages(self.now, pub.window)
+        report = r.node.make_report(cpu_busy=busy, runnable=runnable, ramps_avg=ramps_avg, window=pub.window)
+        if r.spec.name in self.subscribers:
+            self._handle(r, Received(sender=r.spec.name, msg=report))
+        if not r.net_up:
+            return
+        delay = self.net.latency + wire_size(report) / self.net.bandwidth
+        self._at(self.now + delay, self._deliver_report, (r, r.epoch, report))
+
+    def _deliver_report(self, arg) -> None:
+        src, epoch, report = arg
+        if epoch != src.epoch:
+            return
+        for name in self.subscribers:
+            if name == src.spec.name:
+                continue
+            dst = self.robots[name]
+            if not dst.reachable or (self.net.loss and self.rng.random() < self.net.loss):
+                continue
+            self._handle(dst, Received(sender=src.spec.name, msg=report))
+
+    # ================================================================ network
+    def _send(self, src: _Robot, to: str, msg) -> None:
+        self.sent += 1
+        dst = self.robots.get(to)
+        if dst is None or not src.reachable or not dst.reachable:
+            self.dropped += 1
+            return
+        if self.net.loss and self.rng.random() < self.net.loss:
+            self.dropped += 1
+            return
+        link = (src.spec.name, to)
+        start = max(self.now, self._link_free.get(link, 0.0))
+        tx = wire_size(msg) / self.net.bandwidth
+        self._link_free[link] = start + tx
+        self._at(start + tx + self.net.latency, self._arrive, (src, src.epoch, dst, dst.epoch, msg))
+
+    def _arrive(self, arg) -> None:
+        src, se, dst, de, msg = arg
+        if se != src.epoch or de != dst.epoch or not dst.reachable:
+            self.dropped += 1
+            return
+        self._handle(dst, Received(sender=src.spec.name, msg=msg))
+
+    # ================================================================ workload
+    def _submit(self, entry) -> None:
+        origin = self.robots[entry.origin]
+        pid = f"{entry.origin}#{len(self.records) + 1}"
+        self.records[pid] = ProgramRecord(program_id=pid, origin=entry.origin, submitted_at=self.now)
+        self._first_submit = min(self._first_submit, self.now)
+        if not origin.alive:
+            self._pending -= 1  # an origin that is down submits nothing
+            self.records[pid].error = "origin down at submit time"
+            return
+        self._true_work[pid] = entry.work
+        self._result_size[pid] = entry.result
+        self._handle(origin, Submit(
+            program_id=pid, program=entry.program, payload_size=entry.payload,
+            work=entry.work_estimate if entry.work_estimate is not None else entry.work,
+            result_size=entry.result,
+        ))
+
+    def _delivered(self, r: _Robot, d: Deliver) -> None:
+        rec = self.records[d.program_id]
+        rec.deliveries += 1
+        if rec.deliveries > 1:
+            return
+        rec.delivered_at = self.now
+        rec.host, rec.ok, rec.attempts, rec.error = d.host, d.ok, d.attempts, d.error
+        self._pending -= 1
+        self._last_delivery = max(self._last_delivery, self.now)
+
+    # ================================================================ faults
+    def _fault(self, f: FaultSpec) -> None:
+        r = self.robots[f.robot]
+        if self._trace_on:
+            self.trace.append(TraceEntry(self.now, f.robot, "fault", "", "", 0, f.kind))
+        if f.kind == "crash" and r.alive:
+            r.alive = False
+            r.epoch += 1
+            r.cpu = None
+            self._orphan_programs_of(r)
+            self._liveliness(r, lost=True, delay=self.net.crash_detect)
+        elif f.kind == "network" and r.alive and r.net_up:
+            r.net_up = False
+            r.epoch += 1
+            self._liveliness(r, lost=True, delay=self.net.lease)
+        elif f.kind == "freeze" and r.alive and not r.frozen:
+            r.frozen = True
+            r.epoch += 1
+            r.cpu.set_frozen(True, self.now)
+            self._liveliness(r, lost=True, delay=self.net.lease)
+        elif f.kind == "recover":
+            if not r.alive:
+                self._boot(r, self.now)
+            else:
+                if r.frozen:
+                    r.frozen = False
+                    r.cpu.set_frozen(False, self.now)
+                    self._cpu_changed(r)
+                    r.wake_at = math.inf
+                    self._schedule_wake(r)
+                r.net_up = True
+            self._liveliness(r, lost=False, delay=self.net.crash_detect)
+
+    def _orphan_programs_of(self, r: _Robot) -> None:
+        """A crashed origin's programs are nobody's concern any more (paper 3.3)."""
+        for rec in self.records.values():
+            if rec.origin == r.spec.name and rec.deliveries == 0 and not rec.error:
+                rec.error = "origin crashed"
+                self._pending -= 1
+
+    def _liveliness(self, r: _Robot, *, lost: bool, delay: float) -> None:
+        if self.net.liveliness:
+            self._at(self.now + delay, self._notify_liveliness, (r, lost))
+
+    def _notify_liveliness(self, arg) -> None:
+        r, lost = arg
+        name = r.spec.name
+        if lost and r.reachable:
+            return  # it came back before anybody noticed
+        for other in self.robots.values():
+            if other is r or not other.alive or other.frozen:
+                continue
+            if lost:
+                if other.net_up:
+                    self._handle(other, PeerLost(robot=name))
+                if r.alive and not r.net_up and not r.frozen:
+                    self._handle(r, PeerLost(robot=other.spec.name))
+            elif r.reachable and other.reachable:
+                self._handle(other, PeerAlive(robot=name))
+                self._handle(r, PeerAlive(robot=other.spec.name))
+
+    # ================================================================ results
+    def _snapshot(self, label: float) -> None:
+        """Where each still-running program's current attempt runs now."""
+        counts = {n: 0 for n in self.names}
+        for name, r in self.robots.items():
+            if not r.alive or r.cpu is None:
+                continue
+            for pid, attempt in r.cpu.jobs:
+                origin = self.robots.get(self.records[pid].origin)
+                ap = origin.node.origin.programs.get(pid) if origin and origin.node else None
+                if ap is not None and ap.attempt == attempt and ap.host == name:
+                    counts[name] += 1
+        self.snapshots[f"{label:g}"] = counts
+
+    def _result(self, wall: float) -> SimResult:
+        dist = {n: 0 for n in self.names}
+        completed = failed = lost = dup = 0
+        for rec in self.records.values():
+            if rec.deliveries:
+                dup += rec.deliveries - 1
+                if rec.ok:
+                    completed += 1
+                    dist[rec.host] = dist.get(rec.host, 0) + 1
+                else:
+                    failed += 1
+            elif not rec.error:
+                lost += 1
+        stats = [r.node.statistics() for r in self.robots.values() if r.node is not None]
+        first = self._first_submit if self._first_submit < math.inf else 0.0
+        return SimResult(
+            scenario=self.sc.name, policy=self.policy, seed=self.seed, robots=self.names,
+            distribution=dist, makespan=max(0.0, self._last_delivery - first), completed=completed,
+            failed=failed, lost=lost, duplicated=dup, programs=list(self.records.values()),
+            statistics=stats, snapshots=self.snapshots, events=self.events, messages_sent=self.sent,
+            messages_dropped=self.dropped, end_time=self.now, wall_seconds=wall, trace=self.trace,
+        )
+
+
+def simulate(scenario: Scenario, *, policy: str | None = None, seed: int | None = None,
+             trace: bool = False, snapshots: list[float] | None = None) -> SimResult:
+    """Run one scenario to completion and return what happened."""
+    return Simulator(scenario, policy=policy, seed=seed, trace=trace, snapshots=snapshots).run()

@@ -1,0 +1,179 @@
+"""What a simulated experiment is: the team, the workload, the faults.
+
+Rules: plain, frozen data. ``Scenario`` is what ``ramps sim run FILE`` reads
+(see ``ramps.sim.scenario_file`` for the YAML loader and its error messages)
+and what the paper's experiments build in code. ``Scenario.check()`` raises
+``ScenarioError`` naming the field at fault as a path such as
+``$.robots[2].cores``; loaders translate that path to a line of the file.
+
+Units: time in seconds, ``work`` in work units, ``speed`` in work units per
+second per core (a Raspberry Pi 3 core running the paper's route planner is
+speed 1.0 and one route-planning program is 53 units), sizes in bytes.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import msgspec
+
+from ramps.core.config import RampsConfig
+
+POLICIES = ("ramps", "paper", "round_robin", "random", "local_only")
+FAULT_KINDS = ("crash", "network", "freeze", "recover")
+
+
+class ScenarioError(ValueError):
+    """A scenario that cannot be run; ``path`` names the field at fault."""
+
+    def __init__(self, path: str, message: str) -> None:
+        super().__init__(f"{path}: {message}")
+        self.path = path
+        self.message = message
+
+
+class _Spec(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    pass
+
+
+class NetworkSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    #: one-way latency of every link, seconds
+    latency: float = 0.005
+    #: bandwidth of every link, bytes per second (20 Mbit/s WiFi)
+    bandwidth: float = 2.5e6
+    #: probability that any one message is lost
+    loss: float = 0.0
+    #: how long after a crash the teammates' transport notices (TCP reset)
+    crash_detect: float = 0.01
+    #: how long after a network cut or freeze the session lease expires
+    lease: float = 1.0
+    #: whether liveliness (session-level failure notices) is used at all;
+    #: the paper's prototype had only connection timeouts and heartbeats
+    liveliness: bool = True
+
+
+class PublisherSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    #: seconds between two load reports of one robot (paper: 2 s)
+    period: float = 2.0
+    #: CPU use in a report is averaged over this many seconds (paper: 1 s)
+    window: float = 1.0
+
+
+class RobotSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    #: robot name; with ``count`` it is a template such as ``"w{i}"`` (i from 1)
+    name: str
+    cores: int = 4
+    speed: float = 1.0
+    #: CPU-bound processes that are not ramps programs (e.g. ``stress``)
+    background: int = 0
+    #: expand this entry into ``count`` identical robots
+    count: int | None = None
+
+
+class ProgramSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    #: registered program name (weak mobility: every robot has the code)
+    program: str = "route_plan"
+    count: int = 1
+    #: true amount of work of one program, in work units
+    work: float = 53.0
+    #: the work the program's declared profile claims (default: ``work``)
+    work_estimate: float | None = None
+    #: bytes of parameters sent when offloading, and of the result sent back
+    payload: int = 1000
+    result: int = 1000
+    #: the robot that submits the programs
+    origin: str
+    #: submit time of the first program, and spacing between the next ones
+    at: float = 0.0
+    spacing: float = 0.0
+    #: spacing is jittered by uniform(-jitter, +jitter) seconds
+    jitter: float = 0.0
+
+
+class FaultSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    at: float
+    robot: str
+    kind: Literal["crash", "network", "freeze", "recover"]
+
+
+class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    robots: list[RobotSpec]
+    programs: list[ProgramSpec]
+    name: str = "scenario"
+    seed: int = 0
+    policy: str = "ramps"
+    faults: list[FaultSpec] = []
+    network: NetworkSpec = NetworkSpec()
+    publisher: PublisherSpec = PublisherSpec()
+    config: RampsConfig = RampsConfig()
+    #: robots run this long before the first program, so load views are warm
+    warmup: float = 5.0
+    #: stop the simulation at this virtual time even if programs remain
+    until: float | None = None
+
+    def team(self) -> list[RobotSpec]:
+        """The robots with every ``count`` template expanded."""
+        out: list[RobotSpec] = []
+        for spec in self.robots:
+            if spec.count is None:
+                out.append(spec)
+            else:
+                for i in range(1, spec.count + 1):
+                    out.append(msgspec.structs.replace(spec, name=spec.name.format(i=i), count=None))
+        return out
+
+    def check(self) -> "Scenario":
+        """Semantic checks beyond types; raises ScenarioError. Returns self."""
+        if not self.robots:
+            raise ScenarioError("$.robots", "a team needs at least one robot")
+        for i, r in enumerate(self.robots):
+            p = f"$.robots[{i}]"
+            if not r.name:
+                raise ScenarioError(f"{p}.name", "must not be empty")
+            if r.cores < 1:
+                raise ScenarioError(f"{p}.cores", f"must be >= 1, got {r.cores}")
+            if not r.speed > 0:
+                raise ScenarioError(f"{p}.speed", f"must be > 0, got {r.speed}")
+            if r.background < 0:
+                raise ScenarioError(f"{p}.background", f"must be >= 0, got {r.background}")
+            if r.count is not None:
+                if r.count < 1:
+                    raise ScenarioError(f"{p}.count", f"must be >= 1, got {r.count}")
+                if "{i}" not in r.name:
+                    raise ScenarioError(f"{p}.name", "with count, the name must contain {i}, e.g. 'w{i}'")
+        seen: dict[str, int] = {}
+        for r in self.team():
+            if r.name in seen:
+                idx = next(i for i, s in enumerate(self.robots) if s.name == r.name or (s.count and "{i}" in s.name))
+                raise ScenarioError(f"$.robots[{idx}].name", f"robot name {r.name!r} is used twice")
+            seen[r.name] = 1
+        if not self.programs:
+            raise ScenarioError("$.programs", "a workload needs at least one program entry")
+        for i, p in enumerate(self.programs):
+            path = f"$.programs[{i}]"
+            if p.origin not in seen:
+                raise ScenarioError(f"{path}.origin", f"unknown robot {p.origin!r}")
+            if p.count < 1:
+                raise ScenarioError(f"{path}.count", f"must be >= 1, got {p.count}")
+            if not p.work > 0:
+                raise ScenarioError(f"{path}.work", f"must be > 0, got {p.work}")
+            if p.work_estimate is not None and not p.work_estimate > 0:
+                raise ScenarioError(f"{path}.work_estimate", f"must be > 0, got {p.work_estimate}")
+            for fld in ("payload", "result", "at", "spacing", "jitter"):
+                if getattr(p, fld) < 0:
+                    raise ScenarioError(f"{path}.{fld}", f"must be >= 0, got {getattr(p, fld)}")
+        for i, f in enumerate(self.faults):
+            if f.robot not in seen:
+                raise ScenarioError(f"$.faults[{i}].robot", f"unknown robot {f.robot!r}")
+            if f.at < 0:
+                raise ScenarioError(f"$.faults[{i}].at", f"must be >= 0, got {f.at}")
+        if self.policy not in POLICIES:
+            raise ScenarioError("$.policy", f"unknown policy {self.policy!r}; choose one of {', '.join(POLICIES)}")
+        n = self.network
+        if n.latency < 0 or not n.bandwidth > 0 or not 0 <= n.loss < 1:
+            raise ScenarioError("$.network", "latency >= 0, bandwidth > 0 and 0 <= loss < 1 are required")
+        if not self.publisher.period > 0 or not 0 < self.publisher.window <= self.publisher.period:
+            raise ScenarioError("$.publisher", "period > 0 and 0 < window <= period are required")
+        if self.warmup < 0:
+            raise ScenarioError("$.warmup", f"must be >= 0, got {self.warmup}")
+        return self
