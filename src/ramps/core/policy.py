@@ -7,11 +7,12 @@ the ``rng`` it is given. Each origin holds its own policy instance, so each
 robot decides for its own programs from its own view: there is no central
 scheduler.
 
-* ``paper``: the prototype of Valkov et al.: cost from the last report's CPU
-  load (which saturates at 100%) plus bookings this robot made since that
-  report; the next report overwrites the bookings; every executor, the local
-  one included, costs the same T_comm (the prototype offloaded to its own
-  executor through the same action protocol); ties are broken at random.
+* ``paper``: the prototype of Valkov et al.: T_there = work / speed * (1 +
+  utilisation), utilisation from the last report's CPU load (which saturates
+  at 100%) plus bookings this robot made since that report; the next report
+  overwrites the bookings; every executor, the local one included, costs the
+  same T_comm (the prototype offloaded to its own executor through the same
+  action protocol); ties are broken at random.
 * ``ramps``: our default. Cost from run-queue length (8 stress processes look
   like 8, not like "100%"), ramps programs counted from bookings until a
   report proves it includes them, eq. (1) with T_comm for remote hosts only;
@@ -25,13 +26,14 @@ scheduler.
 
 from __future__ import annotations
 
+import math
 import random
 from typing import ClassVar
 
 import msgspec
 
 from ramps.core.config import RampsConfig
-from ramps.core.cost import HostEstimate, NetworkEstimate, estimate
+from ramps.core.cost import NetworkEstimate, comm_time
 from ramps.core.loadview import LoadView
 
 
@@ -68,33 +70,24 @@ class Policy:
     ) -> Placement:
         raise NotImplementedError
 
-    @staticmethod
-    def _candidates(view: LoadView, now: float, exclude: frozenset[str]) -> list[str]:
-        cands = view.candidates(now)
-        if exclude:
-            kept = [c for c in cands if c not in exclude]
-            if kept:
-                return kept
-        return cands
-
 
 class PaperPolicy(Policy):
     name = "paper"
 
     def choose(self, req, view, now, rng, *, net, config, exclude=frozenset()):
-        best: list[HostEstimate] = []
-        for robot in self._candidates(view, now, exclude):
-            cores, speed = view.capacity(robot)
-            est = estimate(
-                robot, local=False, cores=cores, speed=speed, runnable=view.paper_load(robot),
-                work=req.work, payload=req.payload_size, result=req.result_size, net=net,
-            )
-            if not best or est.total < best[0].total - 1e-9:
-                best = [est]
-            elif abs(est.total - best[0].total) <= 1e-9:
-                best.append(est)
+        # the prototype paid the same T_comm for every executor, local included,
+        # and slowed its estimate in proportion to the robot's CPU utilisation
+        work = req.work
+        best_t = math.inf
+        best: list[str] = []
+        for robot, cores, speed, busy in view.scan(now, exclude, paper=True):
+            t = work / speed * (1.0 + busy / cores)
+            if t < best_t - 1e-9:
+                best_t, best = t, [robot]
+            elif t <= best_t + 1e-9:
+                best.append(robot)
         pick = best[0] if len(best) == 1 else rng.choice(best)
-        return Placement(host=pick.robot, expected_time=pick.total)
+        return Placement(host=pick, expected_time=best_t + comm_time(req.payload_size, req.result_size, net))
 
 
 class RampsPolicy(Policy):
@@ -102,26 +95,28 @@ class RampsPolicy(Policy):
     negotiates = True
 
     def choose(self, req, view, now, rng, *, net, config, exclude=frozenset()):
-        ests: list[HostEstimate] = []
         me = view.me
-        for robot in self._candidates(view, now, exclude):
-            cores, speed = view.capacity(robot)
-            runnable = view.background(robot) + view.ramps_programs(robot)
-            ests.append(
-                estimate(
-                    robot, local=robot == me, cores=cores, speed=speed, runnable=runnable,
-                    work=req.work, payload=req.payload_size, result=req.result_size, net=net,
-                )
-            )
-        t_best = min(e.total for e in ests)
+        work = req.work
+        t_comm = comm_time(req.payload_size, req.result_size, net)
+        rows = []
+        t_best = math.inf
+        for robot, cores, speed, runnable in view.scan(now, exclude):
+            t = work / (speed * min(1.0, cores / (runnable + 1.0)))
+            if robot != me:
+                t += t_comm
+            rows.append((t, (runnable + 1.0) / cores, robot, runnable))
+            if t < t_best:
+                t_best = t
+        # costs within the tolerance are equal (eq. 1 cannot tell them apart);
+        # then the least utilised robot wins, then this robot, then chance
         limit = t_best * (1.0 + config.tie_tolerance) + 1e-9
-        tied = [e for e in ests if e.total <= limit]
-        # least utilised first, then local (no network), then at random
-        u_best = min(e.utilisation_after for e in tied)
-        tied = [e for e in tied if e.utilisation_after <= u_best + 1e-9]
-        local = [e for e in tied if e.local]
-        pick = local[0] if local else (tied[0] if len(tied) == 1 else rng.choice(tied))
-        return Placement(host=pick.robot, expected_runnable=pick.runnable, expected_time=pick.total)
+        tied = [row for row in rows if row[0] <= limit]
+        u_best = min(row[1] for row in tied)
+        tied = [row for row in tied if row[1] <= u_best + 1e-9]
+        pick = next((row for row in tied if row[2] == me), None)
+        if pick is None:
+            pick = tied[0] if len(tied) == 1 else rng.choice(tied)
+        return Placement(host=pick[2], expected_runnable=pick[3], expected_time=pick[0])
 
 
 class RoundRobinPolicy(Policy):
@@ -131,7 +126,7 @@ class RoundRobinPolicy(Policy):
         self._next = 0
 
     def choose(self, req, view, now, rng, *, net, config, exclude=frozenset()):
-        cands = self._candidates(view, now, exclude)
+        cands = [row[0] for row in view.scan(now, exclude)]
         ring = [view.me] + sorted(c for c in cands if c != view.me)
         host = ring[self._next % len(ring)]
         self._next += 1
@@ -142,8 +137,8 @@ class RandomPolicy(Policy):
     name = "random"
 
     def choose(self, req, view, now, rng, *, net, config, exclude=frozenset()):
-        cands = self._candidates(view, now, exclude)
-        return Placement(host=rng.choice(sorted(cands)))
+        cands = sorted(row[0] for row in view.scan(now, exclude))
+        return Placement(host=rng.choice(cands))
 
 
 class LocalOnlyPolicy(Policy):

@@ -1,0 +1,176 @@
+"""The ``ramps`` command.
+
+Rules: the CLI parses, calls the library, prints. User mistakes (a bad
+scenario file, an unknown policy) end with a one-line message and exit code
+2, never a traceback. Long work shows progress on stderr so ``--json`` output
+on stdout stays clean for scripts.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Optional
+
+import msgspec
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from ramps import __version__
+
+app = typer.Typer(
+    help="ramps: share computational work across a robot team, with no central scheduler, "
+    "and keep it alive when robots fail (Reliable Autonomous Mobile Programs).",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+sim_app = typer.Typer(help="Simulate teams and workloads in virtual time (seconds for hours of robot time).",
+                      no_args_is_help=True)
+bench_app = typer.Typer(help="Benchmarks that print figures and save them as JSON.", no_args_is_help=True)
+app.add_typer(sim_app, name="sim")
+app.add_typer(bench_app, name="bench")
+
+# a pipe or a CI log gets wide tables instead of wrapped ones
+out = Console(width=None if sys.stdout.isatty() else 200)
+err = Console(stderr=True)
+
+POLICY_HELP = "placement policy: ramps (default, ours), paper (faithful to the paper), round_robin, random, local_only"
+
+
+def fail(message: str, code: int = 2) -> None:
+    err.print(f"[bold red]error:[/] {message}", highlight=False)
+    raise typer.Exit(code)
+
+
+def _check_policy(policy: str) -> None:
+    from ramps.core.policy import POLICIES
+
+    if policy not in POLICIES:
+        fail(f"unknown policy {policy!r}; choose one of {', '.join(POLICIES)}")
+
+
+def _write_json(data: bytes, path: Optional[Path]) -> None:
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(data + b"\n")
+        err.print(f"wrote {path}")
+
+
+@app.command()
+def version() -> None:
+    """Print the ramps version."""
+    out.print(f"ramps {__version__}")
+
+
+@sim_app.command("paper")
+def sim_paper(
+    experiment: str = typer.Option("all", "--experiment", "-e",
+                                   help="unloaded (Table 3, Figs 3-4), loaded (Table 4, Figs 5-6) or all"),
+    policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
+    runs: int = typer.Option(3, "--runs", "-n", min=1, help="runs per configuration (the paper used 3)"),
+    seed: int = typer.Option(0, "--seed", help="base seed; the same seed gives the same results"),
+    as_json: bool = typer.Option(False, "--json", help="write the results as JSON to stdout instead of tables"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
+) -> None:
+    """Regenerate the paper's load-distribution experiments in the simulator.
+
+    Each configuration runs the chosen policy, round robin and a single robot
+    on the same simulated team and seed, and prints the distribution per
+    robot, makespan, speedup, ratio to round robin and the paper's
+    classification (optimal / near optimal / non optimal).
+    """
+    from ramps.experiments.paper import EXPERIMENTS, configurations, run_experiment
+    from ramps.experiments.report import print_experiment
+
+    _check_policy(policy)
+    wanted = list(EXPERIMENTS) if experiment == "all" else [experiment]
+    if any(e not in EXPERIMENTS for e in wanted):
+        fail(f"unknown experiment {experiment!r}; choose unloaded, loaded or all")
+    reports = []
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err, transient=True) as progress:
+        for e in wanted:
+            task = progress.add_task(f"{e} / {policy}", total=len(configurations(e)))
+            reports.append(run_experiment(e, policy=policy, runs=runs, seed=seed,
+                                          progress=lambda done, total, t=task: progress.update(t, completed=done)))
+    data = msgspec.json.encode(reports[0] if len(reports) == 1 else {"experiments": reports})
+    if as_json:
+        sys.stdout.write(data.decode() + "\n")
+    else:
+        for rep in reports:
+            print_experiment(rep, out)
+    _write_json(data, out_file)
+
+
+@sim_app.command("run")
+def sim_run(
+    scenario: Path = typer.Argument(..., help="scenario file (YAML or TOML); see examples/ and examples/README.md"),
+    policy: Optional[str] = typer.Option(None, "--policy", "-p", help=POLICY_HELP + " (default: the file's)"),
+    seed: Optional[int] = typer.Option(None, "--seed", help="override the file's seed"),
+    as_json: bool = typer.Option(False, "--json", help="write the full result as JSON to stdout"),
+    trace: bool = typer.Option(False, "--trace", help="include every decision (placements, failures) in the JSON"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
+) -> None:
+    """Simulate your own team and workload described in a scenario file."""
+    from ramps.experiments.report import print_sim_result
+    from ramps.sim.engine import simulate
+    from ramps.sim.scenario_file import ScenarioFileError, load_scenario
+
+    if policy is not None:
+        _check_policy(policy)
+    try:
+        sc = load_scenario(scenario)
+    except ScenarioFileError as exc:
+        fail(str(exc))
+    if not as_json:
+        err.print(f"simulating {scenario} ({len(sc.team())} robots, "
+                  f"{sum(p.count for p in sc.programs)} programs) ...")
+    res = simulate(sc, policy=policy, seed=seed, trace=trace)
+    data = msgspec.json.encode(res)
+    if as_json:
+        sys.stdout.write(data.decode() + "\n")
+    else:
+        print_sim_result(res, out)
+    _write_json(data, out_file)
+    if res.lost or res.duplicated:
+        raise typer.Exit(1)
+
+
+@bench_app.command("sim")
+def bench_sim(
+    runs: int = typer.Option(3, "--runs", "-n", min=1, help="runs per configuration in the sweep"),
+    robots: int = typer.Option(1000, "--robots", min=1, help="robots in the large scenario"),
+    programs: int = typer.Option(10_000, "--programs", min=1, help="programs in the large scenario"),
+    origins: int = typer.Option(10, "--origins", min=1, help="robots that submit programs in the large scenario"),
+    out_file: Path = typer.Option(Path("bench-results/sim.json"), "--out", "-o", help="where to save the JSON"),
+) -> None:
+    """Time the full paper sweep and a large-team scenario."""
+    from ramps.experiments.bench import bench_large, bench_sweep, machine
+
+    if origins > robots:
+        fail("--origins cannot exceed --robots")
+    err.print(f"sweep: unloaded + loaded, {runs} run(s) each, 3 simulations per run ...")
+    sweep = bench_sweep(runs)
+    out.print(f"paper sweep (unloaded + loaded, {runs} runs each): {sweep['wall_seconds']:.2f} s "
+              f"({sweep['unloaded']['simulations'] + sweep['loaded']['simulations']} simulations)")
+    err.print(f"large team: {robots} robots, {programs} programs from {origins} origins ...")
+    large = bench_large(robots, programs, origins)
+    out.print(f"large team ({robots} robots, {programs} programs): {large['wall_seconds']:.2f} s wall, "
+              f"{large['events']} events ({large['events_per_s']:.0f}/s), completed {large['completed']}, "
+              f"lost {large['lost']}, duplicated {large['duplicated']}, virtual makespan "
+              f"{large['makespan_virtual_s']:.1f} s")
+    result = {"benchmark": "sim", "machine": machine(), "sweep": sweep, "large": large}
+    out_file.parent.mkdir(parents=True, exist_ok=True)
+    out_file.write_text(json.dumps(result, indent=2) + "\n")
+    out.print(f"saved {out_file}")
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,56 @@
+"""Benchmarks of the simulator, with figures printed and saved as JSON.
+
+Rules: benchmarks measure, tests assert; nothing here fails on a slow
+machine. Each benchmark returns a plain dict of figures; the CLI prints it
+and writes it to a JSON file.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+
+from ramps.experiments.paper import run_experiment
+from ramps.sim.engine import simulate
+from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario
+
+
+def large_team(robots: int = 1000, programs: int = 10_000, origins: int = 10, seed: int = 0) -> Scenario:
+    """A big team: ``origins`` robots each submit an equal share of programs."""
+    per = programs // origins
+    entries = [
+        ProgramSpec(count=per + (1 if i < programs % origins else 0), work=53.0, payload=2000, result=1000,
+                    origin=f"w{i + 1}", at=float(i), spacing=0.01)
+        for i in range(origins)
+    ]
+    return Scenario(name=f"large-{robots}r-{programs}p", seed=seed,
+                    robots=[RobotSpec(name="w{i}", count=robots, cores=4, speed=1.0)], programs=entries)
+
+
+def bench_sweep(runs: int = 3, policy: str = "ramps") -> dict:
+    started = time.perf_counter()
+    out = {}
+    for experiment in ("unloaded", "loaded"):
+        rep = run_experiment(experiment, policy=policy, runs=runs)
+        out[experiment] = {"wall_seconds": rep.wall_seconds, "optimal_or_near_share": rep.summary.optimal_or_near_share,
+                           "simulations": len(rep.configs) * runs * 3}
+    out["wall_seconds"] = time.perf_counter() - started
+    return out
+
+
+def bench_large(robots: int = 1000, programs: int = 10_000, origins: int = 10, policy: str = "ramps") -> dict:
+    sc = large_team(robots, programs, origins)
+    started = time.perf_counter()
+    res = simulate(sc, policy=policy)
+    wall = time.perf_counter() - started
+    return {
+        "robots": robots, "programs": programs, "origins": origins, "policy": policy,
+        "wall_seconds": wall, "completed": res.completed, "lost": res.lost, "duplicated": res.duplicated,
+        "makespan_virtual_s": res.makespan, "events": res.events, "events_per_s": res.events / wall if wall else 0,
+        "rejections": sum(s.rejections for s in res.statistics),
+    }
+
+
+def machine() -> dict:
+    return {"python": platform.python_version(), "platform": platform.platform(), "cpus": os.cpu_count()}
