@@ -41,7 +41,7 @@ POLICY_HELP = "placement policy: ramps (default, ours), paper (faithful to the p
 
 
 def fail(message: str, code: int = 2) -> None:
-    err.print(f"[bold red]error:[/] {message}", highlight=False)
+    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
 
 

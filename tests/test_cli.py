@@ -1,0 +1,122 @@
+"""The ramps command as a user runs it: real subprocess-free CLI invocations."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from ramps.cli import app
+
+runner = CliRunner()
+
+
+def invoke(*args: str):
+    return runner.invoke(app, list(args), catch_exceptions=False)
+
+
+def test_help_lists_the_commands():
+    res = invoke("--help")
+    assert res.exit_code == 0
+    for word in ("sim", "bench", "version"):
+        assert word in res.output
+
+
+def test_sim_paper_json_carries_classification_per_distribution():
+    res = invoke("sim", "paper", "--experiment", "unloaded", "--runs", "1", "--json")
+    assert res.exit_code == 0, res.output
+    data = json.loads(res.stdout)
+    assert data["experiment"] == "unloaded" and data["policy"] == "ramps"
+    runs = [r for c in data["configs"] for r in c["runs"]]
+    assert len(runs) == 24  # 4 team sizes x 6 program counts x 1 run
+    assert {r["classification"] for r in runs} <= {"optimal", "near_optimal", "non_optimal"}
+    for r in runs:
+        assert r["ratio_to_round_robin"] == pytest.approx(r["makespan"] / r["round_robin_makespan"])
+        assert sum(r["distribution"]) in (5, 10, 15, 20, 25, 30)
+    s = data["summary"]
+    assert s["optimal"] + s["near_optimal"] + s["non_optimal"] == 24
+
+
+def test_sim_paper_table_has_summary_line():
+    res = invoke("sim", "paper", "--experiment", "loaded", "--runs", "1", "--policy", "paper")
+    assert res.exit_code == 0
+    assert "loaded / paper" in res.output and "optimal or near optimal" in res.output
+    assert "optimum" in res.output
+
+
+def test_sim_paper_rejects_unknown_policy_and_experiment():
+    res = invoke("sim", "paper", "--policy", "fastest")
+    assert res.exit_code == 2 and "unknown policy 'fastest'" in res.output
+    res = invoke("sim", "paper", "--experiment", "huge")
+    assert res.exit_code == 2 and "unknown experiment" in res.output
+
+
+GOOD = """\
+name: tiny
+seed: 3
+robots:
+  - {name: a, cores: 2}
+  - {name: b, cores: 2}
+programs:
+  - {origin: a, count: 6, work: 10}
+faults:
+  - {at: 3, robot: b, kind: crash}
+"""
+
+
+def test_sim_run_json(tmp_path):
+    f = tmp_path / "tiny.yaml"
+    f.write_text(GOOD)
+    out = tmp_path / "res.json"
+    res = invoke("sim", "run", str(f), "--json", "--out", str(out))
+    assert res.exit_code == 0, res.output
+    data = json.loads(res.stdout)
+    assert data["completed"] == 6 and data["lost"] == 0 and data["duplicated"] == 0
+    assert json.loads(out.read_text())["completed"] == 6
+    # b crashed mid-run: whatever it had was restarted on a, which ran them all
+    assert data["distribution"] == {"a": 6, "b": 0}
+
+
+def test_sim_run_table_and_policy_override(tmp_path):
+    f = tmp_path / "tiny.yaml"
+    f.write_text(GOOD.replace("faults:\n  - {at: 3, robot: b, kind: crash}\n", ""))
+    res = invoke("sim", "run", str(f), "--policy", "round_robin")
+    assert res.exit_code == 0
+    assert "policy round_robin" in res.output
+    assert "completed 6" in res.output
+
+
+@pytest.mark.parametrize(
+    "text, expect",
+    [
+        (GOOD.replace("cores: 2}", "cores: two}", 1), "tiny.yaml:4: robots[0].cores"),
+        (GOOD.replace("origin: a", "origin: z"), "unknown robot 'z'"),
+        (GOOD.replace("kind: crash", "kind: explode"), "faults[0].kind"),
+        ("robots: [\n", "tiny.yaml"),
+        ("", "empty"),
+    ],
+)
+def test_sim_run_rejects_bad_scenarios_without_traceback(tmp_path, text, expect):
+    f = tmp_path / "tiny.yaml"
+    f.write_text(text)
+    res = invoke("sim", "run", str(f))
+    assert res.exit_code == 2
+    assert expect in res.output
+    assert "Traceback" not in res.output
+
+
+def test_sim_run_missing_file():
+    res = invoke("sim", "run", "/nonexistent/scenario.yaml")
+    assert res.exit_code == 2
+    assert "Traceback" not in res.output
+
+
+def test_bench_sim_small_writes_json(tmp_path):
+    out = tmp_path / "b.json"
+    res = invoke("bench", "sim", "--runs", "1", "--robots", "20", "--programs", "100", "--origins", "2",
+                 "--out", str(out))
+    assert res.exit_code == 0, res.output
+    data = json.loads(out.read_text())
+    assert data["large"]["completed"] == 100 and data["large"]["lost"] == 0
+    assert data["sweep"]["wall_seconds"] > 0
