@@ -143,7 +143,8 @@ class Origin:
             if event == "result":
                 out.append(Send(to=host, msg=ResultAck(program_id=pid, attempt=attempt, origin=self.me)))
             return
-        if attempt == ap.attempt and host == ap.host and ap.state not in FINAL:
+        if attempt == ap.attempt and host == ap.host and ap.live.get(attempt) == host:
+            # the current attempt, still wanted (not written off while backing off)
             self._step(ap, event, now, out, msg)
             return
         # about an attempt that is not the current one

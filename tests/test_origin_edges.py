@@ -1,0 +1,53 @@
+"""Edge cases of the origin found by reading the state machine against real timelines."""
+
+from __future__ import annotations
+
+from ramps.core.config import RampsConfig
+from ramps.core.events import Deliver, Note, Received, Send, Submit
+from ramps.core.messages import CancelProgram, OffloadAccepted, ProgramResult, ResultAck
+from ramps.core.node import Node
+
+
+def report(node: Node, now: float):
+    return node.make_report(cpu_busy=0.0, runnable=0.0, ramps_avg=0.0, window=1.0)
+
+
+def setup_pair():
+    cfg = RampsConfig(backoff_max=5.0)
+    a = Node("a", cores=1, speed=1.0, config=cfg)
+    b = Node("b", cores=4, speed=1.0, config=cfg)
+    a.handle(Received(sender="a", msg=report(a, 0.0)), 0.0)
+    a.handle(Received(sender="b", msg=report(b, 0.0)), 0.0)
+    # a already runs one program itself, so the next one goes to b
+    a.handle(Submit(program_id="a#0", program="p", work=100.0), 0.0)
+    acts = a.handle(Submit(program_id="a#1", program="p", work=100.0), 0.0)
+    sends = [x for x in acts if isinstance(x, Send)]
+    assert sends and sends[0].to == "b"
+    return a, b
+
+
+def test_late_result_during_backoff_is_acknowledged_and_discarded():
+    a, _ = setup_pair()
+    a.handle(Received(sender="b", msg=OffloadAccepted(program_id="a#1", attempt=1, host="b", accept_seq=1)), 0.1)
+    # b goes silent: heartbeat timeout -> blacklisted, backing off
+    acts = a.tick(0.1 + a.config.heartbeat_timeout + 0.01)
+    assert any(isinstance(x, Note) and x.what == "backoff" for x in acts)
+    assert a.origin.programs["a#1"].state == "backoff"
+    # then b's result for the written-off attempt arrives
+    acts = a.handle(Received(sender="b", msg=ProgramResult(program_id="a#1", attempt=1, host="b", ok=True)), 2.5)
+    assert any(isinstance(x, Send) and isinstance(x.msg, ResultAck) for x in acts), "host would resend forever"
+    assert not any(isinstance(x, Deliver) for x in acts)
+    assert a.origin.anomalies == 0
+    assert a.origin.discarded == 1
+
+
+def test_heartbeat_for_written_off_attempt_cancels_the_stray_copy():
+    a, _ = setup_pair()
+    a.handle(Received(sender="b", msg=OffloadAccepted(program_id="a#1", attempt=1, host="b", accept_seq=1)), 0.1)
+    a.tick(0.1 + a.config.heartbeat_timeout + 0.01)
+    from ramps.core.messages import Heartbeat, ProgramRef
+
+    acts = a.handle(Received(sender="b", msg=Heartbeat(host="b", incarnation=0,
+                                                        programs=[ProgramRef("a#1", 1)])), 2.6)
+    assert any(isinstance(x, Send) and isinstance(x.msg, CancelProgram) and x.to == "b" for x in acts)
+    assert a.origin.anomalies == 0
