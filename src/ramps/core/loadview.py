@@ -19,7 +19,25 @@ I/O; ``now`` is passed in.
 
 from __future__ import annotations
 
+import math
+
 from ramps.core.messages import LoadReport
+
+
+def report_problem(report: LoadReport) -> str | None:
+    """Why a teammate's report cannot be used, or None if it can. A report
+    with zero cores or speed would make every cost estimate divide by zero."""
+    if report.cores < 1:
+        return f"load report from {report.robot!r} claims {report.cores} cores"
+    for name in ("speed", "cpu_busy", "runnable", "ramps_avg", "window"):
+        value = getattr(report, name)
+        if not math.isfinite(value) or value < 0:
+            return f"load report from {report.robot!r} has {name}={value!r}"
+    if report.speed <= 0:
+        return f"load report from {report.robot!r} claims speed {report.speed!r}"
+    if report.ramps_running < 0 or report.accepted_total < 0 or report.finished_total < 0:
+        return f"load report from {report.robot!r} has negative counters"
+    return None
 
 
 class _Booking:
@@ -56,13 +74,19 @@ class LoadView:
         self._blacklist: dict[str, tuple[int, int]] = {}
         self.last_remote_report: float | None = None
         self.reports_received = 0
+        self.bad_reports = 0
 
     # ------------------------------------------------------------ reports
     def on_report(self, report: LoadReport, now: float, *, fresh: bool = False) -> bool:
         """Take a report in. Returns True if it lifted a blacklisting.
 
         ``fresh`` marks a report made on the spot (sent with a rejection): it
-        replaces a periodic report with the same sequence number."""
+        replaces a periodic report with the same sequence number. A report
+        that ``report_problem`` refuses is counted in ``bad_reports`` and
+        dropped."""
+        if report_problem(report) is not None:
+            self.bad_reports += 1
+            return False
         rob = self._robots.get(report.robot)
         if rob is None:
             rob = self._robots[report.robot] = _Robot()
@@ -95,7 +119,10 @@ class LoadView:
         unseen_accept = unseen_finish = 0
         for key, b in list(rob.bookings.items()):
             if b.accept_seq is None or b.accept_seq > acc_total:
-                unseen_accept += 1
+                # not in the report yet; if it already finished it runs no more
+                # (kept, because a report made before the finish may come late)
+                if b.finish_seq is None:
+                    unseen_accept += 1
             elif b.finish_seq is not None:
                 if b.finish_seq > fin_total:
                     unseen_finish += 1
@@ -212,7 +239,7 @@ class LoadView:
         The hot path of placement in large teams: the same reading as
         ``candidates`` + ``ramps_programs`` + ``background`` (or, with
         ``paper``, ``paper_load``), without building intermediate objects.
-        An ``exclude`` that would leave only this robot is ignored."""
+        An ``exclude`` that would leave no candidate at all is ignored."""
         horizon = now - self.max_report_age
         blacklist = self._blacklist
         out = []

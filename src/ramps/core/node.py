@@ -36,7 +36,7 @@ from ramps.core.events import (
     Submit,
 )
 from ramps.core.executor import Executor
-from ramps.core.loadview import LoadView
+from ramps.core.loadview import LoadView, report_problem
 from ramps.core.messages import (
     CancelProgram,
     Heartbeat,
@@ -149,7 +149,11 @@ class Node:
 
     def _receive(self, sender: str, msg, now: float, out: list[Action]) -> None:
         if isinstance(msg, LoadReport):
-            if self.view.on_report(msg, now):
+            problem = report_problem(msg)
+            if problem is not None:
+                self.origin.anomalies += 1
+                out.append(Note(what="anomaly", robot=sender, detail=problem))
+            elif self.view.on_report(msg, now):
                 out.append(Note(what="unblacklisted", robot=msg.robot))
         elif isinstance(msg, OffloadRequest):
             self.executor.on_offload(msg, now, out, report_now=self.current_report)

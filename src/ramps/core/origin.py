@@ -241,8 +241,8 @@ class Origin:
             self._deliver(ap, now, out, ok=False, error=f"{host} refused program {ap.submit.program!r}: {msg.reason}"
                           + (f" ({msg.detail})" if msg.detail else ""), host=host)
             return
-        if msg.report is not None:
-            self.view.on_report(msg.report, now, fresh=True)
+        if msg.report is not None and self.view.on_report(msg.report, now, fresh=True):
+            out.append(Note(what="unblacklisted", robot=msg.report.robot))
         ap.rejections += 1
         ap.excluded.add(host)
         self.place(ap, now, out)

@@ -33,7 +33,7 @@ import msgspec
 
 from ramps.core.cost import NetworkEstimate
 from ramps.core.events import Deliver, Note, PeerAlive, PeerLost, ProgramFinished, Received, Send, StartProgram, StopProgram, Submit
-from ramps.core.messages import LoadReport, wire_size
+from ramps.core.messages import wire_size
 from ramps.core.node import Node, NodeStatistics
 from ramps.sim.cpu import CPU
 from ramps.sim.scenario import FaultSpec, RobotSpec, Scenario
