@@ -1,0 +1,495 @@
+"""Pure tests of the autonomous program's state machine and the executor,
+driven through ``ramps.testing.FakeTeam`` (real nodes, in-memory network)."""
+
+from __future__ import annotations
+
+
+import pytest
+
+from ramps.core.events import (
+    Cancel,
+    Deliver,
+    Note,
+    PeerAlive,
+    PeerLost,
+    ProgramFinished,
+    Received,
+    Send,
+    StartProgram,
+    StopProgram,
+    Submit,
+)
+from ramps.core.messages import (
+    CancelProgram,
+    Heartbeat,
+    OffloadAccepted,
+    OffloadRejected,
+    OffloadRequest,
+    ProgramRef,
+    ProgramResult,
+    ResultAck,
+    WireError,
+    decode,
+    encode,
+)
+from ramps.core.node import Node
+from ramps.core.origin import Origin
+from ramps.core.program import TRANSITIONS, AutonomousProgram, ProgramState, ProtocolError
+
+from corehelpers import CFG, Team, busy_origin_team, report, submit
+
+
+# =================================================================== state machine: happy path
+def test_happy_path_remote() -> None:
+    team = busy_origin_team()
+    submit(team, args=b"params", result_size=10)
+    [req] = team.sent(OffloadRequest, to="a")
+    assert (req.program_id, req.attempt, req.origin, req.args, req.force) == ("p", 1, "o", b"params", False)
+    assert team.program("p").state is ProgramState.OFFERED
+    team.deliver()
+    [start] = team.actions(StartProgram, "a")
+    assert (start.program_id, start.attempt, start.origin, start.args) == ("p", 1, "o", b"params")
+    assert team.program("p").state is ProgramState.RUNNING
+    team.advance(6.0)  # heartbeats keep it alive well past heartbeat_timeout
+    assert team.sent(Heartbeat, to="o")
+    assert team.program("p").state is ProgramState.RUNNING
+    assert not team.notes("failed")
+    team.finish("a", "p", 1, ok=True, value=b"route")
+    assert team.delivered("p") == [Deliver(program_id="p", ok=True, value=b"route", host="a", attempts=1)]
+    assert team.program("p").state is ProgramState.DONE
+    assert team.sent(ResultAck, to="a")
+    assert team.nodes["a"].executor.unacked_results() == 0
+    stats = team.nodes["o"].statistics()
+    assert (stats.placements, stats.delivered, stats.anomalies, stats.host_failures) == (1, 1, 0, 0)
+    assert stats.active_programs == 0
+    assert team.nodes["o"].next_deadline() is None
+    team.advance(9.0)
+    assert team.nodes["a"].next_deadline() is None  # nothing left to resend or report
+
+
+def test_local_placement_runs_through_the_same_protocol() -> None:
+    team = Team({"o": (4, 1.0), "a": (4, 1.0)})
+    team.publish()
+    submit(team)
+    # placed, requested, accepted and started without a single message leaving o
+    assert [n.robot for n in team.notes("placed")] == ["o"]
+    assert not team.inflight
+    [start] = team.actions(StartProgram, "o")
+    assert team.program("p").state is ProgramState.RUNNING
+    team.finish("o", "p", start.attempt, ok=True, value=b"v")
+    assert team.delivered("p") == [Deliver(program_id="p", ok=True, value=b"v", host="o", attempts=1)]
+    assert team.nodes["o"].executor.unacked_results() == 0
+
+
+# =================================================================== host failures
+def test_connect_timeout_blacklists_backs_off_and_replaces_elsewhere() -> None:
+    team = busy_origin_team()
+    submit(team)
+    team.deliver(hold=lambda s, to, m: isinstance(m, OffloadRequest))  # a slow link to a
+    assert [n.robot for n in team.notes("placed")] == ["a"]
+    team.advance(CFG.connect_timeout - 0.01)
+    assert not team.notes("failed")
+    team.advance(CFG.connect_timeout)
+    [failed] = team.notes("failed")
+    assert (failed.robot, failed.detail) == ("a", "connect_timeout")
+    assert [n.robot for n in team.notes("blacklisted")] == ["a"]
+    assert team.nodes["o"].view.is_blacklisted("a")
+    assert team.sent(CancelProgram, to="a") == [CancelProgram(program_id="p", attempt=1, origin="o")]
+    [backoff] = team.notes("backoff")
+    assert 0.0 <= float(backoff.detail) <= CFG.backoff_max
+    assert team.program("p").state is ProgramState.BACKOFF
+    wake = team.nodes["o"].next_deadline()
+    assert wake == pytest.approx(CFG.connect_timeout + float(backoff.detail), abs=1e-3)
+    team.advance(wake)
+    placed = team.notes("placed")
+    assert [(n.robot, n.attempt) for n in placed] == [("a", 1), ("b", 2)]
+    assert team.program("p").state is ProgramState.RUNNING  # b accepted at once
+    # the first request finally reaches a; its acceptance makes o stop that copy
+    cancels_before = len(team.sent(CancelProgram, to="a"))
+    team.release()
+    assert team.sent(OffloadAccepted, by="a") == [OffloadAccepted(program_id="p", attempt=1, host="a", accept_seq=1)]
+    cancels = team.sent(CancelProgram, by="o", to="a")
+    assert len(cancels) == cancels_before + 1 and cancels[-1].attempt == 1
+    assert team.actions(StopProgram, "a") == [StopProgram(program_id="p", attempt=1)]
+    assert not team.nodes["a"].executor.running
+    team.finish("b", "p", 2, ok=True, value=b"from b")
+    assert team.delivered("p") == [Deliver(program_id="p", ok=True, value=b"from b", host="b", attempts=2)]
+
+
+def test_heartbeat_timeout_writes_the_host_off() -> None:
+    team = busy_origin_team()
+    submit(team)
+    team.deliver()
+    team.advance(1.0)
+    last_beat = max(t for t, r, a in team.log if r == "a" and isinstance(a, Send) and isinstance(a.msg, Heartbeat))
+    team.cut.add("a")  # a keeps computing, but nobody hears it
+    team.advance(last_beat + CFG.heartbeat_timeout - 0.01)
+    assert not team.notes("failed")
+    team.advance(last_beat + CFG.heartbeat_timeout + 0.01)
+    [failed] = team.notes("failed")
+    assert (failed.robot, failed.detail) == ("a", "heartbeat_timeout")
+    assert team.nodes["o"].view.is_blacklisted("a")
+    assert team.program("p").state is ProgramState.BACKOFF
+    team.advance(team.now + CFG.backoff_max)
+    assert [(n.robot, n.attempt) for n in team.notes("placed")] == [("a", 1), ("b", 2)]
+    # a comes back and publishes: the blacklisting is lifted
+    team.cut.discard("a")
+    team.publish("a")
+    assert team.notes("unblacklisted") and not team.nodes["o"].view.is_blacklisted("a")
+
+
+def test_peer_lost_writes_the_host_off_at_once() -> None:
+    team = busy_origin_team()
+    submit(team)
+    team.deliver()
+    assert team.handle("o", PeerLost(robot="b")) == []  # nothing of ours there
+    assert team.handle("o", PeerAlive(robot="b")) == []
+    team.cut.add("a")
+    team.now = 0.3
+    team.handle("o", PeerLost(robot="a"))
+    [failed] = team.notes("failed")
+    assert (failed.robot, failed.detail) == ("a", "host_lost")
+    assert team.nodes["o"].view.is_blacklisted("a")
+    assert team.program("p").state is ProgramState.BACKOFF
+    team.advance(0.3 + CFG.backoff_max)
+    assert [n.robot for n in team.notes("placed")] == ["a", "b"]
+
+
+def test_isolated_origin_runs_the_program_itself_and_keeps_the_remote_copy_wanted() -> None:
+    team = busy_origin_team()
+    submit(team)
+    team.deliver()
+    team.advance(CFG.isolation_timeout + 1.0)  # heartbeats flow, but no load reports any more
+    team.cut.update({"a", "b"})  # now o is cut off from everybody
+    team.advance(team.now + CFG.heartbeat_timeout + 0.1)
+    [isolated] = team.notes("isolated")
+    assert isolated.robot == "a"
+    assert not team.notes("blacklisted")
+    assert [n.robot for n in team.notes("placed")] == ["a", "o"]
+    # the link heals; a's result (attempt 1) arrives first and wins
+    team.cut.clear()
+    team.finish("a", "p", 1, ok=True, value=b"remote")
+    assert team.delivered("p") == [Deliver(program_id="p", ok=True, value=b"remote", host="a", attempts=2)]
+    assert not team.nodes["o"].executor.running  # the local copy was stopped
+
+
+def _in_backoff_after_connect_timeout() -> Team:
+    team = busy_origin_team()
+    submit(team)
+    team.deliver(hold=lambda s, to, m: to == "a")
+    team.advance(CFG.connect_timeout)
+    assert team.program("p").state is ProgramState.BACKOFF
+    team.held.clear()
+    return team
+
+
+def test_late_acceptance_during_backoff_cancels_the_stray_copy() -> None:
+    # the written-off attempt is no longer current: its late acceptance is stale
+    team = _in_backoff_after_connect_timeout()
+    cancels = len(team.sent(CancelProgram, to="a"))
+    team.handle("o", Received(sender="a", msg=OffloadAccepted(program_id="p", attempt=1, host="a", accept_seq=1)))
+    assert len(team.sent(CancelProgram, to="a")) == cancels + 1
+    assert team.nodes["o"].statistics().anomalies == 0
+
+
+def test_late_result_during_backoff_is_acknowledged_and_discarded() -> None:
+    team = _in_backoff_after_connect_timeout()
+    team.handle("o", Received(sender="a", msg=ProgramResult(program_id="p", attempt=1, host="a", ok=True)))
+    assert team.sent(ResultAck, to="a") == [ResultAck(program_id="p", attempt=1, origin="o")]
+    assert team.nodes["o"].statistics().anomalies == 0
+    assert not team.delivered("p")
+
+
+# =================================================================== rejections
+def test_busy_rejection_replaces_at_once_without_backoff() -> None:
+    team = busy_origin_team()
+    team.nodes["a"].executor.background = 6.0  # load o's view does not show yet
+    submit(team)
+    team.deliver()
+    [rej] = team.sent(OffloadRejected, by="a")
+    assert (rej.reason, rej.permanent) == ("busy", False)
+    assert rej.report is not None and rej.report.runnable == 6.0
+    assert [(n.robot, n.attempt) for n in team.notes("placed")] == [("a", 1), ("b", 2)]
+    assert not team.notes("backoff") and not team.notes("blacklisted")
+    assert team.nodes["o"].view.report_of("a").runnable == 6.0  # the fresh report was taken in
+    assert team.program("p").state is ProgramState.RUNNING
+    assert team.nodes["o"].statistics().rejections == 1
+    assert team.nodes["a"].statistics().refused == 1
+
+
+def test_after_max_rejections_the_request_is_forced() -> None:
+    hosts = ["a", "b", "c", "d"]
+    team = Team({"o": (1, 1.0), **{h: (4, 1.0) for h in hosts}})
+    team.nodes["o"].executor.background = 10.0
+    team.publish()
+    for h in hosts:
+        team.nodes[h].executor.background = 9.0  # all busier than o thinks
+    submit(team)
+    team.deliver()
+    requests = team.sent(OffloadRequest, by="o")
+    assert [r.force for r in requests] == [False] * CFG.max_rejections + [True]
+    assert len({r.host for r in requests}) == len(requests)  # each rejecting host excluded
+    forced = requests[-1]
+    assert team.actions(StartProgram, forced.host)  # taken regardless of load
+    assert team.program("p").state is ProgramState.RUNNING
+    assert not team.notes("backoff") and not team.notes("blacklisted")
+
+
+def test_permanent_rejection_delivers_a_clear_error() -> None:
+    team = busy_origin_team(registry={"a": frozenset({"route_plan"}), "b": frozenset({"route_plan"})})
+    submit(team, program="teleport")
+    team.deliver()
+    [rej] = team.sent(OffloadRejected, by="a")
+    assert (rej.reason, rej.permanent) == ("unknown_program", True)
+    [d] = team.delivered("p")
+    assert d.ok is False and d.host == "a"
+    assert "'teleport'" in d.error and "unknown_program" in d.error and "a refused" in d.error
+    assert len(team.notes("placed")) == 1  # not tried elsewhere
+    assert team.program("p").state is ProgramState.FAILED
+    assert not team.nodes["o"].view.is_blacklisted("a")
+
+
+def test_request_for_another_host_is_a_bad_request() -> None:
+    a = Node("a", cores=1, speed=1.0)
+    req = OffloadRequest(program_id="p", attempt=1, origin="o", host="z", program="x")
+    [note, send] = a.handle(Received(sender="o", msg=req), 0.0)
+    assert note.what == "refused"
+    assert send.to == "o" and send.msg.reason == "bad_request" and send.msg.permanent
+
+
+# =================================================================== results
+def test_retryable_worker_loss_is_placed_again() -> None:
+    team = busy_origin_team()
+    submit(team)
+    team.deliver()
+    team.finish("a", "p", 1, ok=False, error="killed: out of memory", retryable=True)
+    assert not team.delivered("p")
+    [failed] = team.notes("failed")
+    assert failed.robot == "a" and "worker lost" in failed.detail
+    assert not team.nodes["o"].view.is_blacklisted("a")  # the robot is fine
+    assert team.sent(ResultAck, to="a")
+    assert team.program("p").state is ProgramState.BACKOFF
+    team.advance(team.now + CFG.backoff_max)
+    [_, second] = team.notes("placed")
+    assert second.attempt == 2
+    team.finish(second.robot, "p", 2, ok=True, value=b"ok")
+    assert team.delivered("p") == [Deliver(program_id="p", ok=True, value=b"ok", host=second.robot, attempts=2)]
+
+
+def test_program_error_is_delivered_not_retried() -> None:
+    team = busy_origin_team()
+    submit(team)
+    team.deliver()
+    team.finish("a", "p", 1, ok=False, error="ValueError: no route")
+    assert team.delivered("p") == [Deliver(program_id="p", ok=False, error="ValueError: no route", host="a",
+                                           attempts=1)]
+
+
+def test_duplicate_result_delivered_once_and_acknowledged() -> None:
+    team = busy_origin_team()
+    submit(team)
+    team.deliver()
+    team.handle("a", ProgramFinished(program_id="p", attempt=1, ok=True, value=b"v"))
+    team.deliver(hold=lambda s, to, m: isinstance(m, ResultAck))  # the first ack is lost
+    team.held.clear()
+    assert len(team.delivered("p")) == 1
+    team.advance(team.now + CFG.result_resend + CFG.heartbeat_period + 0.01)  # a resends
+    assert len(team.sent(ProgramResult, by="a")) == 2
+    assert len(team.delivered("p")) == 1
+    assert len(team.sent(ResultAck, by="o")) == 2  # the copy is acknowledged too
+    assert [n.what for n in team.notes("discarded")] == ["discarded"]
+    assert team.nodes["o"].statistics().discarded == 1
+    assert team.nodes["a"].executor.unacked_results() == 0
+
+
+def test_result_for_unknown_program_is_an_anomaly_not_a_crash() -> None:
+    o = Node("o", cores=1, speed=1.0)
+    actions = o.handle(Received(sender="a", msg=ProgramResult(program_id="ghost", attempt=3, host="a", ok=True)), 1.0)
+    assert [a.what for a in actions if isinstance(a, Note)] == ["anomaly"]
+    # acknowledged all the same, so the host stops resending
+    assert [a for a in actions if isinstance(a, Send)] == [
+        Send(to="a", msg=ResultAck(program_id="ghost", attempt=3, origin="o"))]
+    assert not [a for a in actions if isinstance(a, Deliver)]
+    o.handle(Received(sender="a", msg=OffloadAccepted(program_id="ghost", attempt=1, host="a", accept_seq=1)), 1.0)
+    o.handle(Received(sender="a", msg=Heartbeat(host="a", incarnation=0, programs=[ProgramRef("ghost", 1)])), 1.0)
+    assert o.statistics().anomalies == 3
+
+
+def test_illegal_transition_from_a_peer_is_counted_not_raised() -> None:
+    team = busy_origin_team()
+    submit(team)
+    team.deliver()
+    assert team.program("p").state is ProgramState.RUNNING
+    # a rejection of a program a already accepted: no transition from running
+    team.handle("o", Received(sender="a", msg=OffloadRejected(program_id="p", attempt=1, host="a", reason="busy",
+                                                              permanent=False)))
+    [anomaly] = team.notes("anomaly")
+    assert "'running'" in anomaly.detail and "'rejected'" in anomaly.detail
+    assert team.program("p").state is ProgramState.RUNNING
+
+
+# =================================================================== cancel
+def test_cancel_by_the_application() -> None:
+    team = busy_origin_team()
+    submit(team)
+    team.deliver()
+    team.handle("o", Cancel(program_id="p"))
+    [d] = team.delivered("p")
+    assert d.ok is False and "cancelled" in d.error
+    team.deliver()
+    assert team.actions(StopProgram, "a") == [StopProgram(program_id="p", attempt=1)]
+    team.handle("o", Cancel(program_id="p"))  # again: nothing more
+    assert len(team.delivered("p")) == 1
+    with pytest.raises(KeyError, match="nope"):
+        team.handle("o", Cancel(program_id="nope"))
+
+
+def test_cancel_during_backoff() -> None:
+    team = busy_origin_team()
+    submit(team)
+    team.handle("o", PeerLost(robot="a"))
+    assert team.program("p").state is ProgramState.BACKOFF
+    team.handle("o", Cancel(program_id="p"))
+    assert team.delivered("p")[0].error == "cancelled by the application"
+    team.advance(10.0)
+    assert len(team.notes("placed")) == 1  # the back-off timer died with it
+
+
+def test_duplicate_submit_is_local_misuse() -> None:
+    team = busy_origin_team()
+    submit(team)
+    with pytest.raises(ValueError, match="already submitted"):
+        submit(team)
+
+
+# =================================================================== executor
+def _request(**kw) -> OffloadRequest:
+    fields = dict(program_id="p", attempt=1, origin="o", host="a", program="route_plan", work=5.0)
+    fields.update(kw)
+    return OffloadRequest(**fields)
+
+
+def test_executor_resends_unacknowledged_result_until_acknowledged() -> None:
+    a = Node("a", cores=1, speed=1.0)
+    a.handle(Received(sender="o", msg=_request()), 0.0)
+    [send] = a.handle(ProgramFinished(program_id="p", attempt=1, ok=True, value=b"v"), 1.0)
+    first = send.msg
+    resent: list[float] = []
+    now = 1.0
+    while (d := a.next_deadline()) is not None and d <= 4.2:
+        now = d
+        resent += [now for x in a.tick(now) if isinstance(x, Send) and x.msg == first]
+    assert len(resent) == 3
+    assert all(b - a_ >= CFG.result_resend - 1e-9 for a_, b in zip([1.0] + resent, resent))
+    assert a.executor.unacked_results() == 1
+    a.handle(Received(sender="o", msg=ResultAck(program_id="p", attempt=1, origin="o")), now)
+    assert a.executor.unacked_results() == 0
+    for _ in range(5):
+        d = a.next_deadline()
+        if d is None:
+            break
+        assert not [x for x in a.tick(d) if isinstance(x, Send)]
+    assert a.next_deadline() is None
+
+
+def test_executor_ignores_an_ack_from_somebody_else() -> None:
+    a = Node("a", cores=1, speed=1.0)
+    a.handle(Received(sender="o", msg=_request()), 0.0)
+    a.handle(ProgramFinished(program_id="p", attempt=1, ok=True), 1.0)
+    a.handle(Received(sender="x", msg=ResultAck(program_id="p", attempt=1, origin="x")), 1.0)
+    assert a.executor.unacked_results() == 1
+
+
+def test_executor_is_idempotent_on_a_repeated_request() -> None:
+    a = Node("a", cores=1, speed=1.0)
+    first = a.handle(Received(sender="o", msg=_request()), 0.0)
+    again = a.handle(Received(sender="o", msg=_request()), 0.1)
+    assert sum(isinstance(x, StartProgram) for x in first + again) == 1
+    accepts = [x.msg for x in first + again if isinstance(x, Send)]
+    assert accepts == [OffloadAccepted(program_id="p", attempt=1, host="a", accept_seq=1)] * 2
+    assert a.executor.accepted_total == 1 and len(a.executor.running) == 1
+    a.handle(ProgramFinished(program_id="p", attempt=1, ok=True), 1.0)
+    late = a.handle(Received(sender="o", msg=_request()), 1.1)  # result not yet acknowledged
+    assert not [x for x in late if isinstance(x, StartProgram)]
+    assert a.executor.accepted_total == 1
+
+
+def test_executor_heartbeats_list_programs_per_origin() -> None:
+    a = Node("a", cores=4, speed=1.0, incarnation=7)
+    a.handle(Received(sender="o", msg=_request(program_id="p1")), 0.0)
+    a.handle(Received(sender="o", msg=_request(program_id="p2")), 0.0)
+    a.handle(Received(sender="q", msg=_request(program_id="q1", origin="q")), 0.0)
+    beats = {x.to: x.msg for x in a.tick(a.next_deadline()) if isinstance(x, Send)}
+    assert beats == {
+        "o": Heartbeat(host="a", incarnation=7, programs=[ProgramRef("p1", 1), ProgramRef("p2", 1)]),
+        "q": Heartbeat(host="a", incarnation=7, programs=[ProgramRef("q1", 1)]),
+    }
+
+
+def test_executor_cancel_stops_only_the_origins_own_program() -> None:
+    a = Node("a", cores=4, speed=1.0)
+    a.handle(Received(sender="o", msg=_request()), 0.0)
+    assert a.handle(Received(sender="x", msg=CancelProgram(program_id="p", attempt=1, origin="x")), 0.1) == []
+    assert a.handle(Received(sender="o", msg=CancelProgram(program_id="p", attempt=1, origin="o")), 0.2) == [
+        StopProgram(program_id="p", attempt=1)]
+    assert not a.executor.running
+    assert a.handle(ProgramFinished(program_id="p", attempt=1, ok=True), 0.5) == []  # nobody wants it
+
+
+# =================================================================== the transition table
+def test_missing_transition_names_program_state_and_event() -> None:
+    ap = AutonomousProgram(Submit(program_id="prog-42", program="x"), 0.0)
+    with pytest.raises(ProtocolError) as info:
+        ap.handler_for("teleported")
+    err = info.value
+    assert (err.program_id, err.state, err.event) == ("prog-42", ProgramState.OFFERED, "teleported")
+    assert "prog-42" in str(err) and "'offered'" in str(err) and "'teleported'" in str(err)
+    ap.state = ProgramState.DONE
+    with pytest.raises(ProtocolError, match="prog-42.*'done'.*'result'"):
+        ap.handler_for("result")
+
+
+def test_transition_table_is_complete_and_every_handler_exists() -> None:
+    assert set(TRANSITIONS) == set(ProgramState)
+    for state, row in TRANSITIONS.items():
+        for event, handler in row.items():
+            assert callable(getattr(Origin, "_" + handler, None)), (state, event, handler)
+    live = set(ProgramState) - {ProgramState.DONE, ProgramState.FAILED}
+    for state in live:
+        assert "cancel" in TRANSITIONS[state], state
+    assert TRANSITIONS[ProgramState.DONE] == {} and TRANSITIONS[ProgramState.FAILED] == {}
+
+
+# =================================================================== bugs found by review, now fixed
+@pytest.mark.parametrize("policy, bad", [
+    ("ramps", {"cores": 0}),
+    ("ramps", {"speed": 0.0}),
+    ("paper", {"cores": 0}),
+])
+def test_bad_load_report_from_a_peer_never_crashes_the_origin(policy: str, bad: dict) -> None:
+    node = Node("o", cores=1, speed=1.0, policy=policy)
+    try:
+        env = decode(encode("a", report("a", **bad)))
+    except WireError:
+        return  # refused at the boundary: fine
+    node.handle(Received(sender="a", msg=env.msg), 0.0)
+    node.handle(Submit(program_id="p", program="x"), 0.1)  # must not raise
+
+
+def test_blacklist_lifted_by_a_rejection_report_is_noted() -> None:
+    team = busy_origin_team()
+    submit(team, "p1")
+    team.deliver()
+    team.cut.add("a")
+    team.now = 1.0
+    submit(team, "p2")  # offered to a too, still waiting
+    team.advance(CFG.heartbeat_timeout + 0.6)  # p1 writes a off
+    assert team.nodes["o"].view.is_blacklisted("a")
+    team.cut.discard("a")
+    a = team.nodes["a"]
+    a.make_report(cpu_busy=4.0, runnable=7.0, ramps_avg=1.0, window=1.0)  # published; o missed it
+    fresh = a.current_report()
+    team.handle("o", Received(sender="a", msg=OffloadRejected(
+        program_id="p2", attempt=1, host="a", reason="busy", permanent=False, report=fresh)))
+    assert not team.nodes["o"].view.is_blacklisted("a")  # lifted, by the rules
+    assert [n.robot for n in team.notes("unblacklisted")] == ["a"]
