@@ -30,14 +30,17 @@ from ramps.core.messages import (
     MAX_TEXT,
     PROTOCOL_VERSION,
     CancelProgram,
+    CancelSubmitted,
     Heartbeat,
     Message,
     OffloadAccepted,
     OffloadRejected,
     OffloadRequest,
+    ProgramOutcome,
     ProgramRef,
     ProgramResult,
     ResultAck,
+    SubmitProgram,
     WireError,
     decode,
     encode,
@@ -86,6 +89,10 @@ SAMPLES: list[Message] = [
                   retryable=True, finish_seq=8),
     ResultAck(program_id="o#1", attempt=2, origin="o"),
     CancelProgram(program_id="o#1", attempt=2, origin="o"),
+    SubmitProgram(client="o/app-1", request_id=5, program="route_plan", args=b"\x81", work=2.0, result_size=10,
+                  local_only=True),
+    CancelSubmitted(client="o/app-1", request_id=5),
+    ProgramOutcome(request_id=5, ok=False, error="boom", error_kind="program", host="r1", attempts=2),
 ]
 
 

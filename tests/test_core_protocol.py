@@ -268,10 +268,10 @@ def test_retryable_worker_loss_is_placed_again() -> None:
     assert failed.robot == "a" and "worker lost" in failed.detail
     assert not team.nodes["o"].view.is_blacklisted("a")  # the robot is fine
     assert team.sent(ResultAck, to="a")
-    assert team.program("p").state is ProgramState.BACKOFF
-    team.advance(team.now + CFG.backoff_max)
+    # not a host failure: no back-off, placed again at once, on another robot
+    assert not team.notes("backoff")
     [_, second] = team.notes("placed")
-    assert second.attempt == 2
+    assert second.attempt == 2 and second.robot != "a"
     team.finish(second.robot, "p", 2, ok=True, value=b"ok")
     assert team.delivered("p") == [Deliver(program_id="p", ok=True, value=b"ok", host=second.robot, attempts=2)]
 
@@ -281,7 +281,7 @@ def test_program_error_is_delivered_not_retried() -> None:
     submit(team)
     team.deliver()
     team.finish("a", "p", 1, ok=False, error="ValueError: no route")
-    assert team.delivered("p") == [Deliver(program_id="p", ok=False, error="ValueError: no route", host="a",
+    assert team.delivered("p") == [Deliver(program_id="p", ok=False, error="ValueError: no route", error_kind="program", host="a",
                                            attempts=1)]
 
 

@@ -11,3 +11,17 @@ Layout:
 """
 
 __version__ = "0.1.0"
+
+
+def connect(*args, **kwargs):
+    """Join a team as an application; see ``ramps.runtime.client.connect``."""
+    from ramps.runtime.client import connect as _connect
+
+    return _connect(*args, **kwargs)
+
+
+def program(*args, **kwargs):
+    """Register a function as a ramps program; see ``ramps.runtime.registry.program``."""
+    from ramps.runtime.registry import program as _program
+
+    return _program(*args, **kwargs)

@@ -107,6 +107,9 @@ class Deliver(_Rec, frozen=True, kw_only=True):
     ok: bool
     value: bytes = b""
     error: str = ""
+    #: why there is no result: "program" (the program raised), "refused"
+    #: (a host will never run it), "cancelled", "failed" (gave up)
+    error_kind: str = ""
     host: str = ""
     attempts: int = 0
 

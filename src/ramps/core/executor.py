@@ -64,6 +64,8 @@ class Executor:
         self.accepted_total = 0
         self.finished_total = 0
         self.refused = 0
+        #: the node is shutting down: take nothing new
+        self.closing = False
 
     # ------------------------------------------------------------ inputs
     def on_offload(self, req: OffloadRequest, now: float, out: list[Action], report_now=None) -> None:
@@ -78,6 +80,8 @@ class Executor:
             reject = ("bad_request", True, f"request for host {req.host!r} reached {self.me!r}")
         elif self.registry is not None and req.program not in self.registry:
             reject = ("unknown_program", True, f"no program {req.program!r} is registered on {self.me}")
+        elif self.closing:
+            reject = ("closing", False, f"{self.me} is shutting down")
         elif req.expected_runnable is not None and not req.force:
             actual = self.background + len(self.running)
             if actual > req.expected_runnable + self.config.admission_slack:
@@ -156,6 +160,17 @@ class Executor:
             self._next_tick = now + min(self.config.heartbeat_period, self.config.result_resend)
         else:
             self._next_tick = None
+
+    def hand_back(self, now: float, out: list[Action]) -> int:
+        """Shutting down: end every running program with a retryable result so
+        each origin places it elsewhere at once. Returns how many."""
+        self.closing = True
+        keys = list(self.running)
+        for pid, attempt in keys:
+            out.append(StopProgram(program_id=pid, attempt=attempt))
+            self.on_finished(ProgramFinished(program_id=pid, attempt=attempt, ok=False, retryable=True,
+                                             error=f"{self.me} is shutting down"), now, out)
+        return len(keys)
 
     def unacked_results(self) -> int:
         return len(self._outbox)

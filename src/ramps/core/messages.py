@@ -71,6 +71,8 @@ class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, ta
     finished_total: int
     window: float = 1.0
     mem_free: int = 0
+    #: robots this robot's load server has written off (for ``ramps status``)
+    blacklisted: list[str] = []
 
 
 class OffloadRequest(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="offload"):
@@ -149,6 +151,38 @@ class CancelProgram(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True,
     origin: str
 
 
+class SubmitProgram(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="submit"):
+    """An application (client) asks its robot's node to run a program."""
+
+    client: str
+    request_id: int
+    program: str
+    args: bytes = b""
+    #: expected work in work units (from the program's profile), 0 = default
+    work: float = 0.0
+    result_size: int = 0
+    local_only: bool = False
+
+
+class CancelSubmitted(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="withdraw"):
+    client: str
+    request_id: int
+
+
+class ProgramOutcome(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="outcome"):
+    """The one result (or error) of a submitted program, for its client."""
+
+    request_id: int
+    ok: bool
+    value: bytes = b""
+    error: str = ""
+    #: "program" (the program raised), "refused" (no robot will run it),
+    #: "cancelled", "failed" (gave up after failures), "shutdown"
+    error_kind: str = ""
+    host: str = ""
+    attempts: int = 0
+
+
 Message = Union[
     LoadReport,
     OffloadRequest,
@@ -158,6 +192,9 @@ Message = Union[
     ProgramResult,
     ResultAck,
     CancelProgram,
+    SubmitProgram,
+    CancelSubmitted,
+    ProgramOutcome,
 ]
 
 
@@ -206,9 +243,13 @@ def _check_limits(env: Envelope) -> None:
     if not 0 < len(env.sender) <= MAX_NAME:
         raise WireError(f"sender name of length {len(env.sender)} is out of bounds")
     msg = env.msg
-    for field in ("robot", "host", "origin", "program", "program_id"):
+    for field in ("robot", "host", "origin", "program", "program_id", "client"):
         value = getattr(msg, field, None)
-        if value is not None and not 0 < len(value) <= MAX_NAME:
+        if value is None:
+            continue
+        # an outcome refused before any placement names no host
+        optional = field == "host" and isinstance(msg, ProgramOutcome)
+        if len(value) > MAX_NAME or (not value and not optional):
             raise WireError(f"{field} of length {len(value)} is out of bounds")
     for field in ("detail", "error"):
         value = getattr(msg, field, None)
@@ -216,6 +257,8 @@ def _check_limits(env: Envelope) -> None:
             raise WireError(f"{field} longer than {MAX_TEXT} characters")
     if isinstance(msg, Heartbeat) and len(msg.programs) > MAX_REFS:
         raise WireError(f"heartbeat lists {len(msg.programs)} programs (limit {MAX_REFS})")
+    if isinstance(msg, LoadReport) and len(msg.blacklisted) > MAX_REFS:
+        raise WireError(f"load report lists {len(msg.blacklisted)} blacklisted robots (limit {MAX_REFS})")
 
 
 def wire_size(msg: Message) -> int:

@@ -183,7 +183,7 @@ class Node:
             speed=self.speed, cpu_busy=cpu_busy, runnable=runnable,
             ramps_running=len(self.executor.running), ramps_avg=ramps_avg,
             accepted_total=self.executor.accepted_total, finished_total=self.executor.finished_total,
-            window=window, mem_free=mem_free,
+            window=window, mem_free=mem_free, blacklisted=self.view.blacklisted(),
         )
         return self._last_report
 

@@ -239,7 +239,7 @@ class Origin:
                         detail=f"{msg.reason}: {msg.detail}"))
         if msg.permanent:
             self._deliver(ap, now, out, ok=False, error=f"{host} refused program {ap.submit.program!r}: {msg.reason}"
-                          + (f" ({msg.detail})" if msg.detail else ""), host=host)
+                          + (f" ({msg.detail})" if msg.detail else ""), host=host, kind="refused")
             return
         if msg.report is not None and self.view.on_report(msg.report, now, fresh=True):
             out.append(Note(what="unblacklisted", robot=msg.report.robot))
@@ -269,7 +269,7 @@ class Origin:
 
     def _backoff(self, ap: AutonomousProgram, now: float, out: list[Action]) -> None:
         if ap.failures >= self.config.max_attempts:
-            self._deliver(ap, now, out, ok=False, host=ap.host or "",
+            self._deliver(ap, now, out, ok=False, host=ap.host or "", kind="failed",
                           error=f"gave up after {ap.failures} failed attempts")
             return
         ap.state = S.BACKOFF
@@ -292,18 +292,25 @@ class Origin:
             if ap.live:
                 return  # another live attempt may still deliver
             ap.deadline = None
-            self._backoff(ap, now, out)
+            if ap.failures >= self.config.max_attempts:
+                self._backoff(ap, now, out)  # delivers the error
+                return
+            # not a host failure (no blacklist, no back-off): run it elsewhere now
+            ap.excluded.add(msg.host)
+            self.place(ap, now, out)
             return
         self._leave_host(ap, msg.host, msg.finish_seq, attempt=msg.attempt)
         ap.live.pop(msg.attempt, None)
-        self._deliver(ap, now, out, ok=msg.ok, value=msg.value, error=msg.error, host=msg.host)
+        self._deliver(ap, now, out, ok=msg.ok, value=msg.value, error=msg.error, host=msg.host,
+                      kind="" if msg.ok else "program")
 
     def _on_cancel(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
-        self._deliver(ap, now, out, ok=False, error="cancelled by the application", host=ap.host or "")
+        self._deliver(ap, now, out, ok=False, error="cancelled by the application", host=ap.host or "",
+                      kind="cancelled")
 
     # ================================================================ helpers
     def _deliver(self, ap: AutonomousProgram, now: float, out: list[Action], *, ok: bool,
-                 value: bytes = b"", error: str = "", host: str = "") -> None:
+                 value: bytes = b"", error: str = "", host: str = "", kind: str = "") -> None:
         for attempt, h in ap.live.items():  # stop every other copy
             out.append(Send(to=h, msg=CancelProgram(program_id=ap.program_id, attempt=attempt, origin=self.me)))
             self._leave_host(ap, h, None, attempt=attempt)
@@ -313,7 +320,8 @@ class Origin:
         ap.state = S.DONE if ok else S.FAILED
         ap.deadline = None
         self.delivered += 1
-        out.append(Deliver(program_id=ap.program_id, ok=ok, value=value, error=error, host=host, attempts=ap.attempt))
+        out.append(Deliver(program_id=ap.program_id, ok=ok, value=value, error=error, error_kind=kind, host=host,
+                           attempts=ap.attempt))
 
     def _leave_host(self, ap: AutonomousProgram, host: str | None, finish_seq: int | None,
                     *, attempt: int | None = None) -> None:

@@ -1,0 +1,66 @@
+"""The errors ramps raises to the people who use it.
+
+    RampsError                    anything ramps reports
+    ├── ConfigError               bad settings, flags or config file (local misuse)
+    ├── ProgramNotFound           no program of that name is registered here
+    ├── BadArguments              arguments do not fit the program's signature,
+    │                             cannot be encoded, or are too large
+    ├── NoTeam                    no ramps node could be reached in time
+    ├── TransportError            the middleware (Zenoh) failed; wraps its error
+    └── RemoteError               a program ended without a result
+        ├── ProgramFailed         the program itself raised (remote traceback text)
+        ├── ProgramRefused        every robot that was asked refused it
+        └── ProgramLost           it could not be kept alive (gave up, node shut down)
+
+Middleware exceptions are translated once, where ramps calls the middleware
+(``raise TransportError(...) from exc``). A cancelled future raises
+``concurrent.futures.CancelledError`` as Python users expect.
+"""
+
+from __future__ import annotations
+
+
+class RampsError(Exception):
+    """Base class of every error ramps raises."""
+
+
+class ConfigError(RampsError, ValueError):
+    pass
+
+
+class ProgramNotFound(RampsError, KeyError):
+    def __str__(self) -> str:  # KeyError would quote the message
+        return str(self.args[0]) if self.args else ""
+
+
+class BadArguments(RampsError, TypeError):
+    pass
+
+
+class NoTeam(RampsError):
+    pass
+
+
+class TransportError(RampsError):
+    pass
+
+
+class RemoteError(RampsError):
+    """A program ended without a result; ``host`` ran it last."""
+
+    def __init__(self, message: str, *, host: str = "", attempts: int = 0) -> None:
+        super().__init__(message)
+        self.host = host
+        self.attempts = attempts
+
+
+class ProgramFailed(RemoteError):
+    pass
+
+
+class ProgramRefused(RemoteError):
+    pass
+
+
+class ProgramLost(RemoteError):
+    pass

@@ -1,0 +1,345 @@
+"""The Team API: submit computations to the team from robot code.
+
+How this works: ``ramps.connect()`` opens a Zenoh peer session that joins
+the team, finds this robot's node by its liveliness token, and returns a
+``Team``. ``team.submit("plan_route", **args)`` checks the arguments against
+the program's signature (when the program is installed here too), encodes
+them with msgpack and sends one ``SubmitProgram`` to the node; the node is
+the origin of the autonomous program and sends back exactly one
+``ProgramOutcome``, which resolves the ``concurrent.futures.Future``.
+
+    team = ramps.connect(team="warehouse", robot="r1")
+    fut = team.submit("route_plan", picks=8, seed=3)
+    print(fut.result())                               # blocks; raises on failure
+    results = list(team.map("route_plan", [{"seed": s} for s in range(15)]))
+    fast = team.options(timeout=30).submit("route_plan", seed=1)
+    value = await team.submit_async("route_plan", seed=2)
+
+``fut.cancel()`` withdraws the program from the team. A per-call timeout
+(``team.options(timeout=...)``) cancels the program and raises
+``TimeoutError``. Errors are the ``ramps.errors`` tree.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import heapq
+import itertools
+import os
+import socket
+import threading
+import time
+from concurrent.futures import Future
+from typing import Any, Iterable, Iterator
+
+import msgspec
+
+from ramps.core.messages import CancelSubmitted, LoadReport, ProgramOutcome, SubmitProgram, WireError, decode, encode
+from ramps.errors import (
+    BadArguments,
+    NoTeam,
+    ProgramFailed,
+    ProgramLost,
+    ProgramNotFound,
+    ProgramRefused,
+    TransportError,
+)
+from ramps.runtime import keys
+from ramps.runtime.registry import MAX_ARGS_BYTES, Registry, decode_value, default_registry, encode_args
+from ramps.runtime.settings import NodeSettings, load_settings, zenoh_config
+
+
+class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
+    robot: str
+    alive: bool
+    cores: int = 0
+    speed: float = 0.0
+    cpu_busy: float = 0.0
+    runnable: float = 0.0
+    ramps_running: int = 0
+    accepted_total: int = 0
+    finished_total: int = 0
+    blacklisted: list[str] = []
+    report_age: float | None = None
+
+
+class TeamStatus(msgspec.Struct, frozen=True, kw_only=True):
+    team: str
+    robots: list[RobotStatus]
+
+
+_ERRORS = {"program": ProgramFailed, "refused": ProgramRefused, "bad_arguments": BadArguments}
+
+
+class Team:
+    def __init__(self, settings: NodeSettings, *, robot: str | None, timeout: float,
+                 registry: Registry | None = None) -> None:
+        import zenoh
+
+        self.team = settings.team
+        self.registry = registry or default_registry
+        self.client_id = keys.keys_safe_id(f"{socket.gethostname()}-{os.getpid()}-{os.urandom(3).hex()}")
+        self._lock = threading.Lock()
+        self._futures: dict[int, Future] = {}
+        self._ids = itertools.count(1)
+        self._alive: set[str] = set()
+        self._reports: dict[str, tuple[LoadReport, float]] = {}
+        self._timers: list[tuple[float, int]] = []
+        self._timer_cv = threading.Condition(self._lock)
+        self._closed = False
+        try:
+            self.session = zenoh.open(zenoh_config(settings, listen=[] if settings.connect else settings.listen))
+        except zenoh.ZError as exc:
+            raise TransportError(f"cannot open a Zenoh session for team {self.team!r}: {exc}") from exc
+        self._subs = [
+            self.session.declare_subscriber(keys.client(self.team, self.client_id), self._on_outcome),
+            self.session.declare_subscriber(keys.load(self.team), self._on_report),
+            self.session.liveliness().declare_subscriber(keys.alive(self.team), self._on_alive, history=True),
+        ]
+        self._timer_thread = threading.Thread(target=self._timeouts, name="ramps-client-timers", daemon=True)
+        self._timer_thread.start()
+        self.robot = self._find_robot(robot, timeout)
+        self._pub = self.session.declare_publisher(keys.inbox(self.team, self.robot),
+                                                   congestion_control=zenoh.CongestionControl.BLOCK)
+
+    # ------------------------------------------------------------ discovery
+    def _on_alive(self, sample) -> None:
+        import zenoh
+
+        robot = keys.robot_of(str(sample.key_expr))
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._alive.add(robot)
+            else:
+                self._alive.discard(robot)
+
+    def _on_report(self, sample) -> None:
+        try:
+            env = decode(sample.payload.to_bytes())
+        except WireError:
+            return
+        if isinstance(env.msg, LoadReport):
+            with self._lock:
+                self._reports[env.msg.robot] = (env.msg, time.monotonic())
+
+    def _find_robot(self, robot: str | None, timeout: float) -> str:
+        deadline = time.monotonic() + timeout
+        while True:
+            with self._lock:
+                alive = sorted(self._alive)
+            if robot is not None and robot in alive:
+                return robot
+            if robot is None and alive:
+                host = keys.keys_safe_id(socket.gethostname())
+                return host if host in alive else alive[0]
+            if time.monotonic() >= deadline:
+                self.close()
+                want = f"node {robot!r}" if robot else "any node"
+                seen = f" (robots seen: {', '.join(alive)})" if alive else ""
+                raise NoTeam(f"{want} of team {self.team!r} could not be reached within {timeout:g} s{seen}; "
+                             "is `ramps node` running, and are the team name and endpoints right?")
+            time.sleep(0.02)
+
+    # ------------------------------------------------------------ submitting
+    def options(self, *, timeout: float | None = None, local_only: bool = False, work: float | None = None) -> "_Options":
+        """Per-call options: ``team.options(timeout=30).submit(...)``."""
+        return _Options(self, timeout=timeout, local_only=local_only, work=work)
+
+    def submit(self, program: str, /, **kwargs: Any) -> Future:
+        return self._submit(program, kwargs)
+
+    def map(self, program: str, calls: Iterable[dict[str, Any]], *, timeout: float | None = None) -> Iterator[Any]:
+        """Submit one program per dict of arguments; yield results in order."""
+        return self.options(timeout=timeout).map(program, calls)
+
+    async def submit_async(self, program: str, /, **kwargs: Any) -> Any:
+        return await asyncio.wrap_future(self._submit(program, kwargs))
+
+    async def map_async(self, program: str, calls: Iterable[dict[str, Any]]) -> list[Any]:
+        futs = [asyncio.wrap_future(self._submit(program, dict(c))) for c in calls]
+        return list(await asyncio.gather(*futs))
+
+    def _submit(self, program: str, kwargs: dict[str, Any], *, timeout: float | None = None,
+                local_only: bool = False, work: float | None = None) -> Future:
+        if self._closed:
+            raise RuntimeError("this Team is closed")
+        if not isinstance(program, str) or not program:
+            raise ProgramNotFound(f"a program name is a non-empty string, not {program!r}")
+        if program in self.registry:
+            spec = self.registry.get(program)
+            args = encode_args(spec, kwargs)
+            work = work if work is not None else spec.work
+        else:  # not installed here: the robot's node checks it
+            try:
+                args = msgspec.msgpack.encode(kwargs)
+            except (TypeError, msgspec.EncodeError) as exc:
+                raise BadArguments(f"arguments of {program!r} cannot be sent (msgpack only): {exc}") from None
+            if len(args) > MAX_ARGS_BYTES:
+                raise BadArguments(f"arguments of {program!r} are {len(args)} bytes; the limit is {MAX_ARGS_BYTES}")
+        rid = next(self._ids)
+        fut: Future = Future()
+        fut.program = program  # type: ignore[attr-defined]
+        with self._lock:
+            self._futures[rid] = fut
+            if timeout is not None:
+                heapq.heappush(self._timers, (time.monotonic() + timeout, rid))
+                self._timer_cv.notify()
+        fut.add_done_callback(lambda f, rid=rid: self._on_done(rid, f))
+        msg = SubmitProgram(client=self.client_id, request_id=rid, program=program, args=args,
+                            work=work or 0.0, local_only=local_only)
+        try:
+            self._pub.put(encode(self.client_id, msg))
+        except Exception as exc:
+            with self._lock:
+                self._futures.pop(rid, None)
+            raise TransportError(f"could not send {program!r} to {self.robot}: {exc}") from exc
+        return fut
+
+    def _on_done(self, rid: int, fut: Future) -> None:
+        with self._lock:
+            self._futures.pop(rid, None)
+        if fut.cancelled() and not self._closed:
+            try:
+                self._pub.put(encode(self.client_id, CancelSubmitted(client=self.client_id, request_id=rid)))
+            except Exception:
+                pass
+
+    def _on_outcome(self, sample) -> None:
+        try:
+            env = decode(sample.payload.to_bytes())
+        except WireError:
+            return
+        o = env.msg
+        if not isinstance(o, ProgramOutcome):
+            return
+        with self._lock:
+            fut = self._futures.pop(o.request_id, None)
+        if fut is None or fut.done():
+            return
+        try:
+            if o.ok:
+                fut.set_result(decode_value(o.value))
+            else:
+                cls = _ERRORS.get(o.error_kind, ProgramLost)
+                if cls is BadArguments:
+                    fut.set_exception(BadArguments(o.error))
+                else:
+                    fut.set_exception(cls(f"{fut.program} on {o.host or env.sender}: {o.error}", host=o.host,
+                                          attempts=o.attempts))
+        except Exception:  # the future was cancelled meanwhile
+            pass
+
+    def _timeouts(self) -> None:
+        with self._lock:
+            while not self._closed:
+                if not self._timers:
+                    self._timer_cv.wait(0.5)
+                    continue
+                when, rid = self._timers[0]
+                delay = when - time.monotonic()
+                if delay > 0:
+                    self._timer_cv.wait(delay)
+                    continue
+                heapq.heappop(self._timers)
+                fut = self._futures.get(rid)
+                if fut is not None and not fut.done():
+                    self._lock.release()
+                    try:
+                        try:
+                            fut.set_exception(TimeoutError(f"{fut.program} did not finish in time; withdrawn"))
+                        except Exception:
+                            pass
+                        self._pub.put(encode(self.client_id, CancelSubmitted(client=self.client_id, request_id=rid)))
+                    except Exception:
+                        pass
+                    finally:
+                        self._lock.acquire()
+
+    # ------------------------------------------------------------ looking
+    def status(self) -> TeamStatus:
+        """The live team view: who is alive, their latest load reports."""
+        now = time.monotonic()
+        with self._lock:
+            names = sorted(self._alive | set(self._reports))
+            rows = []
+            for name in names:
+                rep, at = self._reports.get(name, (None, None))
+                base = dict(robot=name, alive=name in self._alive)
+                if rep is not None:
+                    base.update(cores=rep.cores, speed=rep.speed, cpu_busy=rep.cpu_busy, runnable=rep.runnable,
+                                ramps_running=rep.ramps_running, accepted_total=rep.accepted_total,
+                                finished_total=rep.finished_total, blacklisted=list(rep.blacklisted),
+                                report_age=now - at)
+                rows.append(RobotStatus(**base))
+        return TeamStatus(team=self.team, robots=rows)
+
+    def pending(self) -> int:
+        with self._lock:
+            return len(self._futures)
+
+    # ------------------------------------------------------------ closing
+    def close(self) -> None:
+        if self._closed:
+            return
+        with self._lock:
+            self._closed = True
+            futs = list(self._futures.values())
+            self._futures.clear()
+            self._timer_cv.notify_all()
+        for f in futs:
+            if not f.done():
+                f.set_exception(ProgramLost("the Team connection was closed before the program finished"))
+        for sub in getattr(self, "_subs", []):
+            try:
+                sub.undeclare()
+            except Exception:
+                pass
+        try:
+            self.session.close()
+        except Exception:
+            pass
+
+    def __enter__(self) -> "Team":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class _Options:
+    def __init__(self, team: Team, **opts: Any) -> None:
+        self._team = team
+        self._opts = opts
+
+    def submit(self, program: str, /, **kwargs: Any) -> Future:
+        return self._team._submit(program, kwargs, **self._opts)
+
+    def map(self, program: str, calls: Iterable[dict[str, Any]]) -> Iterator[Any]:
+        futs = [self.submit(program, **dict(c)) for c in calls]
+
+        def results() -> Iterator[Any]:
+            try:
+                for f in futs:
+                    yield f.result()
+            finally:
+                for f in futs:
+                    f.cancel()
+
+        return results()
+
+    async def submit_async(self, program: str, /, **kwargs: Any) -> Any:
+        return await asyncio.wrap_future(self.submit(program, **kwargs))
+
+
+def connect(team: str | None = None, robot: str | None = None, *, connect: list[str] | None = None,
+            listen: list[str] | None = None, multicast: bool | None = None, timeout: float = 5.0,
+            config_file: str | None = None, registry: Registry | None = None) -> Team:
+    """Join a team as an application and return a ``Team`` to submit to.
+
+    ``robot`` names the node that will be the origin of your programs
+    (default: the node named after this host, or any node found). Raises
+    ``NoTeam`` if no such node answers within ``timeout`` seconds."""
+    settings = load_settings(config_file=config_file, default_robot=False, flags={
+        "team": team, "connect": connect, "listen": listen, "multicast": multicast,
+    })
+    return Team(settings, robot=robot, timeout=timeout, registry=registry)

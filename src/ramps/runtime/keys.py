@@ -1,0 +1,52 @@
+"""Zenoh key expressions of a ramps team.
+
+Everything a team says lives under ``ramps/<team>/``, so teams on one network
+never hear each other:
+
+    ramps/<team>/load/<robot>      load reports (pub/sub, every period)
+    ramps/<team>/msg/<robot>       protocol messages addressed to a robot
+    ramps/<team>/client/<client>   outcomes for an application (client)
+    ramps/<team>/alive/<robot>     liveliness token of a robot's node
+"""
+
+from __future__ import annotations
+
+import re
+
+_NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+
+
+def check_name(kind: str, name: str) -> str:
+    """Team and robot names become key-expression chunks: keep them plain."""
+    if not _NAME.match(name):
+        raise ValueError(
+            f"{kind} name {name!r} must be 1-64 characters of letters, digits, '_', '-' or '.'"
+        )
+    return name
+
+
+def load(team: str, robot: str = "*") -> str:
+    return f"ramps/{team}/load/{robot}"
+
+
+def inbox(team: str, robot: str) -> str:
+    return f"ramps/{team}/msg/{robot}"
+
+
+def client(team: str, client_id: str) -> str:
+    return f"ramps/{team}/client/{client_id}"
+
+
+def alive(team: str, robot: str = "*") -> str:
+    return f"ramps/{team}/alive/{robot}"
+
+
+def robot_of(key: str) -> str:
+    """The last chunk of a key: the robot a load report or token is about."""
+    return key.rsplit("/", 1)[-1]
+
+
+def keys_safe_id(name: str) -> str:
+    """Turn any string (a host name, say) into a valid key chunk."""
+    cleaned = "".join(c if c.isalnum() or c in "_-." else "-" for c in name)[:64]
+    return cleaned or "x"

@@ -1,0 +1,172 @@
+"""What a load publisher measures on a real robot.
+
+How this works: a sampler thread reads the CPU every ``interval`` seconds
+and keeps the samples of the last ``window`` seconds; ``averages()`` returns
+what a ``LoadReport`` needs: busy cores, runnable tasks (the run queue, like
+load average but over the window, so 8 ``stress`` processes count as 8) and
+ramps programs. Two scopes:
+
+* ``host``: the whole machine (``/proc/stat`` and ``psutil``): a robot that
+  is one computer;
+* ``cgroup``: only the processes of this node's cpu cgroup (v1 or v2), for
+  emulated robots that share one host (the testbed, ``ramps demo``).
+
+``detect_cores`` respects CPU affinity and a cgroup CPU quota;
+``measure_speed`` times a fixed amount of work against the burn program's
+calibration, so speed 1.0 means "as fast as the reference core".
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+import time
+from collections import deque
+from pathlib import Path
+from typing import Callable
+
+import psutil
+
+
+def cgroup_cpu_dir() -> Path | None:
+    """This process's cpu cgroup directory (v2 unified or v1 cpu controller)."""
+    try:
+        lines = Path("/proc/self/cgroup").read_text().splitlines()
+    except OSError:
+        return None
+    for line in lines:
+        _, controllers, path = line.split(":", 2)
+        if controllers == "" and Path("/sys/fs/cgroup/cgroup.controllers").exists():
+            return Path("/sys/fs/cgroup") / path.lstrip("/")
+        if "cpu" in controllers.split(","):
+            for root in ("/sys/fs/cgroup/cpu,cpuacct", "/sys/fs/cgroup/cpu"):
+                if Path(root).exists():
+                    return Path(root) / path.lstrip("/")
+    return None
+
+
+def cgroup_quota(d: Path | None) -> float | None:
+    """CPU quota of a cgroup in cores, or None when unlimited."""
+    if d is None:
+        return None
+    try:
+        if (d / "cpu.max").exists():
+            quota, period = (d / "cpu.max").read_text().split()
+            return None if quota == "max" else int(quota) / int(period)
+        q = int((d / "cpu.cfs_quota_us").read_text())
+        p = int((d / "cpu.cfs_period_us").read_text())
+        return None if q <= 0 else q / p
+    except (OSError, ValueError):
+        return None
+
+
+def detect_cores() -> int:
+    n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    quota = cgroup_quota(cgroup_cpu_dir())
+    if quota is not None:
+        n = min(n, max(1, math.floor(quota + 0.5)))
+    return max(1, n)
+
+
+def measure_speed(seconds: float = 0.2) -> float:
+    """Work units per second of one core now (1.0 = the reference core)."""
+    from ramps.programs.burn import burn
+
+    start = time.process_time()
+    burn(units=seconds)
+    used = max(time.process_time() - start, 1e-6)
+    return round(seconds / used, 3)
+
+
+def _procs_running() -> int:
+    try:
+        with open("/proc/stat", "rb") as f:
+            for line in f:
+                if line.startswith(b"procs_running"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return int(os.getloadavg()[0])
+
+
+def _cgroup_usage_and_runnable(d: Path) -> tuple[float, int]:
+    """CPU seconds used so far by a cgroup and its tasks in state R now."""
+    usage = 0.0
+    try:
+        if (d / "cpu.stat").exists() and not (d / "cpuacct.usage").exists():
+            for line in (d / "cpu.stat").read_text().splitlines():
+                if line.startswith("usage_usec"):
+                    usage = int(line.split()[1]) / 1e6
+        else:
+            usage = int((d / "cpuacct.usage").read_text()) / 1e9
+    except (OSError, ValueError):
+        pass
+    running = 0
+    for name in ("cgroup.threads", "tasks"):
+        try:
+            tids = (d / name).read_text().split()
+            break
+        except OSError:
+            tids = []
+    for tid in tids:
+        try:
+            with open(f"/proc/{tid}/stat", "rb") as f:
+                data = f.read()
+            if data[data.rindex(b")") + 2:data.rindex(b")") + 3] == b"R":
+                running += 1
+        except (OSError, ValueError):
+            continue
+    return usage, running
+
+
+class LoadSampler:
+    def __init__(self, ramps_count: Callable[[], int], *, window: float = 1.0, interval: float = 0.1,
+                 scope: str = "host", cgroup: Path | None = None) -> None:
+        self.window = window
+        self.interval = interval
+        self.scope = scope
+        self.cgroup = cgroup
+        self._ramps_count = ramps_count
+        self._samples: deque[tuple[float, float, float, float]] = deque()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="ramps-load", daemon=True)
+
+    def start(self) -> None:
+        psutil.cpu_percent(percpu=False)
+        self._last_usage = _cgroup_usage_and_runnable(self.cgroup)[0] if self.cgroup else 0.0
+        self._last_t = time.monotonic()
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def _run(self) -> None:
+        ncpu = psutil.cpu_count() or 1
+        while not self._stop.wait(self.interval):
+            now = time.monotonic()
+            ramps = float(self._ramps_count())
+            if self.scope == "cgroup" and self.cgroup is not None:
+                usage, running = _cgroup_usage_and_runnable(self.cgroup)
+                busy = max(0.0, (usage - self._last_usage) / max(now - self._last_t, 1e-6))
+                self._last_usage = usage
+                runnable = float(max(0, running - 1))  # less this sampler thread
+            else:
+                busy = psutil.cpu_percent(percpu=False) / 100.0 * ncpu
+                runnable = float(max(0, _procs_running() - 1))
+            self._last_t = now
+            with self._lock:
+                self._samples.append((now, busy, max(runnable, ramps), ramps))
+                while self._samples and self._samples[0][0] < now - self.window:
+                    self._samples.popleft()
+
+    def averages(self) -> tuple[float, float, float]:
+        """(busy cores, runnable tasks, ramps programs) over the window."""
+        with self._lock:
+            s = list(self._samples)
+        if not s:
+            r = float(self._ramps_count())
+            return 0.0, r, r
+        n = len(s)
+        return (sum(x[1] for x in s) / n, sum(x[2] for x in s) / n, sum(x[3] for x in s) / n)

@@ -1,0 +1,383 @@
+"""``ramps node``: one robot's load publisher, load server and program executor.
+
+How this works: a ``NodeRuntime`` owns one ``ramps.core.node.Node`` and is
+its driver. Zenoh callbacks, the worker pool and the load sampler only put
+items on one queue; a single driver thread takes them, stamps the monotonic
+time, calls the core and applies the actions it returns (publish a message,
+start or kill a worker, send an outcome to a client). No placement, failure
+or recovery decision is made here.
+
+Applications (clients) submit to their robot's node with ``SubmitProgram``;
+the node's core is the origin of the autonomous program and the node sends
+the one ``ProgramOutcome`` back to the client's key. The node checks the
+program name and the arguments against the program's signature before it
+places anything, so a bad call fails at the caller.
+
+Shutdown (SIGINT/SIGTERM, ``stop()``): the executor hands every running
+program back to its origin (a retryable result, so the origin places it
+elsewhere at once), programs this node is origin of are cancelled and their
+clients told, then the liveliness token, subscribers and session close.
+"""
+
+from __future__ import annotations
+
+import inspect
+import logging
+import os
+import queue
+import random
+import threading
+import time
+from typing import Any, Callable
+
+import msgspec
+
+from ramps.core.events import (
+    Cancel,
+    Deliver,
+    Note,
+    PeerAlive,
+    PeerLost,
+    ProgramFinished,
+    Received,
+    Send,
+    StartProgram,
+    StopProgram,
+    Submit,
+)
+from ramps.core.messages import (
+    CancelSubmitted,
+    LoadReport,
+    ProgramOutcome,
+    SubmitProgram,
+    WireError,
+    decode,
+    encode,
+)
+from ramps.core.node import Node
+from ramps.errors import ProgramNotFound, TransportError
+from ramps.runtime import keys
+from ramps.runtime.measure import LoadSampler, cgroup_cpu_dir, cgroup_quota, detect_cores, measure_speed
+from ramps.runtime.registry import Registry, decode_args, default_registry
+from ramps.runtime.settings import NodeSettings, zenoh_config
+from ramps.runtime.workers import WorkerPool
+
+log = logging.getLogger("ramps.node")
+
+
+class NodeRuntime:
+    def __init__(self, settings: NodeSettings, *, registry: Registry | None = None,
+                 on_note: Callable[[Note], None] | None = None) -> None:
+        if not settings.robot:
+            raise ValueError("a node needs a robot name")
+        self.s = settings
+        self.robot = settings.robot
+        self.team = settings.team
+        self.registry = Registry(dict((registry or default_registry)._specs))
+        for target in settings.programs:
+            self.registry.add_target(target)
+        self.on_note = on_note
+        self._q: queue.SimpleQueue = queue.SimpleQueue()
+        self._clients: dict[str, tuple[str, int]] = {}
+        self._requests: dict[tuple[str, int], str] = {}
+        self._seq = 0
+        self._pubs: dict[str, Any] = {}
+        self._stopped = threading.Event()
+        self._started = False
+        self.bad_messages = 0
+        self.session = None
+        self.node: Node | None = None
+
+    # ================================================================ lifecycle
+    def start(self) -> "NodeRuntime":
+        import zenoh
+
+        s = self.s
+        cg = cgroup_cpu_dir()
+        scope = s.load_scope
+        if scope == "auto":
+            scope = "cgroup" if cgroup_quota(cg) is not None else "host"
+        self.cores = s.cores or detect_cores()
+        self.speed = s.speed or measure_speed()
+        self.incarnation = int.from_bytes(os.urandom(6), "big")
+        self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=s.core,
+                         rng=random.Random(self.incarnation), incarnation=self.incarnation,
+                         registry=self.registry.names())
+        self.pool = WorkerPool(self.cores, self.registry.targets(), self._finished)
+        self.pool.start()
+        self.sampler = LoadSampler(lambda: self.pool.busy() + self.pool.queued(), window=s.window,
+                                   scope=scope, cgroup=cg if scope == "cgroup" else None)
+        self.sampler.start()
+        self.load_scope = scope
+        try:
+            self.session = zenoh.open(zenoh_config(s))
+            put = self._q.put
+            self._subs = [
+                self.session.declare_subscriber(keys.inbox(self.team, self.robot),
+                                                lambda smp: put(("wire", smp.payload.to_bytes()))),
+                self.session.declare_subscriber(keys.load(self.team),
+                                                lambda smp: put(("wire", smp.payload.to_bytes()))),
+                self.session.liveliness().declare_subscriber(
+                    keys.alive(self.team),
+                    lambda smp: put(("live", keys.robot_of(str(smp.key_expr)), smp.kind == zenoh.SampleKind.PUT)),
+                    history=True),
+            ]
+            self._load_pub = self.session.declare_publisher(keys.load(self.team, self.robot))
+            self._token = self.session.liveliness().declare_token(keys.alive(self.team, self.robot))
+        except zenoh.ZError as exc:
+            self._teardown()
+            raise TransportError(f"cannot join team {self.team!r} over Zenoh: {exc}") from exc
+        self._driver = threading.Thread(target=self._drive, name=f"ramps-node-{self.robot}", daemon=True)
+        self._driver.start()
+        self._started = True
+        log.info("node %s joined team %s: %d cores, speed %.2f, load scope %s", self.robot, self.team,
+                 self.cores, self.speed, scope)
+        return self
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Hand programs back, leave the team, stop workers. Idempotent."""
+        if not self._started or self._stopped.is_set():
+            return
+        done = threading.Event()
+        self._q.put(("stop", done))
+        done.wait(timeout)
+        self._driver.join(timeout)
+        self._teardown()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        return self._stopped.wait(timeout)
+
+    def call(self, fn: Callable[[], Any], timeout: float = 5.0) -> Any:
+        """Run ``fn`` on the driver thread (which owns the core) and return its result."""
+        box: list[Any] = []
+        ev = threading.Event()
+        self._q.put(("call", lambda: (box.append(fn()), ev.set())))
+        if not ev.wait(timeout):
+            raise TimeoutError("the node's driver did not answer")
+        return box[0]
+
+    def endpoints(self) -> list[str]:
+        """Where this node listens (with the real ports)."""
+        try:
+            return [str(x) for x in self.session.info.locators()] if hasattr(self.session.info, "locators") else []
+        except Exception:  # pragma: no cover - informational only
+            return []
+
+    def _teardown(self) -> None:
+        for attr in ("_token",):
+            obj = getattr(self, attr, None)
+            if obj is not None:
+                try:
+                    obj.undeclare()
+                except Exception:
+                    pass
+        for sub in getattr(self, "_subs", []):
+            try:
+                sub.undeclare()
+            except Exception:
+                pass
+        if self.session is not None:
+            try:
+                self.session.close()
+            except Exception:
+                pass
+            self.session = None
+        if getattr(self, "sampler", None):
+            self.sampler.stop()
+        if getattr(self, "pool", None):
+            self.pool.stop()
+        self._stopped.set()
+
+    # ================================================================ inputs
+    def _finished(self, key, ok: bool, value: bytes, error: str, retryable: bool) -> None:
+        self._q.put(("finished", ProgramFinished(program_id=key[0], attempt=key[1], ok=ok, value=value, error=error,
+                                                 result_size=len(value), retryable=retryable)))
+
+    # ================================================================ driver
+    def _drive(self) -> None:
+        node = self.node
+        next_pub = time.monotonic()
+        period = self.s.publish_period
+        q = self._q
+        while True:
+            now = time.monotonic()
+            deadline = node.next_deadline()
+            wake = next_pub if deadline is None else min(deadline, next_pub)
+            try:
+                item = q.get(timeout=max(0.0, wake - now))
+            except queue.Empty:
+                item = None
+            actions: list = []
+            while item is not None:
+                now = time.monotonic()
+                if item[0] == "stop":
+                    self._shutdown(item[1])
+                    return
+                try:
+                    actions.extend(self._handle(item, now))
+                except Exception:  # a bug must not take the node down; say so loudly
+                    log.exception("node %s: error handling %s", self.robot, item[0])
+                try:
+                    item = q.get_nowait() if len(actions) < 256 else None
+                except queue.Empty:
+                    item = None
+            now = time.monotonic()
+            if now >= next_pub:
+                self._publish(now)
+                next_pub = now + period if now - next_pub > period else next_pub + period
+            deadline = node.next_deadline()
+            if deadline is not None and deadline <= now:
+                actions.extend(node.tick(now))
+            self._apply(actions)
+
+    def _handle(self, item: tuple, now: float) -> list:
+        kind = item[0]
+        node = self.node
+        if kind == "wire":
+            try:
+                env = decode(item[1], max_bytes=self.s.max_args_bytes + 64 * 1024)
+            except WireError as exc:
+                self.bad_messages += 1
+                log.warning("node %s dropped a message: %s", self.robot, exc)
+                return []
+            msg = env.msg
+            if isinstance(msg, SubmitProgram):
+                return self._client_submit(msg, now)
+            if isinstance(msg, CancelSubmitted):
+                pid = self._requests.get((msg.client, msg.request_id))
+                if pid is None or node.origin.programs[pid].state in ("done", "failed"):
+                    return []
+                return node.handle(Cancel(program_id=pid), now)
+            if isinstance(msg, ProgramOutcome):
+                return []
+            if isinstance(msg, LoadReport) and msg.robot != env.sender:
+                self.bad_messages += 1
+                return []
+            return node.handle(Received(sender=env.sender, msg=msg), now)
+        if kind == "finished":
+            return node.handle(item[1], now)
+        if kind == "live":
+            robot, alive = item[1], item[2]
+            if robot == self.robot:
+                return []
+            return node.handle(PeerAlive(robot=robot) if alive else PeerLost(robot=robot), now)
+        if kind == "call":
+            item[1]()
+            return []
+        raise ValueError(f"unknown queue item {kind!r}")
+
+    def _client_submit(self, m: SubmitProgram, now: float) -> list:
+        rkey = (m.client, m.request_id)
+        if rkey in self._requests:
+            return []  # a repeated request: one program per request
+        self._seq += 1
+        pid = f"{self.robot}#{self.incarnation % 100000}-{self._seq}"
+        self._requests[rkey] = pid
+        self._clients[pid] = rkey
+        try:
+            spec = self.registry.get(m.program)
+            inspect.signature(spec.function()).bind(**decode_args(m.args))
+        except ProgramNotFound as exc:
+            return self._tell_client(pid, ok=False, error=str(exc), kind="refused", host=self.robot)
+        except Exception as exc:  # signature mismatch, undecodable arguments
+            return self._tell_client(pid, ok=False, kind="bad_arguments",
+                                     error=f"bad arguments for program {m.program!r}: {exc}")
+        if len(m.args) > self.s.max_args_bytes:
+            return self._tell_client(pid, ok=False, kind="bad_arguments",
+                                     error=f"arguments are {len(m.args)} bytes; the limit is {self.s.max_args_bytes}")
+        return self.node.handle(Submit(
+            program_id=pid, program=m.program, args=m.args, payload_size=len(m.args),
+            work=m.work or spec.work, result_size=m.result_size or spec.result,
+            local_only=m.local_only or spec.local_only,
+        ), now)
+
+    def _tell_client(self, pid: str, *, ok: bool, value: bytes = b"", error: str = "", kind: str = "",
+                     host: str = "", attempts: int = 0) -> list:
+        target = self._clients.pop(pid, None)
+        if target is None:
+            return []
+        client, request_id = target
+        self._requests.pop(target, None)
+        self._put(keys.client(self.team, client), encode(self.robot, ProgramOutcome(
+            request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts)))
+        return []
+
+    # ================================================================ outputs
+    def _apply(self, actions: list) -> None:
+        for a in actions:
+            if isinstance(a, Send):
+                self._put(keys.inbox(self.team, a.to), encode(self.robot, a.msg))
+            elif isinstance(a, StartProgram):
+                self.pool.run((a.program_id, a.attempt), a.program, a.args)
+            elif isinstance(a, StopProgram):
+                self.pool.cancel((a.program_id, a.attempt))
+            elif isinstance(a, Deliver):
+                kind = a.error_kind
+                if self.node.executor.closing and kind == "cancelled":
+                    kind, a = "shutdown", msgspec.structs.replace(a, error=f"origin {self.robot} shut down")
+                self._tell_client(a.program_id, ok=a.ok, value=a.value, error=a.error, kind=kind, host=a.host,
+                                  attempts=a.attempts)
+            elif isinstance(a, Note):
+                if a.what in ("blacklisted", "unblacklisted", "failed", "anomaly"):
+                    log.info("node %s: %s %s %s %s", self.robot, a.what, a.robot, a.program_id, a.detail)
+                if self.on_note is not None:
+                    self.on_note(a)
+
+    def _put(self, key: str, data: bytes) -> None:
+        if self.session is None:
+            return
+        pub = self._pubs.get(key)
+        try:
+            if pub is None:
+                import zenoh
+
+                pub = self._pubs[key] = self.session.declare_publisher(
+                    key, congestion_control=zenoh.CongestionControl.BLOCK)
+                if len(self._pubs) > 4096:  # clients come and go
+                    self._pubs.pop(next(iter(self._pubs))).undeclare()
+            pub.put(data)
+        except Exception as exc:
+            log.warning("node %s could not publish on %s: %s", self.robot, key, exc)
+
+    def _publish(self, now: float) -> None:
+        busy, runnable, ramps_avg = self.sampler.averages()
+        self.node.executor.background = max(0.0, runnable - ramps_avg)
+        report = self.node.make_report(cpu_busy=min(busy, float(self.cores) if self.load_scope == "cgroup" else busy),
+                                       runnable=runnable, ramps_avg=ramps_avg, window=self.s.window)
+        try:
+            self._load_pub.put(encode(self.robot, report))
+        except Exception as exc:
+            log.warning("node %s could not publish its load: %s", self.robot, exc)
+
+    def _shutdown(self, done: threading.Event) -> None:
+        now = time.monotonic()
+        node = self.node
+        out: list = []
+        handed = node.executor.hand_back(now, out)
+        for pid, ap in list(node.origin.programs.items()):
+            if ap.state not in ("done", "failed"):
+                out.extend(node.handle(Cancel(program_id=pid), now))
+        self._apply(node._loopback(out, now))
+        log.info("node %s leaving team %s: handed back %d program(s)", self.robot, self.team, handed)
+        time.sleep(0.05)  # let Zenoh flush the hand-backs
+        done.set()
+
+
+def run_node(settings: NodeSettings, *, install_signals: bool = True) -> NodeRuntime:
+    """Start a node and block until SIGINT/SIGTERM, then shut it down cleanly."""
+    import signal
+
+    rt = NodeRuntime(settings).start()
+    stop = threading.Event()
+    if install_signals:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: stop.set())
+    try:
+        while not stop.wait(0.5):
+            pass
+    finally:
+        rt.stop()
+    return rt
+
+
+__all__ = ["NodeRuntime", "run_node"]

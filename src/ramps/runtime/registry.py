@@ -1,0 +1,166 @@
+"""Programs: plain Python functions registered by name on every robot.
+
+How this works: weak mobility means code never travels; every robot has the
+same programs installed and only arguments and results cross the network. A
+program is registered with the ``@ramps.program`` decorator, by a
+``module:function`` path (``ramps node --program mypkg.plans:replan``), or by
+an entry point in the ``ramps.programs`` group. Each has an optional cost
+profile: expected work (work units, about CPU-seconds on a reference core),
+payload and result sizes, and ``local_only`` for programs that must never
+leave their robot (they touch its hardware).
+
+Arguments are keyword arguments encoded with msgpack (msgspec); results are
+any msgpack-encodable value. Arguments are checked against the function's
+signature before anything is sent, so a bad call fails at the caller.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+from dataclasses import dataclass, field
+from importlib.metadata import entry_points
+from typing import Any, Callable
+
+import msgspec
+
+from ramps.errors import BadArguments, ConfigError, ProgramNotFound
+
+#: largest encoded arguments a client will send, bytes
+MAX_ARGS_BYTES = 1024 * 1024
+
+_encoder = msgspec.msgpack.Encoder()
+_decoder = msgspec.msgpack.Decoder()
+
+
+@dataclass
+class ProgramSpec:
+    name: str
+    target: str  # "module:function"
+    work: float = 1.0
+    payload: int = 0
+    result: int = 0
+    local_only: bool = False
+    _fn: Callable[..., Any] | None = field(default=None, repr=False)
+
+    def function(self) -> Callable[..., Any]:
+        if self._fn is None:
+            self._fn = resolve(self.target)
+        return self._fn
+
+
+def resolve(target: str) -> Callable[..., Any]:
+    """Import ``module:function``; raise ConfigError saying what is wrong."""
+    module, sep, attr = target.partition(":")
+    if not sep or not module or not attr:
+        raise ConfigError(f"program target {target!r} must look like 'package.module:function'")
+    try:
+        mod = importlib.import_module(module)
+    except ImportError as exc:
+        raise ConfigError(f"cannot import {module!r} for program {target!r}: {exc}") from exc
+    fn: Any = mod
+    for part in attr.split("."):
+        fn = getattr(fn, part, None)
+        if fn is None:
+            raise ConfigError(f"{module!r} has no {attr!r} (program {target!r})")
+    if not callable(fn):
+        raise ConfigError(f"program {target!r} is not callable")
+    return fn
+
+
+BUILTINS = {
+    "route_plan": ProgramSpec("route_plan", "ramps.programs.route:plan_route", work=2.0, payload=200, result=2000),
+    "burn": ProgramSpec("burn", "ramps.programs.burn:burn", work=1.0, payload=50, result=100),
+    "noop": ProgramSpec("noop", "ramps.programs.burn:noop", work=0.001),
+    "echo": ProgramSpec("echo", "ramps.programs.burn:echo", work=0.001),
+}
+
+
+class Registry:
+    def __init__(self, specs: dict[str, ProgramSpec] | None = None) -> None:
+        self._specs: dict[str, ProgramSpec] = dict(specs or {})
+
+    def add(self, spec: ProgramSpec) -> ProgramSpec:
+        self._specs[spec.name] = spec
+        return spec
+
+    def add_target(self, target: str, name: str | None = None, **profile: Any) -> ProgramSpec:
+        """Register ``module:function`` (checked now, so a typo fails at start)."""
+        fn = resolve(target)
+        spec = getattr(fn, "__ramps_program__", None)
+        if spec is not None and name is None:
+            return self.add(spec)
+        return self.add(ProgramSpec(name or target.rsplit(":", 1)[-1].rsplit(".", 1)[-1], target, _fn=fn, **profile))
+
+    def load_entry_points(self) -> None:
+        for ep in entry_points(group="ramps.programs"):
+            self.add(ProgramSpec(ep.name, ep.value))
+
+    def get(self, name: str) -> ProgramSpec:
+        try:
+            return self._specs[name]
+        except KeyError:
+            known = ", ".join(sorted(self._specs)) or "none"
+            raise ProgramNotFound(f"no program {name!r} is registered (known: {known})") from None
+
+    def names(self) -> frozenset[str]:
+        return frozenset(self._specs)
+
+    def targets(self) -> dict[str, str]:
+        return {name: spec.target for name, spec in self._specs.items()}
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._specs
+
+
+#: programs registered in this process with @program, plus the built-ins
+default_registry = Registry(BUILTINS)
+
+
+def program(name: str | None = None, *, work: float = 1.0, payload: int = 0, result: int = 0,
+            local_only: bool = False) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Register a function as a ramps program (in an installed module)."""
+
+    def deco(fn: Callable[..., Any]) -> Callable[..., Any]:
+        if fn.__module__ == "__main__":
+            raise ConfigError(
+                f"program {fn.__name__!r} is defined in __main__: put it in an importable module installed "
+                "on every robot (code never travels, only arguments do)"
+            )
+        spec = ProgramSpec(name or fn.__name__, f"{fn.__module__}:{fn.__qualname__}", work=work,
+                           payload=payload, result=result, local_only=local_only, _fn=fn)
+        fn.__ramps_program__ = spec  # type: ignore[attr-defined]
+        default_registry.add(spec)
+        return fn
+
+    return deco
+
+
+def encode_args(spec: ProgramSpec, kwargs: dict[str, Any], *, max_bytes: int = MAX_ARGS_BYTES) -> bytes:
+    """Check ``kwargs`` against the program's signature and encode them."""
+    try:
+        inspect.signature(spec.function()).bind(**kwargs)
+    except TypeError as exc:
+        raise BadArguments(f"bad arguments for program {spec.name!r}: {exc}") from None
+    try:
+        data = _encoder.encode(kwargs)
+    except (TypeError, msgspec.EncodeError) as exc:
+        raise BadArguments(f"arguments of {spec.name!r} cannot be sent (msgpack only, never pickle): {exc}") from None
+    if len(data) > max_bytes:
+        raise BadArguments(f"arguments of {spec.name!r} are {len(data)} bytes; the limit is {max_bytes}")
+    return data
+
+
+def decode_value(data: bytes) -> Any:
+    return _decoder.decode(data) if data else None
+
+
+def encode_value(value: Any) -> bytes:
+    return _encoder.encode(value)
+
+
+def decode_args(data: bytes) -> dict[str, Any]:
+    args = _decoder.decode(data) if data else {}
+    if not isinstance(args, dict) or not all(isinstance(k, str) for k in args):
+        raise BadArguments("program arguments must be a mapping of names to values")
+    return args

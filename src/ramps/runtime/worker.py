@@ -1,0 +1,84 @@
+"""A worker process: ``python -m ramps.runtime.worker``.
+
+How this works: the executor starts one of these per core. It reads frames
+from stdin and writes frames to a private copy of its stdout (fd 1 itself is
+pointed at stderr, so a program's ``print`` cannot corrupt the protocol). A
+frame is a 4-byte big-endian length and a msgpack body:
+
+    first frame in:   {"targets": {name: "module:function", ...}}
+    each job in:      [program, args_bytes]
+    each reply out:   [ok, value_bytes, error_text]
+
+Nothing is pickled. The worker runs one program at a time and exits when
+stdin closes.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import sys
+import traceback
+from typing import Any, BinaryIO, Callable
+
+import msgspec
+
+_enc = msgspec.msgpack.Encoder()
+_dec = msgspec.msgpack.Decoder()
+_LEN = struct.Struct(">I")
+
+
+def read_frame(stream: BinaryIO) -> bytes | None:
+    head = stream.read(4)
+    if len(head) < 4:
+        return None
+    (n,) = _LEN.unpack(head)
+    body = stream.read(n)
+    return body if len(body) == n else None
+
+
+def frame(body: bytes) -> bytes:
+    return _LEN.pack(len(body)) + body
+
+
+def run(inp: BinaryIO, out: BinaryIO) -> None:
+    from ramps.runtime.registry import decode_args, resolve
+
+    first = read_frame(inp)
+    if first is None:
+        return
+    targets: dict[str, str] = _dec.decode(first)["targets"]
+    fns: dict[str, Callable[..., Any]] = {}
+    while True:
+        body = read_frame(inp)
+        if body is None:
+            return
+        program, args = _dec.decode(body)
+        try:
+            fn = fns.get(program)
+            if fn is None:
+                fn = fns[program] = resolve(targets[program])
+            value = fn(**decode_args(args))
+            try:
+                reply = [True, _enc.encode(value), ""]
+            except (TypeError, msgspec.EncodeError) as exc:
+                reply = [False, b"", f"program {program!r} returned a value that cannot be sent: {exc}"]
+        except Exception as exc:  # the program's own failure, reported to its origin
+            tb = traceback.format_exception(type(exc), exc, exc.__traceback__)
+            reply = [False, b"", "".join(tb[-6:])[-3000:]]
+        out.write(frame(_enc.encode(reply)))
+        out.flush()
+
+
+def main() -> None:
+    proto_out = os.fdopen(os.dup(1), "wb", buffering=0)
+    os.dup2(2, 1)  # prints from programs go to stderr
+    sys.stdout = sys.stderr
+    try:
+        run(sys.stdin.buffer, proto_out)
+    except (BrokenPipeError, KeyboardInterrupt):
+        pass
+
+
+if __name__ == "__main__":
+    main()

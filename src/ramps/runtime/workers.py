@@ -1,0 +1,218 @@
+"""The program executor's worker processes.
+
+How this works: ``size`` worker processes (the robot's cores) are started
+once as ``python -m ramps.runtime.worker``, so a program starts in well
+under a millisecond, a node's Zenoh threads are never forked and the
+caller's ``__main__`` is never re-imported. Each worker runs one program at
+a time; jobs and results travel as length-prefixed msgpack frames over the
+worker's own pipes (see ``ramps.runtime.worker``); nothing is pickled.
+Programs beyond ``size`` wait in a FIFO queue.
+
+One monitor thread watches every worker's output. A result is handed to
+``on_finished``; a worker that dies under a program (killed, out of memory,
+``os._exit``) is reported as a *retryable* failure so the origin places the
+program again, and a fresh worker takes its place. ``cancel`` kills the
+worker running a program (or drops it from the queue) and reports nothing:
+the core already knows.
+"""
+
+from __future__ import annotations
+
+import os
+import selectors
+import subprocess
+import sys
+import threading
+from collections import deque
+from typing import Callable
+
+import msgspec
+
+from ramps.runtime.worker import frame
+
+Key = tuple[str, int]
+#: on_finished(key, ok, value_bytes, error_text, retryable)
+Finished = Callable[[Key, bool, bytes, str, bool], None]
+
+_enc = msgspec.msgpack.Encoder()
+_dec = msgspec.msgpack.Decoder()
+
+
+class _Worker:
+    __slots__ = ("proc", "fd", "buf", "job", "cancelled")
+
+    def __init__(self, proc: subprocess.Popen) -> None:
+        self.proc = proc
+        self.fd = proc.stdout.fileno()
+        self.buf = bytearray()
+        self.job: Key | None = None
+        self.cancelled = False
+
+
+class WorkerPool:
+    def __init__(self, size: int, targets: dict[str, str], on_finished: Finished, *,
+                 env: dict[str, str] | None = None) -> None:
+        if size < 1:
+            raise ValueError("a worker pool needs at least one worker")
+        self.size = size
+        self.targets = dict(targets)
+        self.on_finished = on_finished
+        self.env = env
+        self._lock = threading.Lock()
+        self._sel = selectors.DefaultSelector()
+        self._workers: list[_Worker] = []
+        self._queue: deque[tuple[Key, str, bytes]] = deque()
+        self._wake_r, self._wake_w = os.pipe()
+        self._sel.register(self._wake_r, selectors.EVENT_READ, None)
+        self._stopping = False
+        self._thread = threading.Thread(target=self._monitor, name="ramps-workers", daemon=True)
+        self.started = 0
+        self.died = 0
+
+    # ------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        with self._lock:
+            for _ in range(self.size):
+                self._add_worker()
+        self._thread.start()
+
+    def _add_worker(self) -> None:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "ramps.runtime.worker"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+            env=self.env, bufsize=0, close_fds=True, start_new_session=False,
+        )
+        proc.stdin.write(frame(_enc.encode({"targets": self.targets})))
+        w = _Worker(proc)
+        self._workers.append(w)
+        self._sel.register(w.fd, selectors.EVENT_READ, w)
+        self.started += 1
+
+    def stop(self) -> None:
+        with self._lock:
+            self._stopping = True
+            workers = list(self._workers)
+            self._queue.clear()
+        self._poke()
+        for w in workers:
+            for f in (w.proc.stdin, ):
+                try:
+                    f.close()
+                except OSError:
+                    pass
+            if w.proc.poll() is None:
+                w.proc.kill()
+        for w in workers:
+            try:
+                w.proc.wait(timeout=2)
+            except subprocess.TimeoutExpired:
+                pass
+            try:
+                w.proc.stdout.close()
+            except OSError:
+                pass
+        if self._thread.is_alive():
+            self._thread.join(timeout=2)
+        self._sel.close()
+        for fd in (self._wake_r, self._wake_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def _poke(self) -> None:
+        try:
+            os.write(self._wake_w, b"x")
+        except OSError:
+            pass
+
+    # ------------------------------------------------------------ jobs
+    def run(self, key: Key, program: str, args: bytes) -> None:
+        with self._lock:
+            if self._stopping:
+                return
+            self._queue.append((key, program, args))
+            self._dispatch_locked()
+
+    def cancel(self, key: Key) -> None:
+        with self._lock:
+            for i, (k, _, _) in enumerate(self._queue):
+                if k == key:
+                    del self._queue[i]
+                    return
+            for w in self._workers:
+                if w.job == key:
+                    w.cancelled = True
+                    w.proc.kill()
+                    break
+
+    def busy(self) -> int:
+        with self._lock:
+            return sum(1 for w in self._workers if w.job is not None)
+
+    def queued(self) -> int:
+        with self._lock:
+            return len(self._queue)
+
+    def pids(self) -> dict[Key, int]:
+        """Which worker process runs which program (for tests and tools)."""
+        with self._lock:
+            return {w.job: w.proc.pid for w in self._workers if w.job is not None}
+
+    def _dispatch_locked(self) -> None:
+        for w in self._workers:
+            if not self._queue:
+                return
+            if w.job is None and w.proc.poll() is None:
+                key, program, args = self._queue.popleft()
+                w.job, w.cancelled = key, False
+                try:
+                    w.proc.stdin.write(frame(_enc.encode([program, args])))
+                except (BrokenPipeError, OSError):
+                    pass  # the monitor sees the dead worker and reports the job
+
+    # ------------------------------------------------------------ monitor thread
+    def _monitor(self) -> None:
+        while True:
+            events = self._sel.select()
+            finished: list[tuple[Key, bool, bytes, str, bool]] = []
+            with self._lock:
+                if self._stopping:
+                    return
+                for skey, _ in events:
+                    w = skey.data
+                    if w is None:
+                        os.read(self._wake_r, 4096)
+                        continue
+                    try:
+                        chunk = os.read(w.fd, 65536)
+                    except OSError:
+                        chunk = b""
+                    if chunk:
+                        w.buf += chunk
+                        while len(w.buf) >= 4:
+                            n = int.from_bytes(w.buf[:4], "big")
+                            if len(w.buf) < 4 + n:
+                                break
+                            body, w.buf = bytes(w.buf[4:4 + n]), w.buf[4 + n:]
+                            ok, value, error = _dec.decode(body)
+                            if w.job is not None and not w.cancelled:
+                                finished.append((w.job, ok, value, error, False))
+                            w.job = None
+                        continue
+                    # end of file: the worker is gone
+                    self._sel.unregister(w.fd)
+                    self._workers.remove(w)
+                    code = w.proc.wait()
+                    for f in (w.proc.stdin, w.proc.stdout):
+                        try:
+                            f.close()
+                        except OSError:
+                            pass
+                    if w.job is not None and not w.cancelled:
+                        self.died += 1
+                        finished.append((w.job, False, b"", f"worker process died under the program "
+                                                             f"(exit code {code})", True))
+                    self._add_worker()
+                self._dispatch_locked()
+            for item in finished:
+                self.on_finished(*item)
