@@ -168,6 +168,181 @@ def bench_sim(
     out.print(f"saved {out_file}")
 
 
+# ====================================================================== the real team
+def _settings(**flags):
+    from ramps.errors import ConfigError
+    from ramps.runtime.settings import load_settings
+
+    config_file = flags.pop("config_file", None)
+    default_robot = flags.pop("default_robot", True)
+    try:
+        return load_settings(config_file=config_file, flags=flags, default_robot=default_robot)
+    except ConfigError as exc:
+        fail(str(exc))
+
+
+TEAM_HELP = "team name: teams on one network never hear each other (env RAMPS_TEAM)"
+CONNECT_HELP = "Zenoh endpoint of a teammate, e.g. tcp/192.168.1.12:7447 (repeatable; env RAMPS_CONNECT)"
+
+
+@app.command()
+def node(
+    robot: Optional[str] = typer.Option(None, "--robot", "-r", help="this robot's name (default: host name; env RAMPS_ROBOT)"),
+    team: Optional[str] = typer.Option(None, "--team", "-t", help=TEAM_HELP),
+    listen: Optional[list[str]] = typer.Option(None, "--listen", "-l", help="Zenoh endpoint to listen on (repeatable; default tcp/0.0.0.0:0)"),
+    connect: Optional[list[str]] = typer.Option(None, "--connect", "-c", help=CONNECT_HELP),
+    multicast: Optional[bool] = typer.Option(None, "--multicast/--no-multicast", help="find teammates by UDP multicast (default on)"),
+    cores: Optional[int] = typer.Option(None, "--cores", min=1, help="cores offered to programs (default: detected)"),
+    speed: Optional[float] = typer.Option(None, "--speed", help="work units per second per core (default: measured)"),
+    policy: Optional[str] = typer.Option(None, "--policy", "-p", help=POLICY_HELP),
+    program: Optional[list[str]] = typer.Option(None, "--program", help="extra program as package.module:function (repeatable)"),
+    config_file: Optional[Path] = typer.Option(None, "--config", help="TOML config file (env RAMPS_CONFIG)"),
+    lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh session lease: how fast a frozen or cut-off peer is noticed"),
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="log every blacklisting and failure"),
+) -> None:
+    """Run this robot's ramps node until Ctrl-C: load publisher, load server, program executor.
+
+    On shutdown (Ctrl-C, SIGTERM) running programs are handed back to their origins, which
+    place them elsewhere at once.
+    """
+    import logging
+
+    from rich.logging import RichHandler
+
+    from ramps.errors import RampsError
+    from ramps.runtime.node import NodeRuntime
+
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s",
+                        handlers=[RichHandler(console=err, show_path=False)])
+    if policy is not None:
+        _check_policy(policy)
+    s = _settings(robot=robot, team=team, listen=listen or None, connect=connect or None, multicast=multicast,
+                  cores=cores, speed=speed, policy=policy, programs=program or None, config_file=config_file,
+                  lease_ms=lease_ms)
+    import signal
+    import threading
+
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        rt = NodeRuntime(s).start()
+    except RampsError as exc:
+        fail(str(exc))
+    err.print(f"[bold]ramps node {rt.robot}[/] joined team [bold]{rt.team}[/]: {rt.cores} cores, speed {rt.speed:g}, "
+              f"policy {s.policy}, load measured on the {rt.load_scope}; listening on {', '.join(s.listen)}"
+              + (f"; connecting to {', '.join(s.connect)}" if s.connect else "")
+              + ("; multicast discovery on" if s.multicast else ""), highlight=False, soft_wrap=True)
+    err.print(f"programs: {', '.join(sorted(rt.registry.names()))}. Ctrl-C to leave the team.", highlight=False,
+              soft_wrap=True)
+    try:
+        while not stop.wait(0.5):
+            pass
+    finally:
+        err.print(f"ramps node {rt.robot}: leaving the team, handing running programs back ...")
+        rt.stop()
+
+
+def _parse_arg(text: str) -> tuple[str, object]:
+    key, sep, raw = text.partition("=")
+    if not sep or not key.isidentifier():
+        fail(f"--arg must look like name=value, got {text!r}")
+    try:
+        return key, json.loads(raw)
+    except json.JSONDecodeError:
+        return key, raw
+
+
+def _connect_team(team, robot, connect, multicast, timeout, config_file=None):
+    from ramps.errors import RampsError
+    from ramps.runtime.client import Team
+
+    s = _settings(team=team, connect=connect or None, multicast=multicast, config_file=config_file,
+                  default_robot=False)
+    try:
+        return Team(s, robot=robot, timeout=timeout)
+    except RampsError as exc:
+        fail(str(exc))
+
+
+@app.command()
+def submit(
+    program: str = typer.Argument(..., help="registered program name, e.g. route_plan, burn, echo"),
+    arg: Optional[list[str]] = typer.Option(None, "--arg", "-a", help="argument name=value (JSON values: 3, 2.5, true, [1,2]); repeatable"),
+    team: Optional[str] = typer.Option(None, "--team", "-t", help=TEAM_HELP),
+    robot: Optional[str] = typer.Option(None, "--robot", "-r", help="node that is the origin (default: this host's, or any)"),
+    connect: Optional[list[str]] = typer.Option(None, "--connect", "-c", help=CONNECT_HELP),
+    multicast: Optional[bool] = typer.Option(None, "--multicast/--no-multicast", help="find the team by UDP multicast"),
+    count: int = typer.Option(1, "--count", "-n", min=1, help="submit the same call this many times"),
+    timeout: Optional[float] = typer.Option(None, "--timeout", help="give up (and withdraw the program) after this many seconds"),
+    as_json: bool = typer.Option(False, "--json", help="print results as JSON lines"),
+) -> None:
+    """Run a program on the team and print its result."""
+    import time as _time
+
+    from ramps.errors import RampsError
+
+    args = dict(_parse_arg(a) for a in arg or [])
+    t = _connect_team(team, robot, connect, multicast, 5.0)
+    try:
+        started = _time.perf_counter()
+        try:
+            futs = [t.options(timeout=timeout).submit(program, **args) for _ in range(count)]
+        except RampsError as exc:
+            fail(str(exc))
+        code = 0
+        for f in futs:
+            try:
+                value = f.result()
+                line = {"ok": True, "value": value}
+            except (RampsError, TimeoutError) as exc:
+                code = 1
+                line = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+            if as_json:
+                sys.stdout.write(json.dumps(line, default=str) + "\n")
+            elif line["ok"]:
+                out.print(line["value"])
+            else:
+                err.print(f"[red]{line['error']}[/]", highlight=False, soft_wrap=True)
+        if not as_json:
+            err.print(f"{count} program(s) in {_time.perf_counter() - started:.2f} s via {t.robot}")
+    finally:
+        t.close()
+    raise typer.Exit(code)
+
+
+@app.command()
+def status(
+    team: Optional[str] = typer.Option(None, "--team", "-t", help=TEAM_HELP),
+    connect: Optional[list[str]] = typer.Option(None, "--connect", "-c", help=CONNECT_HELP),
+    multicast: Optional[bool] = typer.Option(None, "--multicast/--no-multicast", help="find the team by UDP multicast"),
+    wait: float = typer.Option(2.5, "--wait", help="seconds to listen for load reports"),
+    as_json: bool = typer.Option(False, "--json", help="print the team view as JSON"),
+) -> None:
+    """Show the team: robots, their load, running programs, blacklisted peers."""
+    import time as _time
+
+    from rich.table import Table
+
+    t = _connect_team(team, None, connect, multicast, 5.0)
+    try:
+        _time.sleep(wait)
+        st = t.status()
+    finally:
+        t.close()
+    if as_json:
+        sys.stdout.write(msgspec.json.encode(st).decode() + "\n")
+        return
+    table = Table(title=f"team {st.team}", title_justify="left")
+    for name in ("robot", "alive", "cores", "speed", "cpu busy", "run queue", "programs", "done", "blacklists", "report age"):
+        table.add_column(name, justify="left" if name in ("robot", "blacklists") else "right")
+    for r in st.robots:
+        table.add_row(r.robot, "yes" if r.alive else "[red]no[/]", str(r.cores), f"{r.speed:g}", f"{r.cpu_busy:.2f}",
+                      f"{r.runnable:.1f}", str(r.ramps_running), str(r.finished_total), ", ".join(r.blacklisted),
+                      "-" if r.report_age is None else f"{r.report_age:.1f} s")
+    out.print(table)
+
+
 def main() -> None:
     app()
 
