@@ -33,6 +33,8 @@ class Submit(_Rec, frozen=True, kw_only=True):
     result_size: int = 0
     #: never leave this robot (e.g. the program drives hardware)
     local_only: bool = False
+    #: placement policy for this program ("" = the node's own)
+    policy: str = ""
 
 
 class Cancel(_Rec, frozen=True, kw_only=True):

@@ -162,6 +162,8 @@ class SubmitProgram(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True,
     work: float = 0.0
     result_size: int = 0
     local_only: bool = False
+    #: placement policy for this program ("" = the node's own)
+    policy: str = ""
 
 
 class CancelSubmitted(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="withdraw"):

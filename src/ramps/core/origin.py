@@ -32,7 +32,7 @@ from ramps.core.messages import (
     ProgramResult,
     ResultAck,
 )
-from ramps.core.policy import Policy, PlacementRequest
+from ramps.core.policy import Policy, PlacementRequest, make_policy
 from ramps.core.program import FINAL, AutonomousProgram, ProgramState, ProtocolError
 
 S = ProgramState
@@ -54,6 +54,8 @@ class Origin:
         self.config = config
         self.rng = rng
         self.net = net
+        #: policies by name: the node's own, plus any a program asked for
+        self._policies: dict[str, Policy] = {policy.name: policy}
         self.programs: dict[str, AutonomousProgram] = {}
         self._by_host: dict[str, set[str]] = {}
         self._timers: list[tuple[float, int, str]] = []
@@ -70,6 +72,8 @@ class Origin:
     def submit(self, sub: Submit, now: float, out: list[Action]) -> None:
         if sub.program_id in self.programs:
             raise ValueError(f"program id {sub.program_id!r} was already submitted")
+        if sub.policy and sub.policy not in self._policies:
+            self._policies[sub.policy] = make_policy(sub.policy)  # ValueError names the known ones
         ap = AutonomousProgram(sub, now)
         self.programs[sub.program_id] = ap
         self.place(ap, now, out)
@@ -190,14 +194,15 @@ class Origin:
         if host is None and sub.local_only:
             host = self.me
         if host is None:
-            placement = self.policy.choose(
+            policy = self._policies[sub.policy] if sub.policy else self.policy
+            placement = policy.choose(
                 PlacementRequest(program_id=ap.program_id, work=sub.work,
                                  payload_size=sub.payload_size, result_size=sub.result_size),
                 self.view, now, self.rng, net=self.net, config=self.config,
                 exclude=frozenset(ap.excluded),
             )
             host = placement.host
-            if self.policy.negotiates:
+            if policy.negotiates:
                 expected = placement.expected_runnable
         if ap.host is not None and ap.host not in ap.live.values():
             self._by_host.get(ap.host, set()).discard(ap.program_id)

@@ -141,9 +141,15 @@ class Team:
             time.sleep(0.02)
 
     # ------------------------------------------------------------ submitting
-    def options(self, *, timeout: float | None = None, local_only: bool = False, work: float | None = None) -> "_Options":
-        """Per-call options: ``team.options(timeout=30).submit(...)``."""
-        return _Options(self, timeout=timeout, local_only=local_only, work=work)
+    def options(self, *, timeout: float | None = None, local_only: bool = False, work: float | None = None,
+                policy: str = "") -> "_Options":
+        """Per-call options: ``team.options(timeout=30).submit(...)``.
+
+        ``timeout``: withdraw the program and raise TimeoutError after this
+        many seconds; ``local_only``: run it on the origin robot only;
+        ``work``: expected work units (overrides the program's profile);
+        ``policy``: placement policy for these calls (default: the node's)."""
+        return _Options(self, timeout=timeout, local_only=local_only, work=work, policy=policy)
 
     def submit(self, program: str, /, **kwargs: Any) -> Future:
         return self._submit(program, kwargs)
@@ -160,7 +166,7 @@ class Team:
         return list(await asyncio.gather(*futs))
 
     def _submit(self, program: str, kwargs: dict[str, Any], *, timeout: float | None = None,
-                local_only: bool = False, work: float | None = None) -> Future:
+                local_only: bool = False, work: float | None = None, policy: str = "") -> Future:
         if self._closed:
             raise RuntimeError("this Team is closed")
         if not isinstance(program, str) or not program:
@@ -186,7 +192,7 @@ class Team:
                 self._timer_cv.notify()
         fut.add_done_callback(lambda f, rid=rid: self._on_done(rid, f))
         msg = SubmitProgram(client=self.client_id, request_id=rid, program=program, args=args,
-                            work=work or 0.0, local_only=local_only)
+                            work=work or 0.0, local_only=local_only, policy=policy)
         try:
             self._pub.put(encode(self.client_id, msg))
         except Exception as exc:

@@ -29,21 +29,44 @@ from typing import Callable
 import psutil
 
 
-def cgroup_cpu_dir() -> Path | None:
-    """This process's cpu cgroup directory (v2 unified or v1 cpu controller)."""
+def _own_cgroups() -> dict[str, str]:
+    """controller -> path of this process, from /proc/self/cgroup."""
+    out: dict[str, str] = {}
     try:
         lines = Path("/proc/self/cgroup").read_text().splitlines()
     except OSError:
-        return None
+        return out
     for line in lines:
         _, controllers, path = line.split(":", 2)
-        if controllers == "" and Path("/sys/fs/cgroup/cgroup.controllers").exists():
-            return Path("/sys/fs/cgroup") / path.lstrip("/")
-        if "cpu" in controllers.split(","):
-            for root in ("/sys/fs/cgroup/cpu,cpuacct", "/sys/fs/cgroup/cpu"):
-                if Path(root).exists():
-                    return Path(root) / path.lstrip("/")
-    return None
+        for c in controllers.split(",") if controllers else [""]:
+            out[c] = path
+    return out
+
+
+def cgroup_dirs() -> tuple[Path | None, Path | None]:
+    """(cpu dir with the quota, dir with CPU usage) of this process's cgroup,
+    for cgroup v2 (one unified dir) or v1 (cpu and cpuacct, maybe co-mounted)."""
+    own = _own_cgroups()
+    root = Path("/sys/fs/cgroup")
+    if (root / "cgroup.controllers").exists() and "" in own:
+        d = root / own[""].lstrip("/")
+        return d, d
+    cpu = acct = None
+    if "cpu" in own:
+        for name in ("cpu,cpuacct", "cpu"):
+            if (root / name).exists():
+                cpu = root / name / own["cpu"].lstrip("/")
+                break
+    if "cpuacct" in own:
+        for name in ("cpu,cpuacct", "cpuacct"):
+            if (root / name / "cpuacct.usage").exists():
+                acct = root / name / own["cpuacct"].lstrip("/")
+                break
+    return cpu, acct
+
+
+def cgroup_cpu_dir() -> Path | None:
+    return cgroup_dirs()[0]
 
 
 def cgroup_quota(d: Path | None) -> float | None:
@@ -69,14 +92,20 @@ def detect_cores() -> int:
     return max(1, n)
 
 
-def measure_speed(seconds: float = 0.2) -> float:
-    """Work units per second of one core now (1.0 = the reference core)."""
+def measure_speed(seconds: float = 0.2, *, quota: float | None = None, cores: int = 1) -> float:
+    """Work units per second of one core now (1.0 = the reference core).
+
+    Under a cgroup quota smaller than ``cores`` a core only runs part of the
+    time, so the speed is scaled by ``quota / cores``."""
     from ramps.programs.burn import burn
 
     start = time.process_time()
     burn(units=seconds)
     used = max(time.process_time() - start, 1e-6)
-    return round(seconds / used, 3)
+    speed = seconds / used
+    if quota is not None and quota < cores:
+        speed *= quota / cores
+    return round(speed, 3)
 
 
 def _procs_running() -> int:
@@ -90,30 +119,32 @@ def _procs_running() -> int:
     return int(os.getloadavg()[0])
 
 
-def _cgroup_usage_and_runnable(d: Path) -> tuple[float, int]:
-    """CPU seconds used so far by a cgroup and its tasks in state R now."""
+def _cgroup_usage_and_runnable(cpu: Path, acct: Path | None) -> tuple[float, int]:
+    """CPU seconds used so far by a cgroup, and its threads in state R now."""
     usage = 0.0
     try:
-        if (d / "cpu.stat").exists() and not (d / "cpuacct.usage").exists():
-            for line in (d / "cpu.stat").read_text().splitlines():
+        if acct is not None and (acct / "cpuacct.usage").exists():
+            usage = int((acct / "cpuacct.usage").read_text()) / 1e9
+        elif (cpu / "cpu.stat").exists():
+            for line in (cpu / "cpu.stat").read_text().splitlines():
                 if line.startswith("usage_usec"):
                     usage = int(line.split()[1]) / 1e6
-        else:
-            usage = int((d / "cpuacct.usage").read_text()) / 1e9
     except (OSError, ValueError):
         pass
-    running = 0
+    tids: list[str] = []
     for name in ("cgroup.threads", "tasks"):
         try:
-            tids = (d / name).read_text().split()
+            tids = (cpu / name).read_text().split()
             break
         except OSError:
-            tids = []
+            continue
+    running = 0
     for tid in tids:
         try:
             with open(f"/proc/{tid}/stat", "rb") as f:
                 data = f.read()
-            if data[data.rindex(b")") + 2:data.rindex(b")") + 3] == b"R":
+            end = data.rindex(b")")
+            if data[end + 2:end + 3] == b"R":
                 running += 1
         except (OSError, ValueError):
             continue
@@ -122,11 +153,12 @@ def _cgroup_usage_and_runnable(d: Path) -> tuple[float, int]:
 
 class LoadSampler:
     def __init__(self, ramps_count: Callable[[], int], *, window: float = 1.0, interval: float = 0.1,
-                 scope: str = "host", cgroup: Path | None = None) -> None:
+                 scope: str = "host", cgroup: Path | None = None, acct: Path | None = None) -> None:
         self.window = window
         self.interval = interval
         self.scope = scope
         self.cgroup = cgroup
+        self.acct = acct
         self._ramps_count = ramps_count
         self._samples: deque[tuple[float, float, float, float]] = deque()
         self._lock = threading.Lock()
@@ -135,7 +167,7 @@ class LoadSampler:
 
     def start(self) -> None:
         psutil.cpu_percent(percpu=False)
-        self._last_usage = _cgroup_usage_and_runnable(self.cgroup)[0] if self.cgroup else 0.0
+        self._last_usage = _cgroup_usage_and_runnable(self.cgroup, self.acct)[0] if self.cgroup else 0.0
         self._last_t = time.monotonic()
         self._thread.start()
 
@@ -148,7 +180,7 @@ class LoadSampler:
             now = time.monotonic()
             ramps = float(self._ramps_count())
             if self.scope == "cgroup" and self.cgroup is not None:
-                usage, running = _cgroup_usage_and_runnable(self.cgroup)
+                usage, running = _cgroup_usage_and_runnable(self.cgroup, self.acct)
                 busy = max(0.0, (usage - self._last_usage) / max(now - self._last_t, 1e-6))
                 self._last_usage = usage
                 runnable = float(max(0, running - 1))  # less this sampler thread

@@ -57,7 +57,7 @@ from ramps.core.messages import (
 from ramps.core.node import Node
 from ramps.errors import ProgramNotFound, TransportError
 from ramps.runtime import keys
-from ramps.runtime.measure import LoadSampler, cgroup_cpu_dir, cgroup_quota, detect_cores, measure_speed
+from ramps.runtime.measure import LoadSampler, cgroup_dirs, cgroup_quota, detect_cores, measure_speed
 from ramps.runtime.registry import Registry, decode_args, default_registry
 from ramps.runtime.settings import NodeSettings, zenoh_config
 from ramps.runtime.workers import WorkerPool
@@ -93,12 +93,13 @@ class NodeRuntime:
         import zenoh
 
         s = self.s
-        cg = cgroup_cpu_dir()
+        cg, acct = cgroup_dirs()
+        quota = cgroup_quota(cg)
         scope = s.load_scope
         if scope == "auto":
-            scope = "cgroup" if cgroup_quota(cg) is not None else "host"
+            scope = "cgroup" if quota is not None else "host"
         self.cores = s.cores or detect_cores()
-        self.speed = s.speed or measure_speed()
+        self.speed = s.speed or measure_speed(quota=quota, cores=self.cores)
         self.incarnation = int.from_bytes(os.urandom(6), "big")
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=s.core,
                          rng=random.Random(self.incarnation), incarnation=self.incarnation,
@@ -106,7 +107,8 @@ class NodeRuntime:
         self.pool = WorkerPool(self.cores, self.registry.targets(), self._finished)
         self.pool.start()
         self.sampler = LoadSampler(lambda: self.pool.busy() + self.pool.queued(), window=s.window,
-                                   scope=scope, cgroup=cg if scope == "cgroup" else None)
+                                   scope=scope, cgroup=cg if scope == "cgroup" else None,
+                                   acct=acct if scope == "cgroup" else None)
         self.sampler.start()
         self.load_scope = scope
         try:
@@ -282,13 +284,18 @@ class NodeRuntime:
         except Exception as exc:  # signature mismatch, undecodable arguments
             return self._tell_client(pid, ok=False, kind="bad_arguments",
                                      error=f"bad arguments for program {m.program!r}: {exc}")
+        from ramps.core.policy import POLICIES
+
+        if m.policy and m.policy not in POLICIES:
+            return self._tell_client(pid, ok=False, kind="bad_arguments",
+                                     error=f"unknown policy {m.policy!r}; choose one of {', '.join(POLICIES)}")
         if len(m.args) > self.s.max_args_bytes:
             return self._tell_client(pid, ok=False, kind="bad_arguments",
                                      error=f"arguments are {len(m.args)} bytes; the limit is {self.s.max_args_bytes}")
         return self.node.handle(Submit(
             program_id=pid, program=m.program, args=m.args, payload_size=len(m.args),
             work=m.work or spec.work, result_size=m.result_size or spec.result,
-            local_only=m.local_only or spec.local_only,
+            local_only=m.local_only or spec.local_only, policy=m.policy,
         ), now)
 
     def _tell_client(self, pid: str, *, ok: bool, value: bytes = b"", error: str = "", kind: str = "",
