@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/ramps sim paper
+	$(BIN)/ramps demo
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

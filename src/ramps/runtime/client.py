@@ -15,7 +15,8 @@ the origin of the autonomous program and sends back exactly one
     fast = team.options(timeout=30).submit("route_plan", seed=1)
     value = await team.submit_async("route_plan", seed=2)
 
-``fut.cancel()`` withdraws the program from the team. A per-call timeout
+``fut.cancel()`` withdraws the program from the team. Once done, ``fut.host``
+names the robot that ran it and ``fut.attempts`` how many placements it took. A per-call timeout
 (``team.options(timeout=...)``) cancels the program and raises
 ``TimeoutError``. Errors are the ``ramps.errors`` tree.
 """
@@ -222,6 +223,8 @@ class Team:
             fut = self._futures.pop(o.request_id, None)
         if fut is None or fut.done():
             return
+        fut.host = o.host  # type: ignore[attr-defined]  # which robot ran it
+        fut.attempts = o.attempts  # type: ignore[attr-defined]
         try:
             if o.ok:
                 fut.set_result(decode_value(o.value))

@@ -237,7 +237,7 @@ class NodeRuntime:
         node = self.node
         if kind == "wire":
             try:
-                env = decode(item[1], max_bytes=self.s.max_args_bytes + 64 * 1024)
+                env = decode(item[1])  # the wire limit; client arguments are checked on submit
             except WireError as exc:
                 self.bad_messages += 1
                 log.warning("node %s dropped a message: %s", self.robot, exc)

@@ -28,6 +28,9 @@ from ramps.errors import BadArguments, ConfigError, ProgramNotFound
 
 #: largest encoded arguments a client will send, bytes
 MAX_ARGS_BYTES = 1024 * 1024
+#: largest encoded result a program may return: it must fit in one wire
+#: message (ramps.core.messages.MAX_MESSAGE_BYTES) with room for the envelope
+MAX_RESULT_BYTES = 8 * 1024 * 1024 - 64 * 1024
 
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder()

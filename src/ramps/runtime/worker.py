@@ -42,7 +42,7 @@ def frame(body: bytes) -> bytes:
 
 
 def run(inp: BinaryIO, out: BinaryIO) -> None:
-    from ramps.runtime.registry import decode_args, resolve
+    from ramps.runtime.registry import MAX_RESULT_BYTES, decode_args, resolve
 
     first = read_frame(inp)
     if first is None:
@@ -60,7 +60,11 @@ def run(inp: BinaryIO, out: BinaryIO) -> None:
                 fn = fns[program] = resolve(targets[program])
             value = fn(**decode_args(args))
             try:
-                reply = [True, _enc.encode(value), ""]
+                data = _enc.encode(value)
+                reply = [True, data, ""]
+                if len(data) > MAX_RESULT_BYTES:
+                    reply = [False, b"", f"program {program!r} returned {len(data)} bytes; results are limited to "
+                                         f"{MAX_RESULT_BYTES} bytes (send a path or split the work)"]
             except (TypeError, msgspec.EncodeError) as exc:
                 reply = [False, b"", f"program {program!r} returned a value that cannot be sent: {exc}"]
         except Exception as exc:  # the program's own failure, reported to its origin

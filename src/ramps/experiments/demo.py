@@ -1,0 +1,133 @@
+"""``ramps demo``: the paper's scenario on a real team on this machine.
+
+How this works: a ``LocalTeam`` of real node processes (default 5). Where
+root and cpu cgroups are available, each robot is its own cgroup with an
+equal share of this host's cores, so the five robots really are five small
+computers ("emulated robots"); otherwise they share the host ("shared
+host"), and speedups are bounded by its cores. Robot 1 then submits the
+paper's workload (15 route-planning programs) three times in the same
+session: placed by ramps, by round robin, and on robot 1 alone. A loaded
+robot (``--loaded``) runs 8 busy processes inside its own cgroup; a killed
+robot (``--kill``) is SIGKILLed mid-run and its programs are re-placed.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections import Counter
+from typing import Callable
+
+import msgspec
+
+from ramps.runtime.localteam import LocalTeam, cgroup_mode
+
+
+class PhaseResult(msgspec.Struct, kw_only=True):
+    name: str
+    makespan: float
+    distribution: dict[str, int]
+    completed: int
+    failed: int
+    replaced: int
+    errors: list[str] = []
+
+
+class DemoReport(msgspec.Struct, kw_only=True):
+    mode: str
+    robots: list[str]
+    robot_cores: float
+    programs: int
+    program: str
+    arguments: dict
+    loaded: list[str]
+    killed: str | None
+    phases: list[PhaseResult]
+    speedup_vs_single: float
+    ratio_to_round_robin: float
+    wall_seconds: float
+
+
+def _run_phase(name: str, team, calls: list[dict], *, program: str, options: dict,
+               on_progress: Callable[[str, int, int, Counter], None] | None,
+               during: Callable[[float], None] | None = None) -> PhaseResult:
+    t0 = time.perf_counter()
+    futs = [team.options(**options).submit(program, **c) for c in calls]
+    dist: Counter = Counter()
+    failed, errors, replaced = 0, [], 0
+    pending = set(range(len(futs)))
+    while pending:
+        if during is not None:
+            during(time.perf_counter() - t0)
+        for i in list(pending):
+            f = futs[i]
+            if f.done():
+                pending.discard(i)
+                if f.exception() is None:
+                    dist[f.host] += 1
+                    replaced += 1 if getattr(f, "attempts", 1) > 1 else 0
+                else:
+                    failed += 1
+                    errors.append(str(f.exception())[:200])
+        if on_progress:
+            on_progress(name, len(futs) - len(pending), len(futs), dist)
+        time.sleep(0.05)
+    return PhaseResult(name=name, makespan=time.perf_counter() - t0, distribution=dict(dist),
+                       completed=sum(dist.values()), failed=failed, replaced=replaced, errors=errors)
+
+
+def run_demo(*, robots: int = 5, programs: int = 15, program: str = "route_plan", arguments: dict | None = None,
+             loaded: list[str] | None = None, kill: str | None = None, kill_at: float = 3.0,
+             emulate: bool | None = None,
+             on_progress: Callable[[str, int, int, Counter], None] | None = None,
+             on_phase: Callable[[str], None] | None = None) -> DemoReport:
+    started = time.perf_counter()
+    host_cores = len(os.sched_getaffinity(0))
+    can_emulate = cgroup_mode() is not None
+    if emulate and not can_emulate:
+        raise PermissionError("emulated robots need root and writable cpu cgroups; run with --shared")
+    emulate = can_emulate if emulate is None else emulate
+    quota = host_cores / robots if emulate else None
+    mode = (f"emulated robots: each node in its own cpu cgroup of {quota:.2f} of a host core "
+            f"({robots} robots on this {host_cores}-core host)" if emulate else
+            f"shared host: {robots} nodes share this machine's {host_cores} cores (no cgroups: not root, or "
+            "--shared); speedups are bounded by the host's cores")
+    loaded = list(loaded or [])
+    args = dict(arguments or {})
+    calls = [dict(args, seed=i) for i in range(programs)]
+    names = [f"r{i}" for i in range(1, robots + 1)]
+    for name in loaded + ([kill] if kill else []):
+        if name not in names:
+            raise ValueError(f"no robot {name!r} in this team ({', '.join(names)})")
+    if kill == names[0]:
+        raise ValueError("the origin r1 cannot be killed: its programs would be nobody's concern (paper 3.3)")
+    phases = []
+    with LocalTeam(names, cpu_quota=quota) as team:
+        for name in loaded:
+            team.add_load(name, 8)
+        client = team.client("r1")
+        try:
+            time.sleep(2.5)  # every load server hears every robot, loaded ones included
+            killed = []
+
+            def during(elapsed: float) -> None:
+                if kill and not killed and elapsed >= kill_at:
+                    team.kill_node(kill)
+                    killed.append(kill)
+
+            for title, opts in (("ramps", {}), ("round robin", {"policy": "round_robin"}),
+                                ("single robot (r1)", {"local_only": True})):
+                if on_phase:
+                    on_phase(title)
+                phases.append(_run_phase(title, client, calls, program=program, options=opts,
+                                         on_progress=on_progress, during=during if title == "ramps" else None))
+                if killed and title == "ramps":
+                    team.start_node(kill)  # back for the baselines, so they run on the same team
+                    time.sleep(2.5)
+        finally:
+            client.close()
+    ramps_t, rr_t, single_t = (p.makespan for p in phases)
+    return DemoReport(mode=mode, robots=names, robot_cores=quota or host_cores, programs=programs, program=program,
+                      arguments=args, loaded=loaded, killed=kill, phases=phases,
+                      speedup_vs_single=single_t / ramps_t, ratio_to_round_robin=ramps_t / rr_t,
+                      wall_seconds=time.perf_counter() - started)

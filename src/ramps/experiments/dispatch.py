@@ -1,0 +1,70 @@
+"""``ramps bench dispatch``: how fast the real team turns a call into a result.
+
+How this works: three real ``ramps node`` processes on loopback (2 cores
+each), one client. Latency: ``calls`` no-op programs one after another, each
+timed from ``submit`` to the result in the caller's hands (so it includes
+the client -> origin message, placement, the offload, the worker process,
+the result and the outcome back). Throughput: ``burst`` no-op programs from
+the same origin with up to ``window`` in flight. Figures are printed and
+saved as JSON; nothing here asserts a target.
+"""
+
+from __future__ import annotations
+
+import statistics
+import threading
+import time
+from collections import Counter
+
+from ramps.experiments.bench import machine
+from ramps.runtime.localteam import LocalTeam
+
+
+def _pct(sorted_values: list[float], p: float) -> float:
+    i = min(len(sorted_values) - 1, max(0, int(round(p / 100 * (len(sorted_values) - 1)))))
+    return sorted_values[i]
+
+
+def bench_dispatch(*, nodes: int = 3, calls: int = 1000, warmup: int = 100, burst: int = 5000,
+                   window: int = 256, program: str = "noop") -> dict:
+    with LocalTeam(nodes, cores=2, speed=1.0) as team:
+        client = team.client()
+        try:
+            time.sleep(1.5)  # let every load server hear every robot once
+            for _ in range(warmup):
+                client.submit(program).result(timeout=30)
+            lat = []
+            for _ in range(calls):
+                t0 = time.perf_counter()
+                client.submit(program).result(timeout=30)
+                lat.append(time.perf_counter() - t0)
+            lat.sort()
+            sem = threading.Semaphore(window)
+            done = threading.Event()
+            left = [burst]
+            lock = threading.Lock()
+
+            def finished(_f) -> None:
+                sem.release()
+                with lock:
+                    left[0] -= 1
+                    if left[0] == 0:
+                        done.set()
+
+            t0 = time.perf_counter()
+            for _ in range(burst):
+                sem.acquire()
+                client.submit(program).add_done_callback(finished)
+            done.wait(120)
+            elapsed = time.perf_counter() - t0
+            status = client.status()
+        finally:
+            client.close()
+    spread = Counter({r.robot: r.finished_total for r in status.robots})
+    return {
+        "benchmark": "dispatch", "machine": machine(), "nodes": nodes, "program": program,
+        "calls": calls, "p50_ms": _pct(lat, 50) * 1e3, "p90_ms": _pct(lat, 90) * 1e3,
+        "p99_ms": _pct(lat, 99) * 1e3, "mean_ms": statistics.fmean(lat) * 1e3, "max_ms": lat[-1] * 1e3,
+        "burst": burst, "window": window, "completed": burst - left[0], "throughput_per_s": (burst - left[0]) / elapsed,
+        "finished_per_robot": dict(spread),
+    }
