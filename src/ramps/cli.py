@@ -369,7 +369,7 @@ def status(
 def demo(
     robots: int = typer.Option(5, "--robots", "-n", min=2, max=16, help="robots in the team (real node processes)"),
     programs: int = typer.Option(15, "--programs", "-p", min=1, help="route-planning programs submitted from r1"),
-    size: str = typer.Option("small", "--size", help="route-planning instance size: tiny, small, medium, large"),
+    size: str = typer.Option("demo", "--size", help="route-planning instance: demo (~1.4 CPU s each), tiny, small, medium, large"),
     loaded: Optional[list[str]] = typer.Option(None, "--loaded", help="robot that also runs 8 busy processes, e.g. r5 (repeatable)"),
     kill: Optional[str] = typer.Option(None, "--kill", help="robot to SIGKILL during the ramps run, e.g. r3"),
     kill_at: float = typer.Option(3.0, "--kill-at", help="seconds into the ramps run when --kill strikes"),
@@ -386,11 +386,12 @@ def demo(
     from rich.progress import Progress as _Progress
     from rich.table import Table
 
-    from ramps.experiments.demo import run_demo
+    from ramps.experiments.demo import DEMO_ROUTE, run_demo
     from ramps.programs.route import ROUTE_SIZES
 
-    if size not in ROUTE_SIZES:
-        fail(f"unknown size {size!r}; choose one of {', '.join(ROUTE_SIZES)}")
+    sizes = {"demo": DEMO_ROUTE, **ROUTE_SIZES}
+    if size not in sizes:
+        fail(f"unknown size {size!r}; choose one of {', '.join(sizes)}")
     progress = _Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                          TextColumn("{task.fields[spread]}"), console=err, transient=not as_json)
     tasks: dict[str, int] = {}
@@ -404,7 +405,7 @@ def demo(
     err.print(f"starting a team of {robots} robots on this machine ...")
     try:
         with progress:
-            rep = run_demo(robots=robots, programs=programs, arguments=dict(ROUTE_SIZES[size]), loaded=loaded or [],
+            rep = run_demo(robots=robots, programs=programs, arguments=dict(sizes[size]), loaded=loaded or [],
                            kill=kill, kill_at=kill_at, emulate=False if shared else None, on_progress=on_progress)
     except (ValueError, PermissionError) as exc:
         fail(str(exc))
@@ -418,7 +419,7 @@ def demo(
     if rep.killed:
         extra.append(f"{rep.killed} was SIGKILLed during the ramps run and restarted for the baselines")
     out.print(f"workload: {rep.programs} x {rep.program}({', '.join(f'{k}={v}' for k, v in rep.arguments.items())}, "
-              f"seed=i) from r1" + ("; " + "; ".join(extra) if extra else ""), highlight=False)
+              f"start=one of the {rep.programs} free cells nearest the robot) from r1" + ("; " + "; ".join(extra) if extra else ""), highlight=False)
     table = Table(title_justify="left")
     table.add_column("placement")
     for r in rep.robots:
