@@ -182,9 +182,12 @@ def bench_dispatch_cmd(
     err.print(f"starting {nodes} nodes on loopback; {calls} sequential calls, then {burst} with {window} in flight ...")
     res = bench_dispatch(nodes=nodes, calls=calls, burst=burst, window=window)
     out.print(f"dispatch latency (submit -> result, {res['calls']} no-op calls): p50 {res['p50_ms']:.2f} ms, "
-              f"p90 {res['p90_ms']:.2f} ms, p99 {res['p99_ms']:.2f} ms, max {res['max_ms']:.1f} ms")
+              f"p90 {res['p90_ms']:.2f} ms, p99 {res['p99_ms']:.2f} ms, max {res['max_ms']:.1f} ms; "
+              f"ran on {res['latency_hosts']}")
+    out.print(f"offloaded to another robot ({res['remote_calls']} calls): p50 {res['remote_p50_ms']:.2f} ms, "
+              f"p99 {res['remote_p99_ms']:.2f} ms")
     out.print(f"throughput from one origin: {res['throughput_per_s']:.0f} programs/s "
-              f"({res['completed']}/{res['burst']} completed; per robot {res['finished_per_robot']})")
+              f"({res['completed']}/{res['burst']} completed; ran on {res['burst_hosts']})")
     out_file.parent.mkdir(parents=True, exist_ok=True)
     out_file.write_text(json.dumps(res, indent=2) + "\n")
     out.print(f"saved {out_file}")

@@ -1,0 +1,78 @@
+"""The README's main job (``ramps demo``) and ``ramps bench dispatch``, small and real."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import psutil
+
+import pytest
+from typer.testing import CliRunner
+
+from ramps.cli import app
+from ramps.experiments.demo import route_calls, run_demo
+from ramps.programs.route import ROUTE_SIZES, plan_route
+
+pytestmark = pytest.mark.slow
+
+
+def leftovers() -> list[str]:
+    """Node processes or demo cgroups still around after a LocalTeam closed."""
+    found = []
+    for p in psutil.process_iter(["cmdline"]):
+        cmd = " ".join(p.info["cmdline"] or [])
+        if "ramps.cli node" in cmd and "--team local-" in cmd:
+            found.append(cmd)
+    for root in (Path("/sys/fs/cgroup/cpu"), Path("/sys/fs/cgroup")):
+        if root.is_dir():
+            found += [str(d) for d in root.glob("ramps-local-*")]
+    return found
+
+
+def test_route_calls_explore_distinct_starts_of_one_order():
+    calls = route_calls(dict(ROUTE_SIZES["tiny"]), 6)
+    starts = [tuple(c["start"]) for c in calls]
+    assert len(set(starts)) == 6
+    lengths = [plan_route(**c)["length"] for c in calls]
+    assert all(n > 0 for n in lengths)
+
+
+def test_demo_runs_three_placements_on_a_real_team():
+    rep = run_demo(robots=3, programs=6, arguments=dict(ROUTE_SIZES["tiny"]), kill=None)
+    names = [p.name for p in rep.phases]
+    assert names == ["ramps", "round robin", "single robot (r1)"]
+    for ph in rep.phases:
+        assert ph.completed == 6 and ph.failed == 0, ph
+    assert rep.phases[1].distribution == {"r1": 2, "r2": 2, "r3": 2}  # round robin
+    assert rep.phases[2].distribution == {"r1": 6}  # local only
+    assert rep.mode.startswith(("emulated robots", "shared host"))
+    assert leftovers() == []
+
+
+def test_demo_survives_a_killed_robot():
+    rep = run_demo(robots=3, programs=6, arguments=dict(ROUTE_SIZES["tiny"], picks=9), kill="r3", kill_at=0.0)
+    ramps_phase = rep.phases[0]
+    assert ramps_phase.completed == 6 and ramps_phase.failed == 0
+    assert rep.killed == "r3"
+    assert leftovers() == []
+
+
+def test_demo_cli_rejects_unknown_robot_and_size():
+    runner = CliRunner()
+    res = runner.invoke(app, ["demo", "--robots", "3", "--kill", "r9"])
+    assert res.exit_code == 2 and "no robot 'r9'" in res.output
+    res = runner.invoke(app, ["demo", "--size", "huge"])
+    assert res.exit_code == 2 and "unknown size" in res.output
+
+
+def test_bench_dispatch_reports_latency_and_throughput(tmp_path):
+    out = tmp_path / "d.json"
+    res = CliRunner().invoke(app, ["bench", "dispatch", "--calls", "30", "--burst", "200", "--window", "32",
+                                   "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    data = json.loads(out.read_text())
+    for key in ("p50_ms", "p99_ms", "throughput_per_s", "remote_p50_ms"):
+        assert data[key] > 0
+    assert data["completed"] == 200
+    assert leftovers() == []
