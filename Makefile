@@ -22,6 +22,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/ramps bench sim
+	$(BIN)/ramps bench dispatch
 
 clean:
 	rm -rf $(VENV) build dist .pytest_cache .hypothesis
