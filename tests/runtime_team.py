@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -40,6 +39,8 @@ from pathlib import Path
 from typing import Any
 
 import psutil
+
+from ramps.runtime.localteam import RobotCgroup, cgroup_mode, free_port
 
 TESTS_DIR = Path(__file__).resolve().parent
 #: unique to this pytest process: every process a LocalTeam starts carries it
@@ -50,13 +51,6 @@ PROGRAMS = ("where", "spin", "sleepy", "fail", "big")
 
 #: every process group started by any LocalTeam of this run (for the final check)
 _STARTED: list[subprocess.Popen] = []
-
-
-def free_port() -> int:
-    """A TCP port nobody listens on right now (bind to port 0, read it, close)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def leftover_processes(run_id: str = RUN_ID) -> list[psutil.Process]:
@@ -87,71 +81,18 @@ def describe(procs: list[psutil.Process]) -> str:
 
 
 # ---------------------------------------------------------------- cgroups
-def _cgroup_roots() -> tuple[str, Path, Path | None] | None:
-    """(version, cpu root, cpuacct root or None) where we may make cgroups."""
-    v1 = Path("/sys/fs/cgroup/cpu")
-    if (v1 / "cpu.cfs_quota_us").exists():
-        acct = Path("/sys/fs/cgroup/cpuacct")
-        return "v1", v1, acct if (acct / "cpuacct.usage").exists() else None
-    v2 = Path("/sys/fs/cgroup")
-    if (v2 / "cgroup.controllers").exists() and "cpu" in (v2 / "cgroup.subtree_control").read_text().split():
-        return "v2", v2, None
-    return None
-
-
 def cgroup_support() -> str | None:
     """None if this process may create cpu cgroups with a quota, else why not."""
     if os.geteuid() != 0:
         return "not root"
-    roots = _cgroup_roots()
-    if roots is None:
-        return "no cpu cgroup controller (v1 /sys/fs/cgroup/cpu or v2 with +cpu) is mounted"
-    probe = roots[1] / f"ramps-e2e-probe-{uuid.uuid4().hex[:8]}"
+    mode = cgroup_mode()
+    if mode is None:
+        return "no writable cpu cgroup controller (v1 /sys/fs/cgroup/cpu or v2 with +cpu)"
     try:
-        probe.mkdir()
-        quota = probe / ("cpu.cfs_quota_us" if roots[0] == "v1" else "cpu.max")
-        quota.write_text("50000" if roots[0] == "v1" else "50000 100000")
+        RobotCgroup(f"ramps-e2e-probe-{uuid.uuid4().hex[:8]}", 0.5, mode).remove()
     except OSError as exc:
         return f"cannot create a cpu cgroup: {exc}"
-    finally:
-        try:
-            probe.rmdir()
-        except OSError:
-            pass
     return None
-
-
-class _Cgroup:
-    """A cpu (and, on v1 with a separate cpuacct mount, cpuacct) cgroup."""
-
-    def __init__(self, name: str, quota_cores: float) -> None:
-        version, cpu_root, acct_root = _cgroup_roots()  # type: ignore[misc]
-        self.version = version
-        self.dirs = [cpu_root / name] + ([acct_root / name] if acct_root is not None else [])
-        for d in self.dirs:
-            d.mkdir()
-        cpu = self.dirs[0]
-        if version == "v1":
-            (cpu / "cpu.cfs_period_us").write_text("100000")
-            (cpu / "cpu.cfs_quota_us").write_text(str(int(quota_cores * 100000)))
-        else:
-            (cpu / "cpu.max").write_text(f"{int(quota_cores * 100000)} 100000")
-
-    def wrap(self, argv: list[str]) -> list[str]:
-        """argv run inside this cgroup from its first instruction (sh joins, then execs)."""
-        joins = " && ".join(f"echo $$ > {d / 'cgroup.procs'}" for d in self.dirs)
-        return ["/bin/sh", "-c", f'{joins} && exec "$@"', "sh", *argv]
-
-    def remove(self) -> None:
-        for d in reversed(self.dirs):
-            for _ in range(50):
-                try:
-                    d.rmdir()
-                    break
-                except FileNotFoundError:
-                    break
-                except OSError:  # tasks still leaving
-                    time.sleep(0.05)
 
 
 # ---------------------------------------------------------------- the team
@@ -192,7 +133,7 @@ class LocalTeam:
         self.nodes: dict[str, NodeProc] = {}
         self._procs: list[subprocess.Popen] = []
         self._clients: list[Any] = []
-        self._cgroups: dict[str, _Cgroup] = {}
+        self._cgroups: dict[str, RobotCgroup] = {}
         self._seed: str | None = None
 
     # ------------------------------------------------------------ lifecycle
@@ -304,7 +245,7 @@ class LocalTeam:
         if self.use_cgroups:
             cg = self._cgroups.get(name)
             if cg is None:
-                cg = self._cgroups[name] = _Cgroup(f"{self.team}-{name}", self.quota_cores)
+                cg = self._cgroups[name] = RobotCgroup(f"{self.team}-{name}", self.quota_cores, cgroup_mode())
             argv = cg.wrap(argv)
         log = self.tmp / f"{name}.log"
         proc = self._popen(argv, log=log, env=self._env(name, extra_env))

@@ -49,7 +49,7 @@ def cgroup_mode() -> str | None:
     return None
 
 
-class _Cgroup:
+class RobotCgroup:
     """One robot's cpu cgroup (and cpuacct on v1, for its CPU usage)."""
 
     def __init__(self, name: str, quota: float, mode: str) -> None:
@@ -73,6 +73,12 @@ class _Cgroup:
         """Move the calling process in (used between fork and exec)."""
         for d in self.dirs:
             (d / "cgroup.procs").write_text(str(os.getpid()))
+
+    def wrap(self, argv: list[str]) -> list[str]:
+        """``argv`` run inside this cgroup from its first instruction, with no
+        preexec hook: a shell joins the cgroup, then execs ``argv``."""
+        joins = " && ".join(f"echo $$ > {d / 'cgroup.procs'}" for d in self.dirs)
+        return ["/bin/sh", "-c", f'{joins} && exec "$@"', "sh", *argv]
 
     def remove(self) -> None:
         for d in self.dirs:
@@ -113,7 +119,7 @@ class LocalTeam:
         self.ports: dict[str, int] = {}
         self.procs: dict[str, subprocess.Popen] = {}
         self.loads: dict[str, list[subprocess.Popen]] = {}
-        self.cgroups: dict[str, _Cgroup] = {}
+        self.cgroups: dict[str, RobotCgroup] = {}
         self._seed: str | None = None
 
     # ------------------------------------------------------------ nodes
@@ -151,7 +157,7 @@ class LocalTeam:
             cmd += ["--program", p]
         pre = None
         if self.mode is not None:
-            cg = self.cgroups.get(name) or _Cgroup(f"ramps-{self.team}-{name}", self.cpu_quota, self.mode)
+            cg = self.cgroups.get(name) or RobotCgroup(f"ramps-{self.team}-{name}", self.cpu_quota, self.mode)
             self.cgroups[name] = cg
             pre = cg.enter
         env = dict(self.env, RAMPS_ROBOT=name)
