@@ -70,7 +70,11 @@ class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, ta
     accepted_total: int
     finished_total: int
     window: float = 1.0
+    #: bytes of memory available to new programs
     mem_free: int = 0
+    #: CPU use of each core over the window (0..1), and the 1-minute load average
+    cpu_per_core: list[float] = []
+    load_avg: float = 0.0
     #: robots this robot's load server has written off (for ``ramps status``)
     blacklisted: list[str] = []
 
@@ -259,7 +263,7 @@ def _check_limits(env: Envelope) -> None:
             raise WireError(f"{field} longer than {MAX_TEXT} characters")
     if isinstance(msg, Heartbeat) and len(msg.programs) > MAX_REFS:
         raise WireError(f"heartbeat lists {len(msg.programs)} programs (limit {MAX_REFS})")
-    if isinstance(msg, LoadReport) and len(msg.blacklisted) > MAX_REFS:
+    if isinstance(msg, LoadReport) and (len(msg.blacklisted) > MAX_REFS or len(msg.cpu_per_core) > 4096):
         raise WireError(f"load report lists {len(msg.blacklisted)} blacklisted robots (limit {MAX_REFS})")
 
 

@@ -175,7 +175,7 @@ class Node:
 
     # ------------------------------------------------------------ load publisher
     def make_report(self, *, cpu_busy: float, runnable: float, ramps_avg: float, window: float,
-                    mem_free: int = 0) -> LoadReport:
+                    mem_free: int = 0, cpu_per_core: list[float] | None = None, load_avg: float = 0.0) -> LoadReport:
         """This robot's load report, from the driver's measurements."""
         self._report_seq += 1
         self._last_report = LoadReport(
@@ -183,7 +183,8 @@ class Node:
             speed=self.speed, cpu_busy=cpu_busy, runnable=runnable,
             ramps_running=len(self.executor.running), ramps_avg=ramps_avg,
             accepted_total=self.executor.accepted_total, finished_total=self.executor.finished_total,
-            window=window, mem_free=mem_free, blacklisted=self.view.blacklisted(),
+            window=window, mem_free=mem_free, cpu_per_core=cpu_per_core or [], load_avg=load_avg,
+            blacklisted=self.view.blacklisted(),
         )
         return self._last_report
 

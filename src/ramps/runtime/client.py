@@ -61,6 +61,9 @@ class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
     accepted_total: int = 0
     finished_total: int = 0
     blacklisted: list[str] = []
+    cpu_per_core: list[float] = []
+    load_avg: float = 0.0
+    mem_free: int = 0
     report_age: float | None = None
 
 
@@ -278,7 +281,8 @@ class Team:
                     base.update(cores=rep.cores, speed=rep.speed, cpu_busy=rep.cpu_busy, runnable=rep.runnable,
                                 ramps_running=rep.ramps_running, accepted_total=rep.accepted_total,
                                 finished_total=rep.finished_total, blacklisted=list(rep.blacklisted),
-                                report_age=now - at)
+                                cpu_per_core=list(rep.cpu_per_core), load_avg=rep.load_avg,
+                                mem_free=rep.mem_free, report_age=now - at)
                 rows.append(RobotStatus(**base))
         return TeamStatus(team=self.team, robots=rows)
 

@@ -193,6 +193,16 @@ class LoadSampler:
                 while self._samples and self._samples[0][0] < now - self.window:
                     self._samples.popleft()
 
+    def extras(self) -> tuple[list[float], float, int]:
+        """(CPU use per core 0..1 since the last call, 1-minute load average,
+        bytes of memory available): the rest of a load report."""
+        per_core = [round(x / 100.0, 3) for x in psutil.cpu_percent(percpu=True)]
+        try:
+            load1 = os.getloadavg()[0]
+        except OSError:
+            load1 = 0.0
+        return per_core, load1, int(psutil.virtual_memory().available)
+
     def averages(self) -> tuple[float, float, float]:
         """(busy cores, runnable tasks, ramps programs) over the window."""
         with self._lock:

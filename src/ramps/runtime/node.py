@@ -74,6 +74,7 @@ class NodeRuntime:
         self.robot = settings.robot
         self.team = settings.team
         self.registry = Registry(dict((registry or default_registry)._specs))
+        self.registry.load_entry_points()  # packages that declare ramps.programs
         for target in settings.programs:
             self.registry.add_target(target)
         self.on_note = on_note
@@ -348,9 +349,11 @@ class NodeRuntime:
 
     def _publish(self, now: float) -> None:
         busy, runnable, ramps_avg = self.sampler.averages()
+        per_core, load1, mem_free = self.sampler.extras()
         self.node.executor.background = max(0.0, runnable - ramps_avg)
         report = self.node.make_report(cpu_busy=min(busy, float(self.cores) if self.load_scope == "cgroup" else busy),
-                                       runnable=runnable, ramps_avg=ramps_avg, window=self.s.window)
+                                       runnable=runnable, ramps_avg=ramps_avg, window=self.s.window,
+                                       mem_free=mem_free, cpu_per_core=per_core, load_avg=load1)
         try:
             self._load_pub.put(encode(self.robot, report))
         except Exception as exc:
