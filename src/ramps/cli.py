@@ -68,7 +68,10 @@ def version() -> None:
 @sim_app.command("paper")
 def sim_paper(
     experiment: str = typer.Option("all", "--experiment", "-e",
-                                   help="unloaded (Table 3, Figs 3-4), loaded (Table 4, Figs 5-6) or all"),
+                                   help="unloaded (Table 3, Figs 3-4), loaded (Table 4, Figs 5-6), "
+                                        "faults (Tables 5-10), or all (unloaded and loaded)"),
+    mode: str = typer.Option("all", "--mode", help="faults: sequential, simultaneous or all"),
+    kind: str = typer.Option("all", "--kind", help="faults: crash, network, mixed or all"),
     policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
     runs: int = typer.Option(3, "--runs", "-n", min=1, help="runs per configuration (the paper used 3)"),
     seed: int = typer.Option(0, "--seed", help="base seed; the same seed gives the same results"),
@@ -86,6 +89,9 @@ def sim_paper(
     from ramps.experiments.report import print_experiment
 
     _check_policy(policy)
+    if experiment == "faults":
+        _sim_faults(mode, kind, policy=policy, runs=runs, seed=seed, as_json=as_json, out_file=out_file)
+        return
     wanted = list(EXPERIMENTS) if experiment == "all" else [experiment]
     if any(e not in EXPERIMENTS for e in wanted):
         fail(f"unknown experiment {experiment!r}; choose unloaded, loaded or all")
@@ -103,6 +109,60 @@ def sim_paper(
         for rep in reports:
             print_experiment(rep, out)
     _write_json(data, out_file)
+
+
+def _sim_faults(mode: str, kind: str, *, policy: str, runs: int, seed: int, as_json: bool,
+                out_file: Optional[Path]) -> None:
+    from ramps.experiments.faults import KINDS, run_fault_experiment
+    from ramps.experiments.report import print_fault_report
+
+    modes = ["sequential", "simultaneous"] if mode == "all" else [mode]
+    kinds = list(KINDS) if kind == "all" else [kind]
+    if any(m not in ("sequential", "simultaneous") for m in modes):
+        fail(f"unknown mode {mode!r}; choose sequential, simultaneous or all")
+    if any(k not in KINDS for k in kinds):
+        fail(f"unknown kind {kind!r}; choose crash, network, mixed or all")
+    reports = [run_fault_experiment(m, k, policy=policy, runs=runs, seed=seed) for m in modes for k in kinds]
+    data = msgspec.json.encode(reports[0] if len(reports) == 1 else {"experiments": reports})
+    if as_json:
+        sys.stdout.write(data.decode() + "\n")
+    else:
+        for rep in reports:
+            print_fault_report(rep, out)
+    _write_json(data, out_file)
+    if any(r.summary["lost"] or r.summary["duplicated"] for r in reports):
+        raise typer.Exit(1)
+
+
+@sim_app.command("campaign")
+def sim_campaign(
+    runs: int = typer.Option(1000, "--runs", "-n", min=1, help="random runs"),
+    seed: int = typer.Option(0, "--seed", help="the same seed replays the same runs"),
+    policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
+    as_json: bool = typer.Option(False, "--json", help="write the summary as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
+) -> None:
+    """Random crashes, cuts, freezes and recoveries of non-origin robots; check the invariants.
+
+    After every run: each program of a surviving origin completed exactly once, and a robot that
+    recovered is used again. Exit code 1 if any run broke them (its scenario is in the JSON).
+    """
+    from ramps.experiments.campaign import run_campaign
+    from ramps.experiments.report import print_campaign
+
+    _check_policy(policy)
+    with Progress(TextColumn("campaign"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=err,
+                  transient=True) as progress:
+        task = progress.add_task("campaign", total=runs)
+        rep = run_campaign(runs, seed, policy, progress=lambda done, total: progress.update(task, completed=done))
+    data = msgspec.json.encode(rep)
+    if as_json:
+        sys.stdout.write(data.decode() + "\n")
+    else:
+        print_campaign(rep, out)
+    _write_json(data, out_file)
+    if rep.failed_runs:
+        raise typer.Exit(1)
 
 
 @sim_app.command("run")

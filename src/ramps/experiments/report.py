@@ -104,3 +104,82 @@ def print_sim_result(res: SimResult, console: Console) -> None:
         f"{res.messages_sent} messages ({res.messages_dropped} dropped); "
         f"simulated {res.end_time:.1f} s in {res.wall_seconds:.2f} s"
     )
+
+
+def print_fault_report(rep, console: Console) -> None:
+    """Tables 5-10 style: distributions after each failure, and recovery figures."""
+    from collections import defaultdict
+
+    from ramps.experiments.faults import ROBOTS
+
+    marks = {"crash": "RC", "network": "NF"}
+    if rep.mode == "sequential":
+        table = Table(title=f"{rep.mode} {rep.kind} failures (R5, R4, R3, R2, 20 s apart), policy {rep.policy}",
+                      title_justify="left")
+        table.add_column("run")
+        table.add_column("dist")
+        for r in ROBOTS:
+            table.add_column(r, justify="right")
+        table.add_column("class")
+        for i, run in enumerate(rep.runs, 1):
+            failed: dict[str, str] = {}
+            for label, dist in run.distributions.items():
+                row = [f"run {i}" if label == "D1" else "", label]
+                for r in ROBOTS:
+                    row.append(str(dist[r]) if r in dist else marks.get(failed.get(r, ""), "-"))
+                row.append(_CLASS_SHORT[run.classifications[label]])
+                table.add_row(*row)
+                idx = int(label[1:])
+                if idx <= len(run.failures):
+                    f = run.failures[idx - 1]
+                    failed[f.robot] = f.kind
+            table.add_section()
+        console.print(table)
+    else:
+        table = Table(title=f"{rep.mode} {rep.kind} failures, mean distribution over {len(rep.runs) // 4} run(s), "
+                            f"policy {rep.policy}", title_justify="left")
+        table.add_column("robots failed")
+        for r in ROBOTS:
+            table.add_column(r, justify="right")
+        table.add_column("classes")
+        groups = defaultdict(list)
+        for run in rep.runs:
+            groups[run.plan].append(run)
+        first = next(iter(groups.values()))
+        table.add_row("none", *[f"{sum(r.distributions['before'][x] for r in first) / len(first):.2f}" for x in ROBOTS],
+                      "")
+        for plan, runs in groups.items():
+            kinds = {f.robot: f.kind for f in runs[0].failures}
+            row = [",".join(sorted(kinds))]
+            for x in ROBOTS:
+                if x in kinds:
+                    row.append(marks[kinds[x]])
+                else:
+                    row.append(f"{sum(r.distributions['after'][x] for r in runs) / len(runs):.2f}")
+            row.append(" ".join(_CLASS_SHORT[r.classifications["after"]] for r in runs))
+            table.add_row(*row)
+        console.print(table)
+    s = rep.summary
+    def fmt(x):
+        return "-" if x is None else f"{x:.2f} s"
+    console.print(
+        f"[bold]{rep.mode} {rep.kind} / {rep.policy}[/]: {s['completed']}/{s['programs']} programs completed, "
+        f"lost {s['lost']}, duplicated {s['duplicated']}; detection median {fmt(s['detection_median_s'])} "
+        f"(max {fmt(s['detection_max_s'])}); displaced programs running again within median "
+        f"{fmt(s['recovery_median_s'])} (max {fmt(s['recovery_max_s'])}); "
+        f"{s['optimal_or_near_after_failures']}/{s['distributions_after_failures']} distributions after failures "
+        f"optimal or near optimal"
+    )
+
+
+def print_campaign(rep, console: Console) -> None:
+    table = Table(title=f"fault campaign: {rep.runs} runs, seed {rep.seed}, policy {rep.policy}", title_justify="left")
+    for name in ("runs", "programs", "faults injected", "completed", "lost", "duplicated", "not rejoined",
+                 "failed runs", "time"):
+        table.add_column(name, justify="right")
+    table.add_row(str(rep.runs), str(rep.programs), str(rep.faults), str(rep.completed), str(rep.lost),
+                  str(rep.duplicated), str(rep.not_rejoined), str(len(rep.failed_runs)), f"{rep.wall_seconds:.1f} s")
+    console.print(table)
+    for r in rep.failed_runs[:10]:
+        console.print(f"[red]run seed {r.seed}: lost {r.lost}, duplicated {r.duplicated}, not rejoined "
+                      f"{r.not_rejoined}[/] (its scenario is in the --json output)")

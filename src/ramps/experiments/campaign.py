@@ -1,0 +1,116 @@
+"""A randomized fault campaign in the simulator: ``ramps sim campaign``.
+
+How this works: each run draws a team (3-8 robots of 1-4 cores, some with
+background load), one or two origins submitting 5-40 programs, message loss,
+and 1-8 random crashes, network cuts, freezes and recoveries of robots that
+are not origins, at random times during the workload. After every run it
+checks the invariants:
+
+* every program of a surviving origin completed, exactly once (no result
+  lost, none duplicated);
+* a robot that recovered and then published again is back in use: the
+  origins' load servers no longer blacklist it.
+
+Runs are seeded (``--seed``), so a failing run can be replayed exactly with
+``ramps sim run`` on the scenario it prints.
+"""
+
+from __future__ import annotations
+
+import random
+import time
+
+import msgspec
+
+from ramps.sim.engine import Simulator
+from ramps.sim.scenario import FaultSpec, NetworkSpec, ProgramSpec, RobotSpec, Scenario
+
+
+class CampaignRun(msgspec.Struct, kw_only=True):
+    seed: int
+    robots: int
+    programs: int
+    faults: int
+    completed: int
+    lost: int
+    duplicated: int
+    not_rejoined: list[str]
+    ok: bool
+    scenario: Scenario | None = None  # kept for failing runs only
+
+
+class CampaignReport(msgspec.Struct, kw_only=True):
+    runs: int
+    seed: int
+    policy: str
+    programs: int
+    faults: int
+    completed: int
+    lost: int
+    duplicated: int
+    not_rejoined: int
+    failed_runs: list[CampaignRun]
+    wall_seconds: float
+
+
+def random_scenario(rng: random.Random, seed: int, policy: str) -> Scenario:
+    n = rng.randint(3, 8)
+    robots = [RobotSpec(name=f"r{i}", cores=rng.randint(1, 4), speed=rng.choice([0.5, 1.0, 1.5]),
+                        background=rng.choice([0, 0, 0, 2, 8])) for i in range(1, n + 1)]
+    origins = ["r1"] if rng.random() < 0.7 else ["r1", "r2"]
+    programs = [ProgramSpec(origin=o, count=rng.randint(5, 40), work=rng.uniform(5.0, 60.0),
+                            spacing=rng.uniform(0.0, 0.5), at=rng.uniform(0.0, 5.0)) for o in origins]
+    others = [r.name for r in robots if r.name not in origins]
+    faults: list[FaultSpec] = []
+    for robot in others:
+        t = rng.uniform(0.0, 10.0)
+        for _ in range(rng.randint(0, 2)):
+            kind = rng.choice(["crash", "network", "freeze"])
+            faults.append(FaultSpec(at=t, robot=robot, kind=kind))
+            t += rng.uniform(0.5, 30.0)
+            if rng.random() < 0.7:
+                faults.append(FaultSpec(at=t, robot=robot, kind="recover"))
+                t += rng.uniform(0.5, 30.0)
+    return Scenario(name=f"campaign-{seed}", seed=seed, policy=policy, robots=robots, programs=programs,
+                    faults=faults, network=NetworkSpec(loss=rng.choice([0.0, 0.0, 0.01, 0.05])), until=1e6)
+
+
+def run_one(seed: int, policy: str = "ramps") -> CampaignRun:
+    rng = random.Random(seed)
+    sc = random_scenario(rng, seed, policy)
+    sim = Simulator(sc)
+    res = sim.run()
+    # a robot whose last fault was a recovery, long enough before the end to
+    # have published again, must be usable again at every surviving origin
+    last: dict[str, FaultSpec] = {}
+    for f in sorted(sc.faults, key=lambda f: f.at):
+        last[f.robot] = f
+    origins = {p.origin for p in sc.programs}
+    not_rejoined = []
+    for robot, f in last.items():
+        if f.kind != "recover" or sc.warmup + f.at + 2 * sc.publisher.period + 1.0 > res.end_time:
+            continue
+        for o in origins:
+            node = sim.robots[o].node
+            if node is not None and node.view.is_blacklisted(robot):
+                not_rejoined.append(f"{robot}@{o}")
+    ok = res.lost == 0 and res.duplicated == 0 and not not_rejoined
+    return CampaignRun(seed=seed, robots=len(sc.robots), programs=sum(p.count for p in sc.programs),
+                       faults=len(sc.faults), completed=res.completed, lost=res.lost, duplicated=res.duplicated,
+                       not_rejoined=not_rejoined, ok=ok, scenario=None if ok else sc)
+
+
+def run_campaign(runs: int, seed: int = 0, policy: str = "ramps", progress=None) -> CampaignReport:
+    started = time.perf_counter()
+    results = []
+    for i in range(runs):
+        results.append(run_one(seed * 1_000_000 + i, policy))
+        if progress:
+            progress(i + 1, runs)
+    return CampaignReport(
+        runs=runs, seed=seed, policy=policy, programs=sum(r.programs for r in results),
+        faults=sum(r.faults for r in results), completed=sum(r.completed for r in results),
+        lost=sum(r.lost for r in results), duplicated=sum(r.duplicated for r in results),
+        not_rejoined=sum(len(r.not_rejoined) for r in results), failed_runs=[r for r in results if not r.ok],
+        wall_seconds=time.perf_counter() - started,
+    )
