@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from ramps.core.config import RampsConfig
-from ramps.core.events import Deliver, Note, Received, Send, Submit
+from ramps.core.events import Deliver, Note, ProgramFinished, Received, Send, Submit
 from ramps.core.messages import CancelProgram, OffloadAccepted, ProgramResult, ResultAck
 from ramps.core.node import Node
 
@@ -51,3 +51,23 @@ def test_heartbeat_for_written_off_attempt_cancels_the_stray_copy():
                                                         programs=[ProgramRef("a#1", 1)])), 2.6)
     assert any(isinstance(x, Send) and isinstance(x.msg, CancelProgram) and x.to == "b" for x in acts)
     assert a.origin.anomalies == 0
+
+
+def test_finished_programs_are_forgotten_after_the_retention_period():
+    cfg = RampsConfig(result_retention=60.0)
+    a = Node("a", cores=4, speed=1.0, config=cfg)
+    a.handle(Received(sender="a", msg=report(a, 0.0)), 0.0)
+    for i in range(3):
+        a.handle(Submit(program_id=f"a#{i}", program="p", work=1.0), 0.0)
+        acts = a.handle(ProgramFinished(
+            program_id=f"a#{i}", attempt=1, ok=True), 1.0)
+        assert any(isinstance(x, Deliver) for x in acts)
+    assert len(a.origin.programs) == 3
+    a.tick(30.0)
+    assert len(a.origin.programs) == 3  # still settling late results
+    a.tick(62.0)
+    assert a.origin.programs == {}  # a long-running node does not grow forever
+    # a very late result is still acknowledged, counted as an anomaly, never delivered
+    acts = a.handle(Received(sender="b", msg=ProgramResult(program_id="a#0", attempt=1, host="b", ok=True)), 70.0)
+    assert any(isinstance(x, Send) and isinstance(x.msg, ResultAck) for x in acts)
+    assert not any(isinstance(x, Deliver) for x in acts)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import heapq
 import random
+from collections import deque
 
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate
@@ -59,6 +60,9 @@ class Origin:
         self.programs: dict[str, AutonomousProgram] = {}
         self._by_host: dict[str, set[str]] = {}
         self._timers: list[tuple[float, int, str]] = []
+        #: finished programs, oldest first: kept for ``result_retention`` so a
+        #: late result is settled (acknowledged, discarded), then forgotten
+        self._finished: deque[tuple[float, str]] = deque()
         self._seq = 0
         # statistics
         self.delivered = 0
@@ -119,6 +123,12 @@ class Origin:
         return None
 
     def tick(self, now: float, out: list[Action]) -> None:
+        horizon = now - self.config.result_retention
+        while self._finished and self._finished[0][0] < horizon:
+            _, pid = self._finished.popleft()
+            ap = self.programs.get(pid)
+            if ap is not None and ap.state in FINAL:
+                del self.programs[pid]
         while self._timers and self._timers[0][0] <= now:
             when, _, pid = heapq.heappop(self._timers)
             ap = self.programs.get(pid)
@@ -324,6 +334,7 @@ class Origin:
             ids.discard(ap.program_id)
         ap.state = S.DONE if ok else S.FAILED
         ap.deadline = None
+        self._finished.append((now, ap.program_id))
         self.delivered += 1
         out.append(Deliver(program_id=ap.program_id, ok=ok, value=value, error=error, error_kind=kind, host=host,
                            attempts=ap.attempt))
