@@ -307,7 +307,8 @@ class NodeRuntime:
         client, request_id = target
         self._requests.pop(target, None)
         self._put(keys.client(self.team, client), encode(self.robot, ProgramOutcome(
-            request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts)))
+            request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts)),
+            block=True)
         return []
 
     # ================================================================ outputs
@@ -331,7 +332,12 @@ class NodeRuntime:
                 if self.on_note is not None:
                     self.on_note(a)
 
-    def _put(self, key: str, data: bytes) -> None:
+    def _put(self, key: str, data: bytes, *, block: bool = False) -> None:
+        """Publish on ``key``. Messages to robots use Zenoh's DROP congestion
+        control: a frozen teammate must never stall this node's only driver
+        thread, and the core already survives lost messages (connect
+        timeouts, periodic heartbeats, results resent until acknowledged).
+        Outcomes to a client (``block=True``) are not resent, so they wait."""
         if self.session is None:
             return
         pub = self._pubs.get(key)
@@ -339,8 +345,8 @@ class NodeRuntime:
             if pub is None:
                 import zenoh
 
-                pub = self._pubs[key] = self.session.declare_publisher(
-                    key, congestion_control=zenoh.CongestionControl.BLOCK)
+                cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
+                pub = self._pubs[key] = self.session.declare_publisher(key, congestion_control=cc)
                 if len(self._pubs) > 4096:  # clients come and go
                     self._pubs.pop(next(iter(self._pubs))).undeclare()
             pub.put(data)
