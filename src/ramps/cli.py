@@ -507,6 +507,160 @@ def demo(
             err.print(f"[red]{ph.name}: {e}[/]", highlight=False, soft_wrap=True)
 
 
+# ====================================================================== testbed (emulated robots)
+# One block, kept apart: `ramps testbed up|status|crash|cut|freeze|recover|down`.
+testbed_app = typer.Typer(help="Emulated robots on this Linux host (root): one network namespace and cpu cgroup "
+                          "per robot, with fault injection.", no_args_is_help=True)
+app.add_typer(testbed_app, name="testbed")
+TB_HELP = "testbed id (default: the only one up)"
+
+
+def _tb_attach(tb):
+    from ramps.testbed import Testbed, TestbedError
+
+    try:
+        return Testbed.attach(tb)
+    except (PermissionError, TestbedError) as exc:
+        fail(str(exc))
+
+
+@testbed_app.command("up")
+def testbed_up(
+    robots: int = typer.Option(5, "--robots", "-n", min=1, max=250, help="number of robots r1..rN"),
+    quota: Optional[float] = typer.Option(None, "--quota", help="host cores per robot (default: host cores / robots)"),
+    cores: Optional[int] = typer.Option(None, "--cores", min=1, help="cores each node offers (default: quota rounded)"),
+    loaded: Optional[list[str]] = typer.Option(None, "--loaded", help="robot with background load, ROBOT or ROBOT=N busy processes (repeatable; N default 4)"),
+    team: Optional[str] = typer.Option(None, "--team", "-t", help="team name (default: tb-<id>)"),
+    lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh lease of every node, ms"),
+    policy: Optional[str] = typer.Option(None, "--policy", "-p", help=POLICY_HELP),
+    program: Optional[list[str]] = typer.Option(None, "--program", help="extra program as package.module:function (repeatable)"),
+) -> None:
+    """Start a testbed and leave it running; prints the robots and how to connect."""
+    from ramps.errors import RampsError
+    from ramps.testbed import Testbed
+
+    if policy is not None:
+        _check_policy(policy)
+    load: dict[str, int] = {}
+    for item in loaded or []:
+        name, _, n = item.partition("=")
+        if n and not n.isdigit():
+            fail(f"--loaded must look like r5 or r5=4, got {item!r}")
+        load[name] = int(n) if n else 4
+    try:
+        tb = Testbed(robots, team=team, quota=quota, cores=cores, loaded=load, lease_ms=lease_ms, policy=policy,
+                     programs=program or None)
+        err.print(f"starting {robots} robots ...")
+        tb.up()
+        tb.detach()
+    except (PermissionError, ValueError, RampsError) as exc:
+        fail(str(exc))
+    st = tb.status()
+    out.print(f"testbed [bold]{tb.tb}[/]: team [bold]{tb.team}[/], bridge {st['bridge']} ({st['subnet']}), "
+              f"{tb.quota:g} host cores per robot (cgroup {tb.mode})", highlight=False)
+    for r in st["robots"]:
+        out.print(f"  {r['robot']:6s} {r['ip']:15s} namespace {r['namespace']:16s} pid {r['pid']}"
+                  + (f"  load {r['load']}" if r["load"] else ""), highlight=False)
+    out.print(f"connect: ramps status --team {tb.team} --no-multicast "
+              + " ".join(f"-c {e}" for e in tb.endpoints()), highlight=False, soft_wrap=True)
+    out.print(f"python:  ramps.connect(team={tb.team!r}, robot='r1', multicast=False, connect={tb.endpoints()!r})",
+              highlight=False, soft_wrap=True)
+    out.print("faults:  ramps testbed crash|cut|freeze|recover ROBOT; stop: ramps testbed down", highlight=False)
+
+
+@testbed_app.command("status")
+def testbed_status(
+    tb: Optional[str] = typer.Option(None, "--tb", help=TB_HELP),
+    as_json: bool = typer.Option(False, "--json", help="write the status as JSON to stdout"),
+    no_team: bool = typer.Option(False, "--no-team", help="skip the team view (no client session)"),
+) -> None:
+    """Namespaces, links and processes per robot, and the team as a client sees it."""
+    from rich.table import Table
+
+    bed = _tb_attach(tb)
+    st = bed.status(team_view=not no_team)
+    if as_json:
+        sys.stdout.write(json.dumps(st, indent=1) + "\n")
+        return
+    view = {r["robot"]: r for r in st.get("team_view", [])}
+    table = Table(title=f"testbed {st['tb']}: team {st['team']}, {st['subnet']}, {st['quota']:g} host cores/robot",
+                  title_justify="left")
+    for col in ("robot", "ip", "namespace", "link", "node", "load", "faults", "team: alive", "cores", "busy"):
+        table.add_column(col)
+    for r in st["robots"]:
+        v = view.get(r["robot"])
+        table.add_row(r["robot"], r["ip"], r["namespace"] or "missing", r["link"], f"{r['process']} ({r['pid']})",
+                      f"{r['load_running']}/{r['load']}", ",".join(r["faults"]) or "-",
+                      ("no" if "team_view" in st else "-") if v is None else ("yes" if v["alive"] else "no"),
+                      str(v.get("cores", "-")) if v else "-", f"{v['cpu_busy']:.2f}" if v and "cpu_busy" in v else "-")
+    out.print(table)
+    if "team_view_error" in st:
+        err.print(f"team view: {st['team_view_error']}", highlight=False, soft_wrap=True)
+
+
+def _tb_fault(kind: str, robot: str, tb) -> None:
+    from ramps.errors import RampsError
+    from ramps.testbed.net import NetError
+
+    bed = _tb_attach(tb)
+    try:
+        res = getattr(bed, kind)(robot)
+    except (RampsError, NetError, ValueError) as exc:
+        fail(str(exc))
+    done = {"crash": "crashed (SIGKILL)", "cut": "cut off (link down)", "freeze": "frozen (SIGSTOP)"}
+    if kind == "recover":
+        out.print(f"{robot}: recovered ({', '.join(res) or 'nothing to undo'}); alive in team {bed.team}")
+    else:
+        out.print(f"{robot}: {done[kind]}")
+
+
+@testbed_app.command("crash")
+def testbed_crash(robot: str = typer.Argument(..., help="robot, e.g. r3"),
+                  tb: Optional[str] = typer.Option(None, "--tb", help=TB_HELP)) -> None:
+    """SIGKILL a robot's node, workers and load."""
+    _tb_fault("crash", robot, tb)
+
+
+@testbed_app.command("cut")
+def testbed_cut(robot: str = typer.Argument(..., help="robot, e.g. r3"),
+                tb: Optional[str] = typer.Option(None, "--tb", help=TB_HELP)) -> None:
+    """Take a robot's network link down (it keeps computing)."""
+    _tb_fault("cut", robot, tb)
+
+
+@testbed_app.command("freeze")
+def testbed_freeze(robot: str = typer.Argument(..., help="robot, e.g. r3"),
+                   tb: Optional[str] = typer.Option(None, "--tb", help=TB_HELP)) -> None:
+    """SIGSTOP every process of a robot."""
+    _tb_fault("freeze", robot, tb)
+
+
+@testbed_app.command("recover")
+def testbed_recover(robot: str = typer.Argument(..., help="robot, e.g. r3"),
+                    tb: Optional[str] = typer.Option(None, "--tb", help=TB_HELP)) -> None:
+    """Undo a robot's faults: link up, SIGCONT, restart a crashed node; waits until it is alive."""
+    _tb_fault("recover", robot, tb)
+
+
+@testbed_app.command("down")
+def testbed_down(tb: Optional[str] = typer.Option(None, "--tb", help=TB_HELP),
+                 all_: bool = typer.Option(False, "--all", help="remove every testbed and every leftover "
+                                           "(ramps-* namespaces, rb-* links, testbed cgroups)")) -> None:
+    """Stop a testbed and remove everything it made."""
+    from ramps.testbed import down_all
+
+    if all_:
+        try:
+            gone = down_all()
+        except PermissionError as exc:
+            fail(str(exc))
+        out.print("removed: " + (", ".join(gone) if gone else "nothing was left"), highlight=False, soft_wrap=True)
+        return
+    bed = _tb_attach(tb)
+    bed.down()
+    out.print(f"testbed {bed.tb} is down")
+
+
 def main() -> None:
     app()
 

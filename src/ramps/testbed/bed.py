@@ -1,0 +1,772 @@
+"""``Testbed``: emulated robots on one Linux host, with fault injection.
+
+How this works: each robot is
+
+* a network namespace ``ramps-<tb>-<robot>`` with one veth (``eth0``) on the
+  testbed's bridge (``ramps.testbed.net``: addresses, multicast, cutting),
+* a cpu cgroup of the same name (``RobotCgroup`` from
+  ``ramps.runtime.localteam``, v1 or v2) whose quota makes it a small
+  computer of ``quota`` host cores (default: host cores / robots),
+* a ``python -m ramps.cli node`` listening on ``tcp/<robot ip>:7447`` in
+  that namespace and cgroup, in its own session (its workers share its
+  process group), plus optional background load: busy processes in the
+  same namespace and cgroup (the paper's ``stress``).
+
+Processes enter the cgroup with ``RobotCgroup.wrap`` (a shell joins the
+cgroup, then execs) and the namespace with ``nsenter --net`` rather than
+``ip netns exec``: the latter remounts ``/sys`` in a new mount namespace,
+which would hide ``/sys/fs/cgroup`` from the node, so it could not see its
+quota nor measure its load within its cgroup.
+
+Discovery: multicast scouting (``--multicast``) inside the bridge *and* an
+explicit ``--connect`` to a seed (r1; r1's seed is r2). Multicast alone
+finds everyone at start-up, but the explicit seed makes rejoining after a
+cut deterministic (the side holding a ``connect`` endpoint redials by
+itself, see ZENOH-NOTES) instead of depending on the scouting period.
+``discovery="multicast"`` or ``"connect"`` picks just one of the two.
+
+Faults (all undone by ``recover``):
+
+* ``crash``: SIGKILL to the node's process group and to every process in
+  the robot's cgroup (node, workers, load). ``recover`` starts a new node
+  (and the same background load) in the same namespace and cgroup.
+* ``cut``: ``ip link set eth0 down`` inside the namespace; processes run on.
+* ``freeze``: SIGSTOP to every process of the robot; ``recover``: SIGCONT.
+
+State: every testbed writes ``/run/ramps/testbed-<tb>.json`` (robots, IPs,
+namespaces, cgroups, pids with their start times, faults), so ``ramps
+testbed up`` can leave it running and ``Testbed.attach()`` (the other CLI
+commands) can act on it from another process. Pids are checked against
+their start time, so a reused pid is never signalled.
+
+Rules: root only; ``PermissionError("the testbed needs root: ...")`` is
+raised before anything is created. ``down()`` removes everything this
+testbed made (processes, cgroups, namespaces and veths, bridge, state
+file); it runs on leaving the ``with`` block (exception or not), on
+SIGINT/SIGTERM of the creating process and at interpreter exit (unless
+``detach()`` was called), and a second call does nothing. ``down_all()``
+removes what crashed earlier runs left: every ``ramps-*`` namespace, every
+``rb-*`` link, every ``ramps-t<N>-*`` cgroup (only testbed cgroups: a
+``LocalTeam`` of a parallel test is left alone) and their processes.
+"""
+
+from __future__ import annotations
+
+import atexit
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from ramps.errors import NoTeam, RampsError
+from ramps.runtime.localteam import CG_ROOT, RobotCgroup, cgroup_mode
+from ramps.testbed import net
+
+STATE_DIR = Path(os.environ.get("RAMPS_TESTBED_STATE", "/run/ramps"))
+PORT = 7447
+FAULTS = ("crashed", "cut", "frozen")
+
+
+class TestbedError(RampsError):
+    """A testbed cannot be built, found or driven (no testbed up, unknown robot, ...)."""
+
+    __test__ = False  # not a pytest test class
+
+
+# ====================================================================== processes
+def _proc_stat(pid: int) -> tuple[str, int] | None:
+    """(state letter, start time in ticks) of a process, or None if gone."""
+    try:
+        raw = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    rest = raw[raw.rindex(")") + 2:].split()
+    return rest[0], int(rest[19])
+
+
+def _alive(pid: int | None, start: int | None) -> str:
+    """'running', 'stopped' or 'dead' for a pid recorded with its start time."""
+    if not pid:
+        return "dead"
+    st = _proc_stat(pid)
+    if st is None or st[0] in ("Z", "X") or (start is not None and st[1] != start):
+        return "dead"
+    return "stopped" if st[0] in ("T", "t") else "running"
+
+
+def _cgroup_pids(dirs: list[str]) -> list[int]:
+    pids: set[int] = set()
+    for d in dirs:
+        try:
+            pids.update(int(p) for p in (Path(d) / "cgroup.procs").read_text().split())
+        except OSError:
+            pass
+    return sorted(pids)
+
+
+def _signal_all(pids: list[int], sig: int) -> None:
+    for pid in pids:
+        try:
+            os.kill(pid, sig)
+        except (ProcessLookupError, PermissionError):
+            pass
+
+
+def _cgroup(dirs: list[str], mode: str) -> RobotCgroup:
+    """A handle on an existing robot cgroup (RobotCgroup() would create it)."""
+    cg = RobotCgroup.__new__(RobotCgroup)
+    cg.mode = mode
+    cg.dirs = [Path(d) for d in dirs]
+    return cg
+
+
+def _clean_env() -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RAMPS_")}
+    src = str(Path(__file__).resolve().parents[2])  # src layout: keep `ramps` importable as in this process
+    env["PYTHONPATH"] = src + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    return env
+
+
+# ====================================================================== the testbed
+class Testbed:
+    """Emulated robots on this host; see the module docstring.
+
+    >>> with Testbed(3, lease_ms=1000) as tb:
+    ...     team = tb.client("r1")
+    ...     print(team.submit("burn", seconds=0.2).result())
+    ...     tb.cut("r2"); ...; tb.recover("r2")
+    """
+
+    __test__ = False
+
+    def __init__(self, robots: int | list[str] = 5, *, team: str | None = None, quota: float | None = None,
+                 cores: int | None = None, speed: float | None = None, programs: list[str] | None = None,
+                 lease_ms: int | None = None, policy: str | None = None, loaded: dict[str, int] | None = None,
+                 discovery: str = "both", python: str | None = None, state_dir: Path | None = None) -> None:
+        net.need_root()
+        self.mode = cgroup_mode()
+        if self.mode is None:
+            raise PermissionError("the testbed needs root and writable cpu cgroups (v1 /sys/fs/cgroup/cpu or v2)")
+        names = [f"r{i}" for i in range(1, robots + 1)] if isinstance(robots, int) else list(robots)
+        if not names:
+            raise ValueError("a testbed needs at least one robot")
+        if discovery not in ("both", "multicast", "connect"):
+            raise ValueError("discovery must be both, multicast or connect")
+        net.check_names("t250", names)
+        for r in loaded or {}:
+            if r not in names:
+                raise ValueError(f"loaded robot {r!r} is not one of {', '.join(names)}")
+        host_cores = len(os.sched_getaffinity(0))
+        self.quota = float(quota) if quota is not None else round(max(0.05, host_cores / len(names)), 3)
+        if not self.quota > 0:
+            raise ValueError(f"quota must be > 0 host cores, got {quota}")
+        self.names = names
+        self.team_name = team
+        self.cores, self.speed, self.policy, self.lease_ms = cores, speed, policy, lease_ms
+        self.programs = list(programs or [])
+        self.discovery = discovery
+        self.python = python or sys.executable
+        self.state_dir = Path(state_dir or STATE_DIR)
+        self.tb: str | None = None
+        self.x = 0
+        self.robots: dict[str, dict[str, Any]] = {}
+        self.loaded = dict(loaded or {})
+        self.log_dir: Path | None = None
+        self._popen: dict[int, subprocess.Popen] = {}
+        self._lock = threading.RLock()
+        self._created = False
+        self._down = False
+        self._attached = False
+        self._old_handlers: dict[int, Any] = {}
+        self._atexit = False
+
+    # ------------------------------------------------------------ attach (another process)
+    @classmethod
+    def attach(cls, tb: str | None = None, *, state_dir: Path | None = None) -> "Testbed":
+        """The testbed ``tb`` (default: the only one up) from its state file."""
+        if os.geteuid() != 0:
+            raise PermissionError("the testbed needs root: its namespaces and cgroups belong to root")
+        d = Path(state_dir or STATE_DIR)
+        files = sorted(d.glob("testbed-*.json"))
+        if tb is not None:
+            files = [f for f in files if f.stem == f"testbed-{tb}"]
+        if not files:
+            raise TestbedError("no testbed is up" + (f" with id {tb!r}" if tb else "") +
+                               "; start one with `ramps testbed up`")
+        if len(files) > 1:
+            ids = ", ".join(f.stem.removeprefix("testbed-") for f in files)
+            raise TestbedError(f"several testbeds are up ({ids}); pick one with --tb")
+        st = json.loads(files[0].read_text())
+        self = cls.__new__(cls)
+        self.names = [r["name"] for r in st["robots"]]
+        self.robots = {r["name"]: r for r in st["robots"]}
+        for key in ("tb", "x", "quota", "cores", "speed", "policy", "lease_ms", "programs", "discovery",
+                    "python", "mode", "loaded"):
+            setattr(self, key, st[key])
+        self.team_name = st["team"]
+        self.log_dir = Path(st["log_dir"]) if st.get("log_dir") else None
+        self.state_dir = d
+        self._popen, self._lock = {}, threading.RLock()
+        self._created, self._down, self._attached = True, False, True
+        self._old_handlers, self._atexit = {}, False
+        return self
+
+    # ------------------------------------------------------------ names
+    @property
+    def team(self) -> str:
+        return self.team_name or f"tb-{self.tb}"
+
+    def ip(self, robot: str) -> str:
+        return self._robot(robot)["ip"]
+
+    def endpoint(self, robot: str) -> str:
+        return f"tcp/{self.ip(robot)}:{PORT}"
+
+    def endpoints(self) -> list[str]:
+        return [self.endpoint(r) for r in self.names]
+
+    def namespace(self, robot: str) -> str:
+        return self._robot(robot)["ns"]
+
+    @property
+    def state_file(self) -> Path:
+        return self.state_dir / f"testbed-{self.tb}.json"
+
+    def _robot(self, robot: str) -> dict[str, Any]:
+        if robot not in self.robots:
+            raise TestbedError(f"unknown robot {robot!r}; this testbed has {', '.join(self.names)}")
+        return self.robots[robot]
+
+    # ------------------------------------------------------------ up
+    def up(self, timeout: float = 60.0) -> "Testbed":
+        """Build the network and cgroups, start every node, wait until all are alive."""
+        if self._created:
+            return self
+        self._install_handlers()
+        try:
+            with self._lock:
+                self._created = True
+                self.state_dir.mkdir(parents=True, exist_ok=True)
+                taken = {int(m.group(1)) for f in self.state_dir.glob("testbed-t*.json")
+                         if (m := re.fullmatch(r"testbed-t(\d+)", f.stem))}
+                self.x = net.free_subnet(taken)
+                self.tb = f"t{self.x}"
+                self.log_dir = Path(tempfile.mkdtemp(prefix=f"ramps-testbed-{self.tb}-"))
+                for i, r in enumerate(self.names, 1):
+                    ns = net.ns_name(self.tb, r)
+                    self.robots[r] = dict(name=r, index=i, ip=net.robot_ip(self.x, i), ns=ns,
+                                          veth=net.veth_name(self.tb, r), cgroup=[], pid=None, start=None,
+                                          load=self.loaded.get(r, 0), load_pids=[], faults=[])
+                self._save()  # from here on, down_all() finds it even if we die
+                net.make_bridge(self.tb, self.x)
+                for r in self.names:
+                    rb = self.robots[r]
+                    net.make_robot(self.tb, self.x, rb["index"], r)
+                    cg = RobotCgroup(rb["ns"], self.quota, self.mode)
+                    rb["cgroup"] = [str(d) for d in cg.dirs]
+                    self._save()
+                for r in self.names:
+                    self._start_node(r)
+                    self._start_load(r, self.robots[r]["load"])
+                self._save()
+            self.wait_alive(self.names, timeout)
+        except BaseException:
+            self.down()
+            raise
+        return self
+
+    def _node_cmd(self, robot: str) -> list[str]:
+        rb = self.robots[robot]
+        cmd = [self.python, "-m", "ramps.cli", "node", "--robot", robot, "--team", self.team,
+               "--listen", f"tcp/{rb['ip']}:{PORT}"]
+        if self.discovery in ("both", "connect") and len(self.names) > 1:
+            seed = self.names[1] if robot == self.names[0] else self.names[0]
+            cmd += ["--connect", f"tcp/{self.robots[seed]['ip']}:{PORT}"]
+        cmd += ["--multicast" if self.discovery in ("both", "multicast") else "--no-multicast"]
+        for flag, value in (("--cores", self.cores), ("--speed", self.speed), ("--policy", self.policy),
+                            ("--lease-ms", self.lease_ms)):
+            if value is not None:
+                cmd += [flag, str(value)]
+        for p in self.programs:
+            cmd += ["--program", p]
+        return cmd
+
+    def _spawn(self, robot: str, argv: list[str], log: Path | None) -> tuple[int, int | None]:
+        rb = self.robots[robot]
+        cg = _cgroup(rb["cgroup"], self.mode)
+        full = cg.wrap(["nsenter", f"--net={net.NETNS_DIR / rb['ns']}", *argv])
+        env = dict(_clean_env(), RAMPS_ROBOT=robot)
+        out = open(log, "ab") if log else subprocess.DEVNULL
+        try:
+            p = subprocess.Popen(full, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, env=env,
+                                 start_new_session=True, close_fds=True)
+        finally:
+            if log:
+                out.close()
+        self._popen[p.pid] = p
+        st = _proc_stat(p.pid)
+        deadline = time.monotonic() + 2.0  # joined the cgroup (the shell's first step) before we return
+        while p.pid not in _cgroup_pids(rb["cgroup"][:1]) and p.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.002)
+        return p.pid, st[1] if st else None
+
+    def _start_node(self, robot: str) -> None:
+        rb = self.robots[robot]
+        log = self.log_dir / f"{robot}.log" if self.log_dir else None
+        rb["pid"], rb["start"] = self._spawn(robot, self._node_cmd(robot), log)
+
+    def _start_load(self, robot: str, n: int) -> None:
+        rb = self.robots[robot]
+        for _ in range(n):
+            rb["load_pids"].append(list(self._spawn(robot, [self.python, "-c", "while True: pass"], None)))
+
+    def wait_alive(self, robots: list[str] | None = None, timeout: float = 60.0) -> float:
+        """Wait until ``robots`` (default all) are alive in the team and publish
+        their load, seen from the root namespace; return the seconds it took.
+        Raises NoTeam with the tail of their logs."""
+        robots = list(robots or self.names)
+        t0 = time.monotonic()
+        deadline = t0 + timeout
+        with Observer(self) as obs:
+            while True:
+                for r in robots:
+                    if self.process_state(r) == "dead":
+                        raise NoTeam(f"the node of robot {r} exited at start:\n{self.log_tail(r)}")
+                # ready: alive (liveliness token) and publishing load (a report since we started looking),
+                # so placement policies already count the robot as a candidate
+                if set(robots) <= obs.ready():
+                    return time.monotonic() - t0
+                if time.monotonic() > deadline:
+                    tails = "\n".join(f"--- {r}:\n{self.log_tail(r)}" for r in robots)
+                    raise NoTeam(f"robots {', '.join(robots)} did not all join team {self.team} within "
+                                 f"{timeout:g} s\n{tails}")
+                time.sleep(0.05)
+
+    def log_tail(self, robot: str, lines: int = 15) -> str:
+        try:
+            return "\n".join((self.log_dir / f"{robot}.log").read_text(errors="replace").splitlines()[-lines:])
+        except (OSError, TypeError):
+            return "(no log)"
+
+    # ------------------------------------------------------------ clients
+    def client(self, robot: str = "r1", *, timeout: float = 10.0, lease_ms: int | None = None):
+        """A ``ramps.runtime.client.Team`` in the root namespace, connected to
+        every robot over the bridge, whose programs start on ``robot``."""
+        from ramps.runtime.client import Team
+        from ramps.runtime.settings import load_settings
+
+        self._robot(robot)
+        flags = {"team": self.team, "connect": self.endpoints(), "multicast": False, "listen": []}
+        if lease_ms is not None:
+            flags["lease_ms"] = lease_ms
+        s = load_settings(flags=flags, default_robot=False, environ={})
+        return Team(s, robot=robot, timeout=timeout)
+
+    def zenoh_config(self):
+        """A plain Zenoh peer config for the root namespace (connects to every robot)."""
+        import zenoh
+
+        c = zenoh.Config()
+        c.insert_json5("mode", '"peer"')
+        c.insert_json5("listen/endpoints", "[]")
+        c.insert_json5("connect/endpoints", json.dumps(self.endpoints()))
+        c.insert_json5("scouting/multicast/enabled", "false")
+        return c
+
+    # ------------------------------------------------------------ faults
+    def process_state(self, robot: str) -> str:
+        """'running', 'stopped' or 'dead' of the robot's node."""
+        rb = self._robot(robot)
+        p = self._popen.get(rb["pid"])
+        if p is not None and p.poll() is not None:
+            return "dead"
+        return _alive(rb["pid"], rb["start"])
+
+    def _pids(self, robot: str) -> list[int]:
+        """Every live process of the robot: its cgroup's members and its recorded pids."""
+        rb = self.robots[robot]
+        pids = set(_cgroup_pids(rb["cgroup"]))
+        for pid, start in [(rb["pid"], rb["start"]), *[tuple(x) for x in rb["load_pids"]]]:
+            if _alive(pid, start) != "dead":
+                pids.add(pid)
+        return sorted(pids)
+
+    def _kill(self, robot: str) -> None:
+        rb = self.robots[robot]
+        if rb["pid"] and _alive(rb["pid"], rb["start"]) != "dead":
+            try:
+                os.killpg(rb["pid"], signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
+        for _ in range(50):  # a worker may be forking: repeat until the cgroup is empty
+            pids = self._pids(robot)
+            if not pids:
+                break
+            _signal_all(pids, signal.SIGKILL)
+            _signal_all(pids, signal.SIGCONT)  # a stopped process dies only once continued on some kernels
+            time.sleep(0.02)
+        self._reap()
+
+    def _reap(self) -> None:
+        for pid, p in list(self._popen.items()):
+            if p.poll() is not None:
+                del self._popen[pid]
+
+    def crash(self, robot: str) -> None:
+        """SIGKILL the robot's node, workers and load (a power cut)."""
+        with self._lock:
+            self._live()
+            rb = self._robot(robot)
+            self._kill(robot)
+            rb["faults"] = [f for f in rb["faults"] if f != "frozen"] + ["crashed"] * ("crashed" not in rb["faults"])
+            rb["load_pids"] = []
+            self._save()
+
+    def cut(self, robot: str) -> None:
+        """Take the robot's network link down; its processes keep running."""
+        with self._lock:
+            self._live()
+            rb = self._robot(robot)
+            net.link_down(rb["ns"])
+            if "cut" not in rb["faults"]:
+                rb["faults"].append("cut")
+            self._save()
+
+    def freeze(self, robot: str) -> None:
+        """SIGSTOP every process of the robot (sockets stay open, nothing answers)."""
+        with self._lock:
+            self._live()
+            rb = self._robot(robot)
+            if "crashed" in rb["faults"]:
+                raise TestbedError(f"robot {robot} is crashed; recover it before freezing it")
+            if rb["pid"]:
+                try:
+                    os.killpg(rb["pid"], signal.SIGSTOP)
+                except ProcessLookupError:
+                    pass
+            deadline = time.monotonic() + 2.0
+            while True:  # until every process is stopped (signals are delivered asynchronously)
+                running = [p for p in self._pids(robot) if (_proc_stat(p) or ("T", 0))[0] not in ("T", "t")]
+                if not running or time.monotonic() > deadline:
+                    break
+                _signal_all(running, signal.SIGSTOP)
+                time.sleep(0.005)
+            if "frozen" not in rb["faults"]:
+                rb["faults"].append("frozen")
+            self._save()
+
+    def recover(self, robot: str, *, wait: bool = True, timeout: float = 30.0) -> list[str]:
+        """Undo every fault of the robot (link up, SIGCONT, restart a crashed
+        node and its load); with ``wait``, until the root namespace sees it alive
+        again. Returns the faults undone."""
+        with self._lock:
+            self._live()
+            rb = self._robot(robot)
+            undone = list(rb["faults"])
+            if "cut" in undone or net.link_state(rb["ns"]) != "up":
+                net.link_up(rb["ns"])
+            if "frozen" in undone:
+                _signal_all(self._pids(robot), signal.SIGCONT)
+                if rb["pid"]:
+                    try:
+                        os.killpg(rb["pid"], signal.SIGCONT)
+                    except ProcessLookupError:
+                        pass
+            if "crashed" in undone or self.process_state(robot) == "dead":
+                self._kill(robot)  # leftovers of the old incarnation, if any
+                rb["load_pids"] = []
+                self._start_node(robot)
+                self._start_load(robot, rb["load"])
+            rb["faults"] = []
+            self._save()
+        if wait:
+            self.wait_alive([robot], timeout)
+        return undone
+
+    def add_load(self, robot: str, n: int = 1) -> None:
+        """Start ``n`` busy processes inside the robot (its namespace and cgroup)."""
+        if n < 0:
+            raise ValueError("n must be >= 0")
+        with self._lock:
+            self._live()
+            rb = self._robot(robot)
+            rb["load"] += n
+            if "crashed" not in rb["faults"]:
+                self._start_load(robot, n)
+                if "frozen" in rb["faults"]:
+                    _signal_all([p for p, _ in rb["load_pids"][-n:]], signal.SIGSTOP)
+            self._save()
+
+    def remove_load(self, robot: str) -> None:
+        with self._lock:
+            rb = self._robot(robot)
+            _signal_all([p for p, s in rb["load_pids"] if _alive(p, s) != "dead"], signal.SIGKILL)
+            rb["load"], rb["load_pids"] = 0, []
+            self._reap()
+            self._save()
+
+    def _live(self) -> None:
+        if not self._created or self._down:
+            raise TestbedError("this testbed is not up")
+
+    # ------------------------------------------------------------ looking
+    def status(self, *, team_view: bool = False, timeout: float = 2.0) -> dict[str, Any]:
+        """Per robot: namespace present, link state, node process state, load,
+        faults; with ``team_view``, the team as a client in the root namespace sees it."""
+        have_ns = set(net.namespaces())
+        robots = []
+        for r in self.names:
+            rb = self.robots[r]
+            ns_ok = rb["ns"] in have_ns
+            loads = sum(1 for p, s in rb["load_pids"] if _alive(p, s) != "dead")
+            robots.append(dict(robot=r, ip=rb["ip"], namespace=rb["ns"] if ns_ok else None,
+                               link=net.link_state(rb["ns"]) if ns_ok else "missing",
+                               process=self.process_state(r), pid=rb["pid"], load=rb["load"],
+                               load_running=loads, faults=list(rb["faults"])))
+        out: dict[str, Any] = dict(tb=self.tb, team=self.team, subnet=f"{net.SUBNET_BASE}.{self.x}.0/24",
+                                   bridge=net.bridge_name(self.tb), quota=self.quota, cgroups=self.mode,
+                                   robots=robots, connect=self.endpoints())
+        if team_view:
+            try:
+                with Observer(self) as obs:
+                    deadline = time.monotonic() + timeout  # let liveliness and load reports arrive
+                    want = {r["robot"] for r in robots if r["process"] == "running" and r["link"] == "up"}
+                    while time.monotonic() < deadline and not want <= obs.ready():
+                        time.sleep(0.05)
+                    out["team_view"] = obs.view()
+            except Exception as exc:  # a Zenoh error: report it, the rest of the status stands
+                out["team_view_error"] = f"no team view: {exc}"
+        return out
+
+    # ------------------------------------------------------------ state file
+    def _save(self) -> None:
+        st = dict(tb=self.tb, x=self.x, team=self.team, quota=self.quota, cores=self.cores, speed=self.speed,
+                  policy=self.policy, lease_ms=self.lease_ms, programs=self.programs, discovery=self.discovery,
+                  python=self.python, mode=self.mode, loaded=self.loaded,
+                  log_dir=str(self.log_dir) if self.log_dir else None, created_by=os.getpid(),
+                  robots=[self.robots[r] for r in self.names if r in self.robots])
+        tmp = self.state_file.with_suffix(".tmp")
+        tmp.write_text(json.dumps(st, indent=1))
+        tmp.replace(self.state_file)
+
+    # ------------------------------------------------------------ down
+    def down(self) -> None:
+        """Remove everything this testbed made; harmless when already down."""
+        with self._lock:
+            if self._down or not self._created:
+                self._down = True
+                self._restore_handlers()
+                return
+            self._down = True
+            try:
+                for r in self.names:
+                    if r in self.robots:
+                        self._kill(r)
+                for r in self.names:
+                    rb = self.robots.get(r)
+                    if rb and rb["cgroup"]:
+                        _cgroup(rb["cgroup"], self.mode).remove()
+                if self.tb:
+                    net.remove(self.tb, self.names)
+                for p in list(self._popen.values()):
+                    try:
+                        p.wait(2)
+                    except subprocess.TimeoutExpired:
+                        pass
+                self._popen.clear()
+                if self.log_dir:
+                    shutil.rmtree(self.log_dir, ignore_errors=True)
+                if self.tb:
+                    self.state_file.unlink(missing_ok=True)
+                    self.state_file.with_suffix(".tmp").unlink(missing_ok=True)
+                    try:
+                        self.state_dir.rmdir()  # only when no other testbed is up
+                    except OSError:
+                        pass
+            finally:
+                self._restore_handlers()
+
+    def detach(self) -> None:
+        """Leave the testbed running after this process exits (``ramps testbed up``)."""
+        self._restore_handlers()
+        if self._atexit:
+            atexit.unregister(self.down)
+            self._atexit = False
+        self._popen.clear()  # not ours to reap any more
+
+    def _install_handlers(self) -> None:
+        if not self._atexit:
+            atexit.register(self.down)
+            self._atexit = True
+        if threading.current_thread() is not threading.main_thread():
+            return
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            prev = signal.getsignal(sig)
+            self._old_handlers[sig] = prev
+
+            def handler(signum, frame, prev=prev):
+                self.down()
+                if callable(prev):
+                    return prev(signum, frame)
+                if signum == signal.SIGINT:
+                    raise KeyboardInterrupt
+                raise SystemExit(128 + signum)
+
+            signal.signal(sig, handler)
+
+    def _restore_handlers(self) -> None:
+        if self._old_handlers and threading.current_thread() is threading.main_thread():
+            for sig, prev in self._old_handlers.items():
+                try:
+                    signal.signal(sig, prev if prev is not None else signal.SIG_DFL)
+                except (ValueError, TypeError):
+                    pass
+            self._old_handlers = {}
+        if self._atexit and self._down:
+            atexit.unregister(self.down)
+            self._atexit = False
+
+    def __enter__(self) -> "Testbed":
+        return self.up()
+
+    def __exit__(self, *exc) -> None:
+        self.down()
+
+
+class Observer:
+    """A plain Zenoh session in the root namespace that watches the team:
+    liveliness tokens and the latest load report of each robot.
+
+    Used instead of a ``Team`` client for readiness and status because it
+    is closed by its ``with`` block whatever interrupts it (a Ctrl-C in the
+    middle of ``Team()`` would leave a session whose thread blocks exit)."""
+
+    def __init__(self, testbed: "Testbed") -> None:
+        import zenoh
+
+        from ramps.runtime import keys
+
+        self._lock = threading.Lock()
+        self.alive: set[str] = set()
+        self.reports: dict[str, tuple[Any, float]] = {}
+        self.session = zenoh.open(testbed.zenoh_config())
+        try:
+            self._subs = [
+                self.session.liveliness().declare_subscriber(keys.alive(testbed.team), self._on_alive, history=True),
+                self.session.declare_subscriber(keys.load(testbed.team), self._on_load),
+            ]
+        except BaseException:
+            self.session.close()
+            raise
+
+    def _on_alive(self, sample) -> None:
+        import zenoh
+
+        from ramps.runtime import keys
+
+        robot = keys.robot_of(str(sample.key_expr))
+        with self._lock:
+            (self.alive.add if sample.kind == zenoh.SampleKind.PUT else self.alive.discard)(robot)
+
+    def _on_load(self, sample) -> None:
+        from ramps.core.messages import LoadReport, WireError, decode
+
+        try:
+            msg = decode(sample.payload.to_bytes()).msg
+        except WireError:
+            return
+        if isinstance(msg, LoadReport):
+            with self._lock:
+                self.reports[msg.robot] = (msg, time.monotonic())
+
+    def ready(self) -> set[str]:
+        """Robots alive that have published load since this observer opened."""
+        with self._lock:
+            return self.alive & set(self.reports)
+
+    def view(self) -> list[dict[str, Any]]:
+        now = time.monotonic()
+        with self._lock:
+            rows = []
+            for r in sorted(self.alive | set(self.reports)):
+                rep, at = self.reports.get(r, (None, None))
+                row: dict[str, Any] = dict(robot=r, alive=r in self.alive)
+                if rep is not None:
+                    row.update(cores=rep.cores, speed=rep.speed, cpu_busy=rep.cpu_busy,
+                               running=rep.ramps_running, report_age=round(now - at, 3))
+                rows.append(row)
+            return rows
+
+    def close(self) -> None:
+        try:
+            for sub in self._subs:
+                sub.undeclare()
+        finally:
+            self.session.close()
+
+    def __enter__(self) -> "Observer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# ====================================================================== sweeping
+_TB_CGROUP = re.compile(r"ramps-t\d+-\w+")
+
+
+def down_all(state_dir: Path | None = None) -> list[str]:
+    """Remove every testbed on this host, including leftovers of crashed runs:
+    processes in testbed cgroups and namespaces, ``ramps-t<N>-*`` cgroups,
+    ``ramps-*`` namespaces, ``rb-*`` links, state files. Returns what went."""
+    net.need_root()
+    gone: list[str] = []
+    d = Path(state_dir or STATE_DIR)
+    for f in sorted(d.glob("testbed-*.json")):
+        try:
+            Testbed.attach(f.stem.removeprefix("testbed-"), state_dir=d).down()
+            gone.append(f"testbed {f.stem.removeprefix('testbed-')}")
+        except (TestbedError, ValueError, KeyError, OSError):
+            f.unlink(missing_ok=True)
+    dirs = []
+    for sub in ("cpu", "cpuacct", ""):
+        base = CG_ROOT / sub if sub else CG_ROOT
+        if base.is_dir():
+            dirs += [p for p in base.iterdir() if p.is_dir() and _TB_CGROUP.fullmatch(p.name)]
+    for ns in net.namespaces():
+        if ns.startswith(net.NS_PREFIX):
+            _signal_all(net.netns_pids(ns), signal.SIGKILL)
+    for _ in range(20):
+        pids = _cgroup_pids([str(p) for p in dirs])
+        if not pids:
+            break
+        _signal_all(pids, signal.SIGKILL)
+        time.sleep(0.05)
+    for p in dirs:
+        mode = "v2" if p.parent == CG_ROOT else "v1"
+        _cgroup([str(p)], mode).remove()
+        if not p.exists():
+            gone.append(f"cgroup {p}")
+    gone += net.sweep()
+    for f in d.glob("testbed-*.tmp"):
+        f.unlink(missing_ok=True)
+    return gone
+
+
+def leftovers() -> list[str]:
+    """What ``down_all`` would remove (empty when the host is clean)."""
+    found = [f"namespace {ns}" for ns in net.namespaces() if ns.startswith(net.NS_PREFIX)]
+    found += [f"link {name}" for name in net.links() if name.startswith(net.LINK_PREFIX)]
+    for sub in ("cpu", "cpuacct", ""):
+        base = CG_ROOT / sub if sub else CG_ROOT
+        if base.is_dir():
+            found += [f"cgroup {p}" for p in base.iterdir() if p.is_dir() and _TB_CGROUP.fullmatch(p.name)]
+    return found
