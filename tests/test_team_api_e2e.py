@@ -20,6 +20,16 @@ def team(tmp_path_factory):
         client.close()
 
 
+def wait_idle(client, why: str, timeout: float = 20.0) -> None:
+    """Until every robot reports no ramps program running (or fail with ``why``)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if all(r.ramps_running == 0 for r in client.status().robots if r.cores):
+            return
+        time.sleep(0.2)
+    pytest.fail(why)
+
+
 def test_map_returns_results_in_order(team):
     _, client = team
     out = list(client.map("where", [{"x": i} for i in range(8)]))
@@ -45,13 +55,7 @@ def test_per_call_timeout_raises_and_withdraws_the_program(team):
     with pytest.raises(TimeoutError, match="did not finish in time"):
         fut.result(timeout=30)
     # withdrawn: the worker that ran it is killed and the node takes new work
-    deadline = time.monotonic() + 20
-    while time.monotonic() < deadline:
-        if all(r.ramps_running == 0 for r in client.status().robots if r.cores):
-            break
-        time.sleep(0.2)
-    else:
-        pytest.fail("the timed-out program kept running on the team")
+    wait_idle(client, "the timed-out program kept running on the team")
     assert client.submit("where", x=1).result(timeout=30)["x"] == 1
 
 
@@ -62,13 +66,7 @@ def test_cancel_withdraws_a_running_program(team):
     assert fut.cancel()
     with pytest.raises(CancelledError):
         fut.result(timeout=1)
-    deadline = time.monotonic() + 20
-    while time.monotonic() < deadline:
-        if all(r.ramps_running == 0 for r in client.status().robots if r.cores):
-            break
-        time.sleep(0.2)
-    else:
-        pytest.fail("the cancelled program kept running on the team")
+    wait_idle(client, "the cancelled program kept running on the team")
 
 
 def test_options_local_only_and_policy(team):
