@@ -223,15 +223,7 @@ class LoadView:
     def candidates(self, now: float) -> list[str]:
         """Robots a program may be placed on now: this robot, and every
         teammate with a fresh report that is neither blacklisted nor lost."""
-        out = [self.me]
-        horizon = now - self.max_report_age
-        for name, rob in self._robots.items():
-            if name == self.me or rob.report is None or rob.lost:
-                continue
-            if rob.received_at < horizon or name in self._blacklist:
-                continue
-            out.append(name)
-        return out
+        return [row[0] for row in self.scan(now, frozenset())]
 
     def scan(self, now: float, exclude: frozenset[str], paper: bool = False):
         """(robot, cores, speed, runnable) for every candidate, in one pass.
