@@ -123,15 +123,19 @@ def run_plan(plan: FaultPlan, *, seed: int, policy: str = "ramps") -> FaultRun:
         alive = {r: counts[r] for r in ROBOTS if r not in failed_by or failed_by[r] > t}
         dists[label] = alive
         classes[label] = classify_counts(list(alive.values()))
-    records = [_failure_record(res.trace, w + at, robot, kind) for at, robot, kind in plan.failures]
+    records = []
+    for at, robot, kind in plan.failures:
+        done = {p.program_id for p in res.programs if p.delivered_at is not None and p.delivered_at < w + at}
+        records.append(_failure_record(res.trace, w + at, robot, kind, done))
     return FaultRun(plan=plan.name, seed=seed, distributions=dists, classifications=classes, failures=records,
                     completed=res.completed, lost=res.lost, duplicated=res.duplicated, makespan=res.makespan)
 
 
-def _failure_record(trace, t_fail: float, robot: str, kind: str) -> FailureRecord:
+def _failure_record(trace, t_fail: float, robot: str, kind: str, done_before: set[str]) -> FailureRecord:
+    """``done_before``: programs delivered before the failure (never displaced)."""
     host_at: dict[str, str] = {}
-    delivered: set[str] = set()
     detection = None
+    again: dict[str, float] = {}
     for e in trace:
         if e.t < t_fail:
             if e.what == "accepted":
@@ -139,15 +143,10 @@ def _failure_record(trace, t_fail: float, robot: str, kind: str) -> FailureRecor
             continue
         if detection is None and e.what in ("failed", "blacklisted") and e.other == robot:
             detection = e.t - t_fail
-    displaced = {p for p, h in host_at.items() if h == robot}
-    # programs delivered before the failure are not displaced
-    for e in trace:
-        if e.t < t_fail and e.what == "discarded":
-            delivered.add(e.program_id)
-    again: dict[str, float] = {}
-    for e in trace:
-        if e.t >= t_fail and e.what == "accepted" and e.program_id in displaced and e.other != robot:
+        if e.what == "accepted" and e.other != robot:
             again.setdefault(e.program_id, e.t - t_fail)
+    displaced = {p for p, h in host_at.items() if h == robot and p not in done_before}
+    again = {p: t for p, t in again.items() if p in displaced}
     recovery = max(again.values()) if displaced and len(again) == len(displaced) else (0.0 if not displaced else None)
     return FailureRecord(robot=robot, kind=kind, at=t_fail, displaced=len(displaced), detection=detection,
                          recovery=recovery)
