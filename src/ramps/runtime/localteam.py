@@ -170,10 +170,8 @@ class LocalTeam:
 
     def wait_alive(self, names: list[str], timeout: float = 30.0) -> None:
         from ramps.runtime.client import Team
-        from ramps.runtime.settings import load_settings
 
-        s = load_settings(flags={"team": self.team, "connect": [self.seed], "multicast": False, "listen": []},
-                          default_robot=False, environ={})
+        s = self._client_settings()
         deadline = time.monotonic() + timeout
         t = None
         try:
@@ -223,13 +221,17 @@ class LocalTeam:
                 [sys.executable, "-c", "while True: pass"], preexec_fn=cg.enter if cg else None,
                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True))
 
-    def client(self, robot: str | None = None, timeout: float = 10.0):
-        from ramps.runtime.client import Team
+    def _client_settings(self):
+        """A client of this team: connects to the seed robot, listens nowhere."""
         from ramps.runtime.settings import load_settings
 
-        s = load_settings(flags={"team": self.team, "connect": [self.seed], "multicast": False, "listen": []},
-                          default_robot=False, environ={})
-        return Team(s, robot=robot or self.names[0], timeout=timeout)
+        return load_settings(flags={"team": self.team, "connect": [self.seed], "multicast": False, "listen": []},
+                             default_robot=False, environ={})
+
+    def client(self, robot: str | None = None, timeout: float = 10.0):
+        from ramps.runtime.client import Team
+
+        return Team(self._client_settings(), robot=robot or self.names[0], timeout=timeout)
 
     # ------------------------------------------------------------ cleanup
     def close(self) -> None:

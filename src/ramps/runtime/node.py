@@ -55,6 +55,7 @@ from ramps.core.messages import (
     encode,
 )
 from ramps.core.node import Node
+from ramps.core.policy import POLICIES
 from ramps.errors import ProgramNotFound, TransportError
 from ramps.runtime import keys
 from ramps.runtime.measure import LoadSampler, cgroup_dirs, cgroup_quota, detect_cores, measure_speed
@@ -285,8 +286,6 @@ class NodeRuntime:
         except Exception as exc:  # signature mismatch, undecodable arguments
             return self._tell_client(pid, ok=False, kind="bad_arguments",
                                      error=f"bad arguments for program {m.program!r}: {exc}")
-        from ramps.core.policy import POLICIES
-
         if m.policy and m.policy not in POLICIES:
             return self._tell_client(pid, ok=False, kind="bad_arguments",
                                      error=f"unknown policy {m.policy!r}; choose one of {', '.join(POLICIES)}")
