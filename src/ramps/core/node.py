@@ -93,7 +93,6 @@ class Node:
         self.origin = Origin(robot, self.view, self.policy, self.config, self.rng, net or NetworkEstimate())
         self.executor = Executor(robot, config=self.config, registry=registry, incarnation=incarnation)
         self._report_seq = 0
-        self._last_report: LoadReport | None = None
 
     # ------------------------------------------------------------ driving
     def handle(self, event: Event, now: float) -> list[Action]:
@@ -178,26 +177,25 @@ class Node:
                     mem_free: int = 0, cpu_per_core: list[float] | None = None, load_avg: float = 0.0) -> LoadReport:
         """This robot's load report, from the driver's measurements."""
         self._report_seq += 1
-        self._last_report = LoadReport(
-            robot=self.robot, incarnation=self.incarnation, seq=self._report_seq, cores=self.cores,
-            speed=self.speed, cpu_busy=cpu_busy, runnable=runnable,
-            ramps_running=len(self.executor.running), ramps_avg=ramps_avg,
-            accepted_total=self.executor.accepted_total, finished_total=self.executor.finished_total,
-            window=window, mem_free=mem_free, cpu_per_core=cpu_per_core or [], load_avg=load_avg,
-            blacklisted=self.view.blacklisted(),
-        )
-        return self._last_report
+        return self._report(cpu_busy=cpu_busy, runnable=runnable, ramps_avg=ramps_avg, window=window,
+                            mem_free=mem_free, cpu_per_core=cpu_per_core or [], load_avg=load_avg,
+                            blacklisted=self.view.blacklisted())
 
     def current_report(self) -> LoadReport:
-        """A report of this instant (sent with a 'busy' rejection)."""
+        """A report of this instant (sent with a 'busy' rejection); it keeps
+        the last sequence number, see ``LoadView.on_report(fresh=True)``."""
         running = len(self.executor.running)
         bg = self.executor.background
+        return self._report(cpu_busy=min(float(self.cores), bg + running), runnable=bg + running,
+                            ramps_avg=float(running), window=0.0)
+
+    def _report(self, **measured) -> LoadReport:
+        """A report of this robot: its identity and the executor's counters,
+        plus what was ``measured``."""
         return LoadReport(
             robot=self.robot, incarnation=self.incarnation, seq=self._report_seq, cores=self.cores,
-            speed=self.speed, cpu_busy=min(float(self.cores), bg + running), runnable=bg + running,
-            ramps_running=running, ramps_avg=float(running),
-            accepted_total=self.executor.accepted_total, finished_total=self.executor.finished_total,
-            window=0.0,
+            speed=self.speed, ramps_running=len(self.executor.running),
+            accepted_total=self.executor.accepted_total, finished_total=self.executor.finished_total, **measured,
         )
 
     def statistics(self) -> NodeStatistics:
