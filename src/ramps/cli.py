@@ -52,11 +52,20 @@ def _check_policy(policy: str) -> None:
         fail(f"unknown policy {policy!r}; choose one of {', '.join(POLICIES)}")
 
 
-def _write_json(data: bytes, path: Optional[Path]) -> None:
-    if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_bytes(data + b"\n")
-        err.print(f"wrote {path}")
+def _emit(reports: list, printer, *, as_json: bool, out_file: Optional[Path]) -> None:
+    """Print results as tables (``printer(report, console)`` for each) or as
+    JSON on stdout (one report, or ``{"experiments": [...]}``), and save the
+    JSON to ``out_file`` too when given."""
+    data = msgspec.json.encode(reports[0] if len(reports) == 1 else {"experiments": reports})
+    if as_json:
+        sys.stdout.write(data.decode() + "\n")
+    else:
+        for rep in reports:
+            printer(rep, out)
+    if out_file is not None:
+        out_file.parent.mkdir(parents=True, exist_ok=True)
+        out_file.write_bytes(data + b"\n")
+        err.print(f"wrote {out_file}")
 
 
 @app.command()
@@ -102,13 +111,7 @@ def sim_paper(
             task = progress.add_task(f"{e} / {policy}", total=len(configurations(e)))
             reports.append(run_experiment(e, policy=policy, runs=runs, seed=seed,
                                           progress=lambda done, total, t=task: progress.update(t, completed=done)))
-    data = msgspec.json.encode(reports[0] if len(reports) == 1 else {"experiments": reports})
-    if as_json:
-        sys.stdout.write(data.decode() + "\n")
-    else:
-        for rep in reports:
-            print_experiment(rep, out)
-    _write_json(data, out_file)
+    _emit(reports, print_experiment, as_json=as_json, out_file=out_file)
 
 
 def _sim_faults(mode: str, kind: str, *, policy: str, runs: int, seed: int, as_json: bool,
@@ -123,13 +126,7 @@ def _sim_faults(mode: str, kind: str, *, policy: str, runs: int, seed: int, as_j
     if any(k not in KINDS for k in kinds):
         fail(f"unknown kind {kind!r}; choose crash, network, mixed or all")
     reports = [run_fault_experiment(m, k, policy=policy, runs=runs, seed=seed) for m in modes for k in kinds]
-    data = msgspec.json.encode(reports[0] if len(reports) == 1 else {"experiments": reports})
-    if as_json:
-        sys.stdout.write(data.decode() + "\n")
-    else:
-        for rep in reports:
-            print_fault_report(rep, out)
-    _write_json(data, out_file)
+    _emit(reports, print_fault_report, as_json=as_json, out_file=out_file)
     if any(r.summary["lost"] or r.summary["duplicated"] for r in reports):
         raise typer.Exit(1)
 
@@ -155,12 +152,7 @@ def sim_campaign(
                   transient=True) as progress:
         task = progress.add_task("campaign", total=runs)
         rep = run_campaign(runs, seed, policy, progress=lambda done, total: progress.update(task, completed=done))
-    data = msgspec.json.encode(rep)
-    if as_json:
-        sys.stdout.write(data.decode() + "\n")
-    else:
-        print_campaign(rep, out)
-    _write_json(data, out_file)
+    _emit([rep], print_campaign, as_json=as_json, out_file=out_file)
     if rep.failed_runs:
         raise typer.Exit(1)
 
@@ -189,12 +181,7 @@ def sim_run(
         err.print(f"simulating {scenario} ({len(sc.team())} robots, "
                   f"{sum(p.count for p in sc.programs)} programs) ...")
     res = simulate(sc, policy=policy, seed=seed, trace=trace)
-    data = msgspec.json.encode(res)
-    if as_json:
-        sys.stdout.write(data.decode() + "\n")
-    else:
-        print_sim_result(res, out)
-    _write_json(data, out_file)
+    _emit([res], print_sim_result, as_json=as_json, out_file=out_file)
     if res.lost or res.duplicated:
         raise typer.Exit(1)
 
