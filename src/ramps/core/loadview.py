@@ -21,19 +21,21 @@ from __future__ import annotations
 
 import math
 
-from ramps.core.messages import LoadReport
+from ramps.core.messages import MAX_CORES, MAX_LOAD, MAX_SPEED, MIN_SPEED, LoadReport
 
 
 def report_problem(report: LoadReport) -> str | None:
     """Why a teammate's report cannot be used, or None if it can. A report
-    with zero cores or speed would make every cost estimate divide by zero."""
-    if report.cores < 1:
+    with zero cores or speed would make every cost estimate divide by zero,
+    and so would a tiny speed over a huge run queue (their product underflows
+    to 0.0): the bounds are those the wire schema declares."""
+    if not 1 <= report.cores <= MAX_CORES:
         return f"load report from {report.robot!r} claims {report.cores} cores"
     for name in ("speed", "cpu_busy", "runnable", "ramps_avg", "window"):
         value = getattr(report, name)
-        if not math.isfinite(value) or value < 0:
+        if not math.isfinite(value) or not 0 <= value <= MAX_LOAD:
             return f"load report from {report.robot!r} has {name}={value!r}"
-    if report.speed <= 0:
+    if not MIN_SPEED <= report.speed <= MAX_SPEED:
         return f"load report from {report.robot!r} claims speed {report.speed!r}"
     if report.ramps_running < 0 or report.accepted_total < 0 or report.finished_total < 0:
         return f"load report from {report.robot!r} has negative counters"

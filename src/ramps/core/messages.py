@@ -3,11 +3,15 @@
 How this works: every message is a frozen msgspec Struct, tagged by ``type``,
 carried in an ``Envelope`` that names the protocol version and the sender.
 ``encode`` / ``decode`` are the only way bytes become messages: the size is
-checked before anything is parsed, the version before the body, and anything
-that does not fit the schema raises ``WireError`` (a remote-input error: the
+checked before anything is parsed, the version before the body, and every
+field against the limits its type declares (name and text lengths, payload
+sizes, list lengths, non-negative counts, finite floats, the physical bounds
+of a load report), which msgspec enforces while decoding. Anything that does
+not fit raises ``WireError`` and nothing else (a remote-input error: the
 receiver counts it and drops it; it never takes a node down). Nothing is ever
 unpickled; program arguments and results travel as opaque ``bytes`` that the
-program's own schema decodes.
+program's own schema decodes. Limits bind the receiver only: ``encode`` does
+not check them, so a sender stays cheap.
 
 Message flow (origin = the robot that submitted the program, host = the
 robot that runs it; a robot is both at once for its local programs):
@@ -23,17 +27,32 @@ robot that runs it; a robot is both at once for its local programs):
 
 from __future__ import annotations
 
-from typing import Union
+import re
+import sys
+from typing import Annotated, Union
 
 import msgspec
+from msgspec import Meta
 
 PROTOCOL_VERSION = 1
 
 #: largest encoded message a node accepts, bytes (arguments included)
 MAX_MESSAGE_BYTES = 8 * 1024 * 1024
+#: longest robot, client, program and program-id name
 MAX_NAME = 128
+#: longest free text (a rejection's detail, a program's error)
 MAX_TEXT = 4096
+#: longest error in an outcome: it may quote a host's detail and a registry listing
+MAX_OUTCOME_TEXT = 64 * 1024
+#: most program references in a heartbeat, robots in a blacklist
 MAX_REFS = 100_000
+#: physical bounds of a load report: the cost model divides work by
+#: ``speed * min(1, cores / (runnable + 1))``, which must stay a positive float
+MAX_CORES = 1 << 16
+MIN_SPEED = 1e-9
+MAX_SPEED = 1e9
+#: run-queue lengths, busy cores, load averages and windows (seconds)
+MAX_LOAD = 1e9
 
 
 class WireError(ValueError):
@@ -44,149 +63,174 @@ class _Msg(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True
     pass
 
 
-Name = msgspec.Meta(min_length=1, max_length=MAX_NAME)
+# ---------------------------------------------------------------- field types
+# msgspec checks these while it decodes (never when a message is built), so a
+# message that breaks one is a WireError at the receiver and never reaches the
+# core. Robot and client names become Zenoh key chunks (``ramps/<team>/msg/<host>``):
+# a wildcard in one would make an honest node publish to every robot's inbox.
+_KEY_SAFE = r"\A[^*$?#\x00-\x1f\x7f]*\Z"
+#: a robot or client name
+RobotName = Annotated[str, Meta(min_length=1, max_length=MAX_NAME, pattern=_KEY_SAFE)]
+#: a robot name that may be empty (an outcome refused before any placement)
+OptRobotName = Annotated[str, Meta(max_length=MAX_NAME, pattern=_KEY_SAFE)]
+#: a program's name or id
+Name = Annotated[str, Meta(min_length=1, max_length=MAX_NAME)]
+#: a short keyword ("busy", "program", a policy name), may be empty
+Word = Annotated[str, Meta(max_length=MAX_NAME)]
+Text = Annotated[str, Meta(max_length=MAX_TEXT)]
+Payload = Annotated[bytes, Meta(max_length=MAX_MESSAGE_BYTES)]
+#: counters, sequence numbers, attempts, sizes
+Count = Annotated[int, Meta(ge=0)]
+#: a finite, non-negative float (NaN and infinities refused)
+Amount = Annotated[float, Meta(ge=0.0, le=sys.float_info.max)]
+Load = Annotated[float, Meta(ge=0.0, le=MAX_LOAD)]
+Cores = Annotated[int, Meta(ge=1, le=MAX_CORES)]
+Speed = Annotated[float, Meta(ge=MIN_SPEED, le=MAX_SPEED)]
 
 
 class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="load"):
     """A robot's load, as published by its load publisher."""
 
-    robot: str
+    robot: RobotName
     #: changes whenever the node restarts, so a report from a new life of a
     #: robot is recognised even though its sequence numbers start over
-    incarnation: int
-    seq: int
-    cores: int
+    incarnation: Count
+    seq: Count
+    cores: Cores
     #: work units per second per core when the core is free
-    speed: float
+    speed: Speed
     #: busy cores averaged over the window (0..cores): the paper's CPU load
-    cpu_busy: float
+    cpu_busy: Load
     #: runnable tasks averaged over the window (run-queue length, like loadavg)
-    runnable: float
+    runnable: Load
     #: ramps programs running at the moment of the report, and averaged
-    ramps_running: int
-    ramps_avg: float
+    ramps_running: Count
+    ramps_avg: Load
     #: monotonic counts of programs this incarnation accepted / finished, so
     #: an origin can tell which of its bookings a report already includes
-    accepted_total: int
-    finished_total: int
-    window: float = 1.0
+    accepted_total: Count
+    finished_total: Count
+    window: Load = 1.0
     #: bytes of memory available to new programs
-    mem_free: int = 0
+    mem_free: Count = 0
     #: CPU use of each core over the window (0..1), and the 1-minute load average
-    cpu_per_core: list[float] = []
-    load_avg: float = 0.0
+    cpu_per_core: Annotated[list[Load], Meta(max_length=MAX_CORES)] = []
+    load_avg: Load = 0.0
     #: robots this robot's load server has written off (for ``ramps status``)
-    blacklisted: list[str] = []
+    blacklisted: Annotated[list[RobotName], Meta(max_length=MAX_REFS)] = []
+    #: malformed messages this node dropped since it started (undecodable,
+    #: another protocol version, a load report about another robot)
+    bad_messages: Count = 0
 
 
 class OffloadRequest(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="offload"):
-    program_id: str
-    attempt: int
-    origin: str
-    host: str
-    program: str
-    args: bytes = b""
+    program_id: Name
+    attempt: Count
+    origin: RobotName
+    host: RobotName
+    program: Name
+    args: Payload = b""
     #: declared size of the parameters (equals len(args) on a real robot)
-    payload_size: int = 0
+    payload_size: Count = 0
     #: the origin's estimate of the work, so the host can report progress
-    work: float = 0.0
+    work: Amount = 0.0
     #: ramps negotiation: runnable tasks the origin expects on the host when
     #: the program arrives; None = no admission check (other policies)
-    expected_runnable: float | None = None
+    expected_runnable: Amount | None = None
     #: set after too many rejections: the host must take it
     force: bool = False
 
 
 class OffloadAccepted(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="accept"):
-    program_id: str
-    attempt: int
-    host: str
+    program_id: Name
+    attempt: Count
+    host: RobotName
     #: the host's accepted_total after taking this program
-    accept_seq: int
+    accept_seq: Count
 
 
 class OffloadRejected(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="reject"):
-    program_id: str
-    attempt: int
-    host: str
+    program_id: Name
+    attempt: Count
+    host: RobotName
     #: "busy" (try elsewhere now), "unknown_program", "bad_request" (permanent)
-    reason: str
+    reason: Word
     permanent: bool
-    detail: str = ""
+    detail: Text = ""
     #: the host's load right now, so the origin can place with fresh data
     report: LoadReport | None = None
 
 
-class ProgramRef(msgspec.Struct, frozen=True, array_like=True):
-    program_id: str
-    attempt: int
+class ProgramRef(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
+    program_id: Name
+    attempt: Count
 
 
 class Heartbeat(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="heartbeat"):
-    host: str
-    incarnation: int
-    programs: list[ProgramRef]
+    host: RobotName
+    incarnation: Count
+    programs: Annotated[list[ProgramRef], Meta(max_length=MAX_REFS)]
 
 
 class ProgramResult(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="result"):
-    program_id: str
-    attempt: int
-    host: str
+    program_id: Name
+    attempt: Count
+    host: RobotName
     ok: bool
-    value: bytes = b""
-    error: str = ""
-    result_size: int = 0
+    value: Payload = b""
+    error: Text = ""
+    result_size: Count = 0
     #: the worker died under the program (killed, out of memory): not the
     #: program's own error, so the origin places it again
     retryable: bool = False
     #: the host's finished_total after this program ended
-    finish_seq: int = 0
+    finish_seq: Count = 0
 
 
 class ResultAck(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="ack"):
-    program_id: str
-    attempt: int
-    origin: str
+    program_id: Name
+    attempt: Count
+    origin: RobotName
 
 
 class CancelProgram(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="cancel"):
-    program_id: str
-    attempt: int
-    origin: str
+    program_id: Name
+    attempt: Count
+    origin: RobotName
 
 
 class SubmitProgram(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="submit"):
     """An application (client) asks its robot's node to run a program."""
 
-    client: str
-    request_id: int
-    program: str
-    args: bytes = b""
+    client: RobotName
+    request_id: Count
+    program: Name
+    args: Payload = b""
     #: expected work in work units (from the program's profile), 0 = default
-    work: float = 0.0
-    result_size: int = 0
+    work: Amount = 0.0
+    result_size: Count = 0
     local_only: bool = False
     #: placement policy for this program ("" = the node's own)
-    policy: str = ""
+    policy: Word = ""
 
 
 class CancelSubmitted(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="withdraw"):
-    client: str
-    request_id: int
+    client: RobotName
+    request_id: Count
 
 
 class ProgramOutcome(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="outcome"):
     """The one result (or error) of a submitted program, for its client."""
 
-    request_id: int
+    request_id: Count
     ok: bool
-    value: bytes = b""
-    error: str = ""
+    value: Payload = b""
+    error: Annotated[str, Meta(max_length=MAX_OUTCOME_TEXT)] = ""
     #: "program" (the program raised), "refused" (no robot will run it),
     #: "cancelled", "failed" (gave up after failures), "shutdown"
-    error_kind: str = ""
-    host: str = ""
-    attempts: int = 0
+    error_kind: Word = ""
+    host: OptRobotName = ""
+    attempts: Count = 0
 
 
 Message = Union[
@@ -206,7 +250,7 @@ Message = Union[
 
 class Envelope(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     v: int
-    sender: str
+    sender: RobotName
     msg: Message
 
 
@@ -217,6 +261,12 @@ class _VersionOnly(msgspec.Struct):
 _encoder = msgspec.msgpack.Encoder()
 _envelope_decoder = msgspec.msgpack.Decoder(Envelope)
 _version_decoder = msgspec.msgpack.Decoder(_VersionOnly)
+#: how msgspec words a value outside its field's declared limits
+_CONSTRAINT = re.compile(r"Expected `[a-z]+` (of length|matching|[<>]=?)")
+#: every way msgspec says "not this schema": its own errors, and two it lets
+#: through (a string that is not UTF-8; absurdly deep nesting). Nothing else
+#: may escape ``decode`` (tests/test_fuzz.py, ``ramps bench fuzz``)
+_DECODE_ERRORS = (msgspec.DecodeError, msgspec.ValidationError, UnicodeDecodeError, RecursionError)
 
 
 def encode(sender: str, msg: Message) -> bytes:
@@ -225,46 +275,36 @@ def encode(sender: str, msg: Message) -> bytes:
 
 
 def decode(data: bytes, *, max_bytes: int = MAX_MESSAGE_BYTES) -> Envelope:
-    """Decode bytes from the network, or raise WireError saying why not."""
+    """Decode bytes from the network, or raise WireError saying why not.
+
+    In order: the size (before anything is parsed), the protocol version
+    (before the body, so another version's message is named as such), then
+    the body against the schema with every field's limits."""
     if len(data) > max_bytes:
         raise WireError(f"message of {len(data)} bytes exceeds the limit of {max_bytes} bytes")
     try:
         version = _version_decoder.decode(data).v
-    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-        raise WireError(f"not a ramps message: {exc}") from exc
+    except _DECODE_ERRORS as exc:
+        raise WireError(f"not a ramps message: {_why(exc)}") from exc
     if version != PROTOCOL_VERSION:
         raise WireError(
             f"protocol version mismatch: message is version {version}, "
             f"this node speaks version {PROTOCOL_VERSION}"
         )
     try:
-        env = _envelope_decoder.decode(data)
-    except (msgspec.DecodeError, msgspec.ValidationError) as exc:
-        raise WireError(f"malformed ramps message: {exc}") from exc
-    _check_limits(env)
-    return env
+        return _envelope_decoder.decode(data)
+    except _DECODE_ERRORS as exc:
+        if isinstance(exc, msgspec.ValidationError) and _CONSTRAINT.match(str(exc)):
+            raise WireError(f"ramps message field out of bounds: {exc}") from exc
+        raise WireError(f"malformed ramps message: {_why(exc)}") from exc
 
 
-def _check_limits(env: Envelope) -> None:
-    if not 0 < len(env.sender) <= MAX_NAME:
-        raise WireError(f"sender name of length {len(env.sender)} is out of bounds")
-    msg = env.msg
-    for field in ("robot", "host", "origin", "program", "program_id", "client"):
-        value = getattr(msg, field, None)
-        if value is None:
-            continue
-        # an outcome refused before any placement names no host
-        optional = field == "host" and isinstance(msg, ProgramOutcome)
-        if len(value) > MAX_NAME or (not value and not optional):
-            raise WireError(f"{field} of length {len(value)} is out of bounds")
-    for field in ("detail", "error"):
-        value = getattr(msg, field, None)
-        if value is not None and len(value) > MAX_TEXT:
-            raise WireError(f"{field} longer than {MAX_TEXT} characters")
-    if isinstance(msg, Heartbeat) and len(msg.programs) > MAX_REFS:
-        raise WireError(f"heartbeat lists {len(msg.programs)} programs (limit {MAX_REFS})")
-    if isinstance(msg, LoadReport) and (len(msg.blacklisted) > MAX_REFS or len(msg.cpu_per_core) > 4096):
-        raise WireError(f"load report lists {len(msg.blacklisted)} blacklisted robots (limit {MAX_REFS})")
+def _why(exc: Exception) -> str:
+    if isinstance(exc, RecursionError):
+        return "nested too deeply"
+    if isinstance(exc, UnicodeDecodeError):
+        return f"a string is not UTF-8 ({exc.reason})"
+    return str(exc)
 
 
 def wire_size(msg: Message) -> int:

@@ -17,6 +17,7 @@ raises.
 from __future__ import annotations
 
 import heapq
+import math
 import random
 from collections import deque
 
@@ -76,6 +77,8 @@ class Origin:
     def submit(self, sub: Submit, now: float, out: list[Action]) -> None:
         if sub.program_id in self.programs:
             raise ValueError(f"program id {sub.program_id!r} was already submitted")
+        if not (math.isfinite(sub.work) and sub.work >= 0):  # NaN work made every policy's choice fail
+            raise ValueError(f"program {sub.program_id!r}: work must be finite and >= 0, got {sub.work!r}")
         if sub.policy and sub.policy not in self._policies:
             self._policies[sub.policy] = make_policy(sub.policy)  # ValueError names the known ones
         ap = AutonomousProgram(sub, now)
@@ -260,6 +263,12 @@ class Origin:
             out.append(Note(what="unblacklisted", robot=msg.report.robot))
         ap.rejections += 1
         ap.excluded.add(host)
+        if host == self.me and msg.reason == "closing":
+            # this robot is shutting down: a local_only program (or any, when
+            # no teammate is left) would be offered here again at once and
+            # turned away forever; wait instead (the driver cancels it)
+            self._backoff(ap, now, out)
+            return
         self.place(ap, now, out)
 
     def _on_host_failed(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:

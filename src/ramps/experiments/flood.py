@@ -1,0 +1,346 @@
+"""``ramps bench flood``: a node flooded with malformed messages keeps working.
+
+How this works: a real team on loopback (two ``ramps node`` processes, r1
+and r2) runs legitimate programs submitted to r1 (``burn`` and ``echo``,
+spread over the flood) while a separate Zenoh session floods r1's inbox
+(``ramps/<team>/msg/r1``) and the team's load key expression (which every
+node hears) with malformed messages: random bytes, truncated and
+bit-flipped valid messages, other protocol versions, the wrong shape, fields
+out of their limits, pickles, deep nesting, and payloads of 1-9 MB (some
+over the 8 MiB message limit). Every message in the pool is checked here to
+be one ``decode`` refuses, so each one a node receives adds one to its
+``bad_messages`` counter, which nodes publish in their load reports.
+
+Zenoh may drop puts under congestion (the flooder, like robot-to-robot
+traffic, does not block), so the figures say what was sent and what each
+node counted, not an assumed delivery. Measured on r1 (``psutil`` on its
+pid, workers excluded): resident memory after warm-up, at its peak during the
+flood, and after it. Nothing here asserts; tests/test_flood_e2e.py does.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+import threading
+import time
+from typing import Any, Callable
+
+from ramps.core import messages as m
+from ramps.experiments import fuzz
+
+#: how often the load publisher reports (``NodeSettings.publish_period``)
+REPORT_PERIOD = 1.0
+MB = 1 << 20
+
+
+# ====================================================================== the malformed messages
+def flood_pool(seed: int = 0, *, small: int = 2000, big: int = 24, big_min: int = 1 * MB,
+               big_max: int = 9 * MB) -> tuple[list[bytes], list[bytes]]:
+    """(small, big) malformed messages, every one refused by ``decode``.
+
+    Small ones come from the fuzzer's makers (deep nesting kept shallow
+    enough to be cheap); big ones are 1-9 MB: garbage, zeros, a valid offload
+    whose arguments take it over the limit, and a valid-looking one of a few
+    MB with one bad field (parsed to the end, then refused)."""
+    rng = random.Random(seed)
+    makers = [k for k in fuzz.WIRE_KINDS if k[0] not in ("valid",)]
+    _names, weights, fns = zip(*makers)
+    out_small: list[bytes] = []
+    while len(out_small) < small:
+        data = rng.choices(fns, weights)[0](rng)
+        if len(data) > 64 * 1024:  # deep nesting of a million levels: keep the small pool small
+            continue
+        if _refused(data):
+            out_small.append(data)
+    out_big: list[bytes] = []
+    for i in range(big):
+        n = rng.randint(big_min, big_max)
+        k = i % 4
+        if k == 0:
+            data = rng.randbytes(n)
+        elif k == 1:
+            data = b"\xc1" * n
+        elif k == 2:
+            data = m.encode("p", m.OffloadRequest(program_id="a", attempt=1, origin="p", host="r1", program="burn",
+                                                  args=b"\x00" * max(n, m.MAX_MESSAGE_BYTES + 1)))
+        else:
+            data = fuzz._enc.encode({"v": m.PROTOCOL_VERSION, "sender": "p", "msg": {
+                "type": "offload", "program_id": "a", "attempt": 1, "origin": "p", "host": "**",
+                "program": "burn", "args": b"\x00" * n}})
+        if _refused(data):
+            out_big.append(data)
+    return out_small, out_big
+
+
+def _refused(data: bytes) -> bool:
+    try:
+        m.decode(data)
+    except m.WireError:
+        return True
+    return False
+
+
+# ====================================================================== watching the nodes
+def raw_session(endpoints: list[str], *, shared_memory: bool = False):
+    """A plain Zenoh peer session connected to ``endpoints`` (no listening,
+    no multicast): what a misbehaving program on the network would open.
+
+    Zenoh passes messages over 3 KB between processes of one host through
+    a 16 MiB shared-memory pool that the receiver maps (and counts in its
+    resident memory); an attacker on another machine has no such pool, so
+    the flood goes over TCP unless ``shared_memory``."""
+    import zenoh
+
+    c = zenoh.Config()
+    c.insert_json5("mode", '"peer"')
+    c.insert_json5("listen/endpoints", "[]")
+    c.insert_json5("connect/endpoints", json.dumps(endpoints))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    if not shared_memory:
+        c.insert_json5("transport/shared_memory/enabled", "false")
+    return zenoh.open(c)
+
+
+class LoadWatcher:
+    """The latest load report of every robot, heard on the team's load key."""
+
+    def __init__(self, session, team: str) -> None:
+        self._lock = threading.Lock()
+        self.reports: dict[str, tuple[m.LoadReport, float]] = {}
+        self._sub = session.declare_subscriber(f"ramps/{team}/load/*", self._on_report)
+
+    def _on_report(self, sample) -> None:
+        try:
+            env = m.decode(sample.payload.to_bytes())
+        except m.WireError:
+            return
+        if isinstance(env.msg, m.LoadReport) and env.msg.robot == env.sender:
+            with self._lock:
+                self.reports[env.msg.robot] = (env.msg, time.monotonic())
+
+    def bad_messages(self, robot: str) -> int | None:
+        with self._lock:
+            rep = self.reports.get(robot)
+        return None if rep is None else rep[0].bad_messages
+
+    def wait_settled(self, robots: list[str], timeout: float = 15.0) -> dict[str, int | None]:
+        """Counters once two successive reports of every robot agree."""
+        deadline = time.monotonic() + timeout
+        last = {r: self.bad_messages(r) for r in robots}
+        while time.monotonic() < deadline:
+            time.sleep(2 * REPORT_PERIOD + 0.2)
+            now = {r: self.bad_messages(r) for r in robots}
+            if now == last and None not in now.values():
+                return now
+            last = now
+        return last
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+class RssSampler:
+    """Resident memory of one process, sampled every ``period`` seconds."""
+
+    def __init__(self, pid: int, period: float = 0.05) -> None:
+        import psutil
+
+        self.proc = psutil.Process(pid)
+        self.period = period
+        self.peak = self.rss()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="rss-sampler", daemon=True)
+
+    def rss(self) -> int:
+        return self.proc.memory_info().rss
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period):
+            try:
+                self.peak = max(self.peak, self.rss())
+            except Exception:
+                return
+
+    def __enter__(self) -> "RssSampler":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join(2)
+
+
+# ====================================================================== the flood
+def _legit_calls(n: int) -> list[tuple[str, dict]]:
+    calls = []
+    for i in range(n):
+        if i % 2 == 0:
+            calls.append(("burn", {"seconds": 0.2}))
+        else:
+            calls.append(("echo", {"i": i, "text": "x" * (i % 7), "nested": {"a": [i, -i]}}))
+    return calls
+
+
+def _check(program: str, args: dict, value: Any) -> bool:
+    from ramps.programs.burn import ITERATIONS_PER_UNIT
+
+    if program == "echo":
+        return value == args
+    return isinstance(value, dict) and value.get("iterations") == round(args["seconds"] * ITERATIONS_PER_UNIT)
+
+
+def flood_team(*, team: str, endpoints: list[str], target: str, pids: dict[str, int], client,
+               messages: int = 10_000, seconds: float = 10.0, programs: int = 40, big_share: float = 0.01,
+               load_share: float = 0.25, seed: int = 0, result_timeout: float = 120.0, block: bool = False,
+               log: Callable[[str], None] | None = None) -> dict:
+    """Flood a running team's ``target`` node while ``client`` (a Team whose
+    origin is ``target``) runs ``programs`` legitimate programs; return the figures.
+
+    ``pids``: robot -> node pid, for resident memory. ``load_share`` of the
+    flood goes to the load key expression (every node hears it), the rest to
+    the target's inbox; ``big_share`` of it is 1-9 MB. ``block``: the
+    flooder waits when Zenoh's queues are full instead of dropping (so every
+    message reaches the nodes, at whatever rate they take them)."""
+    say = log or (lambda _msg: None)
+    small, big = flood_pool(seed)
+    rng = random.Random(seed)
+    robots = sorted(pids)
+    calls = _legit_calls(programs)
+    with raw_session(endpoints) as session:
+        watcher = LoadWatcher(session, team)
+        try:
+            # warm up: the programs' code paths, the workers, the Zenoh routes
+            warm = [client.submit(p, **a) for p, a in calls[:min(len(calls), 10)]]
+            for f in warm:
+                f.result(timeout=result_timeout)
+            inbox = f"ramps/{team}/msg/{target}"
+            # a put made before Zenoh matched the subscriber may vanish: probe until counted
+            deadline = time.monotonic() + 30
+            while (watcher.bad_messages(target) or 0) < 1:
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"{target} never counted a probe message (no load reports heard?)")
+                session.put(inbox, b"\xc1probe")
+                time.sleep(0.3)
+            before = watcher.wait_settled(robots)
+            time.sleep(1.0)
+            rss_before = {r: _rss(pid) for r, pid in pids.items()}
+            say(f"flooding {target}: {messages} messages in {seconds:g} s while {programs} programs run ...")
+            futures: list = []
+            sent = {"inbox": 0, "load": 0, "big": 0, "bytes": 0, "errors": 0}
+            gap = seconds / max(1, programs)
+
+            def submit_all() -> None:
+                start = time.monotonic()
+                for i, (p, a) in enumerate(calls):
+                    time.sleep(max(0.0, start + i * gap - time.monotonic()))
+                    futures.append((p, a, client.submit(p, **a)))
+
+            submitter = threading.Thread(target=submit_all, name="flood-legit", daemon=True)
+            with RssSampler(pids[target]) as sampler:
+                started = time.monotonic()
+                submitter.start()
+                import zenoh
+
+                cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
+                pub_inbox = session.declare_publisher(inbox, congestion_control=cc)
+                for i in range(messages):
+                    if rng.random() < big_share:
+                        data = big[sent["big"] % len(big)]
+                        sent["big"] += 1
+                    else:
+                        data = small[i % len(small)]
+                    try:
+                        if rng.random() < load_share:
+                            session.put(f"ramps/{team}/load/{rng.choice([target, 'r9', 'x'])}", data,
+                                        congestion_control=cc)
+                            sent["load"] += 1
+                        else:
+                            pub_inbox.put(data)
+                            sent["inbox"] += 1
+                        sent["bytes"] += len(data)
+                    except Exception:
+                        sent["errors"] += 1
+                    if i % 50 == 49:  # pace: the whole flood over `seconds`
+                        time.sleep(max(0.0, started + (i + 1) * seconds / messages - time.monotonic()))
+                flood_seconds = time.monotonic() - started
+                pub_inbox.undeclare()
+                submitter.join()
+                ok = wrong = failed = 0
+                failures: list[str] = []
+                for p, a, f in futures:
+                    try:
+                        value = f.result(timeout=result_timeout)
+                    except Exception as exc:
+                        failed += 1
+                        failures.append(f"{p}: {type(exc).__name__}: {exc}"[:300])
+                        continue
+                    if _check(p, a, value):
+                        ok += 1
+                    else:
+                        wrong += 1
+                        failures.append(f"{p}({a}) returned {value!r}"[:300])
+                programs_seconds = time.monotonic() - started
+            hosts: dict[str, int] = {}
+            for _p, _a, f in futures:
+                h = getattr(f, "host", "?")
+                hosts[h] = hosts.get(h, 0) + 1
+            after = watcher.wait_settled(robots)
+            time.sleep(1.0)
+            rss_after = {r: _rss(pid) for r, pid in pids.items()}
+            counted = {r: (after[r] or 0) - (before[r] or 0) for r in robots}
+        finally:
+            watcher.close()
+    return {
+        "benchmark": "flood", "target": target, "blocking_sender": block, "robots": robots,
+        "messages_sent": sent["inbox"] + sent["load"],
+        "to_inbox": sent["inbox"], "to_load_key": sent["load"], "big_messages": sent["big"],
+        "bytes_sent": sent["bytes"], "send_errors": sent["errors"], "flood_seconds": flood_seconds,
+        "send_rate_per_s": (sent["inbox"] + sent["load"]) / flood_seconds if flood_seconds else 0.0,
+        "expected_at_target": sent["inbox"] + sent["load"], "expected_at_others": sent["load"],
+        "dropped_counted": counted, "bad_messages_total": after,
+        "programs": len(calls), "programs_ok": ok, "programs_wrong": wrong, "programs_failed": failed,
+        "program_hosts": hosts, "programs_seconds": programs_seconds, "failures": failures[:10],
+        "rss_before_mb": {r: v / MB for r, v in rss_before.items()},
+        "rss_after_mb": {r: v / MB for r, v in rss_after.items()},
+        "rss_growth_mb": {r: (rss_after[r] - rss_before[r]) / MB for r in robots},
+        "rss_peak_mb": sampler.peak / MB,
+        "alive": {r: _alive(pid) for r, pid in pids.items()},
+    }
+
+
+def _rss(pid: int) -> int:
+    import psutil
+
+    return psutil.Process(pid).memory_info().rss
+
+
+def _alive(pid: int) -> bool:
+    import psutil
+
+    try:
+        return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
+def bench_flood(*, messages: int = 10_000, seconds: float = 10.0, programs: int = 40, seed: int = 0,
+                log: Callable[[str], None] | None = None) -> dict:
+    """``ramps bench flood``: two real nodes on loopback, r1 flooded."""
+    from ramps.experiments.bench import machine
+    from ramps.runtime.localteam import LocalTeam
+
+    with LocalTeam(2, cores=2, speed=1.0) as team:
+        client = team.client("r1")
+        try:
+            res = flood_team(team=team.team, endpoints=[team.endpoint(n) for n in team.names], target="r1",
+                             pids={n: team.procs[n].pid for n in team.names}, client=client,
+                             messages=messages, seconds=seconds, programs=programs, seed=seed, log=log)
+        finally:
+            client.close()
+        res["node_logs"] = str(team.log_dir)
+    res["machine"] = machine()
+    return res
+
+
+__all__ = ["LoadWatcher", "RssSampler", "bench_flood", "flood_pool", "flood_team", "raw_session"]
