@@ -20,6 +20,11 @@ exit, even when the test fails; ``leftover_processes()`` finds any that
 survived. Node output goes to ``<tmp>/<robot>.log``; ``logs()`` returns it
 for failure messages.
 
+A secured team (``secure=True``): the team gets its own CA in
+``<tmp>/team-ca``, every node its credentials (``credentials(name)``) and
+``tls/`` endpoints, and ``client()`` / ``wait_visible`` connect with the
+credentials of an application ``app``.
+
 Optional cpu cgroups (``cgroups=True``, root and a writable cgroup v1 or v2
 cpu controller needed, see ``cgroup_support()``): each node then runs in its
 own cgroup with a CPU quota, so it measures its own load (``load_scope``
@@ -97,16 +102,18 @@ def cgroup_support() -> str | None:
 
 # ---------------------------------------------------------------- the team
 class NodeProc:
-    def __init__(self, name: str, proc: subprocess.Popen, port: int, log: Path, cores: int | None) -> None:
+    def __init__(self, name: str, proc: subprocess.Popen, port: int, log: Path, cores: int | None,
+                 scheme: str = "tcp") -> None:
         self.name = name
         self.proc = proc
         self.port = port
         self.log = log
         self.cores = cores
+        self.scheme = scheme
 
     @property
     def endpoint(self) -> str:
-        return f"tcp/127.0.0.1:{self.port}"
+        return f"{self.scheme}/127.0.0.1:{self.port}"
 
     @property
     def pid(self) -> int:
@@ -116,7 +123,7 @@ class NodeProc:
 class LocalTeam:
     def __init__(self, n: int, tmp: Path, *, cores: int | None = 2, lease_ms: int = 1000,
                  cgroups: bool = False, quota_cores: float = 1.0, programs=PROGRAMS,
-                 verbose: bool = False, visible_timeout: float = 30.0) -> None:
+                 verbose: bool = False, visible_timeout: float = 30.0, secure: bool = False) -> None:
         self.n = n
         self.tmp = Path(tmp)
         self.tmp.mkdir(parents=True, exist_ok=True)
@@ -135,6 +142,23 @@ class LocalTeam:
         self._clients: list[Any] = []
         self._cgroups: dict[str, RobotCgroup] = {}
         self._seed: str | None = None
+        self.secure = secure
+        self.scheme = "tls" if secure else "tcp"
+        self.ca_dir = self.tmp / "team-ca"
+        if secure:
+            from ramps.runtime.security import create_ca
+
+            create_ca(self.ca_dir, self.team)
+
+    def credentials(self, name: str) -> Path:
+        """Robot (or application) ``name``'s credentials directory, issued on first use."""
+        from ramps.runtime.security import BUNDLE_KEY, issue
+
+        bundle = self.ca_dir / name
+        return bundle if (bundle / BUNDLE_KEY).exists() else issue(self.ca_dir, name)
+
+    def _secure_kwargs(self) -> dict[str, Any]:
+        return {"secure": True, "credentials": self.credentials("app")} if self.secure else {}
 
     # ------------------------------------------------------------ lifecycle
     def __enter__(self) -> LocalTeam:
@@ -231,8 +255,10 @@ class LocalTeam:
         cores = self.default_cores if cores is None else cores
         port = free_port()
         argv = [sys.executable, "-m", "ramps.cli", "node", "--robot", name, "--team", self.team,
-                "--listen", f"tcp/127.0.0.1:{port}", "--no-multicast", "--speed", "1",
+                "--listen", f"{self.scheme}/127.0.0.1:{port}", "--no-multicast", "--speed", "1",
                 "--lease-ms", str(self.lease_ms)]
+        if self.secure:
+            argv += ["--secure", "--credentials", str(self.credentials(name))]
         if cores is not None:
             argv += ["--cores", str(cores)]
         if self._seed is not None:
@@ -249,7 +275,7 @@ class LocalTeam:
             argv = cg.wrap(argv)
         log = self.tmp / f"{name}.log"
         proc = self._popen(argv, log=log, env=self._env(name, extra_env))
-        node = self.nodes[name] = NodeProc(name, proc, port, log, cores)
+        node = self.nodes[name] = NodeProc(name, proc, port, log, cores, self.scheme)
         if self._seed is None:
             self._seed = node.endpoint
         if wait:
@@ -289,7 +315,7 @@ class LocalTeam:
         import ramps
 
         team = ramps.connect(team=self.team, robot=robot, connect=connect or self.endpoints(), multicast=False,
-                             timeout=timeout)
+                             timeout=timeout, **self._secure_kwargs())
         self._clients.append(team)
         return team
 
@@ -309,7 +335,8 @@ class LocalTeam:
             while probe is None:
                 try:
                     probe = ramps.connect(team=self.team, robot=names[0], connect=self.endpoints(),
-                                          multicast=False, timeout=min(5.0, max(0.5, deadline - time.monotonic())))
+                                          multicast=False, timeout=min(5.0, max(0.5, deadline - time.monotonic())),
+                                          **self._secure_kwargs())
                 except NoTeam:
                     if time.monotonic() > deadline:
                         raise AssertionError(f"node {names[0]} of team {self.team} never became visible\n"

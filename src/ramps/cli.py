@@ -32,6 +32,8 @@ sim_app = typer.Typer(help="Simulate teams and workloads in virtual time (second
 bench_app = typer.Typer(help="Benchmarks that print figures and save them as JSON.", no_args_is_help=True)
 app.add_typer(sim_app, name="sim")
 app.add_typer(bench_app, name="bench")
+from ramps.cli_team import team_app  # noqa: E402  (ramps team init/add)
+app.add_typer(team_app, name="team")
 
 # a pipe or a CI log gets wide tables instead of wrapped ones
 out = Console(width=None if sys.stdout.isatty() else 200)
@@ -240,6 +242,69 @@ def bench_dispatch_cmd(
     out.print(f"saved {out_file}")
 
 
+@bench_app.command("fuzz")
+def bench_fuzz_cmd(
+    inputs: int = typer.Option(100_000, "--inputs", "-n", min=1, help="generated inputs in all"),
+    seed: int = typer.Option(0, "--seed", help="seed of the input generator (same seed, same inputs)"),
+    as_json: bool = typer.Option(False, "--json", help="print the figures as JSON"),
+    out_file: Path = typer.Option(Path("bench-results/fuzz.json"), "--out", "-o", help="where to save the JSON"),
+) -> None:
+    """Garbage, mutated and hostile messages at the wire decoder, the argument decoder and the core (exit 1 on any unhandled exception)."""
+    from ramps.experiments.fuzz import run_fuzz
+
+    err.print(f"fuzzing with {inputs} inputs, seed {seed} ...")
+    res = run_fuzz(inputs=inputs, seed=seed, progress=lambda n: err.print(f"  {n} inputs", highlight=False))
+
+    def show(r, console) -> None:
+        console.print(f"fuzz: {r['inputs']} inputs in {r['seconds']:.2f} s ({r['inputs_per_s']:.0f}/s), "
+                      f"seed {r['seed']}: {r['decoder_inputs']} at the wire decoder ({r['decoded']} decoded, "
+                      f"{r['wire_errors']} refused), {r['args_inputs']} at the argument decoder, "
+                      f"{r['core_events']} core events (+{r['core_from_decoder']} decoded messages) on "
+                      f"{r['core_nodes']} nodes, {r['programs_delivered']} programs delivered; "
+                      f"unhandled exceptions: {r['exceptions']}", highlight=False)
+        for x in r["exception_samples"]:
+            console.print(f"  {x['target']} ({x['kind']}): {x['error']}", highlight=False)
+
+    _emit([res], show, as_json=as_json, out_file=out_file)
+    if res["exceptions"]:
+        raise typer.Exit(1)
+
+
+@bench_app.command("flood")
+def bench_flood_cmd(
+    messages: int = typer.Option(10_000, "--messages", "-n", min=1, help="malformed messages to send"),
+    seconds: float = typer.Option(10.0, "--seconds", min=0.1, help="over how long"),
+    programs: int = typer.Option(40, "--programs", min=1, help="legitimate programs run during the flood"),
+    seed: int = typer.Option(0, "--seed", help="seed of the malformed messages"),
+    as_json: bool = typer.Option(False, "--json", help="print the figures as JSON"),
+    out_file: Path = typer.Option(Path("bench-results/flood.json"), "--out", "-o", help="where to save the JSON"),
+) -> None:
+    """Flood a real node with malformed and oversized messages while it runs programs: drops counted, memory, programs completed."""
+    from ramps.experiments.flood import bench_flood
+
+    err.print(f"starting 2 nodes on loopback; flooding r1 with {messages} messages over {seconds:g} s ...")
+    res = bench_flood(messages=messages, seconds=seconds, programs=programs, seed=seed)
+
+    def show(r, console) -> None:
+        mb = 1 << 20
+        console.print(f"flood: sent {r['messages_sent']} malformed messages ({r['big_messages']} of 1-9 MB, "
+                      f"{r['bytes_sent'] / mb:.0f} MB) in {r['flood_seconds']:.1f} s ({r['send_rate_per_s']:.0f}/s); "
+                      f"dropped and counted by r1: {r['dropped_counted']['r1']} of {r['expected_at_target']}, "
+                      f"by r2 (load key only): {r['dropped_counted']['r2']} of {r['expected_at_others']}",
+                      highlight=False)
+        console.print(f"programs: {r['programs_ok']}/{r['programs']} completed correctly "
+                      f"({r['programs_failed']} failed, {r['programs_wrong']} wrong) on {r['program_hosts']}; "
+                      f"r1 resident memory {r['rss_before_mb']['r1']:.1f} MB before, peak {r['rss_peak_mb']:.1f} MB, "
+                      f"{r['rss_after_mb']['r1']:.1f} MB after (growth {r['rss_growth_mb']['r1']:+.1f} MB); "
+                      f"alive: {r['alive']}", highlight=False)
+        for f in r["failures"]:
+            console.print(f"  {f}", highlight=False)
+
+    _emit([res], show, as_json=as_json, out_file=out_file)
+    if res["programs_ok"] != res["programs"] or not all(res["alive"].values()):
+        raise typer.Exit(1)
+
+
 # ====================================================================== the real team
 def _settings(**flags):
     from ramps.errors import ConfigError
@@ -254,6 +319,8 @@ def _settings(**flags):
 
 
 TEAM_HELP = "team name: teams on one network never hear each other (env RAMPS_TEAM)"
+SECURE_HELP = "secured team: TLS links, team certificates, access control (env RAMPS_SECURE; see `ramps team`)"
+CREDENTIALS_HELP = "this robot's credentials directory from `ramps team add` (env RAMPS_CREDENTIALS)"
 CONNECT_HELP = "Zenoh endpoint of a teammate, e.g. tcp/192.168.1.12:7447 (repeatable; env RAMPS_CONNECT)"
 
 
@@ -270,6 +337,9 @@ def node(
     program: Optional[list[str]] = typer.Option(None, "--program", help="extra program as package.module:function (repeatable)"),
     config_file: Optional[Path] = typer.Option(None, "--config", help="TOML config file (env RAMPS_CONFIG)"),
     lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh session lease: how fast a frozen or cut-off peer is noticed"),
+    trace: Optional[Path] = typer.Option(None, "--trace", help="write every placement, failure and delivery decision to this file (JSON lines)"),
+    secure: bool = typer.Option(False, "--secure", help=SECURE_HELP),
+    credentials: Optional[Path] = typer.Option(None, "--credentials", help=CREDENTIALS_HELP),
     verbose: bool = typer.Option(False, "--verbose", "-v", help="log every blacklisting and failure"),
 ) -> None:
     """Run this robot's ramps node until Ctrl-C: load publisher, load server, program executor.
@@ -290,7 +360,8 @@ def node(
         _check_policy(policy)
     s = _settings(robot=robot, team=team, listen=listen or None, connect=connect or None, multicast=multicast,
                   cores=cores, speed=speed, policy=policy, programs=program or None, config_file=config_file,
-                  lease_ms=lease_ms)
+                  lease_ms=lease_ms, trace=str(trace) if trace else None, secure=secure or None,
+                  credentials=str(credentials) if credentials else None)
     import signal
     import threading
 
@@ -302,9 +373,10 @@ def node(
     except RampsError as exc:
         fail(str(exc))
     err.print(f"[bold]ramps node {rt.robot}[/] joined team [bold]{rt.team}[/]: {rt.cores} cores, speed {rt.speed:g}, "
-              f"policy {s.policy}, load measured on the {rt.load_scope}; listening on {', '.join(s.listen)}"
+              f"policy {s.policy}, load measured on the {rt.load_scope}; listening on {', '.join(s.listen_endpoints())}"
               + (f"; connecting to {', '.join(s.connect)}" if s.connect else "")
-              + ("; multicast discovery on" if s.multicast else ""), highlight=False, soft_wrap=True)
+              + ("; multicast discovery on" if s.multicast else "")
+              + ("; secured: TLS with team certificates" if s.secure else ""), highlight=False, soft_wrap=True)
     err.print(f"programs: {', '.join(sorted(rt.registry.names()))}. Ctrl-C to leave the team.", highlight=False,
               soft_wrap=True)
     try:
@@ -325,12 +397,12 @@ def _parse_arg(text: str) -> tuple[str, object]:
         return key, raw
 
 
-def _connect_team(team, robot, connect, multicast, timeout, config_file=None):
+def _connect_team(team, robot, connect, multicast, timeout, config_file=None, secure=None, credentials=None):
     from ramps.errors import RampsError
     from ramps.runtime.client import Team
 
     s = _settings(team=team, connect=connect or None, multicast=multicast, config_file=config_file,
-                  default_robot=False)
+                  default_robot=False, secure=secure or None, credentials=str(credentials) if credentials else None)
     try:
         return Team(s, robot=robot, timeout=timeout)
     except RampsError as exc:
@@ -348,6 +420,8 @@ def submit(
     count: int = typer.Option(1, "--count", "-n", min=1, help="submit the same call this many times"),
     timeout: Optional[float] = typer.Option(None, "--timeout", help="give up (and withdraw the program) after this many seconds"),
     as_json: bool = typer.Option(False, "--json", help="print results as JSON lines"),
+    secure: bool = typer.Option(False, "--secure", help=SECURE_HELP),
+    credentials: Optional[Path] = typer.Option(None, "--credentials", help=CREDENTIALS_HELP),
 ) -> None:
     """Run a program on the team and print its result."""
     import time as _time
@@ -355,7 +429,7 @@ def submit(
     from ramps.errors import RampsError
 
     args = dict(_parse_arg(a) for a in arg or [])
-    t = _connect_team(team, robot, connect, multicast, 5.0)
+    t = _connect_team(team, robot, connect, multicast, 5.0, secure=secure, credentials=credentials)
     try:
         started = _time.perf_counter()
         try:
@@ -389,6 +463,8 @@ def status(
     connect: Optional[list[str]] = typer.Option(None, "--connect", "-c", help=CONNECT_HELP),
     multicast: Optional[bool] = typer.Option(None, "--multicast/--no-multicast", help="find the team by UDP multicast"),
     wait: float = typer.Option(2.5, "--wait", help="seconds to listen for load reports"),
+    secure: bool = typer.Option(False, "--secure", help=SECURE_HELP),
+    credentials: Optional[Path] = typer.Option(None, "--credentials", help=CREDENTIALS_HELP),
     as_json: bool = typer.Option(False, "--json", help="print the team view as JSON"),
 ) -> None:
     """Show the team: robots, their load, running programs, blacklisted peers."""
@@ -396,7 +472,7 @@ def status(
 
     from rich.table import Table
 
-    t = _connect_team(team, None, connect, multicast, 5.0)
+    t = _connect_team(team, None, connect, multicast, 5.0, secure=secure, credentials=credentials)
     try:
         _time.sleep(wait)
         st = t.status()

@@ -2,10 +2,13 @@
 
     RampsError                    anything ramps reports
     ├── ConfigError               bad settings, flags or config file (local misuse)
+    │   └── CredentialsError      missing, mismatched or expired team credentials
     ├── ProgramNotFound           no program of that name is registered here
     ├── BadArguments              arguments do not fit the program's signature,
     │                             cannot be encoded, or are too large
     ├── NoTeam                    no ramps node could be reached in time
+    │   └── NotAdmitted           the team would not admit us (TLS: wrong CA,
+    │                             certificate refused, or --secure missing)
     ├── TransportError            the middleware (Zenoh) failed; wraps its error
     └── RemoteError               a program ended without a result
         ├── ProgramFailed         the program itself raised (remote traceback text)
@@ -37,7 +40,15 @@ class BadArguments(RampsError, TypeError):
     pass
 
 
+class CredentialsError(ConfigError):
+    pass
+
+
 class NoTeam(RampsError):
+    pass
+
+
+class NotAdmitted(NoTeam):
     pass
 
 

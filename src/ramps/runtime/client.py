@@ -39,6 +39,7 @@ from ramps.core.messages import CancelSubmitted, LoadReport, ProgramOutcome, Sub
 from ramps.errors import (
     BadArguments,
     NoTeam,
+    NotAdmitted,
     ProgramFailed,
     ProgramLost,
     ProgramNotFound,
@@ -47,6 +48,7 @@ from ramps.errors import (
 )
 from ramps.runtime import keys
 from ramps.runtime.registry import MAX_ARGS_BYTES, Registry, decode_value, default_registry, encode_args
+from ramps.runtime.security import admission, open_session, settings_credentials, tls_listeners
 from ramps.runtime.settings import NodeSettings, load_settings, zenoh_config
 
 
@@ -91,8 +93,20 @@ class Team:
         self._timers: list[tuple[float, int]] = []
         self._timer_cv = threading.Condition(self._lock)
         self._closed = False
+        self.secure = settings.secure
+        self._connect = list(settings.connect)
+        creds, exit_on_failure = None, False
+        if settings.secure:  # CredentialsError, NotAdmitted: at once, before Zenoh
+            creds = settings_credentials(settings)
+            exit_on_failure = admission(settings.connect, creds, team=self.team)
+        listen = [] if settings.connect else settings.listen
         try:
-            self.session = zenoh.open(zenoh_config(settings, listen=[] if settings.connect else settings.listen))
+            if settings.secure:
+                self.session = open_session(
+                    lambda fast: zenoh_config(settings, listen=listen, credentials=creds, exit_on_failure=fast),
+                    settings.connect, creds, team=self.team, fail_fast=exit_on_failure)
+            else:
+                self.session = zenoh.open(zenoh_config(settings, listen=listen))
         except zenoh.ZError as exc:
             raise TransportError(f"cannot open a Zenoh session for team {self.team!r}: {exc}") from exc
         self._subs = [
@@ -128,6 +142,8 @@ class Team:
 
     def _find_robot(self, robot: str | None, timeout: float) -> str:
         deadline = time.monotonic() + timeout
+        # not secured, linked to nobody after a second: is the team a secured one?
+        probe_at = time.monotonic() + 1.0 if not self.secure and self._connect else None
         while True:
             with self._lock:
                 alive = sorted(self._alive)
@@ -136,12 +152,22 @@ class Team:
             if robot is None and alive:
                 host = keys.keys_safe_id(socket.gethostname())
                 return host if host in alive else alive[0]
+            if probe_at is not None and time.monotonic() >= probe_at:
+                probe_at = None
+                secured = [] if list(self.session.info.peers_zid()) else tls_listeners(self._connect)
+                if secured:
+                    self.close()
+                    raise NotAdmitted(f"team {self.team!r} at {', '.join(secured)} is secured (TLS, team "
+                                      "certificates) and this client is not: connect with --secure --credentials "
+                                      "DIR (ramps.connect(..., secure=True, credentials=DIR))")
             if time.monotonic() >= deadline:
                 self.close()
                 want = f"node {robot!r}" if robot else "any node"
                 seen = f" (robots seen: {', '.join(alive)})" if alive else ""
+                hint = (" In secure mode, check that the team's robots run with --secure and that these "
+                        "credentials come from the same team CA." if self.secure else "")
                 raise NoTeam(f"{want} of team {self.team!r} could not be reached within {timeout:g} s{seen}; "
-                             "is `ramps node` running, and are the team name and endpoints right?")
+                             "is `ramps node` running, and are the team name and endpoints right?" + hint)
             time.sleep(0.02)
 
     # ------------------------------------------------------------ submitting
@@ -230,7 +256,14 @@ class Team:
         fut.attempts = o.attempts  # type: ignore[attr-defined]
         try:
             if o.ok:
-                fut.set_result(decode_value(o.value))
+                try:
+                    value = decode_value(o.value)
+                except Exception as exc:  # a result this client cannot read is an error, never a hang
+                    fut.set_exception(ProgramFailed(f"{fut.program} on {o.host or env.sender}: its result could not "
+                                                    f"be decoded ({type(exc).__name__}: {exc})", host=o.host,
+                                                    attempts=o.attempts))
+                    return
+                fut.set_result(value)
             else:
                 cls = _ERRORS.get(o.error_kind, ProgramLost)
                 if cls is BadArguments:
@@ -346,13 +379,21 @@ class _Options:
 
 def connect(team: str | None = None, robot: str | None = None, *, connect: list[str] | None = None,
             listen: list[str] | None = None, multicast: bool | None = None, timeout: float = 5.0,
-            config_file: str | None = None, registry: Registry | None = None) -> Team:
+            config_file: str | None = None, registry: Registry | None = None, secure: bool | None = None,
+            credentials: str | os.PathLike | None = None) -> Team:
     """Join a team as an application and return a ``Team`` to submit to.
 
     ``robot`` names the node that will be the origin of your programs
     (default: the node named after this host, or any node found). Raises
-    ``NoTeam`` if no such node answers within ``timeout`` seconds."""
+    ``NoTeam`` if no such node answers within ``timeout`` seconds.
+
+    ``secure=True`` joins a secured team with this robot's ``credentials``
+    directory (from ``ramps team add``; env ``RAMPS_SECURE``,
+    ``RAMPS_CREDENTIALS``). Bad credentials raise ``CredentialsError``; a
+    team that will not admit them raises ``NotAdmitted`` (a ``NoTeam``) at
+    once, as does a secured team joined without ``secure``."""
     settings = load_settings(config_file=config_file, default_robot=False, flags={
-        "team": team, "connect": connect, "listen": listen, "multicast": multicast,
+        "team": team, "connect": connect, "listen": listen, "multicast": multicast, "secure": secure,
+        "credentials": str(credentials) if credentials is not None else None,
     })
     return Team(settings, robot=robot, timeout=timeout, registry=registry)

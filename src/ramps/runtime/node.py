@@ -22,6 +22,7 @@ clients told, then the liveliness token, subscribers and session close.
 from __future__ import annotations
 
 import inspect
+import json
 import logging
 import os
 import queue
@@ -56,14 +57,23 @@ from ramps.core.messages import (
 )
 from ramps.core.node import Node
 from ramps.core.policy import POLICIES
-from ramps.errors import ProgramNotFound, TransportError
+from ramps.errors import ConfigError, NotAdmitted, ProgramNotFound, TransportError
 from ramps.runtime import keys
 from ramps.runtime.measure import LoadSampler, cgroup_dirs, cgroup_quota, detect_cores, measure_speed
 from ramps.runtime.registry import Registry, decode_args, default_registry
+from ramps.runtime.security import admission, open_session, settings_credentials
 from ramps.runtime.settings import NodeSettings, zenoh_config
 from ramps.runtime.workers import WorkerPool
 
 log = logging.getLogger("ramps.node")
+#: seconds between two log lines about dropped messages (each is counted)
+DROP_LOG_PERIOD = 1.0
+
+INSECURE_WARNING = (
+    "INSECURE: team {team!r} runs without authentication or encryption: anyone who can reach this network "
+    "can join it, read its traffic, submit programs and run them on this robot. To secure it: "
+    "`ramps team init`, `ramps team add ROBOT`, then `ramps node --secure --credentials DIR` (README, Security).")
+_insecure_warned = False
 
 
 class NodeRuntime:
@@ -87,6 +97,10 @@ class NodeRuntime:
         self._stopped = threading.Event()
         self._started = False
         self.bad_messages = 0
+        #: a flood of bad messages is logged one line per DROP_LOG_PERIOD
+        self._drop_logged_at = -DROP_LOG_PERIOD
+        self._drops_unlogged = 0
+        self._trace = None
         self.session = None
         self.node: Node | None = None
 
@@ -95,6 +109,7 @@ class NodeRuntime:
         import zenoh
 
         s = self.s
+        creds, exit_on_failure = self._join_checks()
         cg, acct = cgroup_dirs()
         quota = cgroup_quota(cg)
         scope = s.load_scope
@@ -103,18 +118,29 @@ class NodeRuntime:
         self.cores = s.cores or detect_cores()
         self.speed = s.speed or measure_speed(quota=quota, cores=self.cores)
         self.incarnation = int.from_bytes(os.urandom(6), "big")
+        return_freed_memory()
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=s.core,
                          rng=random.Random(self.incarnation), incarnation=self.incarnation,
                          registry=self.registry.names())
-        self.pool = WorkerPool(self.cores, self.registry.targets(), self._finished)
+        self.pool = WorkerPool(self.cores, self.registry.targets(), self._finished, nice=s.worker_nice)
         self.pool.start()
         self.sampler = LoadSampler(lambda: self.pool.busy() + self.pool.queued(), window=s.window,
                                    scope=scope, cgroup=cg if scope == "cgroup" else None,
                                    acct=acct if scope == "cgroup" else None)
         self.sampler.start()
         self.load_scope = scope
+        if s.trace:
+            try:
+                self._trace = open(s.trace, "a", buffering=1)
+            except OSError as exc:
+                self._teardown()
+                raise ConfigError(f"cannot write the trace file {s.trace}: {exc.strerror or exc}") from None
         try:
-            self.session = zenoh.open(zenoh_config(s))
+            if s.secure:
+                self.session = open_session(lambda fast: zenoh_config(s, credentials=creds, exit_on_failure=fast),
+                                            s.connect, creds, team=self.team, fail_fast=exit_on_failure)
+            else:
+                self.session = zenoh.open(zenoh_config(s))
             put = self._q.put
             self._subs = [
                 self.session.declare_subscriber(keys.inbox(self.team, self.robot),
@@ -131,12 +157,34 @@ class NodeRuntime:
         except zenoh.ZError as exc:
             self._teardown()
             raise TransportError(f"cannot join team {self.team!r} over Zenoh: {exc}") from exc
+        except NotAdmitted:
+            self._teardown()
+            raise
         self._driver = threading.Thread(target=self._drive, name=f"ramps-node-{self.robot}", daemon=True)
         self._driver.start()
         self._started = True
         log.info("node %s joined team %s: %d cores, speed %.2f, load scope %s", self.robot, self.team,
                  self.cores, self.speed, scope)
         return self
+
+    def _join_checks(self):
+        """Secure mode: this robot's checked credentials, and whether Zenoh may
+        fail fast (every connect endpoint admitted them; see
+        ``security.admission``, which raises ``NotAdmitted`` when the team
+        refuses them). Insecure mode: say so, once per process."""
+        global _insecure_warned
+        s = self.s
+        if not s.secure:
+            if not _insecure_warned:
+                _insecure_warned = True
+                log.warning(INSECURE_WARNING.format(team=s.team))
+            return None, False
+        creds = settings_credentials(s, robot=self.robot)
+        everyone = admission(s.connect, creds, team=self.team)
+        if s.connect and not everyone:
+            log.info("node %s: not every teammate at %s answers yet; Zenoh keeps trying", self.robot,
+                     ", ".join(s.connect))
+        return creds, everyone
 
     def stop(self, timeout: float = 5.0) -> None:
         """Hand programs back, leave the team, stop workers. Idempotent."""
@@ -190,6 +238,9 @@ class NodeRuntime:
             self.sampler.stop()
         if getattr(self, "pool", None):
             self.pool.stop()
+        if self._trace is not None:
+            self._trace.close()
+            self._trace = None
         self._stopped.set()
 
     # ================================================================ inputs
@@ -242,7 +293,13 @@ class NodeRuntime:
                 env = decode(item[1])  # the wire limit; client arguments are checked on submit
             except WireError as exc:
                 self.bad_messages += 1
-                log.warning("node %s dropped a message: %s", self.robot, exc)
+                if now - self._drop_logged_at < DROP_LOG_PERIOD:
+                    self._drops_unlogged += 1
+                else:
+                    n = self._drops_unlogged
+                    more = f" ({n} more dropped since the last such line)" if n else ""
+                    log.warning("node %s dropped a message: %s%s", self.robot, exc, more)
+                    self._drop_logged_at, self._drops_unlogged = now, 0
                 return []
             msg = env.msg
             if isinstance(msg, SubmitProgram):
@@ -325,11 +382,27 @@ class NodeRuntime:
                     kind, a = "shutdown", msgspec.structs.replace(a, error=f"origin {self.robot} shut down")
                 self._tell_client(a.program_id, ok=a.ok, value=a.value, error=a.error, kind=kind, host=a.host,
                                   attempts=a.attempts)
+                if self._trace is not None:
+                    self._write_trace("delivered", a.program_id, a.host, a.attempts, a.error_kind)
             elif isinstance(a, Note):
+                if self._trace is not None:
+                    self._write_trace(a.what, a.program_id, a.robot, a.attempt, a.detail)
                 if a.what in ("blacklisted", "unblacklisted", "failed", "anomaly"):
                     log.info("node %s: %s %s %s %s", self.robot, a.what, a.robot, a.program_id, a.detail)
                 if self.on_note is not None:
                     self.on_note(a)
+
+    def _write_trace(self, what: str, program_id: str, other: str, attempt: int, detail: str) -> None:
+        """One JSON line per decision: ``t`` is time.monotonic() (one clock for
+        every process of a host), ``wall`` the Unix time, fields as the
+        simulator's trace (``ramps.sim.engine.TraceEntry``)."""
+        rec = {"t": round(time.monotonic(), 6), "wall": round(time.time(), 6), "robot": self.robot, "what": what,
+               "program_id": program_id, "other": other, "attempt": attempt, "detail": detail}
+        try:
+            self._trace.write(json.dumps(rec) + "\n")
+        except OSError as exc:  # a full disk must not stop the node
+            log.warning("node %s: trace file write failed, trace off: %s", self.robot, exc)
+            self._trace = None
 
     def _put(self, key: str, data: bytes, *, block: bool = False) -> None:
         """Publish on ``key``. Messages to robots use Zenoh's DROP congestion
@@ -359,6 +432,7 @@ class NodeRuntime:
         report = self.node.make_report(cpu_busy=min(busy, float(self.cores) if self.load_scope == "cgroup" else busy),
                                        runnable=runnable, ramps_avg=ramps_avg, window=self.s.window,
                                        mem_free=mem_free, cpu_per_core=per_core, load_avg=load1)
+        report = msgspec.structs.replace(report, bad_messages=self.bad_messages)  # for `ramps status`
         try:
             self._load_pub.put(encode(self.robot, report))
         except Exception as exc:
@@ -374,8 +448,29 @@ class NodeRuntime:
                 out.extend(node.handle(Cancel(program_id=pid), now))
         self._apply(node._loopback(out, now))
         log.info("node %s leaving team %s: handed back %d program(s)", self.robot, self.team, handed)
+        if self.bad_messages:
+            log.warning("node %s dropped %d malformed message(s) while it ran", self.robot, self.bad_messages)
         time.sleep(0.05)  # let Zenoh flush the hand-backs
         done.set()
+
+
+def return_freed_memory(threshold: int = 256 * 1024) -> None:
+    """Make glibc hand large freed blocks back to the system at once.
+
+    By default glibc raises its mmap threshold each time a large block is
+    freed (up to 32 MiB), so later multi-megabyte messages are carved from the
+    heap and stay resident after they are dropped: a flood with 1-9 MB garbage
+    left a node 36-50 MB bigger (``ramps bench flood``), 1-22 MB with this. A
+    fixed threshold keeps every block over ``threshold`` bytes (Python's and
+    Zenoh's) in its own mapping, unmapped when freed. Other C libraries: no-op."""
+    import ctypes
+
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return
+    m_mmap_threshold = -3  # glibc's M_MMAP_THRESHOLD
+    mallopt(ctypes.c_int(m_mmap_threshold), ctypes.c_int(threshold))
 
 
 def run_node(settings: NodeSettings, *, install_signals: bool = True) -> NodeRuntime:

@@ -6,6 +6,10 @@ from weakest to strongest: defaults, a TOML config file (``--config`` or
 ``RAMPS_LISTEN``, ``RAMPS_CONNECT``, ``RAMPS_CORES``, ...), then command-line
 flags. Mistakes raise ``ConfigError`` naming the setting and its source.
 
+A secured team (``secure = true``, ``RAMPS_SECURE``) uses ``tls/`` endpoints
+only and each robot's credentials directory from ``ramps team add``
+(``credentials``, ``RAMPS_CREDENTIALS``); see ``ramps.runtime.security``.
+
 The defaults work on a laptop: peer mode, listen on a free port of every
 interface, find teammates by multicast scouting. On a network without
 multicast, give each robot ``--connect`` endpoints of one or more others.
@@ -61,9 +65,27 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     #: what the load publisher measures: host, cgroup, or auto (cgroup when
     #: the node runs in a cpu cgroup with a quota)
     load_scope: str = "auto"
+    #: niceness of the worker processes that run programs (0-19): the node's
+    #: own threads (heartbeats, replies) and the robot's own software come
+    #: first, so a robot full of programs still answers its team at once
+    worker_nice: int = 10
     #: largest encoded arguments accepted from a client, bytes
     max_args_bytes: int = 1024 * 1024
+    #: write every decision of the core (placed, accepted, failed,
+    #: blacklisted, delivered, ...) to this file as JSON lines ("" = off)
+    trace: str = ""
     core: RampsConfig = RampsConfig()
+    #: secured team: mutual TLS with team-CA certificates, access control
+    secure: bool = False
+    #: this robot's credentials directory from `ramps team add` (ca.pem, cert.pem, key.pem)
+    credentials: str = ""
+    #: explicit credential files, overriding those of ``credentials``
+    ca: str = ""
+    cert: str = ""
+    key: str = ""
+    #: secure mode: robots admitted by certificate common name (default: any
+    #: holder of a certificate from the team CA)
+    members: list[str] = []
 
     def __post_init__(self) -> None:
         if self.robot:
@@ -77,8 +99,32 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
             raise ValueError("publish_period and window must be > 0")
         if self.lease_ms < 100:
             raise ValueError(f"lease_ms must be >= 100, got {self.lease_ms}")
+        if not 0 <= self.worker_nice <= 19:
+            raise ValueError(f"worker_nice must be 0..19, got {self.worker_nice}")
         if self.load_scope not in ("auto", "host", "cgroup"):
             raise ValueError(f"load_scope must be auto, host or cgroup, got {self.load_scope!r}")
+        self._check_security()
+
+    def _check_security(self) -> None:
+        for m in self.members:
+            keys.check_name("member", m)
+        for e in self.connect + [e for e in self.listen if e != DEFAULT_LISTEN]:
+            if self.secure and not e.startswith("tls/"):
+                raise ValueError(f"secure mode uses TLS links only: write tls/{e.partition('/')[2]} instead of {e}")
+            if not self.secure and e.startswith("tls/"):
+                raise ValueError(f"endpoint {e} is TLS: TLS links need secure mode (--secure and --credentials)")
+        if self.secure and not self.credentials and not (self.ca and self.cert and self.key):
+            raise ValueError("secure mode needs this robot's credentials: --credentials DIR (from "
+                             "`ramps team add ROBOT`) or env RAMPS_CREDENTIALS")
+
+    def listen_endpoints(self, listen: list[str] | None = None) -> list[str]:
+        """``listen`` (default: this robot's), the default made TLS in secure mode."""
+        out = self.listen if listen is None else listen
+        return [DEFAULT_TLS_LISTEN if self.secure and e == DEFAULT_LISTEN else e for e in out]
+
+
+DEFAULT_LISTEN = "tcp/0.0.0.0:0"
+DEFAULT_TLS_LISTEN = "tls/0.0.0.0:0"
 
 
 _ENV = {
@@ -92,6 +138,10 @@ _ENV = {
     "RAMPS_POLICY": ("policy", str),
     "RAMPS_PROGRAMS": ("programs", "list"),
     "RAMPS_LEASE_MS": ("lease_ms", int),
+    "RAMPS_SECURE": ("secure", "bool"),
+    "RAMPS_CREDENTIALS": ("credentials", str),
+    "RAMPS_MEMBERS": ("members", "list"),
+    "RAMPS_TRACE": ("trace", str),
 }
 
 
@@ -137,17 +187,36 @@ def load_settings(*, config_file: str | os.PathLike | None = None, flags: dict[s
         raise ConfigError(f"bad setting: {exc}" + (f" (config file {path})" if path else "")) from None
 
 
-def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None):
-    """A Zenoh peer configuration for these settings."""
+def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credentials=None,
+                 exit_on_failure: bool = False):
+    """A Zenoh peer configuration for these settings.
+
+    Secure mode needs the checked ``credentials``
+    (``ramps.runtime.security.Credentials``); ``exit_on_failure`` then makes
+    ``zenoh.open`` fail within 3 s unless it links to every connect endpoint."""
     import json
 
     import zenoh
 
     c = zenoh.Config()
     c.insert_json5("mode", '"peer"')
-    c.insert_json5("listen/endpoints", json.dumps(s.listen if listen is None else listen))
+    c.insert_json5("listen/endpoints", json.dumps(s.listen_endpoints(listen)))
     c.insert_json5("connect/endpoints", json.dumps(s.connect))
     c.insert_json5("scouting/multicast/enabled", "true" if s.multicast else "false")
     c.insert_json5("transport/link/tx/lease", str(s.lease_ms))
     c.insert_json5("transport/link/tx/keep_alive", "4")
+    if s.secure:
+        from ramps.runtime.security import secure_zenoh_json
+
+        if credentials is None:
+            raise ValueError("secure mode: zenoh_config needs the checked credentials")
+        for key, value in secure_zenoh_json(s.team, credentials, members=s.members).items():
+            c.insert_json5(key, json.dumps(value))
+        if exit_on_failure and s.connect:
+            c.insert_json5("connect/exit_on_failure", "true")
+            c.insert_json5("connect/timeout_ms", str(CONNECT_TIMEOUT_MS))
     return c
+
+
+#: secure mode: how long ``zenoh.open`` may try to link to the connect endpoints
+CONNECT_TIMEOUT_MS = 3000

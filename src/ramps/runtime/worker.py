@@ -5,7 +5,7 @@ from stdin and writes frames to a private copy of its stdout (fd 1 itself is
 pointed at stderr, so a program's ``print`` cannot corrupt the protocol). A
 frame is a 4-byte big-endian length and a msgpack body:
 
-    first frame in:   {"targets": {name: "module:function", ...}}
+    first frame in:   {"targets": {name: "module:function", ...}, "nice": n}
     each job in:      [program, args_bytes]
     each reply out:   [ok, value_bytes, error_text]
 
@@ -47,7 +47,10 @@ def run(inp: BinaryIO, out: BinaryIO) -> None:
     first = read_frame(inp)
     if first is None:
         return
-    targets: dict[str, str] = _dec.decode(first)["targets"]
+    init = _dec.decode(first)
+    targets: dict[str, str] = init["targets"]
+    if init.get("nice"):  # programs yield to the node (heartbeats) and the robot's own software
+        os.nice(int(init["nice"]))
     fns: dict[str, Callable[..., Any]] = {}
     while True:
         body = read_frame(inp)

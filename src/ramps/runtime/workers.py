@@ -51,13 +51,14 @@ class _Worker:
 
 class WorkerPool:
     def __init__(self, size: int, targets: dict[str, str], on_finished: Finished, *,
-                 env: dict[str, str] | None = None) -> None:
+                 env: dict[str, str] | None = None, nice: int = 0) -> None:
         if size < 1:
             raise ValueError("a worker pool needs at least one worker")
         self.size = size
         self.targets = dict(targets)
         self.on_finished = on_finished
         self.env = env
+        self.nice = nice
         self._lock = threading.Lock()
         self._sel = selectors.DefaultSelector()
         self._workers: list[_Worker] = []
@@ -81,7 +82,7 @@ class WorkerPool:
             [sys.executable, "-m", "ramps.runtime.worker"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
             env=self.env, bufsize=0, close_fds=True, start_new_session=False,
         )
-        proc.stdin.write(frame(_enc.encode({"targets": self.targets})))
+        proc.stdin.write(frame(_enc.encode({"targets": self.targets, "nice": self.nice})))
         w = _Worker(proc)
         self._workers.append(w)
         self._sel.register(w.fd, selectors.EVENT_READ, w)
