@@ -173,6 +173,63 @@ def test_isolated_origin_runs_the_program_itself_and_keeps_the_remote_copy_wante
     assert not team.nodes["o"].executor.running  # the local copy was stopped
 
 
+def test_origin_cut_off_revives_the_copy_it_wrote_off_a_moment_before() -> None:
+    # a cut origin loses its teammates one lease at a time: the first loss
+    # looks like a host failure; once every teammate is gone, it is clear the
+    # origin was the one cut off, so the written-off copy is wanted again
+    team = busy_origin_team()
+    submit(team)
+    team.deliver()
+    team.cut.add("o")
+    team.handle("o", PeerLost(robot="a"))
+    [failed] = team.notes("failed")
+    assert (failed.robot, failed.detail) == ("a", "host_lost")
+    assert team.notes("blacklisted") and not team.notes("isolated")
+    team.handle("o", PeerLost(robot="b"))
+    [revived] = team.notes("isolated")
+    assert (revived.robot, revived.attempt) == ("a", 1)
+    team.advance(team.now + CFG.backoff_max + 0.1)
+    assert [n.robot for n in team.notes("placed")] == ["a", "o"]  # runs here meanwhile
+    # the link heals; a's copy finishes first and is the one delivered, once
+    team.cut.clear()
+    team.finish("a", "p", 1, ok=True, value=b"remote")
+    assert team.delivered("p") == [Deliver(program_id="p", ok=True, value=b"remote", host="a", attempts=2)]
+    assert not team.nodes["o"].executor.running
+    assert team.nodes["o"].origin.discarded == 0
+
+
+def test_origin_cut_off_without_liveliness_revives_once_all_teammates_fall_silent() -> None:
+    # no liveliness at all: the host's heartbeats time out first; silence
+    # from every teammate for isolation_timeout then shows who was cut off
+    team = busy_origin_team()
+    submit(team)
+    team.deliver()
+    team.cut.add("o")
+    team.advance(team.now + CFG.heartbeat_timeout + 0.1)
+    assert [n.detail for n in team.notes("failed")] == ["heartbeat_timeout"]
+    assert not team.notes("isolated")
+    deadline = team.nodes["o"].next_deadline()
+    assert deadline is not None
+    team.advance(CFG.isolation_timeout + 1.0)
+    [revived] = [n for n in team.notes("isolated") if n.robot == "a"]
+    assert revived.attempt == 1 and revived.detail.startswith("revived")
+    team.cut.clear()
+    team.finish("a", "p", 1, ok=True, value=b"remote")
+    assert [d.host for d in team.delivered("p")] == ["a"]
+
+
+def test_a_host_written_off_while_others_stay_is_not_revived() -> None:
+    team = busy_origin_team()
+    submit(team)
+    team.deliver()
+    team.handle("o", PeerLost(robot="a"))
+    team.advance(team.now + CFG.backoff_max + 0.1)
+    assert not team.notes("isolated")
+    team.handle("o", Received(sender="a", msg=ProgramResult(program_id="p", attempt=1, host="a", ok=True)))
+    assert not team.delivered("p")  # the late result of the written-off copy is discarded
+    assert team.nodes["o"].origin.discarded == 1
+
+
 def _in_backoff_after_connect_timeout() -> Team:
     team = busy_origin_team()
     submit(team)

@@ -705,6 +705,109 @@ def testbed_recover(robot: str = typer.Argument(..., help="robot, e.g. r3"),
     _tb_fault("recover", robot, tb)
 
 
+@testbed_app.command("lossy")
+def testbed_lossy(robot: str = typer.Argument(..., help="robot, e.g. r3"),
+                  loss: float = typer.Argument(..., min=0.0, max=1.0, help="drop probability of each packet, 0-1 (0 ends it)"),
+                  tb: Optional[str] = typer.Option(None, "--tb", help=TB_HELP)) -> None:
+    """Make a robot's link lossy (a poor WiFi link): each packet in and out is dropped with this probability."""
+    from ramps.testbed import TestbedError
+    from ramps.testbed.net import NetError
+
+    bed = _tb_attach(tb)
+    try:
+        bed.lossy(robot, loss)
+    except (TestbedError, NetError) as exc:
+        fail(str(exc))
+    out.print(f"{robot}: {loss:.0%} packet loss" if loss else f"{robot}: loss removed", highlight=False)
+
+
+experiment_app = typer.Typer(help="The paper's experiments on real processes (each run starts its own testbed).",
+                             no_args_is_help=True)
+testbed_app.add_typer(experiment_app, name="experiment")
+
+
+@experiment_app.command("faults")
+def testbed_experiment_faults(
+    mode: str = typer.Option("sequential", "--mode", "-m", help="sequential, simultaneous or all"),
+    kind: str = typer.Option("crash", "--kind", "-k", help="crash, network, mixed or all"),
+    runs: int = typer.Option(1, "--runs", min=1, help="runs of every plan"),
+    gap: float = typer.Option(20.0, "--gap", min=4.0, help="seconds from the submit to the first failure and between failures (paper: 20)"),
+    work: Optional[float] = typer.Option(None, "--work", help="work units per program (default gap/2: still running at the last snapshot)"),
+    policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
+    lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh lease of every node, ms (default: the node's)"),
+    keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="copy every node's log and decision trace here"),
+    as_json: bool = typer.Option(False, "--json", help="write the results as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
+) -> None:
+    """The paper's failure experiments (Tables 5-10) on the testbed: 15 programs from r1 on five
+    robots, then failures of r5, r4, r3, r2 (crash = SIGKILL, network = link down), with the same
+    plans, tables and per-failure figures as `ramps sim paper --experiment faults`."""
+    from functools import partial
+
+    from ramps.errors import RampsError
+    from ramps.experiments.faults import KINDS, plans, run_fault_experiment
+    from ramps.experiments.report import print_fault_report
+    from ramps.testbed.experiments import run_plan
+
+    _check_policy(policy)
+    modes = ["sequential", "simultaneous"] if mode == "all" else [mode]
+    kinds = list(KINDS) if kind == "all" else [kind]
+    if any(m not in ("sequential", "simultaneous") for m in modes):
+        fail(f"unknown mode {mode!r}; choose sequential, simultaneous or all")
+    if any(k not in KINDS for k in kinds):
+        fail(f"unknown kind {kind!r}; choose crash, network, mixed or all")
+    total = sum(len(plans(m, k, first=gap, gap=gap)) for m in modes for k in kinds) * runs
+    err.print(f"{total} testbed run(s); each takes {gap * 5:g}+ s plus the time the survivors need to finish")
+    runner = partial(run_plan, work=work, lease_ms=lease_ms, keep_logs=keep_logs,
+                     log=lambda m: err.print(m, highlight=False))
+    reports = []
+    try:
+        for m in modes:
+            for k in kinds:
+                reports.append(run_fault_experiment(m, k, policy=policy, runs=runs, runner=runner, first=gap, gap=gap,
+                                                    world="testbed"))
+    except (PermissionError, RampsError) as exc:
+        fail(str(exc))
+    _emit(reports, print_fault_report, as_json=as_json, out_file=out_file)
+    if any(r.summary["lost"] or r.summary["duplicated"] for r in reports):
+        raise typer.Exit(1)
+
+
+@testbed_app.command("campaign")
+def testbed_campaign(
+    runs: int = typer.Option(20, "--runs", min=1, help="number of runs (each starts its own testbed)"),
+    seed: int = typer.Option(0, "--seed", help="seed of the first run; run i uses seed*1000000+i"),
+    robots: int = typer.Option(4, "--robots", min=2, max=8, help="robots per run (r1 is the origin)"),
+    duration: float = typer.Option(20.0, "--duration", min=5.0, help="seconds of workload and faults per run"),
+    policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
+    lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh lease of every node, ms"),
+    as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
+) -> None:
+    """Random crashes, cuts, freezes and recoveries of non-origin robots during a workload, on real
+    processes; after every run: every program completed exactly once, recovered robots rejoined."""
+    from ramps.errors import RampsError
+    from ramps.experiments.report import print_campaign
+    from ramps.testbed.experiments import run_campaign
+
+    _check_policy(policy)
+
+    def progress(done, total, run):
+        mark = "ok" if run.ok else f"FAILED lost {run.lost} dup {run.duplicated} not rejoined {run.not_rejoined}"
+        err.print(f"run {done}/{total} (seed {run.seed}): {run.programs} programs, "
+                  f"{sum(1 for f in run.faults if f[2] != 'recover')} faults, {run.seconds:.0f} s: {mark}",
+                  highlight=False)
+
+    try:
+        rep = run_campaign(runs, seed, policy=policy, robots=robots, duration=duration, lease_ms=lease_ms,
+                           progress=progress)
+    except (PermissionError, RampsError) as exc:
+        fail(str(exc))
+    _emit([rep], print_campaign, as_json=as_json, out_file=out_file)
+    if rep.lost or rep.duplicated or rep.not_rejoined:
+        raise typer.Exit(1)
+
+
 @testbed_app.command("down")
 def testbed_down(tb: Optional[str] = typer.Option(None, "--tb", help=TB_HELP),
                  all_: bool = typer.Option(False, "--all", help="remove every testbed and every leftover "

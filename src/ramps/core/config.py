@@ -37,7 +37,8 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: it turns an offload away (ramps negotiation)
     admission_slack: float = 1.0
     #: with no report from any teammate for this long, an origin treats itself
-    #: as cut off and runs displaced programs locally
+    #: as cut off and runs displaced programs locally, still wanting the
+    #: remote copies it wrote off just before (see Origin._revive_written_off)
     isolation_timeout: float = 5.0
     #: a program that lost this many hosts or workers ends with an error
     max_attempts: int = 50

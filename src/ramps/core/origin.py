@@ -61,6 +61,8 @@ class Origin:
         self.programs: dict[str, AutonomousProgram] = {}
         self._by_host: dict[str, set[str]] = {}
         self._timers: list[tuple[float, int, str]] = []
+        #: programs with a recently written-off attempt that an isolation would revive
+        self._revivable: set[str] = set()
         #: finished programs, oldest first: kept for ``result_retention`` so a
         #: late result is settled (acknowledged, discarded), then forgotten
         self._finished: deque[tuple[float, str]] = deque()
@@ -111,6 +113,31 @@ class Origin:
             ap = self.programs[pid]
             if ap.host == robot and ap.state in (S.OFFERED, S.RUNNING):
                 self._step(ap, "host_lost", now, out, None)
+        if self.view.isolated(now, self.config.isolation_timeout):
+            self._revive_written_off(now, out)
+
+    def _revive_written_off(self, now: float, out: list[Action]) -> None:
+        """Every teammate is gone at once: it is this robot that was cut off.
+        Teammates lost a moment earlier (their leases ran out one by one, or
+        their heartbeats timed out first) were not at fault: want their
+        copies' results again, beside the local run; first result wins."""
+        horizon = now - self._revive_window()
+        for pid in list(self._revivable):
+            ap = self.programs.get(pid)
+            if ap is None or ap.state in FINAL or not ap.written_off:
+                continue
+            for attempt, host, when in ap.written_off:
+                if when >= horizon and host != self.me and attempt not in ap.live:
+                    ap.live[attempt] = host
+                    out.append(Note(what="isolated", program_id=ap.program_id, robot=host, attempt=attempt,
+                                    detail="revived: this robot was cut off, not the host"))
+            ap.written_off.clear()
+        self._revivable.clear()
+
+    def _revive_window(self) -> float:
+        # a host is written off at most a heartbeat timeout after the cut, and
+        # the cut is certain at most an isolation timeout after it
+        return self.config.heartbeat_timeout + self.config.isolation_timeout + self.config.heartbeat_period
 
     def on_peer_alive(self, robot: str) -> None:
         self.view.set_lost(robot, False)
@@ -121,11 +148,29 @@ class Origin:
             when, _, pid = self._timers[0]
             ap = self.programs.get(pid)
             if ap is not None and ap.deadline == when:
-                return when
+                break
             heapq.heappop(self._timers)  # stale entry
-        return None
+        first = self._timers[0][0] if self._timers else None
+        check = self._isolation_check()
+        if check is not None and (first is None or check < first):
+            return check
+        return first
+
+    def _isolation_check(self) -> float | None:
+        """When silence from every teammate would reveal that this robot, not
+        the hosts it just wrote off, was cut off (see _revive_written_off)."""
+        if not self._revivable or self.view.last_remote_report is None:
+            return None
+        return self.view.last_remote_report + self.config.isolation_timeout + 1e-6
 
     def tick(self, now: float, out: list[Action]) -> None:
+        if self._revivable:
+            if self.view.isolated(now, self.config.isolation_timeout):
+                self._revive_written_off(now, out)
+            elif self._isolation_check() is not None and all(
+                    w[2] < now - self._revive_window() for pid in self._revivable
+                    for w in self.programs[pid].written_off if pid in self.programs):
+                self._revivable.clear()  # too old to be explained by an isolation now
         horizon = now - self.config.result_retention
         while self._finished and self._finished[0][0] < horizon:
             _, pid = self._finished.popleft()
@@ -286,6 +331,9 @@ class Origin:
             return
         self._leave_host(ap, host, None)
         ap.live.pop(ap.attempt, None)
+        if host != self.me and reason in ("host_lost", "heartbeat_timeout"):
+            ap.written_off.append((ap.attempt, host, now))
+            self._revivable.add(ap.program_id)
         out.append(Send(to=host, msg=CancelProgram(program_id=ap.program_id, attempt=ap.attempt, origin=self.me)))
         if self.view.blacklist(host):
             out.append(Note(what="blacklisted", robot=host, program_id=ap.program_id, detail=reason))

@@ -92,7 +92,7 @@ class AutonomousProgram:
 
     __slots__ = (
         "program_id", "submit", "state", "attempt", "host", "live", "deadline", "timer",
-        "last_heard", "rejections", "excluded", "submitted_at", "failures",
+        "last_heard", "rejections", "excluded", "submitted_at", "failures", "written_off",
     )
 
     def __init__(self, submit: Submit, now: float) -> None:
@@ -113,6 +113,8 @@ class AutonomousProgram:
         self.submitted_at = now
         #: host failures and lost workers so far
         self.failures = 0
+        #: attempts written off because their host went silent: (attempt, host, when)
+        self.written_off: list[tuple[int, str, float]] = []
 
     def handler_for(self, event: str) -> str:
         try:

@@ -92,6 +92,11 @@ class FaultReport(msgspec.Struct, kw_only=True):
     kind: str
     runs: list[FaultRun]
     summary: dict
+    #: simulator or testbed
+    world: str = "simulator"
+    #: seconds from the submit to the first failure, and between failures
+    first: float = 20.0
+    gap: float = 20.0
 
 
 def scenario_for(plan: FaultPlan, *, seed: int, policy: str, work: float = 300.0) -> Scenario:
@@ -152,25 +157,41 @@ def _failure_record(trace, t_fail: float, robot: str, kind: str, done_before: se
                          recovery=recovery)
 
 
-def run_fault_experiment(mode: str, kind: str, *, policy: str = "ramps", runs: int = 3, seed: int = 0) -> FaultReport:
+def run_fault_experiment(mode: str, kind: str, *, policy: str = "ramps", runs: int = 3, seed: int = 0,
+                         runner=None, first: float = 20.0, gap: float = 20.0, world: str = "simulator",
+                         progress=None) -> FaultReport:
+    """Every plan of ``mode``/``kind``, ``runs`` times each. ``runner(plan,
+    seed=, policy=)`` runs one plan and returns a ``FaultRun``: the simulator's
+    ``run_plan`` by default, the testbed's for ``ramps testbed experiment``."""
     if kind not in KINDS:
         raise ValueError(f"unknown failure kind {kind!r}; choose one of {', '.join(KINDS)}")
+    runner = runner or run_plan
+    todo = [(plan, seed * 1000 + k) for plan in plans(mode, kind, first=first, gap=gap) for k in range(runs)]
     out = []
-    for plan in plans(mode, kind):
-        for k in range(runs):
-            out.append(run_plan(plan, seed=seed * 1000 + k, policy=policy))
+    for i, (plan, s) in enumerate(todo):
+        out.append(runner(plan, seed=s, policy=policy))
+        if progress:
+            progress(i + 1, len(todo), out[-1])
+    return FaultReport(experiment="faults", policy=policy, mode=mode, kind=kind, runs=out, summary=summarize(out),
+                       world=world, first=first, gap=gap)
+
+
+def summarize(out: list[FaultRun]) -> dict:
     det = [f.detection for r in out for f in r.failures if f.detection is not None]
     rec = [f.recovery for r in out for f in r.failures if f.recovery is not None]
+    # recovery beyond detection: back-off plus placement, bounded by backoff_max plus a little
+    after = [f.recovery - f.detection for r in out for f in r.failures
+             if f.recovery is not None and f.detection is not None and f.displaced]
     classes = [c for r in out for label, c in r.classifications.items() if label not in ("D1", "before")]
-    summary = {
+    return {
         "runs": len(out), "lost": sum(r.lost for r in out), "duplicated": sum(r.duplicated for r in out),
         "completed": sum(r.completed for r in out), "programs": 15 * len(out),
         "detection_median_s": statistics.median(det) if det else None,
         "detection_max_s": max(det) if det else None,
         "recovery_median_s": statistics.median(rec) if rec else None,
         "recovery_max_s": max(rec) if rec else None,
+        "recovery_after_detection_max_s": max(after) if after else None,
         "undetected_failures": sum(1 for r in out for f in r.failures if f.detection is None),
         "distributions_after_failures": len(classes),
         "optimal_or_near_after_failures": sum(1 for c in classes if c != "non_optimal"),
     }
-    return FaultReport(experiment="faults", policy=policy, mode=mode, kind=kind, runs=out, summary=summary)

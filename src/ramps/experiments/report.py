@@ -114,7 +114,8 @@ def print_fault_report(rep, console: Console) -> None:
 
     marks = {"crash": "RC", "network": "NF"}
     if rep.mode == "sequential":
-        table = Table(title=f"{rep.mode} {rep.kind} failures (R5, R4, R3, R2, 20 s apart), policy {rep.policy}",
+        table = Table(title=f"{rep.world}: {rep.mode} {rep.kind} failures (R5, R4, R3, R2, {rep.gap:g} s apart), "
+                            f"policy {rep.policy}",
                       title_justify="left")
         table.add_column("run")
         table.add_column("dist")
@@ -136,7 +137,8 @@ def print_fault_report(rep, console: Console) -> None:
             table.add_section()
         console.print(table)
     else:
-        table = Table(title=f"{rep.mode} {rep.kind} failures, mean distribution over {len(rep.runs) // 4} run(s), "
+        table = Table(title=f"{rep.world}: {rep.mode} {rep.kind} failures, mean distribution over "
+                            f"{len(rep.runs) // 4} run(s), "
                             f"policy {rep.policy}", title_justify="left")
         table.add_column("robots failed")
         for r in ROBOTS:
@@ -162,18 +164,29 @@ def print_fault_report(rep, console: Console) -> None:
     s = rep.summary
     def fmt(x):
         return "-" if x is None else f"{x:.2f} s"
+    per = Table(title="every failure: detection (failure to the origin writing the robot off) and recovery "
+                      "(failure to every displaced program running again)", title_justify="left")
+    for name in ("run", "robot", "kind", "displaced", "detection", "recovery", "lost", "dup"):
+        per.add_column(name, justify="right" if name not in ("run", "kind") else "left")
+    for i, run in enumerate(rep.runs, 1):
+        for j, f in enumerate(run.failures):
+            per.add_row(f"{i} {run.plan}" if j == 0 else "", f.robot, f.kind, str(f.displaced), fmt(f.detection),
+                        fmt(f.recovery), str(run.lost) if j == 0 else "", str(run.duplicated) if j == 0 else "")
+    console.print(per)
     console.print(
         f"[bold]{rep.mode} {rep.kind} / {rep.policy}[/]: {s['completed']}/{s['programs']} programs completed, "
         f"lost {s['lost']}, duplicated {s['duplicated']}; detection median {fmt(s['detection_median_s'])} "
         f"(max {fmt(s['detection_max_s'])}); displaced programs running again within median "
-        f"{fmt(s['recovery_median_s'])} (max {fmt(s['recovery_max_s'])}); "
+        f"{fmt(s['recovery_median_s'])} (max {fmt(s['recovery_max_s'])}, at most "
+        f"{fmt(s.get('recovery_after_detection_max_s'))} after detection); "
         f"{s['optimal_or_near_after_failures']}/{s['distributions_after_failures']} distributions after failures "
         f"optimal or near optimal"
     )
 
 
 def print_campaign(rep, console: Console) -> None:
-    table = Table(title=f"fault campaign: {rep.runs} runs, seed {rep.seed}, policy {rep.policy}", title_justify="left")
+    table = Table(title=f"{getattr(rep, 'world', 'simulator')} fault campaign: {rep.runs} runs, seed {rep.seed}, "
+                        f"policy {rep.policy}", title_justify="left")
     for name in ("runs", "programs", "faults injected", "completed", "lost", "duplicated", "not rejoined",
                  "failed runs", "time"):
         table.add_column(name, justify="right")

@@ -72,7 +72,7 @@ from ramps.testbed import net
 
 STATE_DIR = Path(os.environ.get("RAMPS_TESTBED_STATE", "/run/ramps"))
 PORT = 7447
-FAULTS = ("crashed", "cut", "frozen")
+FAULTS = ("crashed", "cut", "frozen", "lossy")
 
 
 class TestbedError(RampsError):
@@ -297,6 +297,8 @@ class Testbed:
                 cmd += [flag, str(value)]
         for p in self.programs:
             cmd += ["--program", p]
+        if self.log_dir:  # every decision, for experiments and post-mortems: <log_dir>/<robot>.trace.jsonl
+            cmd += ["--trace", str(self.log_dir / f"{robot}.trace.jsonl")]
         return cmd
 
     def _spawn(self, robot: str, argv: list[str], log: Path | None) -> tuple[int, int | None]:
@@ -440,6 +442,17 @@ class Testbed:
                 rb["faults"].append("cut")
             self._save()
 
+    def lossy(self, robot: str, loss: float) -> None:
+        """Drop each of the robot's packets, in and out, with probability
+        ``loss`` (a poor WiFi link; TCP retransmits, so keep-alives arrive
+        late rather than never). ``loss=0`` or ``recover`` ends it."""
+        with self._lock:
+            self._live()
+            rb = self._robot(robot)
+            net.set_loss(rb["ns"], loss)
+            rb["faults"] = [f for f in rb["faults"] if f != "lossy"] + ["lossy"] * (loss > 0)
+            self._save()
+
     def freeze(self, robot: str) -> None:
         """SIGSTOP every process of the robot (sockets stay open, nothing answers)."""
         with self._lock:
@@ -473,6 +486,8 @@ class Testbed:
             undone = list(rb["faults"])
             if "cut" in undone or net.link_state(rb["ns"]) != "up":
                 net.link_up(rb["ns"])
+            if "lossy" in undone:
+                net.set_loss(rb["ns"], 0)
             if "frozen" in undone:
                 _signal_all(self._pids(robot), signal.SIGCONT)
                 if rb["pid"]:

@@ -114,6 +114,45 @@ def detection_time(testbed, watcher: Watcher, robot: str, fault: str, *, timeout
     return (None if gone is None else gone - t0), back
 
 
+def flapping(testbed, watcher: Watcher, robot: str, *, loss: float, duration: float,
+             outages: tuple[float, float] | None = None, seed: int = 0) -> dict:
+    """False alarms on a poor but working link: for ``duration`` seconds every
+    packet of ``robot`` is dropped with probability ``loss``, and with
+    ``outages=(lo, hi)`` the link also goes fully silent for a random
+    lo..hi seconds every 2-6 s (WiFi roaming or a robot driving behind a
+    shelf). Returns the liveliness DELETEs of that robot seen meanwhile: a
+    DELETE is a false detection, since the robot never failed."""
+    import random
+
+    rng = random.Random(seed)
+    if watcher.wait(robot, True, 30.0) is None:
+        raise RuntimeError(f"robot {robot} is not alive before the test")
+    t0 = time.monotonic()
+    end = t0 + duration
+    silent = 0.0
+    testbed.lossy(robot, loss)
+    try:
+        while (now := time.monotonic()) < end:
+            if outages is None:
+                time.sleep(min(1.0, end - now))
+                continue
+            time.sleep(min(rng.uniform(2.0, 6.0), max(0.0, end - now)))
+            if time.monotonic() >= end:
+                break
+            gap = rng.uniform(*outages)
+            testbed.lossy(robot, 1.0)
+            time.sleep(gap)
+            silent += gap
+            testbed.lossy(robot, loss)
+    finally:
+        testbed.lossy(robot, 0)
+    with watcher.cv:
+        dels = [t - t0 for t, r, put in watcher.events if r == robot and not put and t0 <= t <= end]
+    watcher.wait(robot, True, 30.0)
+    return dict(robot=robot, loss=loss, outages=outages, duration=duration, silent=round(silent, 2),
+                false_detections=len(dels), at=[round(t, 2) for t in dels])
+
+
 def main(argv: list[str] | None = None) -> None:
     import argparse
 
@@ -124,7 +163,31 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--trials", type=int, default=5)
     ap.add_argument("--lease-ms", type=int, default=None)
     ap.add_argument("--faults", default="crash,cut,freeze")
+    ap.add_argument("--flap", action="store_true",
+                    help="measure false detections on a lossy link instead of detection times")
+    ap.add_argument("--loss", default="0.1,0.2,0.3", help="with --flap: packet loss rates to try")
+    ap.add_argument("--outages", default="0.1,1.0", help="with --flap: also silent gaps of lo,hi s ('' for none)")
+    ap.add_argument("--duration", type=float, default=60.0, help="with --flap: seconds per loss rate")
+    ap.add_argument("--json", default=None, help="with --flap: save the results to this file")
     a = ap.parse_args(argv)
+    if a.flap:
+        import json
+
+        outages = tuple(float(x) for x in a.outages.split(",")) if a.outages else None
+        results = []
+        with Testbed(a.robots, lease_ms=a.lease_ms) as tb, Watcher(tb) as w:
+            for i, loss in enumerate(float(x) for x in a.loss.split(",")):
+                for gaps in ([None, outages] if outages else [None]):
+                    r = flapping(tb, w, tb.names[-1], loss=loss, duration=a.duration, outages=gaps, seed=i)
+                    r["lease_ms"] = a.lease_ms or "default"
+                    results.append(r)
+                    print(f"lease {r['lease_ms']} loss {loss:.0%} outages {gaps or '-'}: "
+                          f"{r['false_detections']} false detections in {a.duration:g} s "
+                          f"(silent {r['silent']} s) at {r['at']}", flush=True)
+        if a.json:
+            with open(a.json, "w") as f:
+                json.dump(results, f, indent=1)
+        return
     with Testbed(a.robots, lease_ms=a.lease_ms) as tb, Watcher(tb) as w:
         for fault in a.faults.split(","):
             gone, back = [], []

@@ -185,6 +185,29 @@ def link_down(ns: str) -> None:
     ip("link", "set", "eth0", "down", ns=ns)
 
 
+def set_loss(ns: str, loss: float) -> None:
+    """Drop each packet in and out of the namespace with probability ``loss``
+    (0 removes the rule). Uses iptables' ``statistic`` match inside the
+    namespace, because this kernel has no netem; the rules die with the
+    namespace, so nothing is left behind."""
+    if not 0 <= loss <= 1:
+        raise ValueError(f"loss must be in [0, 1], got {loss}")
+    exe = shutil.which("iptables")
+    if exe is None:
+        raise NetError("packet loss needs iptables (apt-get install iptables)")
+    for chain in ("INPUT", "OUTPUT"):
+        _run([exe, "-w", "-F", chain], ns)
+        if loss > 0:
+            _run([exe, "-w", "-A", chain, "-m", "statistic", "--mode", "random",
+                  "--probability", f"{loss:.4f}", "-j", "DROP"], ns)
+
+
+def _run(argv: list[str], ns: str) -> None:
+    r = subprocess.run(["nsenter", f"--net={NETNS_DIR / ns}", *argv], capture_output=True, text=True)
+    if r.returncode != 0:
+        raise NetError(f"{' '.join(argv)} in {ns} failed: {r.stderr.strip()}")
+
+
 def remove(tb: str, robots: list[str]) -> None:
     """Delete the namespaces (and with them the veths), then the bridge."""
     have_ns = set(namespaces())

@@ -1,0 +1,304 @@
+"""The paper's failure experiments and a fault campaign, on the testbed.
+
+How this works: ``run_plan`` runs one ``ramps.experiments.faults.FaultPlan``
+(the same description the simulator runs) on real node processes: a fresh
+five-robot ``Testbed`` (``r1``..``r5`` stand for the paper's R1..R5), 15
+``burn`` programs submitted from r1 through a ``Team`` client, then each
+failure at its time (``crash`` = SIGKILL, ``network`` = link down). Each
+node writes its decisions to a trace file (``ramps node --trace``), in the
+simulator's trace format with ``time.monotonic()`` stamps, one clock for
+every process of the host; so the detection and recovery figures come from
+the very function that measures the simulator (``_failure_record``):
+
+* detection: from the fault to the origin (r1) writing the robot off;
+* recovery: from the fault until every program that was running there has
+  been accepted by another robot.
+
+Distributions are where the origin has each program at the plan's snapshot
+times, from its trace: accepted by a robot and neither finished nor written
+off there (a robot runs at most one program per core and queues the rest,
+so its own count of running programs would hide the queue). Lost = programs whose future did not complete with the
+right checksum; duplicated = programs the origin delivered more than once.
+
+``run_campaign`` is the randomized version: random crash / cut / freeze /
+recover faults of non-origin robots during a workload, then the issue's
+invariants: every program completed exactly once and every robot that was
+recovered is back in the team (alive, publishing, not on the origin's
+blacklist, and running programs again).
+
+Work sizing: the programs must still run at the last snapshot (as in the
+paper). ``work`` defaults to ``0.5 * gap`` units: with 0.4 host cores per
+robot, the programs that never move get about 8 CPU-seconds in the 99 s of a
+sequential run, so 10 units for the paper's 20 s gap.
+"""
+
+from __future__ import annotations
+
+import json
+import random
+import time
+from concurrent.futures import wait as wait_futures
+from pathlib import Path
+from typing import Callable
+
+import msgspec
+
+from ramps.experiments.faults import ROBOTS, FaultPlan, FaultRun, _failure_record
+from ramps.experiments.metrics import classify_counts
+from ramps.programs.burn import burn
+from ramps.sim.engine import TraceEntry
+
+#: the paper's robot names, as testbed robots
+NAMES = {r: r.lower() for r in ROBOTS}
+
+
+def read_trace(path: Path) -> list[TraceEntry]:
+    """A node's ``--trace`` file as simulator trace entries (torn last line skipped)."""
+    out = []
+    try:
+        lines = Path(path).read_text().splitlines()
+    except OSError:
+        return out
+    for line in lines:
+        try:
+            d = json.loads(line)
+            out.append(TraceEntry(d["t"], d["robot"], d["what"], d["program_id"], d["other"], d["attempt"],
+                                  d["detail"]))
+        except (ValueError, KeyError):
+            continue
+    return out
+
+
+def delivered_counts(trace: list[TraceEntry]) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    for e in trace:
+        if e.what == "delivered":
+            counts[e.program_id] = counts.get(e.program_id, 0) + 1
+    return counts
+
+
+def hosts_at(trace: list[TraceEntry], t: float) -> dict[str, str]:
+    """Program -> robot holding it at time ``t``, as the origin saw it."""
+    where: dict[str, tuple[str, int]] = {}
+    for e in trace:
+        if e.t > t:
+            break
+        if e.what == "accepted":
+            where[e.program_id] = (e.other, e.attempt)
+        elif e.what == "failed" and where.get(e.program_id, ("", -1))[1] == e.attempt:
+            del where[e.program_id]
+        elif e.what == "delivered":
+            where.pop(e.program_id, None)
+    return {p: h for p, (h, _) in where.items()}
+
+
+def _keep(tb, dest: Path) -> None:
+    """Copy the testbed's node logs and traces before ``down`` deletes them."""
+    import shutil
+
+    dest.mkdir(parents=True, exist_ok=True)
+    for f in tb.log_dir.iterdir():
+        shutil.copy(f, dest / f.name)
+
+
+def _inject(tb, robot: str, kind: str) -> None:
+    {"crash": tb.crash, "network": tb.cut, "cut": tb.cut, "freeze": tb.freeze}[kind](robot)
+
+
+def run_plan(plan: FaultPlan, *, seed: int = 0, policy: str = "ramps", work: float | None = None,
+             quota: float | None = None, lease_ms: int | None = None, finish_timeout: float = 1800.0,
+             keep_logs: Path | None = None, log: Callable[[str], None] | None = None) -> FaultRun:
+    """One plan on a fresh five-robot testbed (see the module docstring)."""
+    from ramps.testbed import Testbed
+
+    log = log or (lambda _m: None)
+    events = sorted([(at, 0, "fail", robot, kind) for at, robot, kind in plan.failures] +
+                    [(at, 1, "snap", label, "") for label, at in plan.snapshots])
+    gap = (plan.failures[1][0] - plan.failures[0][0]) if len({f[0] for f in plan.failures}) > 1 else \
+        (plan.snapshots[-1][1] + 1.0 - plan.failures[0][0])
+    units = float(work if work is not None else 0.5 * gap)
+    expected = burn(units=units)["checksum"] if units <= 2 else None
+    with Testbed(list(NAMES.values()), cores=4, quota=quota, policy=policy, lease_ms=lease_ms) as tb, \
+            tb.client("r1", timeout=30.0) as team:
+        log(f"{plan.name}: testbed {tb.tb} up, submitting 15 x burn({units:g} units) from r1")
+        t0 = time.monotonic()
+        opts = team.options(work=units)
+        futures = [opts.submit("burn", units=units) for _ in range(15)]
+        fail_at: dict[str, float] = {}
+        snap_at: dict[str, float] = {}
+        for at, _, what, name, kind in events:
+            time.sleep(max(0.0, t0 + at - time.monotonic()))
+            if what == "fail":
+                robot = NAMES[name]
+                fail_at[name] = time.monotonic()
+                _inject(tb, robot, kind)
+                log(f"  t={time.monotonic() - t0:5.1f} s  {kind} of {name}")
+            else:
+                snap_at[name] = time.monotonic()
+        done, pending = wait_futures(futures, timeout=finish_timeout)
+        completed = 0
+        for f in done:
+            if f.exception() is None:
+                res = f.result()
+                if res.get("iterations") == round(units * 16_000_000) and (expected is None or
+                                                                          res.get("checksum") == expected):
+                    completed += 1
+        for f in pending:
+            f.cancel()
+        makespan = time.monotonic() - t0
+        time.sleep(0.2)  # the origin's last trace lines
+        trace = sorted(read_trace(tb.log_dir / "r1.trace.jsonl"), key=lambda e: e.t)
+        if keep_logs is not None:
+            _keep(tb, Path(keep_logs) / f"{plan.name.replace(' ', '_').replace(':', '').replace(',', '-')}-{seed}")
+    dup = sum(n - 1 for n in delivered_counts(trace).values() if n > 1)
+    dists: dict[str, dict[str, int]] = {}
+    for label, at in snap_at.items():
+        held = list(hosts_at(trace, at).values())
+        dists[label] = {r: held.count(NAMES[r]) for r in ROBOTS if not (r in fail_at and fail_at[r] <= at)}
+        log(f"  {label}: {dists[label]}")
+    records = []
+    for at, name, kind in plan.failures:
+        t_fail = fail_at[name]
+        done_before = {e.program_id for e in trace if e.what == "delivered" and e.t < t_fail}
+        rec = _failure_record(trace, t_fail, NAMES[name], kind, done_before)
+        records.append(msgspec.structs.replace(rec, robot=name, at=at))
+    log(f"  {completed}/15 completed in {makespan:.1f} s, duplicated {dup}")
+    return FaultRun(plan=plan.name, seed=seed, distributions=dists,
+                    classifications={k: classify_counts(list(v.values())) for k, v in dists.items()},
+                    failures=records, completed=completed, lost=15 - completed, duplicated=dup, makespan=makespan)
+
+
+# ====================================================================== campaign
+class CampaignRun(msgspec.Struct, kw_only=True):
+    seed: int
+    robots: int
+    programs: int
+    faults: list[tuple[float, str, str]]
+    completed: int
+    lost: int
+    duplicated: int
+    not_rejoined: list[str]
+    ok: bool
+    seconds: float
+    error: str = ""
+
+
+class TestbedCampaignReport(msgspec.Struct, kw_only=True):
+    world: str
+    runs: int
+    seed: int
+    policy: str
+    programs: int
+    faults: int
+    completed: int
+    lost: int
+    duplicated: int
+    not_rejoined: int
+    failed_runs: list[CampaignRun]
+    all_runs: list[CampaignRun]
+    wall_seconds: float
+
+
+def campaign_plan(rng: random.Random, robots: list[str], duration: float) -> list[tuple[float, str, str]]:
+    """Random faults of the non-origin robots (the first robot is the origin):
+    each gets 0-2 faults, each usually followed by a recovery; every robot is
+    recovered by ``duration`` so the rejoin invariant can be checked."""
+    faults: list[tuple[float, str, str]] = []
+    for robot in robots[1:]:
+        t = rng.uniform(0.5, duration * 0.3)
+        for _ in range(rng.randint(0, 2)):
+            if t > duration * 0.8:
+                break
+            faults.append((round(t, 2), robot, rng.choice(["crash", "cut", "freeze"])))
+            t += rng.uniform(1.0, duration * 0.3)
+            faults.append((round(min(t, duration * 0.9), 2), robot, "recover"))
+            t += rng.uniform(0.5, duration * 0.2)
+    return sorted(faults)
+
+
+def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, duration: float = 20.0,
+                      lease_ms: int | None = None, log: Callable[[str], None] | None = None) -> CampaignRun:
+    """One seeded run: a testbed of ``robots``, programs from r1 for about
+    ``duration`` seconds under random faults, then the invariants."""
+    from ramps.testbed import Testbed
+    from ramps.testbed.bed import Observer
+
+    log = log or (lambda _m: None)
+    rng = random.Random(seed)
+    names = [f"r{i}" for i in range(1, robots + 1)]
+    faults = campaign_plan(rng, names, duration)
+    n_programs = rng.randint(8, 24)
+    units = [round(rng.uniform(0.05, 0.6), 3) for _ in range(n_programs)]
+    spacing = duration * 0.6 / n_programs
+    started = time.monotonic()
+    error = ""
+    futures = []
+    not_rejoined: list[str] = []
+    completed = dup = 0
+    with Testbed(names, cores=2, policy=policy, lease_ms=lease_ms) as tb, Observer(tb) as obs, \
+            tb.client("r1", timeout=30.0) as team:
+        t0 = time.monotonic()
+        timeline = sorted([(at, "fault", r, k) for at, r, k in faults] +
+                          [(i * spacing, "submit", "", str(i)) for i in range(n_programs)])
+        for at, what, robot, kind in timeline:
+            time.sleep(max(0.0, t0 + at - time.monotonic()))
+            if what == "submit":
+                u = units[int(kind)]
+                futures.append((u, team.options(work=u).submit("burn", units=u)))
+            elif kind == "recover":
+                tb.recover(robot, wait=False)
+            else:
+                _inject(tb, robot, kind)
+            if what == "fault":
+                log(f"  t={time.monotonic() - t0:5.1f} s  {kind} {robot}")
+        done, pending = wait_futures([f for _, f in futures], timeout=600.0)
+        for u, f in futures:
+            if f in done and f.exception() is None and f.result().get("iterations") == round(u * 16_000_000):
+                completed += 1
+            elif f in done and f.exception() is not None:
+                error = error or f"{type(f.exception()).__name__}: {f.exception()}"
+        for f in pending:
+            f.cancel()
+        # rejoin: every robot that was recovered is alive, publishing and not written off at r1
+        try:
+            tb.wait_alive(timeout=60.0)
+        except Exception as exc:  # NoTeam: named robots did not come back
+            not_rejoined.append(str(exc).splitlines()[0])
+        deadline = time.monotonic() + 15.0
+        recovered = sorted({r for _, r, k in faults if k == "recover"})
+        missing: list[str] = []
+        while time.monotonic() < deadline:
+            rows = {row["robot"]: row for row in obs.view()}
+            with obs._lock:
+                r1 = obs.reports.get("r1")
+            black = set(r1[0].blacklisted) if r1 else set()
+            missing = [r for r in recovered if not rows.get(r, {}).get("alive") or r in black]
+            if not missing:
+                break
+            time.sleep(0.5)
+        else:
+            not_rejoined += [f"{r} (blacklisted at r1 or not alive)" for r in missing]
+        time.sleep(0.2)
+        dup = sum(n - 1 for n in delivered_counts(read_trace(tb.log_dir / "r1.trace.jsonl")).values() if n > 1)
+    lost = n_programs - completed
+    ok = lost == 0 and dup == 0 and not not_rejoined
+    return CampaignRun(seed=seed, robots=robots, programs=n_programs, faults=faults, completed=completed, lost=lost,
+                       duplicated=dup, not_rejoined=not_rejoined, ok=ok, seconds=round(time.monotonic() - started, 1),
+                       error=error)
+
+
+def run_campaign(runs: int, seed: int = 0, *, policy: str = "ramps", robots: int = 4, duration: float = 20.0,
+                 lease_ms: int | None = None, progress=None, log=None) -> TestbedCampaignReport:
+    started = time.perf_counter()
+    results = []
+    for i in range(runs):
+        results.append(run_campaign_once(seed * 1_000_000 + i, policy=policy, robots=robots, duration=duration,
+                                         lease_ms=lease_ms, log=log))
+        if progress:
+            progress(i + 1, runs, results[-1])
+    return TestbedCampaignReport(
+        world="testbed", runs=runs, seed=seed, policy=policy, programs=sum(r.programs for r in results),
+        faults=sum(sum(1 for f in r.faults if f[2] != "recover") for r in results),
+        completed=sum(r.completed for r in results), lost=sum(r.lost for r in results),
+        duplicated=sum(r.duplicated for r in results), not_rejoined=sum(len(r.not_rejoined) for r in results),
+        failed_runs=[r for r in results if not r.ok], all_runs=results, wall_seconds=time.perf_counter() - started)
