@@ -21,11 +21,16 @@ def test_failure_experiments_recover_every_program(mode, kind):
     assert s["lost"] == 0 and s["duplicated"] == 0 and s["completed"] == s["programs"]
     assert s["undetected_failures"] == 0
     assert s["optimal_or_near_after_failures"] == s["distributions_after_failures"]
-    # displaced programs run again within the back-off maximum plus 1 s of detection
+    # displaced programs run again within the back-off maximum plus 1 s of
+    # detection; when robots fail together, a program may first be offered to
+    # another failed robot not yet detected (a cut is noticed after the 2 s
+    # lease), which costs one connect timeout and one more back-off
     cfg = RampsConfig()
     for run in rep.runs:
+        together = len(run.failures) > 1 and mode == "simultaneous" and kind != "crash"
+        bound = cfg.backoff_max + 1.0 + (cfg.connect_timeout + cfg.backoff_max if together else 0.0)
         for f in run.failures:
-            assert f.recovery is not None and f.recovery <= f.detection + cfg.backoff_max + 1.0, f
+            assert f.recovery is not None and f.recovery <= f.detection + bound, f
 
 
 def test_sequential_distributions_follow_the_failures():

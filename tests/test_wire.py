@@ -324,3 +324,19 @@ def test_a_garbage_result_value_fails_the_future_instead_of_hanging_it() -> None
     assert fut.done()
     with pytest.raises(Exception, match="could not be decoded"):
         fut.result()
+
+
+def test_a_node_drops_and_counts_what_exceeds_its_backlog(monkeypatch) -> None:
+    """A flood faster than the driver cannot grow the node's memory without bound."""
+    import ramps.runtime.node as rn
+    from ramps.runtime.settings import load_settings
+
+    monkeypatch.setattr(rn, "MAX_BACKLOG_BYTES", 1000)
+    node = rn.NodeRuntime(load_settings(flags={"robot": "r1", "team": "t"}, environ={}))
+    for _ in range(30):
+        node._on_wire(_Sample(b"x" * 100))
+    assert node._backlog_bytes == 1000 and node.overflow == 20
+    node._handle(node._q.get_nowait(), 0.0)  # the driver takes one: room for one more
+    assert node._backlog_bytes == 900 and node.bad_messages == 1
+    node._on_wire(_Sample(b"y" * 100))
+    assert node.overflow == 20 and node._backlog_bytes == 1000

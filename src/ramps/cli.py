@@ -483,13 +483,13 @@ def status(
         return
     table = Table(title=f"team {st.team}", title_justify="left")
     for name in ("robot", "alive", "cores", "speed", "cpu busy", "per core %", "run queue", "load avg", "mem free",
-                 "programs", "done", "blacklists", "report age"):
+                 "programs", "done", "dropped msgs", "blacklists", "report age"):
         table.add_column(name, justify="left" if name in ("robot", "blacklists", "per core %") else "right")
     for r in st.robots:
         table.add_row(r.robot, "yes" if r.alive else "[red]no[/]", str(r.cores), f"{r.speed:g}", f"{r.cpu_busy:.2f}",
                       " ".join(f"{100 * c:.0f}" for c in r.cpu_per_core[:16]), f"{r.runnable:.1f}",
                       f"{r.load_avg:.2f}", f"{r.mem_free / 2**30:.1f} GiB", str(r.ramps_running),
-                      str(r.finished_total), ", ".join(r.blacklisted),
+                      str(r.finished_total), str(r.bad_messages), ", ".join(r.blacklisted),
                       "-" if r.report_age is None else f"{r.report_age:.1f} s")
     out.print(table)
 

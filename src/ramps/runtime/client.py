@@ -60,6 +60,8 @@ class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
     cpu_busy: float = 0.0
     runnable: float = 0.0
     ramps_running: int = 0
+    #: messages the robot's node dropped (undecodable, or over its backlog)
+    bad_messages: int = 0
     accepted_total: int = 0
     finished_total: int = 0
     blacklisted: list[str] = []
@@ -315,7 +317,7 @@ class Team:
                                 ramps_running=rep.ramps_running, accepted_total=rep.accepted_total,
                                 finished_total=rep.finished_total, blacklisted=list(rep.blacklisted),
                                 cpu_per_core=list(rep.cpu_per_core), load_avg=rep.load_avg,
-                                mem_free=rep.mem_free, report_age=now - at)
+                                mem_free=rep.mem_free, bad_messages=rep.bad_messages, report_age=now - at)
                 rows.append(RobotStatus(**base))
         return TeamStatus(team=self.team, robots=rows)
 

@@ -66,6 +66,8 @@ from ramps.runtime.settings import NodeSettings, zenoh_config
 from ramps.runtime.workers import WorkerPool
 
 log = logging.getLogger("ramps.node")
+#: bytes of received messages waiting for the driver before new ones are dropped
+MAX_BACKLOG_BYTES = 64 * 1024 * 1024
 #: seconds between two log lines about dropped messages (each is counted)
 DROP_LOG_PERIOD = 1.0
 
@@ -97,6 +99,9 @@ class NodeRuntime:
         self._stopped = threading.Event()
         self._started = False
         self.bad_messages = 0
+        #: messages dropped because the driver's backlog was full, and its size
+        self.overflow = 0
+        self._backlog_bytes = 0
         #: a flood of bad messages is logged one line per DROP_LOG_PERIOD
         self._drop_logged_at = -DROP_LOG_PERIOD
         self._drops_unlogged = 0
@@ -144,9 +149,9 @@ class NodeRuntime:
             put = self._q.put
             self._subs = [
                 self.session.declare_subscriber(keys.inbox(self.team, self.robot),
-                                                lambda smp: put(("wire", smp.payload.to_bytes()))),
+                                                self._on_wire),
                 self.session.declare_subscriber(keys.load(self.team),
-                                                lambda smp: put(("wire", smp.payload.to_bytes()))),
+                                                self._on_wire),
                 self.session.liveliness().declare_subscriber(
                     keys.alive(self.team),
                     lambda smp: put(("live", keys.robot_of(str(smp.key_expr)), smp.kind == zenoh.SampleKind.PUT)),
@@ -244,6 +249,18 @@ class NodeRuntime:
         self._stopped.set()
 
     # ================================================================ inputs
+    def _on_wire(self, sample) -> None:
+        """Zenoh callback: queue the bytes for the driver, unless the backlog
+        already holds MAX_BACKLOG_BYTES (a flood, or a driver that cannot keep
+        up): then drop and count, so memory stays bounded. Small messages
+        (submits, heartbeats) pass any realistic burst."""
+        data = sample.payload.to_bytes()
+        if self._backlog_bytes + len(data) > MAX_BACKLOG_BYTES:
+            self.overflow += 1
+            return
+        self._backlog_bytes += len(data)
+        self._q.put(("wire", data))
+
     def _finished(self, key, ok: bool, value: bytes, error: str, retryable: bool) -> None:
         self._q.put(("finished", ProgramFinished(program_id=key[0], attempt=key[1], ok=ok, value=value, error=error,
                                                  result_size=len(value), retryable=retryable)))
@@ -289,6 +306,7 @@ class NodeRuntime:
         kind = item[0]
         node = self.node
         if kind == "wire":
+            self._backlog_bytes -= len(item[1])
             try:
                 env = decode(item[1])  # the wire limit; client arguments are checked on submit
             except WireError as exc:
@@ -432,7 +450,7 @@ class NodeRuntime:
         report = self.node.make_report(cpu_busy=min(busy, float(self.cores) if self.load_scope == "cgroup" else busy),
                                        runnable=runnable, ramps_avg=ramps_avg, window=self.s.window,
                                        mem_free=mem_free, cpu_per_core=per_core, load_avg=load1)
-        report = msgspec.structs.replace(report, bad_messages=self.bad_messages)  # for `ramps status`
+        report = msgspec.structs.replace(report, bad_messages=self.bad_messages + self.overflow)  # `ramps status`
         try:
             self._load_pub.put(encode(self.robot, report))
         except Exception as exc:

@@ -60,7 +60,9 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     publish_period: float = 1.0
     window: float = 1.0
     #: Zenoh session lease, ms: how long a frozen or cut-off peer takes to be
-    #: reported gone (keep-alives are sent 4 times per lease)
+    #: reported gone (keep-alives are sent 4 times per lease). 2000 ms gave no
+    #: false alarm on a link with 20% loss and sub-second dropouts, 1500 ms
+    #: 2-4 a minute (ramps.testbed.detect --flap); 1000 ms suits wired teams
     lease_ms: int = 2000
     #: what the load publisher measures: host, cgroup, or auto (cgroup when
     #: the node runs in a cpu cgroup with a quota)

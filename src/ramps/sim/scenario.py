@@ -46,7 +46,8 @@ class NetworkSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
     #: how long after a crash the teammates' transport notices (TCP reset)
     crash_detect: float = 0.01
     #: how long after a network cut or freeze the session lease expires
-    lease: float = 1.0
+    #: (the node's default lease, NodeSettings.lease_ms = 2000)
+    lease: float = 2.0
     #: whether liveliness (session-level failure notices) is used at all;
     #: the paper's prototype had only connection timeouts and heartbeats
     liveliness: bool = True

@@ -29,6 +29,29 @@ thawed node had to redial. So ``--lease-ms`` bounds cut and freeze detection
 (a cut is noticed at almost exactly one lease, a freeze at 0.75-1 lease),
 and a crash is noticed in milliseconds whatever the lease.
 
+False alarms on a poor link (``--flap``): r3 of 3 robots gets random packet
+loss both ways (iptables ``statistic`` match in its namespace; this kernel
+has no netem), plain or with silent gaps of 0.1-1.0 s every 2-6 s (WiFi
+roaming, a robot behind a shelf, 6-7 s of silence per minute). False
+liveliness DELETEs of r3 in 60 s each (one sample per cell; 2-core VM):
+
+==========  ====  ==========  ====  ==========  ====  ==========
+lease (ms)  10%   10% + gaps  20%   20% + gaps  30%   30% + gaps
+==========  ====  ==========  ====  ==========  ====  ==========
+1000        0     4           0     3           1     5
+1500        0     4           1     2           0     1
+1800        0     2           0     0           1     1
+2000        0     0           0     0           0     4
+==========  ====  ==========  ====  ==========  ====  ==========
+
+Loss alone hardly matters (TCP retransmits; keep-alives arrive late, not
+never), but a sub-second gap plus retransmission back-off (RTO doubling from
+200 ms) silences a link for up to ~1.8 s, which trips leases below 2 s. So
+the node's default lease is 2000 ms: no false alarm up to 20% loss with
+gaps, at the price of noticing a cut or freeze after 1.5-2 s (heartbeats
+every 0.5 s with a 2 s timeout usually notice a busy host a little sooner).
+A wired team can take ``--lease-ms 1000``.
+
 Why: a crash closes the TCP connections at once (the kernel resets them); a
 cut or frozen robot says nothing and is declared gone when its lease runs
 out without keep-alives (sent 4 times per lease). "Default" is the node's
