@@ -85,6 +85,23 @@ def describe(procs: list[psutil.Process]) -> str:
     return "; ".join(out)
 
 
+def assert_no_leftovers(timeout: float = 10.0) -> None:
+    """After a test module: no node, worker, load or CLI process this run
+    started is alive (killed if so, and the check fails)."""
+    deadline = time.monotonic() + timeout
+    left = leftover_processes()
+    while left and time.monotonic() < deadline:
+        time.sleep(0.2)
+        left = leftover_processes()
+    for p in left:
+        try:
+            p.kill()
+        except psutil.Error:
+            pass
+    assert not left, f"processes started by this test run survived it: {describe(left)}"
+    assert all(p.poll() is not None for p in _STARTED)
+
+
 # ---------------------------------------------------------------- cgroups
 def cgroup_support() -> str | None:
     """None if this process may create cpu cgroups with a quota, else why not."""

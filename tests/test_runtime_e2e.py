@@ -27,7 +27,7 @@ import msgspec
 import psutil
 import pytest
 from runtime_team import _STARTED as STARTED
-from runtime_team import LocalTeam, cgroup_support, describe, leftover_processes
+from runtime_team import LocalTeam, assert_no_leftovers, cgroup_support
 
 import ramps
 from ramps.core.messages import ProgramOutcome, SubmitProgram, decode, encode
@@ -44,23 +44,12 @@ SRC = Path(ramps.__file__).resolve().parent
 def no_leftover_processes():
     """After this module: no node, worker, load or CLI process of this run is alive."""
     yield
-    deadline = time.monotonic() + 10
-    left = leftover_processes()
-    while left and time.monotonic() < deadline:
-        time.sleep(0.2)
-        left = leftover_processes()
-    for p in left:
-        try:
-            p.kill()
-        except psutil.Error:
-            pass
-    assert not left, f"processes started by this test run survived it: {describe(left)}"
+    assert_no_leftovers()
     # and the plain way: no `ramps.cli node` this run started is in the process table
     ps = subprocess.run(["pgrep", "-f", "ramps.cli node"], capture_output=True, text=True)
     running = {int(x) for x in ps.stdout.split()}
     ours = {p.pid for p in STARTED}
     assert not running & ours, f"ramps nodes of this run still running: {sorted(running & ours)}"
-    assert all(p.poll() is not None for p in STARTED)
 
 
 @pytest.fixture(scope="module")

@@ -21,10 +21,8 @@ import time
 from pathlib import Path
 
 import msgspec
-import psutil
 import pytest
-from runtime_team import _STARTED as STARTED
-from runtime_team import LocalTeam, describe, leftover_processes
+from runtime_team import LocalTeam, assert_no_leftovers
 
 import ramps
 from ramps.core.messages import SubmitProgram, encode
@@ -41,18 +39,7 @@ RESULT_TIMEOUT = 60.0
 @pytest.fixture(scope="module", autouse=True)
 def no_leftover_processes():
     yield
-    deadline = time.monotonic() + 10
-    left = leftover_processes()
-    while left and time.monotonic() < deadline:
-        time.sleep(0.2)
-        left = leftover_processes()
-    for p in left:
-        try:
-            p.kill()
-        except psutil.Error:
-            pass
-    assert not left, f"processes started by this test run survived it: {describe(left)}"
-    assert all(p.poll() is not None for p in STARTED)
+    assert_no_leftovers()
 
 
 @pytest.fixture(scope="module")

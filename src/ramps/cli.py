@@ -732,7 +732,7 @@ def testbed_experiment_faults(
     kind: str = typer.Option("crash", "--kind", "-k", help="crash, network, mixed or all"),
     runs: int = typer.Option(1, "--runs", min=1, help="runs of every plan"),
     gap: float = typer.Option(20.0, "--gap", min=4.0, help="seconds from the submit to the first failure and between failures (paper: 20)"),
-    work: Optional[float] = typer.Option(None, "--work", help="work units per program (default gap/2: still running at the last snapshot)"),
+    work: Optional[float] = typer.Option(None, "--work", help="work units per program (default 0.9 * gap: still running at the last snapshot)"),
     policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
     lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh lease of every node, ms (default: the node's)"),
     keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="copy every node's log and decision trace here"),

@@ -40,6 +40,8 @@ class CampaignRun(msgspec.Struct, kw_only=True):
 
 
 class CampaignReport(msgspec.Struct, kw_only=True):
+    """Totals over a campaign's runs (``world``: simulator or testbed)."""
+
     runs: int
     seed: int
     policy: str
@@ -51,6 +53,7 @@ class CampaignReport(msgspec.Struct, kw_only=True):
     not_rejoined: int
     failed_runs: list[CampaignRun]
     wall_seconds: float
+    world: str = "simulator"
 
 
 def random_scenario(rng: random.Random, seed: int, policy: str) -> Scenario:

@@ -27,9 +27,10 @@ recovered is back in the team (alive, publishing, not on the origin's
 blacklist, and running programs again).
 
 Work sizing: the programs must still run at the last snapshot (as in the
-paper). ``work`` defaults to ``0.5 * gap`` units: with 0.4 host cores per
-robot, the programs that never move get about 8 CPU-seconds in the 99 s of a
-sequential run, so 10 units for the paper's 20 s gap.
+paper). ``work`` defaults to ``0.9 * gap`` units: with 0.4 host cores per
+robot, 3 programs on a robot get 0.13 host cores each, so a program that
+never moves gets at most ~0.13 * 5 * gap CPU-seconds by the last snapshot of
+a sequential run (1 unit is about 1 CPU-second, see ramps.programs.burn).
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ from typing import Callable
 
 import msgspec
 
+from ramps.experiments.campaign import CampaignReport
 from ramps.experiments.faults import ROBOTS, FaultPlan, FaultRun, _failure_record
 from ramps.experiments.metrics import classify_counts
 from ramps.programs.burn import burn
@@ -101,6 +103,19 @@ def _keep(tb, dest: Path) -> None:
         shutil.copy(f, dest / f.name)
 
 
+def identical_speed(robots: int, cores: int, quota: float | None = None) -> float:
+    """The per-core speed of every robot, measured once here, before the nodes
+    start: the robots are identical by construction, and five nodes measuring
+    themselves at once under their quotas differ by 5-10%, which the cost
+    model would rightly read as faster and slower robots."""
+    import os
+
+    from ramps.runtime.measure import measure_speed
+
+    q = quota if quota is not None else max(0.05, len(os.sched_getaffinity(0)) / robots)
+    return round(measure_speed(0.5, quota=q, cores=cores), 4)
+
+
 def _inject(tb, robot: str, kind: str) -> None:
     {"crash": tb.crash, "network": tb.cut, "cut": tb.cut, "freeze": tb.freeze}[kind](robot)
 
@@ -116,9 +131,10 @@ def run_plan(plan: FaultPlan, *, seed: int = 0, policy: str = "ramps", work: flo
                     [(at, 1, "snap", label, "") for label, at in plan.snapshots])
     gap = (plan.failures[1][0] - plan.failures[0][0]) if len({f[0] for f in plan.failures}) > 1 else \
         (plan.snapshots[-1][1] + 1.0 - plan.failures[0][0])
-    units = float(work if work is not None else 0.5 * gap)
+    units = float(work if work is not None else 0.9 * gap)
     expected = burn(units=units)["checksum"] if units <= 2 else None
-    with Testbed(list(NAMES.values()), cores=4, quota=quota, policy=policy, lease_ms=lease_ms) as tb, \
+    speed = identical_speed(len(NAMES), 4, quota)
+    with Testbed(list(NAMES.values()), cores=4, quota=quota, speed=speed, policy=policy, lease_ms=lease_ms) as tb, \
             tb.client("r1", timeout=30.0) as team:
         log(f"{plan.name}: testbed {tb.tb} up, submitting 15 x burn({units:g} units) from r1")
         t0 = time.monotonic()
@@ -183,20 +199,11 @@ class CampaignRun(msgspec.Struct, kw_only=True):
     error: str = ""
 
 
-class TestbedCampaignReport(msgspec.Struct, kw_only=True):
-    world: str
-    runs: int
-    seed: int
-    policy: str
-    programs: int
-    faults: int
-    completed: int
-    lost: int
-    duplicated: int
-    not_rejoined: int
+class TestbedCampaignReport(CampaignReport, kw_only=True):
+    """The simulator's campaign totals, with the testbed's runs (all kept: each is expensive)."""
+
     failed_runs: list[CampaignRun]
-    all_runs: list[CampaignRun]
-    wall_seconds: float
+    all_runs: list[CampaignRun] = []
 
 
 def campaign_plan(rng: random.Random, robots: list[str], duration: float) -> list[tuple[float, str, str]]:
@@ -235,7 +242,8 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
     futures = []
     not_rejoined: list[str] = []
     completed = dup = 0
-    with Testbed(names, cores=2, policy=policy, lease_ms=lease_ms) as tb, Observer(tb) as obs, \
+    speed = identical_speed(robots, 2)
+    with Testbed(names, cores=2, speed=speed, policy=policy, lease_ms=lease_ms) as tb, Observer(tb) as obs, \
             tb.client("r1", timeout=30.0) as team:
         t0 = time.monotonic()
         timeline = sorted([(at, "fault", r, k) for at, r, k in faults] +
