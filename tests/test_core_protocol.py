@@ -36,6 +36,7 @@ from ramps.core.node import Node
 from ramps.core.origin import Origin
 from ramps.core.program import TRANSITIONS, AutonomousProgram, ProgramState, ProtocolError
 
+from ramps.core.config import RampsConfig
 from corehelpers import CFG, Team, busy_origin_team, report, submit
 
 
@@ -228,6 +229,43 @@ def test_a_host_written_off_while_others_stay_is_not_revived() -> None:
     team.handle("o", Received(sender="a", msg=ProgramResult(program_id="p", attempt=1, host="a", ok=True)))
     assert not team.delivered("p")  # the late result of the written-off copy is discarded
     assert team.nodes["o"].origin.discarded == 1
+
+
+def test_a_host_that_still_publishes_is_suspected_not_written_off() -> None:
+    # heartbeats about the program are lost, but the host keeps publishing
+    # its load: keep its copy wanted, run the program elsewhere too
+    team = busy_origin_team()
+    submit(team)
+    team.deliver()
+    no_beats = lambda s, to, m: isinstance(m, Heartbeat)  # noqa: E731
+    t = team.now
+    while t < CFG.heartbeat_timeout + 1.0:
+        t += 0.5
+        team.advance(t, hold=no_beats)
+        team.publish("a", "b")
+        team.deliver(hold=no_beats)
+    [suspected] = team.notes("suspected")
+    assert (suspected.robot, suspected.detail.split(",")[0]) == ("a", "heartbeat_timeout")
+    assert not team.notes("blacklisted") and not team.nodes["o"].view.is_blacklisted("a")
+    assert [n.robot for n in team.notes("placed")] == ["a", "b"]
+    # a's copy finishes first: it is the one delivered, once, and b's copy stops
+    team.finish("a", "p", 1, ok=True, value=b"from a")
+    assert team.delivered("p") == [Deliver(program_id="p", ok=True, value=b"from a", host="a", attempts=2)]
+    assert not team.nodes["b"].executor.running
+
+
+def test_the_paper_policy_writes_off_a_silent_host_even_if_it_publishes() -> None:
+    team = busy_origin_team(config=RampsConfig.paper())
+    submit(team)
+    team.deliver()
+    no_beats = lambda s, to, m: isinstance(m, Heartbeat)  # noqa: E731
+    t = team.now
+    while t < RampsConfig.paper().heartbeat_timeout + 1.5:
+        t += 0.5
+        team.advance(t, hold=no_beats)
+        team.publish("a", "b")
+        team.deliver(hold=no_beats)
+    assert not team.notes("suspected") and team.notes("blacklisted")
 
 
 def _in_backoff_after_connect_timeout() -> Team:

@@ -42,6 +42,10 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     isolation_timeout: float = 5.0
     #: a program that lost this many hosts or workers ends with an error
     max_attempts: int = 50
+    #: a host whose heartbeats (or acceptance) stop while its load reports
+    #: keep arriving is suspected, not written off: its copy stays wanted and
+    #: the program is also placed elsewhere at once; the first result wins
+    hedge_suspects: bool = True
 
     def __post_init__(self) -> None:
         for name in self.__struct_fields__:
@@ -63,4 +67,5 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             heartbeat_period=1.0,
             heartbeat_timeout=5.0,
             backoff_max=10.0,
+            hedge_suspects=False,
         )

@@ -119,7 +119,7 @@ class Deliver(_Rec, frozen=True, kw_only=True):
 class Note(_Rec, frozen=True, kw_only=True):
     """Something the core decided, for traces and logs. ``what`` is one of:
     placed, accepted, rejected, blacklisted, unblacklisted, failed, backoff,
-    discarded, anomaly, isolated."""
+    discarded, anomaly, isolated, suspected."""
 
     what: str
     program_id: str = ""

@@ -217,6 +217,10 @@ class LoadView:
     def blacklisted(self) -> list[str]:
         return sorted(self._blacklist)
 
+    def is_lost(self, robot: str) -> bool:
+        rob = self._robots.get(robot)
+        return rob is not None and rob.lost
+
     def set_lost(self, robot: str, lost: bool) -> None:
         rob = self._robots.get(robot)
         if rob is not None:

@@ -323,6 +323,15 @@ class Origin:
         ap.failures += 1
         ap.deadline = None
         out.append(Note(what="failed", program_id=ap.program_id, robot=host, attempt=ap.attempt, detail=reason))
+        if self._still_publishing(host, reason, now):
+            # the host says it is alive (load reports after we last heard about
+            # this program): messages about the program were lost, not the
+            # host. Keep its copy wanted and run the program elsewhere too.
+            out.append(Note(what="suspected", program_id=ap.program_id, robot=host, attempt=ap.attempt,
+                            detail=f"{reason}, but the host still publishes: its copy stays wanted"))
+            ap.excluded.add(host)
+            self.place(ap, now, out)
+            return
         if host != self.me and self.view.isolated(now, self.config.isolation_timeout):
             # we are the ones cut off: keep the remote attempt's result wanted
             # and run the program here meanwhile; first result wins
@@ -338,6 +347,14 @@ class Origin:
         if self.view.blacklist(host):
             out.append(Note(what="blacklisted", robot=host, program_id=ap.program_id, detail=reason))
         self._backoff(ap, now, out)
+
+    def _still_publishing(self, host: str | None, reason: str, now: float) -> bool:
+        if not self.config.hedge_suspects or host is None or host == self.me or self.view.is_lost(host):
+            return False
+        window = {"heartbeat_timeout": self.config.heartbeat_timeout,
+                  "connect_timeout": self.config.connect_timeout}.get(reason)
+        age = self.view.report_age(host, now)
+        return window is not None and age is not None and age < window
 
     def _backoff(self, ap: AutonomousProgram, now: float, out: list[Action]) -> None:
         if ap.failures >= self.config.max_attempts:
