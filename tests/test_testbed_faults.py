@@ -20,6 +20,8 @@ import pytest
 
 from test_testbed import REASON, others_leftovers, wait_until
 
+from ramps.testbed.experiments import SETTLE
+
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(REASON is not None, reason=REASON or "")]
 
 NSCLIENT = str(Path(__file__).with_name("nsclient.py"))
@@ -46,10 +48,11 @@ def test_origin_cut_off_briefly_delivers_exactly_once():
     from ramps.testbed import Testbed
 
     with Testbed(3, cores=2) as tb:
+        time.sleep(SETTLE)  # r1 has every robot's load report: round robin will use r2
         ns = f"--net=/run/netns/{tb.namespace('r1')}"
         # round robin from r1: the first program runs on r1, the second on r2
         client = subprocess.Popen(["nsenter", ns, sys.executable, NSCLIENT, tb.team, tb.endpoint("r1"), "burn",
-                                   json.dumps({"units": 1.5}), "2", "round_robin"], stdout=subprocess.PIPE, text=True)
+                                   json.dumps({"units": 3.0}), "2", "round_robin"], stdout=subprocess.PIPE, text=True)
         try:
             assert wait_until(lambda: remote_program(tb) is not None, 30), trace(tb)
             pid, host = remote_program(tb)
@@ -66,7 +69,7 @@ def test_origin_cut_off_briefly_delivers_exactly_once():
         lines = [json.loads(x) for x in out.splitlines() if x.strip()]
         results = [x for x in lines if "ok" in x]
         assert len(results) == 2 and all(r["ok"] for r in results), lines
-        assert all(r["value"]["iterations"] == 24_000_000 for r in results)
+        assert all(r["value"]["iterations"] == 48_000_000 for r in results)
         delivered = [e for e in trace(tb) if e["what"] == "delivered"]
         assert sorted(e["program_id"] for e in delivered) == sorted({e["program_id"] for e in delivered})
         assert len(delivered) == 2
@@ -81,6 +84,7 @@ def test_written_off_host_that_reappears_has_its_result_discarded_and_rejoins():
     from ramps.testbed import Testbed
 
     with Testbed(3, cores=2) as tb, tb.client("r1", timeout=30) as team:
+        time.sleep(SETTLE)
         rr = team.options(policy="round_robin")
         local, fut = rr.submit("burn", units=1.0), rr.submit("burn", units=1.0)  # r1, then r2
         assert wait_until(lambda: remote_program(tb) is not None, 30), trace(tb)
@@ -114,7 +118,7 @@ def test_lossy_link_still_delivers_every_program_once():
         assert "lossy" in tb.status()["robots"][2]["faults"]
         futs = [team.submit("burn", units=0.2) for _ in range(9)]
         assert all(f.result(timeout=240)["iterations"] == 3_200_000 for f in futs)
-        assert [e["what"] for e in trace(tb)].count("delivered") == 9
+        assert [e["what"] for e in trace(tb)].count("delivered") == 9  # exactly once each
         tb.recover("r3")
         assert "lossy" not in tb.status()["robots"][2]["faults"]
 
@@ -132,8 +136,8 @@ def test_failure_experiment_plan_on_the_testbed():
     assert 0 < sum(run.distributions["before"].values()) <= 15
     assert set(run.distributions["after"]) == {"R1", "R2", "R3"}
     for f in run.failures:
-        assert f.detection is not None and f.detection < 5.0, f
-        assert f.displaced == 0 or f.recovery is not None, f
+        # a robot that held none of the programs is never written off by the origin
+        assert f.displaced == 0 or (f.detection is not None and f.detection < 5.0 and f.recovery is not None), f
 
 
 def test_testbed_campaign_one_run():

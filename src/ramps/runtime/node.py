@@ -398,10 +398,10 @@ class NodeRuntime:
                 kind = a.error_kind
                 if self.node.executor.closing and kind == "cancelled":
                     kind, a = "shutdown", msgspec.structs.replace(a, error=f"origin {self.robot} shut down")
+                if self._trace is not None:  # first, so a caller holding the result finds it traced
+                    self._write_trace("delivered", a.program_id, a.host, a.attempts, a.error_kind)
                 self._tell_client(a.program_id, ok=a.ok, value=a.value, error=a.error, kind=kind, host=a.host,
                                   attempts=a.attempts)
-                if self._trace is not None:
-                    self._write_trace("delivered", a.program_id, a.host, a.attempts, a.error_kind)
             elif isinstance(a, Note):
                 if self._trace is not None:
                     self._write_trace(a.what, a.program_id, a.robot, a.attempt, a.detail)

@@ -50,6 +50,9 @@ from ramps.experiments.metrics import classify_counts
 from ramps.programs.burn import burn
 from ramps.sim.engine import TraceEntry
 
+#: seconds between the testbed being up (seen from outside) and the first
+#: submit, so the origin has a load report from every robot (published every 1 s)
+SETTLE = 2.5
 #: the paper's robot names, as testbed robots
 NAMES = {r: r.lower() for r in ROBOTS}
 
@@ -136,6 +139,7 @@ def run_plan(plan: FaultPlan, *, seed: int = 0, policy: str = "ramps", work: flo
     speed = identical_speed(len(NAMES), 4, quota)
     with Testbed(list(NAMES.values()), cores=4, quota=quota, speed=speed, policy=policy, lease_ms=lease_ms) as tb, \
             tb.client("r1", timeout=30.0) as team:
+        time.sleep(SETTLE)  # every node has had a load report from every other
         log(f"{plan.name}: testbed {tb.tb} up, submitting 15 x burn({units:g} units) from r1")
         t0 = time.monotonic()
         opts = team.options(work=units)
@@ -245,6 +249,7 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
     speed = identical_speed(robots, 2)
     with Testbed(names, cores=2, speed=speed, policy=policy, lease_ms=lease_ms) as tb, Observer(tb) as obs, \
             tb.client("r1", timeout=30.0) as team:
+        time.sleep(SETTLE)
         t0 = time.monotonic()
         timeline = sorted([(at, "fault", r, k) for at, r, k in faults] +
                           [(i * spacing, "submit", "", str(i)) for i in range(n_programs)])
