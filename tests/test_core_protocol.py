@@ -254,6 +254,28 @@ def test_a_host_that_still_publishes_is_suspected_not_written_off() -> None:
     assert not team.nodes["b"].executor.running
 
 
+def test_a_host_cut_off_right_after_a_report_is_written_off_not_suspected() -> None:
+    # reports and heartbeats stop together: the last report is older than the
+    # silence, so the host is written off as usual
+    team = busy_origin_team()
+    submit(team)
+    team.deliver()
+    t = team.now
+    while t < 3.0:
+        t += 0.5
+        team.advance(t)
+        team.publish("a", "b")
+        team.deliver()
+    team.cut.add("a")
+    while t < 3.0 + CFG.heartbeat_timeout + 0.6:
+        t += 0.5
+        team.advance(t)
+        team.publish("b")
+        team.deliver()
+    assert not team.notes("suspected")
+    assert team.nodes["o"].view.is_blacklisted("a")
+
+
 def test_the_paper_policy_writes_off_a_silent_host_even_if_it_publishes() -> None:
     team = busy_origin_team(config=RampsConfig.paper())
     submit(team)

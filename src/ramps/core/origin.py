@@ -354,7 +354,10 @@ class Origin:
         window = {"heartbeat_timeout": self.config.heartbeat_timeout,
                   "connect_timeout": self.config.connect_timeout}.get(reason)
         age = self.view.report_age(host, now)
-        return window is not None and age is not None and age < window
+        # a report that arrived at least a heartbeat period after we last heard
+        # about the program (or offered it): the host outlived the silence. A
+        # cut or frozen host's last report is older than that.
+        return window is not None and age is not None and age < window - self.config.heartbeat_period
 
     def _backoff(self, ap: AutonomousProgram, now: float, out: list[Action]) -> None:
         if ap.failures >= self.config.max_attempts:
