@@ -167,10 +167,11 @@ class Origin:
         if self._revivable:
             if self.view.isolated(now, self.config.isolation_timeout):
                 self._revive_written_off(now, out)
-            elif self._isolation_check() is not None and all(
-                    w[2] < now - self._revive_window() for pid in self._revivable
-                    for w in self.programs[pid].written_off if pid in self.programs):
-                self._revivable.clear()  # too old to be explained by an isolation now
+            else:
+                newest = max((w[2] for pid in self._revivable if (ap := self.programs.get(pid)) is not None
+                              for w in ap.written_off), default=None)
+                if newest is None or newest < now - self._revive_window():
+                    self._revivable.clear()  # too old to be explained by an isolation now
         horizon = now - self.config.result_retention
         while self._finished and self._finished[0][0] < horizon:
             _, pid = self._finished.popleft()
