@@ -344,7 +344,13 @@ class Origin:
         if host != self.me and reason in ("host_lost", "heartbeat_timeout"):
             ap.written_off.append((ap.attempt, host, now))
             self._revivable.add(ap.program_id)
-        out.append(Send(to=host, msg=CancelProgram(program_id=ap.program_id, attempt=ap.attempt, origin=self.me)))
+        else:
+            # a host that just went silent is not told: the message could not
+            # arrive, and on Zenoh, sending to a cut-off peer can stall this
+            # robot's traffic for seconds. If it is alive, its next heartbeat
+            # or acceptance gets a cancel (see _route).
+            out.append(Send(to=host, msg=CancelProgram(program_id=ap.program_id, attempt=ap.attempt,
+                                                       origin=self.me)))
         if self.view.blacklist(host):
             out.append(Note(what="blacklisted", robot=host, program_id=ap.program_id, detail=reason))
         self._backoff(ap, now, out)
