@@ -28,11 +28,11 @@ NSCLIENT = str(Path(__file__).with_name("nsclient.py"))
 
 
 def trace(tb, robot: str = "r1") -> list[dict]:
+    import msgspec
+
     from ramps.testbed.experiments import read_trace
 
-    return [e._asdict() if hasattr(e, "_asdict") else {"t": e.t, "what": e.what, "program_id": e.program_id,
-                                                       "other": e.other, "attempt": e.attempt, "detail": e.detail}
-            for e in read_trace(tb.log_dir / f"{robot}.trace.jsonl")]
+    return [msgspec.structs.asdict(e) for e in read_trace(tb.log_dir / f"{robot}.trace.jsonl")]
 
 
 def remote_program(tb) -> tuple[str, str] | None:

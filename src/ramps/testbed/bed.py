@@ -702,6 +702,12 @@ class Observer:
             with self._lock:
                 self.reports[msg.robot] = (msg, time.monotonic())
 
+    def report(self, robot: str):
+        """The latest load report of ``robot``, or None."""
+        with self._lock:
+            rep = self.reports.get(robot)
+        return rep[0] if rep else None
+
     def ready(self) -> set[str]:
         """Robots alive that have published load since this observer opened."""
         with self._lock:

@@ -282,9 +282,8 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
         missing: list[str] = []
         while time.monotonic() < deadline:
             rows = {row["robot"]: row for row in obs.view()}
-            with obs._lock:
-                r1 = obs.reports.get("r1")
-            black = set(r1[0].blacklisted) if r1 else set()
+            r1 = obs.report("r1")
+            black = set(r1.blacklisted) if r1 else set()
             missing = [r for r in recovered if not rows.get(r, {}).get("alive") or r in black]
             if not missing:
                 break
