@@ -108,6 +108,43 @@ def test_written_off_host_that_reappears_has_its_result_discarded_and_rejoins():
         assert time.monotonic() - t_written_off < 240
 
 
+def test_teammates_keep_hearing_each_other_when_one_drops_off(monkeypatch):
+    """When r4's link is cut while it runs programs of r1, r1-r3 go on hearing
+    each other's load reports (one a second) all through the time Zenoh gives
+    r4 up and closes its links. With Zenoh's default 2 receive threads, each
+    blocked for 10 s in the close of a link to r4 (SO_LINGER), r1 heard
+    nobody for 10 s and wrote healthy r2 and r3 off."""
+    from ramps.testbed import Testbed
+
+    monkeypatch.setenv("RAMPS_TRACE_WIRE", "1")  # nodes trace every message received
+    window = 9.0
+    with Testbed(4, cores=1) as tb, tb.client("r1", timeout=30.0) as team:
+        time.sleep(SETTLE)
+        futures = [team.options(work=2.0).submit("burn", units=2.0) for _ in range(12)]
+        assert wait_until(lambda: any(e["what"] == "accepted" and e["other"] == "r4" for e in trace(tb)), 20)
+        time.sleep(1.0)
+        t_cut = time.monotonic()
+        tb.cut("r4")
+        time.sleep(window)
+        gaps = {}
+        for rcv in ("r1", "r2", "r3"):
+            for snd in ("r1", "r2", "r3"):
+                if snd == rcv:
+                    continue
+                heard = [e["t"] for e in trace(tb, rcv)
+                         if e["what"] == "rx" and e["other"] == snd and t_cut <= e["t"] <= t_cut + window]
+                edges = [t_cut, *sorted(heard), t_cut + window]
+                gaps[f"{snd}->{rcv}"] = round(max(b - a for a, b in zip(edges, edges[1:])), 2)
+        lost = {e["other"] for e in trace(tb) if e["what"] == "peer_lost"}
+        written_off = {e["other"] for e in trace(tb) if e["what"] == "blacklisted"}
+        assert all(f.result(timeout=240)["iterations"] == 32_000_000 for f in futures)
+        tbid = tb.tb
+    assert lost == {"r4"}, lost  # r1 did notice r4 go, and no one else
+    assert written_off == {"r4"}, written_off
+    assert max(gaps.values()) < 3.0, gaps
+    assert others_leftovers(tbid) == []
+
+
 def test_lossy_link_still_delivers_every_program_once():
     from ramps.testbed import Testbed
 

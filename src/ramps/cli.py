@@ -40,6 +40,8 @@ out = Console(width=None if sys.stdout.isatty() else 200)
 err = Console(stderr=True)
 
 POLICY_HELP = "placement policy: ramps (default, ours), paper (faithful to the paper), round_robin, random, local_only"
+DISCOVERY_HELP = ("how testbed robots find each other: both (multicast plus a seed robot), multicast, "
+                  "or connect (explicit endpoints only)")
 
 
 def fail(message: str, code: int = 2) -> None:
@@ -52,6 +54,11 @@ def _check_policy(policy: str) -> None:
 
     if policy not in POLICIES:
         fail(f"unknown policy {policy!r}; choose one of {', '.join(POLICIES)}")
+
+
+def _check_discovery(discovery: str) -> None:
+    if discovery not in ("both", "multicast", "connect"):
+        fail(f"unknown discovery {discovery!r}; choose both, multicast or connect")
 
 
 def _emit(reports: list, printer, *, as_json: bool, out_file: Optional[Path]) -> None:
@@ -597,6 +604,7 @@ def testbed_up(
     lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh lease of every node, ms"),
     policy: Optional[str] = typer.Option(None, "--policy", "-p", help=POLICY_HELP),
     program: Optional[list[str]] = typer.Option(None, "--program", help="extra program as package.module:function (repeatable)"),
+    discovery: str = typer.Option("both", "--discovery", help=DISCOVERY_HELP),
 ) -> None:
     """Start a testbed and leave it running; prints the robots and how to connect."""
     from ramps.errors import RampsError
@@ -604,6 +612,7 @@ def testbed_up(
 
     if policy is not None:
         _check_policy(policy)
+    _check_discovery(discovery)
     load: dict[str, int] = {}
     for item in loaded or []:
         name, _, n = item.partition("=")
@@ -612,7 +621,7 @@ def testbed_up(
         load[name] = int(n) if n else 4
     try:
         tb = Testbed(robots, team=team, quota=quota, cores=cores, loaded=load, lease_ms=lease_ms, policy=policy,
-                     programs=program or None)
+                     programs=program or None, discovery=discovery)
         err.print(f"starting {robots} robots ...")
         tb.up()
         tb.detach()
@@ -736,6 +745,7 @@ def testbed_experiment_faults(
     policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
     lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh lease of every node, ms (default: the node's)"),
     keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="copy every node's log and decision trace here"),
+    discovery: str = typer.Option("both", "--discovery", help=DISCOVERY_HELP),
     as_json: bool = typer.Option(False, "--json", help="write the results as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
 ) -> None:
@@ -758,7 +768,8 @@ def testbed_experiment_faults(
         fail(f"unknown kind {kind!r}; choose crash, network, mixed or all")
     total = sum(len(plans(m, k, first=gap, gap=gap)) for m in modes for k in kinds) * runs
     err.print(f"{total} testbed run(s); each takes {gap * 5:g}+ s plus the time the survivors need to finish")
-    runner = partial(run_plan, work=work, lease_ms=lease_ms, keep_logs=keep_logs,
+    _check_discovery(discovery)
+    runner = partial(run_plan, work=work, lease_ms=lease_ms, keep_logs=keep_logs, discovery=discovery,
                      log=lambda m: err.print(m, highlight=False))
     reports = []
     try:
@@ -781,6 +792,9 @@ def testbed_campaign(
     duration: float = typer.Option(20.0, "--duration", min=5.0, help="seconds of workload and faults per run"),
     policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
     lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh lease of every node, ms"),
+    discovery: str = typer.Option("both", "--discovery", help=DISCOVERY_HELP),
+    keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="keep the node logs and traces of failed runs here"),
+    only_seed: Optional[int] = typer.Option(None, "--only-seed", help="re-run just this run seed (as printed by a failed run)"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
 ) -> None:
@@ -791,6 +805,7 @@ def testbed_campaign(
     from ramps.testbed.experiments import run_campaign
 
     _check_policy(policy)
+    _check_discovery(discovery)
 
     def progress(done, total, run):
         mark = "ok" if run.ok else f"FAILED lost {run.lost} dup {run.duplicated} not rejoined {run.not_rejoined}"
@@ -800,7 +815,7 @@ def testbed_campaign(
 
     try:
         rep = run_campaign(runs, seed, policy=policy, robots=robots, duration=duration, lease_ms=lease_ms,
-                           progress=progress)
+                           discovery=discovery, keep_logs=keep_logs, only_seed=only_seed, progress=progress)
     except (PermissionError, RampsError) as exc:
         fail(str(exc))
     _emit([rep], print_campaign, as_json=as_json, out_file=out_file)

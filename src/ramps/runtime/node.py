@@ -106,6 +106,7 @@ class NodeRuntime:
         self._drop_logged_at = -DROP_LOG_PERIOD
         self._drops_unlogged = 0
         self._trace = None
+        self._trace_wire = False
         self.session = None
         self.node: Node | None = None
 
@@ -114,6 +115,7 @@ class NodeRuntime:
         import zenoh
 
         s = self.s
+        zenoh.try_init_log_from_env()  # RUST_LOG=zenoh=debug shows Zenoh's own view (links, leases)
         creds, exit_on_failure = self._join_checks()
         cg, acct = cgroup_dirs()
         quota = cgroup_quota(cg)
@@ -140,6 +142,7 @@ class NodeRuntime:
             except OSError as exc:
                 self._teardown()
                 raise ConfigError(f"cannot write the trace file {s.trace}: {exc.strerror or exc}") from None
+            self._trace_wire = s.trace_wire
         try:
             if s.secure:
                 self.session = open_session(lambda fast: zenoh_config(s, credentials=creds, exit_on_failure=fast),
@@ -244,6 +247,7 @@ class NodeRuntime:
         if getattr(self, "pool", None):
             self.pool.stop()
         if self._trace is not None:
+            self._trace_wire = False
             self._trace.close()
             self._trace = None
         self._stopped.set()
@@ -259,7 +263,7 @@ class NodeRuntime:
             self.overflow += 1
             return
         self._backlog_bytes += len(data)
-        self._q.put(("wire", data))
+        self._q.put(("wire", data, time.monotonic()))
 
     def _finished(self, key, ok: bool, value: bytes, error: str, retryable: bool) -> None:
         self._q.put(("finished", ProgramFinished(program_id=key[0], attempt=key[1], ok=ok, value=value, error=error,
@@ -320,6 +324,9 @@ class NodeRuntime:
                     self._drop_logged_at, self._drops_unlogged = now, 0
                 return []
             msg = env.msg
+            if self._trace_wire:
+                self._write_trace("rx", getattr(msg, "program_id", ""), env.sender, getattr(msg, "attempt", 0),
+                                  f"{type(msg).__name__} queued {now - item[2]:.3f} s", at=item[2])
             if isinstance(msg, SubmitProgram):
                 return self._client_submit(msg, now)
             if isinstance(msg, CancelSubmitted):
@@ -339,6 +346,8 @@ class NodeRuntime:
             robot, alive = item[1], item[2]
             if robot == self.robot:
                 return []
+            if self._trace_wire:
+                self._write_trace("peer_alive" if alive else "peer_lost", "", robot, 0, "liveliness")
             return node.handle(PeerAlive(robot=robot) if alive else PeerLost(robot=robot), now)
         if kind == "call":
             item[1]()
@@ -390,6 +399,9 @@ class NodeRuntime:
         for a in actions:
             if isinstance(a, Send):
                 self._put(keys.inbox(self.team, a.to), encode(self.robot, a.msg))
+                if self._trace_wire:
+                    self._write_trace("tx", getattr(a.msg, "program_id", ""), a.to, getattr(a.msg, "attempt", 0),
+                                      type(a.msg).__name__)
             elif isinstance(a, StartProgram):
                 self.pool.run((a.program_id, a.attempt), a.program, a.args)
             elif isinstance(a, StopProgram):
@@ -410,17 +422,19 @@ class NodeRuntime:
                 if self.on_note is not None:
                     self.on_note(a)
 
-    def _write_trace(self, what: str, program_id: str, other: str, attempt: int, detail: str) -> None:
+    def _write_trace(self, what: str, program_id: str, other: str, attempt: int, detail: str, *,
+                     at: float | None = None) -> None:
         """One JSON line per decision: ``t`` is time.monotonic() (one clock for
         every process of a host), ``wall`` the Unix time, fields as the
         simulator's trace (``ramps.sim.engine.TraceEntry``)."""
-        rec = {"t": round(time.monotonic(), 6), "wall": round(time.time(), 6), "robot": self.robot, "what": what,
+        rec = {"t": round(time.monotonic() if at is None else at, 6), "wall": round(time.time(), 6), "robot": self.robot, "what": what,
                "program_id": program_id, "other": other, "attempt": attempt, "detail": detail}
         try:
             self._trace.write(json.dumps(rec) + "\n")
         except OSError as exc:  # a full disk must not stop the node
             log.warning("node %s: trace file write failed, trace off: %s", self.robot, exc)
             self._trace = None
+            self._trace_wire = False
 
     def _put(self, key: str, data: bytes, *, block: bool = False) -> None:
         """Publish on ``key``. Messages to robots use Zenoh's DROP congestion
@@ -453,6 +467,8 @@ class NodeRuntime:
         report = msgspec.structs.replace(report, bad_messages=self.bad_messages + self.overflow)  # `ramps status`
         try:
             self._load_pub.put(encode(self.robot, report))
+            if self._trace_wire:
+                self._write_trace("tx", "", "*", 0, "LoadReport")
         except Exception as exc:
             log.warning("node %s could not publish its load: %s", self.robot, exc)
 

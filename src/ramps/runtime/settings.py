@@ -76,6 +76,10 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     #: write every decision of the core (placed, accepted, failed,
     #: blacklisted, delivered, ...) to this file as JSON lines ("" = off)
     trace: str = ""
+    #: also trace every message sent and received ("tx"/"rx", with the time
+    #: Zenoh handed it over) and every teammate appearing or vanishing
+    #: ("peer_alive"/"peer_lost"): for chasing delays between robots
+    trace_wire: bool = False
     core: RampsConfig = RampsConfig()
     #: secured team: mutual TLS with team-CA certificates, access control
     secure: bool = False
@@ -144,6 +148,7 @@ _ENV = {
     "RAMPS_CREDENTIALS": ("credentials", str),
     "RAMPS_MEMBERS": ("members", "list"),
     "RAMPS_TRACE": ("trace", str),
+    "RAMPS_TRACE_WIRE": ("trace_wire", "bool"),
 }
 
 
@@ -200,6 +205,7 @@ def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credential
 
     import zenoh
 
+    zenoh_runtime_defaults()
     c = zenoh.Config()
     c.insert_json5("mode", '"peer"')
     c.insert_json5("listen/endpoints", json.dumps(s.listen_endpoints(listen)))
@@ -218,6 +224,26 @@ def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credential
             c.insert_json5("connect/exit_on_failure", "true")
             c.insert_json5("connect/timeout_ms", str(CONNECT_TIMEOUT_MS))
     return c
+
+
+#: Zenoh's thread pools, unless ZENOH_RUNTIME is set already. When Zenoh gives
+#: up on a peer (its lease expired: the robot dropped off the network), it
+#: closes that peer's TCP link with a blocking close() on one of its receive
+#: threads. The socket has SO_LINGER 10 s and holds data the dead peer can
+#: never acknowledge, so the thread is stuck for 10 s (eclipse-zenoh/zenoh#1101;
+#: linger is a compile-time constant). With Zenoh's default of 2 receive
+#: threads a robot's one or two links to the lost peer took both, and the
+#: robot heard nobody for 10 s from about 1.6 s after the loss: on the testbed
+#: every teammate did, and wrote healthy robots off for missing heartbeats.
+#: 16 receive threads keep receiving while up to 8 such links close at once
+#: (4 robots lost together); idle threads cost next to nothing.
+ZENOH_RUNTIME_DEFAULT = "(rx: (worker_threads: 16))"
+
+
+def zenoh_runtime_defaults() -> None:
+    """Apply ZENOH_RUNTIME_DEFAULT unless the user set ZENOH_RUNTIME. Zenoh
+    reads it when its first session opens in this process."""
+    os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME_DEFAULT)
 
 
 #: secure mode: how long ``zenoh.open`` may try to link to the connect endpoints

@@ -129,7 +129,9 @@ def _cgroup(dirs: list[str], mode: str) -> RobotCgroup:
 
 
 def _clean_env() -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("RAMPS_")}
+    # the nodes get their settings from the command line, not from this shell;
+    # RAMPS_TRACE_WIRE passes, to chase delays between robots in their traces
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RAMPS_") or k == "RAMPS_TRACE_WIRE"}
     src = str(Path(__file__).resolve().parents[2])  # src layout: keep `ramps` importable as in this process
     env["PYTHONPATH"] = src + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
     return env
@@ -376,6 +378,9 @@ class Testbed:
         """A plain Zenoh peer config for the root namespace (connects to every robot)."""
         import zenoh
 
+        from ramps.runtime.settings import zenoh_runtime_defaults
+
+        zenoh_runtime_defaults()  # a lost robot must not make the observer deaf either
         c = zenoh.Config()
         c.insert_json5("mode", '"peer"')
         c.insert_json5("listen/endpoints", "[]")

@@ -125,7 +125,8 @@ def _inject(tb, robot: str, kind: str) -> None:
 
 def run_plan(plan: FaultPlan, *, seed: int = 0, policy: str = "ramps", work: float | None = None,
              quota: float | None = None, lease_ms: int | None = None, finish_timeout: float = 1800.0,
-             keep_logs: Path | None = None, log: Callable[[str], None] | None = None) -> FaultRun:
+             keep_logs: Path | None = None, discovery: str = "both",
+             log: Callable[[str], None] | None = None) -> FaultRun:
     """One plan on a fresh five-robot testbed (see the module docstring)."""
     from ramps.testbed import Testbed
 
@@ -137,7 +138,8 @@ def run_plan(plan: FaultPlan, *, seed: int = 0, policy: str = "ramps", work: flo
     units = float(work if work is not None else 0.9 * gap)
     expected = burn(units=units)["checksum"] if units <= 2 else None
     speed = identical_speed(len(NAMES), 4, quota)
-    with Testbed(list(NAMES.values()), cores=4, quota=quota, speed=speed, policy=policy, lease_ms=lease_ms) as tb, \
+    with Testbed(list(NAMES.values()), cores=4, quota=quota, speed=speed, policy=policy, lease_ms=lease_ms,
+                 discovery=discovery) as tb, \
             tb.client("r1", timeout=30.0) as team:
         time.sleep(SETTLE)  # every node has had a load report from every other
         log(f"{plan.name}: testbed {tb.tb} up, submitting 15 x burn({units:g} units) from r1")
@@ -228,9 +230,12 @@ def campaign_plan(rng: random.Random, robots: list[str], duration: float) -> lis
 
 
 def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, duration: float = 20.0,
-                      lease_ms: int | None = None, log: Callable[[str], None] | None = None) -> CampaignRun:
+                      lease_ms: int | None = None, discovery: str = "both", keep_logs: Path | None = None,
+                      log: Callable[[str], None] | None = None) -> CampaignRun:
     """One seeded run: a testbed of ``robots``, programs from r1 for about
-    ``duration`` seconds under random faults, then the invariants."""
+    ``duration`` seconds under random faults, then the invariants. With
+    ``keep_logs``, a failed run's node logs and traces are kept in
+    ``keep_logs/campaign-<seed>``."""
     from ramps.testbed import Testbed
     from ramps.testbed.bed import Observer
 
@@ -247,7 +252,8 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
     not_rejoined: list[str] = []
     completed = dup = 0
     speed = identical_speed(robots, 2)
-    with Testbed(names, cores=2, speed=speed, policy=policy, lease_ms=lease_ms) as tb, Observer(tb) as obs, \
+    with Testbed(names, cores=2, speed=speed, policy=policy, lease_ms=lease_ms, discovery=discovery) as tb, \
+            Observer(tb) as obs, \
             tb.client("r1", timeout=30.0) as team:
         time.sleep(SETTLE)
         t0 = time.monotonic()
@@ -292,20 +298,26 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
             not_rejoined += [f"{r} (blacklisted at r1 or not alive)" for r in missing]
         time.sleep(0.2)
         dup = sum(n - 1 for n in delivered_counts(read_trace(tb.log_dir / "r1.trace.jsonl")).values() if n > 1)
+        ok = n_programs == completed and dup == 0 and not not_rejoined
+        if keep_logs is not None and not ok:
+            _keep(tb, Path(keep_logs) / f"campaign-{seed}")
     lost = n_programs - completed
-    ok = lost == 0 and dup == 0 and not not_rejoined
     return CampaignRun(seed=seed, robots=robots, programs=n_programs, faults=faults, completed=completed, lost=lost,
                        duplicated=dup, not_rejoined=not_rejoined, ok=ok, seconds=round(time.monotonic() - started, 1),
                        error=error)
 
 
 def run_campaign(runs: int, seed: int = 0, *, policy: str = "ramps", robots: int = 4, duration: float = 20.0,
-                 lease_ms: int | None = None, progress=None, log=None) -> TestbedCampaignReport:
+                 lease_ms: int | None = None, discovery: str = "both", keep_logs: Path | None = None,
+                 only_seed: int | None = None, progress=None, log=None) -> TestbedCampaignReport:
+    """``runs`` runs with seeds ``seed*1000000 + i``; with ``only_seed``, that
+    one run seed ``runs`` times (to chase a failure a campaign printed)."""
     started = time.perf_counter()
+    seeds = [only_seed] * runs if only_seed is not None else [seed * 1_000_000 + i for i in range(runs)]
     results = []
-    for i in range(runs):
-        results.append(run_campaign_once(seed * 1_000_000 + i, policy=policy, robots=robots, duration=duration,
-                                         lease_ms=lease_ms, log=log))
+    for i, run_seed in enumerate(seeds):
+        results.append(run_campaign_once(run_seed, policy=policy, robots=robots, duration=duration,
+                                         lease_ms=lease_ms, discovery=discovery, keep_logs=keep_logs, log=log))
         if progress:
             progress(i + 1, runs, results[-1])
     return TestbedCampaignReport(
