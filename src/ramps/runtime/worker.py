@@ -1,6 +1,7 @@
 """A worker process: ``python -m ramps.runtime.worker``.
 
-How this works: the executor starts one of these per core. It reads frames
+How this works: the executor starts one of these per running program (at
+least one per core, see ``ramps.runtime.workers``). It reads frames
 from stdin and writes frames to a private copy of its stdout (fd 1 itself is
 pointed at stderr, so a program's ``print`` cannot corrupt the protocol). A
 frame is a 4-byte big-endian length and a msgpack body:

@@ -6,7 +6,16 @@ under a millisecond, a node's Zenoh threads are never forked and the
 caller's ``__main__`` is never re-imported. Each worker runs one program at
 a time; jobs and results travel as length-prefixed msgpack frames over the
 worker's own pipes (see ``ramps.runtime.worker``); nothing is pickled.
-Programs beyond ``size`` wait in a FIFO queue.
+
+Every program runs at once, as one process each, and the operating system
+shares the cores among them: processor sharing, which is what the cost model
+(``ramps.core.cost``), the simulator and the paper's prototype (one process
+per program) assume. When every worker is busy, a program that has waited
+``GROW_AFTER`` gets a new worker (starting one costs about 0.1 s of CPU, more
+than a short program: a burst of tiny programs is served by the workers
+there are), up to ``max_size`` (default 8 per core, so a flood of programs
+cannot exhaust memory); beyond that programs wait in a FIFO queue. A worker
+beyond ``size`` that falls idle exits.
 
 One monitor thread watches every worker's output. A result is handed to
 ``on_finished``; a worker that dies under a program (killed, out of memory,
@@ -23,6 +32,7 @@ import selectors
 import subprocess
 import sys
 import threading
+import time
 from collections import deque
 from typing import Callable
 
@@ -34,12 +44,15 @@ Key = tuple[str, int]
 #: on_finished(key, ok, value_bytes, error_text, retryable)
 Finished = Callable[[Key, bool, bytes, str, bool], None]
 
+#: seconds a program waits for a busy worker before the pool starts another
+GROW_AFTER = 0.05
+
 _enc = msgspec.msgpack.Encoder()
 _dec = msgspec.msgpack.Decoder()
 
 
 class _Worker:
-    __slots__ = ("proc", "fd", "buf", "job", "cancelled")
+    __slots__ = ("proc", "fd", "buf", "job", "cancelled", "retiring")
 
     def __init__(self, proc: subprocess.Popen) -> None:
         self.proc = proc
@@ -47,14 +60,16 @@ class _Worker:
         self.buf = bytearray()
         self.job: Key | None = None
         self.cancelled = False
+        self.retiring = False
 
 
 class WorkerPool:
     def __init__(self, size: int, targets: dict[str, str], on_finished: Finished, *,
-                 env: dict[str, str] | None = None, nice: int = 0) -> None:
+                 env: dict[str, str] | None = None, nice: int = 0, max_size: int | None = None) -> None:
         if size < 1:
             raise ValueError("a worker pool needs at least one worker")
         self.size = size
+        self.max_size = max(size, max_size if max_size is not None else 8 * size)
         self.targets = dict(targets)
         self.on_finished = on_finished
         self.env = env
@@ -62,7 +77,7 @@ class WorkerPool:
         self._lock = threading.Lock()
         self._sel = selectors.DefaultSelector()
         self._workers: list[_Worker] = []
-        self._queue: deque[tuple[Key, str, bytes]] = deque()
+        self._queue: deque[tuple[Key, str, bytes, float]] = deque()  # key, program, args, queued at
         self._wake_r, self._wake_w = os.pipe()
         self._sel.register(self._wake_r, selectors.EVENT_READ, None)
         self._stopping = False
@@ -131,12 +146,15 @@ class WorkerPool:
         with self._lock:
             if self._stopping:
                 return
-            self._queue.append((key, program, args))
+            self._queue.append((key, program, args, time.monotonic()))
             self._dispatch_locked()
+            waiting = bool(self._queue)
+        if waiting:
+            self._poke()  # the monitor starts a worker for it if it waits GROW_AFTER
 
     def cancel(self, key: Key) -> None:
         with self._lock:
-            for i, (k, _, _) in enumerate(self._queue):
+            for i, (k, _, _, _) in enumerate(self._queue):
                 if k == key:
                     del self._queue[i]
                     return
@@ -160,21 +178,45 @@ class WorkerPool:
             return {w.job: w.proc.pid for w in self._workers if w.job is not None}
 
     def _dispatch_locked(self) -> None:
-        for w in self._workers:
-            if not self._queue:
-                return
-            if w.job is None and w.proc.poll() is None:
-                key, program, args = self._queue.popleft()
-                w.job, w.cancelled = key, False
+        idle = [w for w in self._workers if w.job is None and not w.retiring and w.proc.poll() is None]
+        now = time.monotonic()
+        while self._queue:
+            if not idle:
+                if len(self._workers) >= self.max_size or now - self._queue[0][3] < GROW_AFTER:
+                    return
                 try:
-                    w.proc.stdin.write(frame(_enc.encode([program, args])))
-                except (BrokenPipeError, OSError):
-                    pass  # the monitor sees the dead worker and reports the job
+                    self._add_worker()
+                except OSError:  # out of processes or memory: the queue waits for a worker
+                    return
+                idle.append(self._workers[-1])
+            w = idle.pop(0)
+            key, program, args, _ = self._queue.popleft()
+            w.job, w.cancelled = key, False
+            try:
+                w.proc.stdin.write(frame(_enc.encode([program, args])))
+            except (BrokenPipeError, OSError):
+                pass  # the monitor sees the dead worker and reports the job
+
+    def _retire_idle_locked(self) -> None:
+        """Workers beyond ``size`` that have nothing to do exit (end of input)."""
+        spare = len(self._workers) - self.size
+        for w in self._workers:
+            if spare <= 0 or self._queue:
+                return
+            if w.job is None and not w.retiring:
+                w.retiring = True
+                spare -= 1
+                try:
+                    w.proc.stdin.close()
+                except OSError:
+                    pass
 
     # ------------------------------------------------------------ monitor thread
     def _monitor(self) -> None:
         while True:
-            events = self._sel.select()
+            with self._lock:  # a waiting program may need a new worker soon
+                wait = GROW_AFTER / 2 if self._queue and len(self._workers) < self.max_size else None
+            events = self._sel.select(wait)
             finished: list[tuple[Key, bool, bytes, str, bool]] = []
             with self._lock:
                 if self._stopping:
@@ -213,7 +255,9 @@ class WorkerPool:
                         self.died += 1
                         finished.append((w.job, False, b"", f"worker process died under the program "
                                                              f"(exit code {code})", True))
-                    self._add_worker()
+                    if len(self._workers) < self.size:
+                        self._add_worker()
                 self._dispatch_locked()
+                self._retire_idle_locked()
             for item in finished:
                 self.on_finished(*item)

@@ -1,0 +1,94 @@
+"""The executor's worker pool runs every program at once (processor sharing,
+as the cost model assumes), grows past its cores on demand up to a limit,
+and shrinks back when the extra workers fall idle."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from pathlib import Path
+
+import msgspec
+
+from ramps.runtime.workers import WorkerPool
+
+TESTS = str(Path(__file__).parent)
+TARGETS = {"sleepy": "e2eprogs:sleepy"}
+
+
+def wait_until(pred, timeout: float, step: float = 0.02) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(step)
+    return pred()
+
+
+def make_pool(size: int, max_size: int | None = None):
+    done: dict = {}
+    ev = threading.Event()
+
+    def finished(key, ok, value, error, retryable):
+        done[key] = (ok, msgspec.msgpack.decode(value) if ok else error, retryable)
+        ev.set()
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([TESTS, os.environ.get("PYTHONPATH", "")]))
+    pool = WorkerPool(size, TARGETS, finished, env=env, max_size=max_size)
+    pool.start()
+    return pool, done
+
+
+def args(**kw) -> bytes:
+    return msgspec.msgpack.encode(kw)
+
+
+def test_more_programs_than_cores_all_run_at_once_then_extra_workers_retire():
+    pool, done = make_pool(1)
+    try:
+        keys = [(f"p{i}", 1) for i in range(3)]
+        for k in keys:
+            pool.run(k, "sleepy", args(seconds=1.5, tag=k[0]))
+        # three programs on one core: three worker processes run them together
+        assert wait_until(lambda: len(pool.pids()) == 3, 10), pool.pids()
+        assert pool.queued() == 0 and pool.busy() == 3
+        assert len(set(pool.pids().values())) == 3
+        assert wait_until(lambda: len(done) == 3, 20), done
+        assert all(ok for ok, _, _ in done.values())
+        assert len({v["pid"] for _, v, _ in done.values()}) == 3
+        # idle again: back to one worker per core
+        assert wait_until(lambda: len(pool._workers) == 1, 10), len(pool._workers)
+    finally:
+        pool.stop()
+
+
+def test_beyond_the_limit_programs_wait_in_order():
+    pool, done = make_pool(1, max_size=2)
+    try:
+        for i in range(3):
+            pool.run((f"q{i}", 1), "sleepy", args(seconds=0.8, tag=f"q{i}"))
+        assert wait_until(lambda: pool.busy() == 2, 10)
+        assert pool.queued() == 1
+        assert ("q2", 1) not in pool.pids()  # first come, first served
+        assert wait_until(lambda: len(done) == 3, 20), done
+        assert len(pool._workers) <= 2
+    finally:
+        pool.stop()
+
+
+def test_cancel_of_an_extra_worker_program_reports_nothing_and_the_pool_recovers():
+    pool, done = make_pool(1)
+    try:
+        pool.run(("a", 1), "sleepy", args(seconds=5.0))
+        pool.run(("b", 1), "sleepy", args(seconds=0.3))
+        assert wait_until(lambda: len(pool.pids()) == 2, 10)
+        pool.cancel(("a", 1))
+        assert wait_until(lambda: ("b", 1) in done, 10)
+        time.sleep(0.3)
+        assert ("a", 1) not in done  # the core already knows it cancelled it
+        assert wait_until(lambda: len(pool._workers) == 1, 10), len(pool._workers)
+        pool.run(("c", 1), "sleepy", args(seconds=0.1))
+        assert wait_until(lambda: ("c", 1) in done, 10)
+    finally:
+        pool.stop()
