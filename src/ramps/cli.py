@@ -605,6 +605,7 @@ def testbed_up(
     policy: Optional[str] = typer.Option(None, "--policy", "-p", help=POLICY_HELP),
     program: Optional[list[str]] = typer.Option(None, "--program", help="extra program as package.module:function (repeatable)"),
     discovery: str = typer.Option("both", "--discovery", help=DISCOVERY_HELP),
+    caps: bool = typer.Option(True, "--caps/--no-caps", help="cap every program (and busy process) at its processor-sharing share of the robot (cgroup v1)"),
 ) -> None:
     """Start a testbed and leave it running; prints the robots and how to connect."""
     from ramps.errors import RampsError
@@ -621,7 +622,7 @@ def testbed_up(
         load[name] = int(n) if n else 4
     try:
         tb = Testbed(robots, team=team, quota=quota, cores=cores, loaded=load, lease_ms=lease_ms, policy=policy,
-                     programs=program or None, discovery=discovery)
+                     programs=program or None, discovery=discovery, caps=caps)
         err.print(f"starting {robots} robots ...")
         tb.up()
         tb.detach()
@@ -782,6 +783,44 @@ def testbed_experiment_faults(
     _emit(reports, print_fault_report, as_json=as_json, out_file=out_file)
     if any(r.summary["lost"] or r.summary["duplicated"] for r in reports):
         raise typer.Exit(1)
+
+
+@testbed_app.command("fidelity")
+def testbed_fidelity(
+    caps: bool = typer.Option(True, "--caps/--no-caps", help="per-program CPU caps (the default; --no-caps to see why)"),
+    cores: int = typer.Option(4, "--cores", min=1, max=64, help="emulated cores of the robot"),
+    quota: float = typer.Option(0.8, "--quota", min=0.05, help="host cores of the robot"),
+    work: float = typer.Option(2.0, "--work", min=0.1, help="work units per program"),
+    as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
+) -> None:
+    """How closely a testbed robot follows processor sharing: k programs next to b busy
+    processes, completion times and the robot's CPU against the model (about 3 minutes)."""
+    from ramps.errors import RampsError
+    from ramps.testbed.fidelity import run_fidelity
+
+    def show(rep, console) -> None:
+        from rich.table import Table
+
+        t = Table(title=f"testbed robot of {rep.cores} cores on {rep.quota:g} host cores, "
+                        f"per-program caps {'on' if rep.caps else 'off'}, {rep.work:g} units each")
+        for col in ("programs", "busy", "model s", "measured s", "range s", "error", "robot CPU", "model CPU"):
+            t.add_column(col, justify="right")
+        for c in rep.cases:
+            t.add_row(str(c.programs), str(c.busy), f"{c.model:.1f}", f"{c.mean:.1f}", f"{c.first:.1f}-{c.last:.1f}",
+                      f"{c.error:+.0%}", f"{c.cpu:.2f}", f"{c.cpu_model:.2f}")
+        console.print(t)
+        console.print(f"mean |error|: completion {rep.mean_abs_error:.0%}, robot CPU {rep.mean_abs_cpu_error:.0%}; "
+                      f"a work unit cost {rep.unit_cpu_s[0]:.2f} then {rep.unit_cpu_s[1]:.2f} CPU s on this host",
+                      highlight=False)
+
+    err.print(f"fidelity of one testbed robot, caps {'on' if caps else 'off'} ...")
+    try:
+        rep = run_fidelity(caps=caps, cores=cores, quota=quota, work=work,
+                           log=lambda m: err.print(m, highlight=False))
+    except (PermissionError, RampsError, RuntimeError) as exc:
+        fail(str(exc))
+    _emit([rep], show, as_json=as_json, out_file=out_file)
 
 
 @testbed_app.command("campaign")

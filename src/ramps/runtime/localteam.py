@@ -81,21 +81,34 @@ class RobotCgroup:
         return ["/bin/sh", "-c", f'{joins} && exec "$@"', "sh", *argv]
 
     def remove(self) -> None:
+        """Remove the cgroup, and first any child cgroups (the testbed's
+        per-program caps), moving what is left in them to the root."""
         for d in self.dirs:
             root = d.parent
-            for _ in range(50):
+            try:
+                children = sorted((p for p in d.rglob("*") if p.is_dir()), key=lambda p: len(p.parts), reverse=True)
+            except OSError:
+                children = []
+            for c in children:
+                _remove_one(c, root)
+            _remove_one(d, root)
+
+
+def _remove_one(d: Path, root: Path) -> None:
+    """rmdir one cgroup once its processes are moved to ``root``."""
+    for _ in range(50):
+        try:
+            for pid in (d / "cgroup.procs").read_text().split():
                 try:
-                    for pid in (d / "cgroup.procs").read_text().split():
-                        try:
-                            (root / "cgroup.procs").write_text(pid)
-                        except OSError:
-                            pass
-                    d.rmdir()
-                    break
-                except FileNotFoundError:
-                    break
+                    (root / "cgroup.procs").write_text(pid)
                 except OSError:
-                    time.sleep(0.05)
+                    pass
+            d.rmdir()
+            break
+        except FileNotFoundError:
+            break
+        except OSError:
+            time.sleep(0.05)
 
 
 class LocalTeam:

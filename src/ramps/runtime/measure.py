@@ -132,12 +132,13 @@ def _cgroup_usage_and_runnable(cpu: Path, acct: Path | None) -> tuple[float, int
     except (OSError, ValueError):
         pass
     tids: list[str] = []
-    for name in ("cgroup.threads", "tasks"):
-        try:
-            tids = (cpu / name).read_text().split()
-            break
-        except OSError:
-            continue
+    for sub, _, _ in os.walk(cpu):  # with its children: the testbed caps each program in one
+        for name in ("cgroup.threads", "tasks"):
+            try:
+                tids += (Path(sub) / name).read_text().split()
+                break
+            except OSError:
+                continue
     running = 0
     for tid in tids:
         try:

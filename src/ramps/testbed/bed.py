@@ -103,12 +103,15 @@ def _alive(pid: int | None, start: int | None) -> str:
 
 
 def _cgroup_pids(dirs: list[str]) -> list[int]:
+    """Every process in these cgroups and their children (the per-program
+    cgroups of ``ramps.testbed.caps``)."""
     pids: set[int] = set()
     for d in dirs:
-        try:
-            pids.update(int(p) for p in (Path(d) / "cgroup.procs").read_text().split())
-        except OSError:
-            pass
+        for sub, _, _ in os.walk(d):
+            try:
+                pids.update(int(p) for p in (Path(sub) / "cgroup.procs").read_text().split())
+            except OSError:
+                pass
     return sorted(pids)
 
 
@@ -152,7 +155,8 @@ class Testbed:
     def __init__(self, robots: int | list[str] = 5, *, team: str | None = None, quota: float | None = None,
                  cores: int | None = None, speed: float | None = None, programs: list[str] | None = None,
                  lease_ms: int | None = None, policy: str | None = None, loaded: dict[str, int] | None = None,
-                 discovery: str = "both", python: str | None = None, state_dir: Path | None = None) -> None:
+                 discovery: str = "both", caps: bool = True, python: str | None = None,
+                 state_dir: Path | None = None) -> None:
         net.need_root()
         self.mode = cgroup_mode()
         if self.mode is None:
@@ -175,6 +179,9 @@ class Testbed:
         self.cores, self.speed, self.policy, self.lease_ms = cores, speed, policy, lease_ms
         self.programs = list(programs or [])
         self.discovery = discovery
+        #: per-program CPU caps (ramps.testbed.caps; cgroup v1 only for now)
+        self.caps = caps and self.mode == "v1"
+        self.caps_pid: list[int | None] = [None, None]  # pid, start time
         self.python = python or sys.executable
         self.state_dir = Path(state_dir or STATE_DIR)
         self.tb: str | None = None
@@ -213,6 +220,7 @@ class Testbed:
         for key in ("tb", "x", "quota", "cores", "speed", "policy", "lease_ms", "programs", "discovery",
                     "python", "mode", "loaded"):
             setattr(self, key, st[key])
+        self.caps, self.caps_pid = st.get("caps", False), st.get("caps_pid", [None, None])
         self.team_name = st["team"]
         self.log_dir = Path(st["log_dir"]) if st.get("log_dir") else None
         self.state_dir = d
@@ -279,6 +287,8 @@ class Testbed:
                     self._start_node(r)
                     self._start_load(r, self.robots[r]["load"])
                 self._save()
+                if self.caps:
+                    self._start_caps()
             self.wait_alive(self.names, timeout)
         except BaseException:
             self.down()
@@ -326,6 +336,34 @@ class Testbed:
         rb = self.robots[robot]
         log = self.log_dir / f"{robot}.log" if self.log_dir else None
         rb["pid"], rb["start"] = self._spawn(robot, self._node_cmd(robot), log)
+
+    def _start_caps(self) -> None:
+        """The per-program CPU caps of every robot: one process for the testbed
+        (ramps.testbed.caps), in the root namespace; it ends with the state file."""
+        log = open(self.log_dir / "caps.log", "ab") if self.log_dir else subprocess.DEVNULL
+        try:
+            p = subprocess.Popen([self.python, "-m", "ramps.testbed.caps", str(self.state_file)],
+                                 stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=_clean_env(),
+                                 start_new_session=True, close_fds=True)
+        finally:
+            if self.log_dir:
+                log.close()
+        self._popen[p.pid] = p
+        st = _proc_stat(p.pid)
+        self.caps_pid = [p.pid, st[1] if st else None]
+        self._save()
+
+    def _stop_caps(self) -> None:
+        pid, start = self.caps_pid
+        if pid and _alive(pid, start) != "dead":
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            p = self._popen.pop(pid, None)
+            if p is not None:
+                p.wait(2)
+        self.caps_pid = [None, None]
 
     def _start_load(self, robot: str, n: int) -> None:
         rb = self.robots[robot]
@@ -570,7 +608,7 @@ class Testbed:
     def _save(self) -> None:
         st = dict(tb=self.tb, x=self.x, team=self.team, quota=self.quota, cores=self.cores, speed=self.speed,
                   policy=self.policy, lease_ms=self.lease_ms, programs=self.programs, discovery=self.discovery,
-                  python=self.python, mode=self.mode, loaded=self.loaded,
+                  python=self.python, mode=self.mode, loaded=self.loaded, caps=self.caps, caps_pid=self.caps_pid,
                   log_dir=str(self.log_dir) if self.log_dir else None, created_by=os.getpid(),
                   robots=[self.robots[r] for r in self.names if r in self.robots])
         tmp = self.state_file.with_suffix(".tmp")
@@ -587,6 +625,7 @@ class Testbed:
                 return
             self._down = True
             try:
+                self._stop_caps()  # before the robots: it would make cgroups as they go
                 for r in self.names:
                     if r in self.robots:
                         self._kill(r)
@@ -767,6 +806,9 @@ def down_all(state_dir: Path | None = None) -> list[str]:
         base = CG_ROOT / sub if sub else CG_ROOT
         if base.is_dir():
             dirs += [p for p in base.iterdir() if p.is_dir() and _TB_CGROUP.fullmatch(p.name)]
+    for pid, tb in _capper_pids():  # a capper whose testbed's state file is gone
+        _signal_all([pid], signal.SIGKILL)
+        gone.append(f"caps process {pid} of testbed-{tb}")
     for ns in net.namespaces():
         if ns.startswith(net.NS_PREFIX):
             _signal_all(net.netns_pids(ns), signal.SIGKILL)
@@ -795,4 +837,21 @@ def leftovers() -> list[str]:
         base = CG_ROOT / sub if sub else CG_ROOT
         if base.is_dir():
             found += [f"cgroup {p}" for p in base.iterdir() if p.is_dir() and _TB_CGROUP.fullmatch(p.name)]
+    found += [f"caps process {pid} of testbed-{tb}" for pid, tb in _capper_pids()]
     return found
+
+
+def _capper_pids() -> list[tuple[int, str]]:
+    """(pid, testbed id) of processes running ``ramps.testbed.caps``."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit() and int(d.name) != os.getpid():
+            try:
+                argv = (d / "cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if b"ramps.testbed.caps" in argv:
+                state = Path(os.fsdecode(argv[argv.index(b"ramps.testbed.caps") + 1] if
+                                         argv.index(b"ramps.testbed.caps") + 1 < len(argv) else b""))
+                out.append((int(d.name), state.stem.removeprefix("testbed-")))
+    return out

@@ -1,0 +1,198 @@
+"""Per-program CPU caps on the testbed (DESIGN.md section 6).
+
+How this works: a robot is one cpu cgroup whose quota makes it ``cores``
+emulated cores of ``quota / cores`` host cores each. Without more, a robot
+running one program would run it on the whole quota, ``cores`` times faster
+than one emulated core, and the processor-sharing model the simulator and the
+cost model use would not hold. So one small process per testbed (``python -m
+ramps.testbed.caps STATE_FILE``, started by ``Testbed.up``) moves every
+process of a robot except its node (the node's workers, background load)
+into its own child cgroup, and every ``PERIOD`` seconds sets each child's
+quota to its processor-sharing share of the robot::
+
+    share = core * min(1, cores / busy)     core = quota / cores host cores
+
+where ``busy`` counts the children that used CPU in the last period (the
+busy loops of background load always do; an idle worker does not). The
+children's quotas never add up to more than the robot's, so the robot's own
+quota hardly throttles them (only the node's own few percent can push it
+over): measured on this kernel (cgroup v1), children of a throttled parent
+are scheduled very unfairly, which is why the shares are computed here and
+not left to the kernel.
+
+The capper rereads the state file every period (robots restart after a crash
+with new workers), and exits when the file is gone (``down``). cgroup v2 is
+not handled yet: there a process may not stay in a cgroup whose children have
+controllers, so the node would need a leaf of its own; robots on v2 run
+without per-program caps, as before.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+#: seconds between two share updates
+PERIOD = 0.2
+#: CFS period of the child cgroups, microseconds
+CFS_PERIOD_US = 100_000
+#: a child is busy when it used this fraction of its share in the last period
+BUSY_FRACTION = 0.25
+CHILD_PREFIX = "p"
+
+
+def _is_node(pid: int) -> bool:
+    """The node itself, or a process on its way to exec'ing it (a node that
+    recover() just started is in the state file only a moment later)."""
+    try:
+        argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:
+        return True  # gone: nothing to move
+    return b"ramps.cli" in argv or (argv[0] or b"").rsplit(b"/", 1)[-1] in (b"sh", b"nsenter")
+
+
+def shares(core: float, cores: int, busy: int) -> float:
+    """Host cores each busy process gets: one emulated core while there are
+    at most ``cores`` busy processes, an equal part of the robot beyond."""
+    if busy <= cores:
+        return core
+    return core * cores / busy
+
+
+class RobotCaps:
+    """The caps of one robot: its cgroup dirs (cpu, and cpuacct on v1)."""
+
+    def __init__(self, cpu: Path, acct: Path | None, quota: float, cores: int) -> None:
+        self.cpu, self.acct = cpu, acct
+        self.core = quota / cores
+        self.cores = cores
+        self._usage: dict[str, int] = {}
+        self._quota: dict[str, int] = {}
+        self.share = self.core
+
+    def children(self) -> list[str]:
+        try:
+            return sorted(p.name for p in self.cpu.iterdir() if p.is_dir() and p.name.startswith(CHILD_PREFIX))
+        except OSError:
+            return []
+
+    def adopt(self, node_pid: int | None) -> int:
+        """Move every process but the node from the robot's cgroup into a
+        child of its own. Returns how many moved."""
+        try:
+            pids = [int(p) for p in (self.cpu / "cgroup.procs").read_text().split()]
+        except OSError:
+            return 0
+        moved = 0
+        for pid in pids:
+            if pid == node_pid or _is_node(pid):
+                continue
+            name = f"{CHILD_PREFIX}{pid}"
+            try:
+                for base in (self.cpu, self.acct):
+                    if base is None:
+                        continue
+                    (base / name).mkdir(exist_ok=True)
+                (self.cpu / name / "cpu.cfs_period_us").write_text(str(CFS_PERIOD_US))
+                (self.cpu / name / "cpu.cfs_quota_us").write_text(str(int(self.share * CFS_PERIOD_US)))
+                for base in (self.cpu, self.acct):
+                    if base is not None:
+                        (base / name / "cgroup.procs").write_text(str(pid))
+                moved += 1
+            except OSError:  # it exited meanwhile
+                continue
+        return moved
+
+    def _usage_ns(self, name: str) -> int | None:
+        try:
+            if self.acct is not None:
+                return int((self.acct / name / "cpuacct.usage").read_text())
+        except (OSError, ValueError):
+            return None
+        return None
+
+    def tick(self, dt: float) -> None:
+        """Drop empty children, count the busy ones, set every child's quota."""
+        busy = 0
+        live = []
+        for name in self.children():
+            try:
+                empty = not (self.cpu / name / "cgroup.procs").read_text().split()
+            except OSError:
+                empty = True
+            if empty:
+                for base in (self.cpu, self.acct):
+                    if base is not None:
+                        try:
+                            (base / name).rmdir()
+                        except OSError:
+                            pass
+                self._usage.pop(name, None)
+                self._quota.pop(name, None)
+                continue
+            live.append(name)
+            used = self._usage_ns(name)
+            before = self._usage.get(name)
+            if used is not None:
+                self._usage[name] = used
+            if used is not None and before is not None and used - before >= BUSY_FRACTION * self.share * dt * 1e9:
+                busy += 1
+        self.share = shares(self.core, self.cores, max(busy, 1))
+        q = max(1000, int(self.share * CFS_PERIOD_US))
+        for name in live:
+            if self._quota.get(name) != q:
+                try:
+                    (self.cpu / name / "cpu.cfs_quota_us").write_text(str(q))
+                    self._quota[name] = q
+                except OSError:
+                    pass
+
+
+def run(state_file: Path) -> None:
+    """The capper's loop: until the testbed's state file is gone."""
+    caps: dict[str, RobotCaps] = {}
+    last = time.monotonic()
+    while True:
+        try:
+            state = json.loads(state_file.read_text())
+        except FileNotFoundError:
+            return
+        except (OSError, ValueError):  # being rewritten
+            time.sleep(PERIOD / 4)
+            continue
+        now = time.monotonic()
+        dt, last = max(now - last, 1e-3), now
+        quota = float(state["quota"])
+        cores = int(state.get("cores") or max(1, int(quota + 0.5)))  # as the node's detect_cores
+        for rb in state["robots"]:
+            name = rb["name"]
+            dirs = [Path(d) for d in rb.get("cgroup") or []]
+            if not dirs:
+                continue
+            cpu = next((d for d in dirs if "cpuacct" not in d.parts), dirs[0])
+            acct = next((d for d in dirs if "cpuacct" in d.parts), None)
+            rc = caps.get(name)
+            if rc is None or rc.cpu != cpu:
+                rc = caps[name] = RobotCaps(cpu, acct, quota, cores)
+            rc.adopt(rb.get("pid"))
+            rc.tick(dt)
+        time.sleep(PERIOD)
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1:
+        print("usage: python -m ramps.testbed.caps STATE_FILE  (started by the testbed itself)", file=sys.stderr)
+        raise SystemExit(2)
+    try:
+        os.nice(-5)  # the shares must keep up with busy robots
+    except OSError:
+        pass
+    run(Path(args[0]))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,132 @@
+"""How closely a testbed robot follows the processor-sharing model.
+
+How this works: one robot of ``cores`` emulated cores (``quota`` host cores)
+runs ``k`` identical programs of ``work`` units at once next to ``b`` busy
+background processes. Processor sharing (the simulator, the cost model,
+DESIGN.md section 4) says every program finishes after::
+
+    work / speed * max(1, (k + b) / cores)
+
+where ``speed`` is one emulated core's units per second, measured once. Each
+case submits the ``k`` programs from the robot itself (a team of one, so
+they run there) and times every result. It also reads the CPU the robot's
+cgroup used meanwhile: the model gives it ``core * min(k + b, cores)`` host
+cores (``core = quota / cores``). With per-program caps
+(``ramps.testbed.caps``) a lone program runs at one emulated core; without
+them it runs on the whole robot, up to ``cores`` times faster than the model.
+
+The CPU figure checks the emulation; completion times also carry the host's
+own noise: a work unit's CPU cost on this 2-core VM moves by 10-40% from
+minute to minute (``unit_cpu_s`` before and after).
+
+Run ``ramps testbed fidelity`` (root); ``--json`` for the figures.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from pathlib import Path
+from typing import Callable
+
+import msgspec
+
+CASES = [(1, 0), (2, 0), (4, 0), (6, 0), (8, 0), (1, 2), (4, 2), (6, 2)]
+
+
+class FidelityCase(msgspec.Struct, kw_only=True):
+    programs: int
+    busy: int
+    model: float
+    mean: float
+    first: float
+    last: float
+    error: float  # (mean - model) / model
+    #: host cores the robot used while the programs ran, and the model's
+    cpu: float
+    cpu_model: float
+
+
+class FidelityReport(msgspec.Struct, kw_only=True):
+    caps: bool
+    cores: int
+    quota: float
+    speed: float
+    work: float
+    cases: list[FidelityCase]
+    #: mean of |error| over the cases, of completion times and of the CPU used
+    mean_abs_error: float
+    mean_abs_cpu_error: float
+    #: host speed drift: a burn unit's CPU seconds at the start and the end
+    unit_cpu_s: tuple[float, float]
+
+
+def model_time(work: float, speed: float, cores: int, programs: int, busy: int) -> float:
+    return work / speed * max(1.0, (programs + busy) / cores)
+
+
+def _unit_cpu() -> float:
+    from ramps.programs.burn import burn
+
+    t = time.process_time()
+    burn(units=0.3)
+    return round((time.process_time() - t) / 0.3, 3)
+
+
+def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work: float = 2.0,
+                 cases: list[tuple[int, int]] | None = None,
+                 log: Callable[[str], None] | None = None) -> FidelityReport:
+    from ramps.testbed import Testbed
+    from ramps.testbed.experiments import SETTLE, identical_speed, wait_futures
+
+    log = log or (lambda _m: None)
+    unit0 = _unit_cpu()
+    speed = identical_speed(1, cores, quota)
+    out: list[FidelityCase] = []
+    with Testbed(["r1"], cores=cores, quota=quota, speed=speed, caps=caps) as tb, \
+            tb.client("r1", timeout=30.0) as team:
+        time.sleep(SETTLE)
+        acct = Path(tb.robots["r1"]["cgroup"][-1])
+
+        def used() -> float:
+            try:
+                return int((acct / "cpuacct.usage").read_text()) / 1e9
+            except (OSError, ValueError):  # cgroup v2
+                for line in (acct / "cpu.stat").read_text().splitlines():
+                    if line.startswith("usage_usec"):
+                        return int(line.split()[1]) / 1e6
+                return 0.0
+
+        for k, b in cases or CASES:
+            tb.add_load("r1", b)
+            time.sleep(1.5 if b else 0.2)  # the load is adopted, capped and seen by the node
+            t0, u0 = time.monotonic(), used()
+            futures = [team.options(work=work).submit("burn", units=work) for _ in range(k)]
+            took: list[float] = []
+            for f in futures:
+                f.add_done_callback(lambda _f: took.append(time.monotonic() - t0))
+            done, pending = wait_futures(futures, timeout=600.0)
+            cpu = (used() - u0) / max(time.monotonic() - t0, 1e-3)
+            bad = [f for f in done if f.exception() is not None]
+            if pending or bad:
+                raise RuntimeError(f"case {k} programs + {b} busy: {len(pending)} unfinished, "
+                                   f"{len(bad)} failed ({bad[0].exception() if bad else ''})")
+            time.sleep(0.05)
+            m = model_time(work, speed, cores, k, b)
+            mean = statistics.fmean(took)
+            cpu_m = quota / cores * min(k + b, cores)
+            case = FidelityCase(programs=k, busy=b, model=round(m, 2), mean=round(mean, 2), first=round(min(took), 2),
+                                last=round(max(took), 2), error=round((mean - m) / m, 3), cpu=round(cpu, 3),
+                                cpu_model=round(cpu_m, 3))
+            log(f"  {k} programs + {b} busy: model {m:.1f} s, measured {mean:.1f} s "
+                f"({min(took):.1f}-{max(took):.1f}), error {case.error:+.0%}; "
+                f"robot CPU {cpu:.2f} host cores, model {cpu_m:.2f}")
+            out.append(case)
+            if b:
+                tb.remove_load("r1")
+    unit1 = _unit_cpu()
+    return FidelityReport(caps=caps, cores=cores, quota=quota, speed=speed, work=work, cases=out,
+                          mean_abs_error=round(statistics.fmean(abs(c.error) for c in out), 3),
+                          mean_abs_cpu_error=round(statistics.fmean(abs(c.cpu - c.cpu_model) / c.cpu_model
+                                                                    for c in out), 3),
+                          unit_cpu_s=(unit0, unit1))

@@ -1,0 +1,92 @@
+"""Per-program CPU caps on the testbed (ramps.testbed.caps): every program and
+busy process of a robot runs in a child cgroup whose quota is its
+processor-sharing share, so a lone program runs at one emulated core, not on
+the whole robot. Needs root and cgroup v1 (skipped otherwise)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+
+from test_testbed import REASON, others_leftovers, wait_until
+
+from ramps.runtime.localteam import cgroup_mode
+from ramps.testbed.caps import CFS_PERIOD_US, shares
+
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(REASON is not None or cgroup_mode() != "v1",
+                                                    reason=REASON or "per-program caps need cgroup v1")]
+
+
+def test_shares_are_processor_sharing():
+    assert shares(0.1, 4, 1) == 0.1
+    assert shares(0.1, 4, 4) == 0.1
+    assert shares(0.1, 4, 8) == pytest.approx(0.05)
+    assert shares(0.2, 2, 3) == pytest.approx(0.2 * 2 / 3)
+
+
+def children(tb, robot: str = "r1") -> dict[str, dict]:
+    cpu, acct = (Path(d) for d in tb.robots[robot]["cgroup"])
+    out = {}
+    for c in sorted(p for p in cpu.iterdir() if p.is_dir()):
+        try:
+            out[c.name] = dict(quota=int((c / "cpu.cfs_quota_us").read_text()),
+                               procs=(c / "cgroup.procs").read_text().split(),
+                               usage=int((acct / c.name / "cpuacct.usage").read_text()))
+        except OSError:
+            continue
+    return out
+
+
+def robot_rate(tb, seconds: float, robot: str = "r1") -> float:
+    acct = Path(tb.robots[robot]["cgroup"][1])
+    u0 = int((acct / "cpuacct.usage").read_text())
+    time.sleep(seconds)
+    return (int((acct / "cpuacct.usage").read_text()) - u0) / 1e9 / seconds
+
+
+def test_a_lone_program_runs_at_one_emulated_core_and_busy_processes_share():
+    from ramps.testbed import Testbed
+
+    core = 0.2  # 2 emulated cores on 0.4 host cores
+    with Testbed(["r1"], cores=2, quota=0.4, speed=0.2) as tb, tb.client("r1", timeout=30.0) as team:
+        node = str(tb.robots["r1"]["pid"])
+        # both idle workers are in caps of their own; the node is not
+        assert wait_until(lambda: len(children(tb)) == 2, 10), children(tb)
+        assert all(node not in c["procs"] for c in children(tb).values())
+        fut = team.options(work=3.0).submit("burn", units=3.0)
+        assert wait_until(lambda: any(c["quota"] == int(core * CFS_PERIOD_US) and c["usage"] > 2e8
+                                      for c in children(tb).values()), 20), children(tb)
+        rate = robot_rate(tb, 2.0)
+        # capped at one emulated core (0.2), not the robot's 0.4 a lone process would take
+        assert 0.12 < rate < 0.3, rate
+        # three busy processes join: 4 runnable on 2 cores, each gets half an emulated core
+        tb.add_load("r1", 3)
+        assert wait_until(lambda: sorted(c["quota"] for c in children(tb).values())
+                          == [int(core * 2 / 4 * CFS_PERIOD_US)] * 5, 10), children(tb)
+        assert fut.result(timeout=120)["iterations"] == 48_000_000
+        # a frozen robot: every process in its caps stops too
+        tb.freeze("r1")
+        states = []
+        for c in children(tb).values():
+            for pid in c["procs"]:
+                states.append(Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0])
+        assert states and set(states) <= {"T", "t"}, states
+        tb.recover("r1")
+        tbid = tb.tb
+    assert others_leftovers(tbid) == []
+
+
+def test_without_caps_a_lone_program_takes_the_whole_robot():
+    from ramps.testbed import Testbed
+
+    with Testbed(["r1"], cores=2, quota=0.4, speed=0.2, caps=False) as tb, tb.client("r1", timeout=30.0) as team:
+        fut = team.options(work=3.0).submit("burn", units=3.0)
+        time.sleep(1.5)
+        rate = robot_rate(tb, 2.0)
+        assert children(tb) == {}
+        assert rate > 0.32, rate  # the robot's whole 0.4 host cores: twice an emulated core
+        fut.cancel()
+        tbid = tb.tb
+    assert others_leftovers(tbid) == []
