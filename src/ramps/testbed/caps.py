@@ -177,8 +177,11 @@ def run(state_file: Path) -> None:
             rc = caps.get(name)
             if rc is None or rc.cpu != cpu:
                 rc = caps[name] = RobotCaps(cpu, acct, quota, cores)
-            rc.adopt(rb.get("pid"))
-            rc.tick(dt)
+            try:
+                rc.adopt(rb.get("pid"))
+                rc.tick(dt)
+            except Exception as exc:  # keep capping the other robots; the log says why
+                print(f"caps of {name}: {type(exc).__name__}: {exc}", file=sys.stderr, flush=True)
         time.sleep(PERIOD)
 
 
