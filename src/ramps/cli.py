@@ -671,18 +671,20 @@ def testbed_status(
         err.print(f"team view: {st['team_view_error']}", highlight=False, soft_wrap=True)
 
 
-def _tb_fault(kind: str, robot: str, tb) -> None:
+def _tb_fault(kind: str, robot: str, tb, *args) -> None:
     from ramps.errors import RampsError
     from ramps.testbed.net import NetError
 
     bed = _tb_attach(tb)
     try:
-        res = getattr(bed, kind)(robot)
+        res = getattr(bed, kind)(robot, *args)
     except (RampsError, NetError, ValueError) as exc:
         fail(str(exc))
     done = {"crash": "crashed (SIGKILL)", "cut": "cut off (link down)", "freeze": "frozen (SIGSTOP)"}
     if kind == "recover":
         out.print(f"{robot}: recovered ({', '.join(res) or 'nothing to undo'}); alive in team {bed.team}")
+    elif kind == "lossy":
+        out.print(f"{robot}: {args[0]:.0%} packet loss" if args[0] else f"{robot}: loss removed", highlight=False)
     else:
         out.print(f"{robot}: {done[kind]}")
 
@@ -720,15 +722,7 @@ def testbed_lossy(robot: str = typer.Argument(..., help="robot, e.g. r3"),
                   loss: float = typer.Argument(..., min=0.0, max=1.0, help="drop probability of each packet, 0-1 (0 ends it)"),
                   tb: Optional[str] = typer.Option(None, "--tb", help=TB_HELP)) -> None:
     """Make a robot's link lossy (a poor WiFi link): each packet in and out is dropped with this probability."""
-    from ramps.testbed import TestbedError
-    from ramps.testbed.net import NetError
-
-    bed = _tb_attach(tb)
-    try:
-        bed.lossy(robot, loss)
-    except (TestbedError, NetError) as exc:
-        fail(str(exc))
-    out.print(f"{robot}: {loss:.0%} packet loss" if loss else f"{robot}: loss removed", highlight=False)
+    _tb_fault("lossy", robot, tb, loss)
 
 
 experiment_app = typer.Typer(help="The paper's experiments on real processes (each run starts its own testbed).",
