@@ -14,7 +14,7 @@ import msgspec
 from ramps.runtime.workers import WorkerPool
 
 TESTS = str(Path(__file__).parent)
-TARGETS = {"sleepy": "e2eprogs:sleepy"}
+TARGETS = {"sleepy": "e2eprogs:sleepy", "where": "e2eprogs:where"}
 
 
 def wait_until(pred, timeout: float, step: float = 0.02) -> bool:
@@ -90,5 +90,19 @@ def test_cancel_of_an_extra_worker_program_reports_nothing_and_the_pool_recovers
         assert wait_until(lambda: len(pool._workers) == 1, 10), len(pool._workers)
         pool.run(("c", 1), "sleepy", args(seconds=0.1))
         assert wait_until(lambda: ("c", 1) in done, 10)
+    finally:
+        pool.stop()
+
+
+def test_a_burst_of_tiny_programs_is_served_without_new_workers():
+    """Starting a worker costs more than a tiny program: while the workers keep
+    finishing programs, a queue of them does not make the pool grow."""
+    pool, done = make_pool(1)
+    try:
+        for i in range(300):
+            pool.run((f"w{i}", 1), "where", args(x=i))
+        assert wait_until(lambda: len(done) == 300, 60), len(done)
+        assert all(ok for ok, _, _ in done.values())
+        assert pool.started <= 3, pool.started  # 1, give or take a hiccup of a slow machine
     finally:
         pool.stop()

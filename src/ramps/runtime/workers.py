@@ -10,12 +10,13 @@ worker's own pipes (see ``ramps.runtime.worker``); nothing is pickled.
 Every program runs at once, as one process each, and the operating system
 shares the cores among them: processor sharing, which is what the cost model
 (``ramps.core.cost``), the simulator and the paper's prototype (one process
-per program) assume. When every worker is busy, a program that has waited
-``GROW_AFTER`` gets a new worker (starting one costs about 0.1 s of CPU, more
-than a short program: a burst of tiny programs is served by the workers
-there are), up to ``max_size`` (default 8 per core, so a flood of programs
-cannot exhaust memory); beyond that programs wait in a FIFO queue. A worker
-beyond ``size`` that falls idle exits.
+per program) assume. When every worker is busy and none has finished a
+program (nor started) for ``GROW_AFTER``, a program that has waited that
+long gets a new worker, one at a time, up to ``max_size`` (default 8 per core, so a flood of programs
+cannot exhaust memory); beyond that programs wait in a FIFO queue. Starting
+a worker costs about 0.1 s of CPU, more than a short program, so a burst of
+tiny programs, which keeps the workers finishing, is served by the workers
+there are. A worker beyond ``size`` exits after ``RETIRE_AFTER`` idle.
 
 One monitor thread watches every worker's output. A result is handed to
 ``on_finished``; a worker that dies under a program (killed, out of memory,
@@ -44,15 +45,17 @@ Key = tuple[str, int]
 #: on_finished(key, ok, value_bytes, error_text, retryable)
 Finished = Callable[[Key, bool, bytes, str, bool], None]
 
-#: seconds a program waits for a busy worker before the pool starts another
-GROW_AFTER = 0.05
+#: seconds a program waits, with no worker finishing or starting meanwhile, before the pool starts another
+GROW_AFTER = 0.2
+#: seconds an extra worker (beyond one per core) stays idle before it exits
+RETIRE_AFTER = 2.0
 
 _enc = msgspec.msgpack.Encoder()
 _dec = msgspec.msgpack.Decoder()
 
 
 class _Worker:
-    __slots__ = ("proc", "fd", "buf", "job", "cancelled", "retiring")
+    __slots__ = ("proc", "fd", "buf", "job", "cancelled", "retiring", "idle_since")
 
     def __init__(self, proc: subprocess.Popen) -> None:
         self.proc = proc
@@ -61,6 +64,7 @@ class _Worker:
         self.job: Key | None = None
         self.cancelled = False
         self.retiring = False
+        self.idle_since = time.monotonic()
 
 
 class WorkerPool:
@@ -84,6 +88,7 @@ class WorkerPool:
         self._thread = threading.Thread(target=self._monitor, name="ramps-workers", daemon=True)
         self.started = 0
         self.died = 0
+        self._last_finish = 0.0
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -182,12 +187,14 @@ class WorkerPool:
         now = time.monotonic()
         while self._queue:
             if not idle:
-                if len(self._workers) >= self.max_size or now - self._queue[0][3] < GROW_AFTER:
+                if (len(self._workers) >= self.max_size or now - self._queue[0][3] < GROW_AFTER
+                        or now - self._last_finish < GROW_AFTER):
                     return
                 try:
                     self._add_worker()
                 except OSError:  # out of processes or memory: the queue waits for a worker
                     return
+                self._last_finish = now  # one new worker per GROW_AFTER: it may be all it takes
                 idle.append(self._workers[-1])
             w = idle.pop(0)
             key, program, args, _ = self._queue.popleft()
@@ -197,25 +204,35 @@ class WorkerPool:
             except (BrokenPipeError, OSError):
                 pass  # the monitor sees the dead worker and reports the job
 
-    def _retire_idle_locked(self) -> None:
-        """Workers beyond ``size`` that have nothing to do exit (end of input)."""
+    def _retire_idle_locked(self) -> float | None:
+        """Workers beyond ``size`` idle for RETIRE_AFTER exit (end of input).
+        Returns the seconds until the next one would, if any."""
         spare = len(self._workers) - self.size
+        now = time.monotonic()
+        nxt = None
         for w in self._workers:
             if spare <= 0 or self._queue:
-                return
-            if w.job is None and not w.retiring:
+                return None
+            if w.job is None and not w.retiring and now - w.idle_since < RETIRE_AFTER:
+                left = RETIRE_AFTER - (now - w.idle_since)
+                nxt = left if nxt is None else min(nxt, left)
+            elif w.job is None and not w.retiring:
                 w.retiring = True
                 spare -= 1
                 try:
                     w.proc.stdin.close()
                 except OSError:
                     pass
+        return nxt
 
     # ------------------------------------------------------------ monitor thread
     def _monitor(self) -> None:
         while True:
-            with self._lock:  # a waiting program may need a new worker soon
+            with self._lock:  # a waiting program may need a new worker, an idle extra one may go
                 wait = GROW_AFTER / 2 if self._queue and len(self._workers) < self.max_size else None
+                retire = self._retire_idle_locked()
+                if retire is not None:
+                    wait = retire + 0.01 if wait is None else min(wait, retire + 0.01)
             events = self._sel.select(wait)
             finished: list[tuple[Key, bool, bytes, str, bool]] = []
             with self._lock:
@@ -241,6 +258,7 @@ class WorkerPool:
                             if w.job is not None and not w.cancelled:
                                 finished.append((w.job, ok, value, error, False))
                             w.job = None
+                            w.idle_since = self._last_finish = time.monotonic()
                         continue
                     # end of file: the worker is gone
                     self._sel.unregister(w.fd)
