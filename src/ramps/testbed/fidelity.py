@@ -17,7 +17,10 @@ them it runs on the whole robot, up to ``cores`` times faster than the model.
 
 The CPU figure checks the emulation; completion times also carry the host's
 own noise: a work unit's CPU cost on this 2-core VM moves by 10-40% from
-minute to minute (``unit_cpu_s`` before and after).
+minute to minute (``unit_cpu_s`` before and after). So each case also reads
+the CPU seconds its programs' worker processes used, gives the unit cost
+during the case (``unit_cpu``), and compares the completion times with the
+model scaled by it (``corrected_error``): what is left is the emulation's.
 
 Run ``ramps testbed fidelity`` (root); ``--json`` for the figures.
 """
@@ -45,6 +48,10 @@ class FidelityCase(msgspec.Struct, kw_only=True):
     #: host cores the robot used while the programs ran, and the model's
     cpu: float
     cpu_model: float
+    #: CPU seconds per work unit in the programs' workers during the case, and
+    #: the error against the model scaled by it over the calibration's
+    unit_cpu: float
+    corrected_error: float
 
 
 class FidelityReport(msgspec.Struct, kw_only=True):
@@ -57,6 +64,7 @@ class FidelityReport(msgspec.Struct, kw_only=True):
     #: mean of |error| over the cases, of completion times and of the CPU used
     mean_abs_error: float
     mean_abs_cpu_error: float
+    mean_abs_corrected_error: float
     #: host speed drift: a burn unit's CPU seconds at the start and the end
     unit_cpu_s: tuple[float, float]
 
@@ -100,13 +108,22 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
         for k, b in cases or CASES:
             tb.add_load("r1", b)
             time.sleep(1.5 if b else 0.2)  # the load is adopted, capped and seen by the node
+            before = _worker_cpu(tb)
             t0, u0 = time.monotonic(), used()
             futures = [team.options(work=work).submit("burn", units=work) for _ in range(k)]
             took: list[float] = []
             for f in futures:
                 f.add_done_callback(lambda _f: took.append(time.monotonic() - t0))
-            done, pending = wait_futures(futures, timeout=600.0)
+            seen = dict(before)  # workers come and go (extra ones exit 2 s after they fall idle): sample
+            deadline = time.monotonic() + 600.0
+            while not all(f.done() for f in futures) and time.monotonic() < deadline:
+                seen.update(_worker_cpu(tb))
+                time.sleep(0.1)
+            done, pending = wait_futures(futures, timeout=1.0)
             cpu = (used() - u0) / max(time.monotonic() - t0, 1e-3)
+            seen.update(_worker_cpu(tb))
+            spent = sum(seen[p] - before.get(p, 0.0) for p in seen)
+            unit = spent / (k * work)
             bad = [f for f in done if f.exception() is not None]
             if pending or bad:
                 raise RuntimeError(f"case {k} programs + {b} busy: {len(pending)} unfinished, "
@@ -115,12 +132,16 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
             m = model_time(work, speed, cores, k, b)
             mean = statistics.fmean(took)
             cpu_m = quota / cores * min(k + b, cores)
+            calib = quota / (cores * speed)  # CPU seconds of a unit when the speed was measured
+            mc = m * unit / calib
             case = FidelityCase(programs=k, busy=b, model=round(m, 2), mean=round(mean, 2), first=round(min(took), 2),
                                 last=round(max(took), 2), error=round((mean - m) / m, 3), cpu=round(cpu, 3),
-                                cpu_model=round(cpu_m, 3))
+                                cpu_model=round(cpu_m, 3), unit_cpu=round(unit, 3),
+                                corrected_error=round((mean - mc) / mc, 3))
             log(f"  {k} programs + {b} busy: model {m:.1f} s, measured {mean:.1f} s "
                 f"({min(took):.1f}-{max(took):.1f}), error {case.error:+.0%}; "
-                f"robot CPU {cpu:.2f} host cores, model {cpu_m:.2f}")
+                f"robot CPU {cpu:.2f} host cores, model {cpu_m:.2f}; a unit cost {unit:.2f} CPU s "
+                f"(calibration {calib:.2f}), corrected error {case.corrected_error:+.0%}")
             out.append(case)
             if b:
                 tb.remove_load("r1")
@@ -129,4 +150,31 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
                           mean_abs_error=round(statistics.fmean(abs(c.error) for c in out), 3),
                           mean_abs_cpu_error=round(statistics.fmean(abs(c.cpu - c.cpu_model) / c.cpu_model
                                                                     for c in out), 3),
+                          mean_abs_corrected_error=round(statistics.fmean(abs(c.corrected_error) for c in out), 3),
                           unit_cpu_s=(unit0, unit1))
+
+
+def _worker_cpu(tb, robot: str = "r1") -> dict[int, float]:
+    """CPU seconds so far of every worker process of the robot (its cgroup's
+    processes but the node, its shell and the busy load)."""
+    import os
+
+    from ramps.testbed.bed import _cgroup_pids
+
+    rb = tb.robots[robot]
+    skip = {rb["pid"], *(p for p, _ in rb["load_pids"])}
+    tick = os.sysconf("SC_CLK_TCK")
+    out = {}
+    for pid in _cgroup_pids(rb["cgroup"][:1]):
+        if pid in skip:
+            continue
+        try:
+            raw = Path(f"/proc/{pid}/stat").read_text()
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
+        except OSError:
+            continue
+        if b"ramps.runtime.worker" not in cmd:
+            continue
+        f = raw[raw.rindex(")") + 2:].split()
+        out[pid] = (int(f[11]) + int(f[12])) / tick  # utime + stime
+    return out
