@@ -26,6 +26,7 @@ import uuid
 from pathlib import Path
 
 from ramps.errors import NoTeam
+from ramps.runtime.measure import cgroup_tree
 
 CG_ROOT = Path("/sys/fs/cgroup")
 
@@ -84,14 +85,8 @@ class RobotCgroup:
         """Remove the cgroup, and first any child cgroups (the testbed's
         per-program caps), moving what is left in them to the root."""
         for d in self.dirs:
-            root = d.parent
-            try:
-                children = sorted((p for p in d.rglob("*") if p.is_dir()), key=lambda p: len(p.parts), reverse=True)
-            except OSError:
-                children = []
-            for c in children:
-                _remove_one(c, root)
-            _remove_one(d, root)
+            for c in cgroup_tree(d):  # children first; ``d`` itself last
+                _remove_one(c, d.parent)
 
 
 def _remove_one(d: Path, root: Path) -> None:

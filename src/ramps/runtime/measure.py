@@ -119,23 +119,36 @@ def _procs_running() -> int:
     return int(os.getloadavg()[0])
 
 
-def _cgroup_usage_and_runnable(cpu: Path, acct: Path | None) -> tuple[float, int]:
-    """CPU seconds used so far by a cgroup, and its threads in state R now."""
-    usage = 0.0
+def cgroup_tree(d: Path | str) -> list[Path]:
+    """A cgroup and every cgroup below it (the testbed caps each program in a
+    child of its robot's), deepest first, so they can be removed in order."""
+    dirs = [Path(sub) for sub, _, _ in os.walk(d)]
+    return sorted(dirs, key=lambda p: len(p.parts), reverse=True)
+
+
+def cgroup_usage(cpu: Path, acct: Path | None) -> float:
+    """CPU seconds used so far by a cgroup and its children (0.0 if unreadable):
+    cpuacct.usage on v1, cpu.stat's usage_usec on v2."""
     try:
         if acct is not None and (acct / "cpuacct.usage").exists():
-            usage = int((acct / "cpuacct.usage").read_text()) / 1e9
-        elif (cpu / "cpu.stat").exists():
+            return int((acct / "cpuacct.usage").read_text()) / 1e9
+        if (cpu / "cpu.stat").exists():
             for line in (cpu / "cpu.stat").read_text().splitlines():
                 if line.startswith("usage_usec"):
-                    usage = int(line.split()[1]) / 1e6
+                    return int(line.split()[1]) / 1e6
     except (OSError, ValueError):
         pass
+    return 0.0
+
+
+def _cgroup_usage_and_runnable(cpu: Path, acct: Path | None) -> tuple[float, int]:
+    """CPU seconds used so far by a cgroup, and its threads in state R now."""
+    usage = cgroup_usage(cpu, acct)
     tids: list[str] = []
-    for sub, _, _ in os.walk(cpu):  # with its children: the testbed caps each program in one
+    for sub in cgroup_tree(cpu):
         for name in ("cgroup.threads", "tasks"):
             try:
-                tids += (Path(sub) / name).read_text().split()
+                tids += (sub / name).read_text().split()
                 break
             except OSError:
                 continue

@@ -427,8 +427,9 @@ class NodeRuntime:
         """One JSON line per decision: ``t`` is time.monotonic() (one clock for
         every process of a host), ``wall`` the Unix time, fields as the
         simulator's trace (``ramps.sim.engine.TraceEntry``)."""
-        rec = {"t": round(time.monotonic() if at is None else at, 6), "wall": round(time.time(), 6), "robot": self.robot, "what": what,
-               "program_id": program_id, "other": other, "attempt": attempt, "detail": detail}
+        rec = {"t": round(time.monotonic() if at is None else at, 6), "wall": round(time.time(), 6),
+               "robot": self.robot, "what": what, "program_id": program_id, "other": other, "attempt": attempt,
+               "detail": detail}
         try:
             self._trace.write(json.dumps(rec) + "\n")
         except OSError as exc:  # a full disk must not stop the node

@@ -12,8 +12,9 @@ shares the cores among them: processor sharing, which is what the cost model
 (``ramps.core.cost``), the simulator and the paper's prototype (one process
 per program) assume. When every worker is busy and none has finished a
 program (nor started) for ``GROW_AFTER``, a program that has waited that
-long gets a new worker, one at a time, up to ``max_size`` (default 8 per core, so a flood of programs
-cannot exhaust memory); beyond that programs wait in a FIFO queue. Starting
+long gets a new worker, one at a time, up to ``max_size`` (default 8 per
+core, so a flood of programs cannot exhaust memory); beyond that programs
+wait in a FIFO queue. Starting
 a worker costs about 0.1 s of CPU, more than a short program, so a burst of
 tiny programs, which keeps the workers finishing, is served by the workers
 there are. A worker beyond ``size`` exits after ``RETIRE_AFTER`` idle.
@@ -88,7 +89,8 @@ class WorkerPool:
         self._thread = threading.Thread(target=self._monitor, name="ramps-workers", daemon=True)
         self.started = 0
         self.died = 0
-        self._last_finish = 0.0
+        #: when a worker last finished a program or was started (growth waits GROW_AFTER after it)
+        self._last_progress = 0.0
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -188,13 +190,13 @@ class WorkerPool:
         while self._queue:
             if not idle:
                 if (len(self._workers) >= self.max_size or now - self._queue[0][3] < GROW_AFTER
-                        or now - self._last_finish < GROW_AFTER):
+                        or now - self._last_progress < GROW_AFTER):
                     return
                 try:
                     self._add_worker()
                 except OSError:  # out of processes or memory: the queue waits for a worker
                     return
-                self._last_finish = now  # one new worker per GROW_AFTER: it may be all it takes
+                self._last_progress = now  # one new worker per GROW_AFTER: it may be all it takes
                 idle.append(self._workers[-1])
             w = idle.pop(0)
             key, program, args, _ = self._queue.popleft()
@@ -258,7 +260,7 @@ class WorkerPool:
                             if w.job is not None and not w.cancelled:
                                 finished.append((w.job, ok, value, error, False))
                             w.job = None
-                            w.idle_since = self._last_finish = time.monotonic()
+                            w.idle_since = self._last_progress = time.monotonic()
                         continue
                     # end of file: the worker is gone
                     self._sel.unregister(w.fd)
@@ -275,7 +277,6 @@ class WorkerPool:
                                                              f"(exit code {code})", True))
                     if len(self._workers) < self.size:
                         self._add_worker()
-                self._dispatch_locked()
-                self._retire_idle_locked()
+                self._dispatch_locked()  # idle extra workers retire at the top of the loop
             for item in finished:
                 self.on_finished(*item)

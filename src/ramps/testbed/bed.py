@@ -68,6 +68,7 @@ from typing import Any
 
 from ramps.errors import NoTeam, RampsError
 from ramps.runtime.localteam import CG_ROOT, RobotCgroup, cgroup_mode
+from ramps.runtime.measure import cgroup_tree
 from ramps.testbed import net
 
 STATE_DIR = Path(os.environ.get("RAMPS_TESTBED_STATE", "/run/ramps"))
@@ -107,9 +108,9 @@ def _cgroup_pids(dirs: list[str]) -> list[int]:
     cgroups of ``ramps.testbed.caps``)."""
     pids: set[int] = set()
     for d in dirs:
-        for sub, _, _ in os.walk(d):
+        for sub in cgroup_tree(d):
             try:
-                pids.update(int(p) for p in (Path(sub) / "cgroup.procs").read_text().split())
+                pids.update(int(p) for p in (sub / "cgroup.procs").read_text().split())
             except OSError:
                 pass
     return sorted(pids)
@@ -850,8 +851,8 @@ def _capper_pids() -> list[tuple[int, str]]:
                 argv = (d / "cmdline").read_bytes().split(b"\0")
             except OSError:
                 continue
-            if b"ramps.testbed.caps" in argv:
-                state = Path(os.fsdecode(argv[argv.index(b"ramps.testbed.caps") + 1] if
-                                         argv.index(b"ramps.testbed.caps") + 1 < len(argv) else b""))
+            if b"ramps.testbed.caps" in argv:  # ... -m ramps.testbed.caps <state dir>/testbed-<tb>.json
+                after = argv[argv.index(b"ramps.testbed.caps") + 1:]
+                state = Path(os.fsdecode(after[0])) if after else Path()
                 out.append((int(d.name), state.stem.removeprefix("testbed-")))
     return out

@@ -35,6 +35,8 @@ import sys
 import time
 from pathlib import Path
 
+from ramps.runtime.measure import cgroup_usage
+
 #: seconds between two share updates
 PERIOD = 0.2
 #: CFS period of the child cgroups, microseconds
@@ -69,7 +71,7 @@ class RobotCaps:
         self.cpu, self.acct = cpu, acct
         self.core = quota / cores
         self.cores = cores
-        self._usage: dict[str, int] = {}
+        self._usage: dict[str, float] = {}  # CPU seconds of each child at the last tick
         self._quota: dict[str, int] = {}
         self.share = self.core
 
@@ -106,14 +108,6 @@ class RobotCaps:
                 continue
         return moved
 
-    def _usage_ns(self, name: str) -> int | None:
-        try:
-            if self.acct is not None:
-                return int((self.acct / name / "cpuacct.usage").read_text())
-        except (OSError, ValueError):
-            return None
-        return None
-
     def tick(self, dt: float) -> None:
         """Drop empty children, count the busy ones, set every child's quota."""
         busy = 0
@@ -134,11 +128,10 @@ class RobotCaps:
                 self._quota.pop(name, None)
                 continue
             live.append(name)
-            used = self._usage_ns(name)
+            used = cgroup_usage(self.cpu / name, self.acct / name if self.acct else None)
             before = self._usage.get(name)
-            if used is not None:
-                self._usage[name] = used
-            if used is not None and before is not None and used - before >= BUSY_FRACTION * self.share * dt * 1e9:
+            self._usage[name] = used
+            if before is not None and used - before >= BUSY_FRACTION * self.share * dt:
                 busy += 1
         self.share = shares(self.core, self.cores, max(busy, 1))
         q = max(1000, int(self.share * CFS_PERIOD_US))

@@ -34,6 +34,8 @@ from typing import Callable
 
 import msgspec
 
+from ramps.runtime.measure import cgroup_usage
+
 CASES = [(1, 0), (2, 0), (4, 0), (6, 0), (8, 0), (1, 2), (4, 2), (6, 2)]
 
 
@@ -94,22 +96,13 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
     with Testbed(["r1"], cores=cores, quota=quota, speed=speed, caps=caps) as tb, \
             tb.client("r1", timeout=30.0) as team:
         time.sleep(SETTLE)
-        acct = Path(tb.robots["r1"]["cgroup"][-1])
-
-        def used() -> float:
-            try:
-                return int((acct / "cpuacct.usage").read_text()) / 1e9
-            except (OSError, ValueError):  # cgroup v2
-                for line in (acct / "cpu.stat").read_text().splitlines():
-                    if line.startswith("usage_usec"):
-                        return int(line.split()[1]) / 1e6
-                return 0.0
-
+        dirs = [Path(d) for d in tb.robots["r1"]["cgroup"]]
+        cpu_dir, acct_dir = dirs[0], (dirs[1] if len(dirs) > 1 else None)
         for k, b in cases or CASES:
             tb.add_load("r1", b)
             time.sleep(1.5 if b else 0.2)  # the load is adopted, capped and seen by the node
             before = _worker_cpu(tb)
-            t0, u0 = time.monotonic(), used()
+            t0, u0 = time.monotonic(), cgroup_usage(cpu_dir, acct_dir)
             futures = [team.options(work=work).submit("burn", units=work) for _ in range(k)]
             took: list[float] = []
             for f in futures:
@@ -120,7 +113,7 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
                 seen.update(_worker_cpu(tb))
                 time.sleep(0.1)
             done, pending = wait_futures(futures, timeout=1.0)
-            cpu = (used() - u0) / max(time.monotonic() - t0, 1e-3)
+            cpu = (cgroup_usage(cpu_dir, acct_dir) - u0) / max(time.monotonic() - t0, 1e-3)
             seen.update(_worker_cpu(tb))
             spent = sum(seen[p] - before.get(p, 0.0) for p in seen)
             unit = spent / (k * work)
