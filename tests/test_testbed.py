@@ -121,7 +121,10 @@ def test_robots_are_namespaces_cgroups_and_nodes(bed):
 
 
 def test_client_in_root_namespace_runs_programs(bed, team):
+    from ramps.testbed.experiments import SETTLE
+
     assert wait_until(lambda: alive(team) == {"r1", "r2", "r3"}, 10)
+    time.sleep(SETTLE)  # r1 itself has a load report from r2 and r3: round robin can use them
     futs = [team.options(policy="round_robin").submit("burn", seconds=0.2) for _ in range(6)]
     res = [f.result(30) for f in futs]
     assert all(r["units"] == 0.2 for r in res)
