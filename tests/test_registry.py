@@ -91,3 +91,19 @@ def test_a_real_node_reports_per_core_load_memory_and_load_average():
             assert row.mem_free > 0 and row.load_avg >= 0.0
         finally:
             client.close()
+    assert not team.log_dir.exists()  # a clean close leaves no temp log dir behind
+
+
+@pytest.mark.slow
+def test_a_local_team_keeps_its_node_logs_when_it_ends_in_an_error():
+    import shutil
+
+    from ramps.runtime.localteam import LocalTeam
+
+    with pytest.raises(RuntimeError, match="boom"):
+        with LocalTeam(1, speed=1.0) as team:
+            raise RuntimeError("boom")
+    try:
+        assert (team.log_dir / "r1.log").exists()
+    finally:
+        shutil.rmtree(team.log_dir, ignore_errors=True)

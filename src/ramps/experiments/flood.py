@@ -330,7 +330,7 @@ def bench_flood(*, messages: int = 10_000, seconds: float = 10.0, programs: int 
     from ramps.experiments.bench import machine
     from ramps.runtime.localteam import LocalTeam
 
-    with LocalTeam(2, cores=2, speed=1.0) as team:
+    with LocalTeam(2, cores=2, speed=1.0, keep_logs=True) as team:
         client = team.client("r1")
         try:
             res = flood_team(team=team.team, endpoints=[team.endpoint(n) for n in team.names], target="r1",

@@ -16,6 +16,7 @@ Used by ``ramps demo`` and ``ramps bench dispatch``; tests may use it too.
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -110,7 +111,7 @@ class LocalTeam:
     def __init__(self, robots: int | list[str] = 3, *, team: str | None = None, cores: int | None = None,
                  speed: float | None = None, cpu_quota: float | None = None, policy: str | None = None,
                  programs: list[str] | None = None, env: dict[str, str] | None = None,
-                 log_dir: str | None = None, lease_ms: int | None = None) -> None:
+                 log_dir: str | None = None, lease_ms: int | None = None, keep_logs: bool = False) -> None:
         self.names = [f"r{i}" for i in range(1, robots + 1)] if isinstance(robots, int) else list(robots)
         self.team = team or f"local-{uuid.uuid4().hex[:8]}"
         self.cores = cores
@@ -121,6 +122,8 @@ class LocalTeam:
         self.env = dict(os.environ if env is None else env)
         self.lease_ms = lease_ms
         self.log_dir = Path(log_dir or tempfile.mkdtemp(prefix="ramps-team-"))
+        # a log dir we made ourselves goes with a clean close; kept when asked, or when the team ends in an error
+        self._own_logs = log_dir is None and not keep_logs
         self.mode = cgroup_mode() if cpu_quota is not None else None
         if cpu_quota is not None and self.mode is None:
             raise PermissionError("emulated robots need root and writable cpu cgroups (v1 or v2)")
@@ -144,6 +147,7 @@ class LocalTeam:
                 self.start_node(name, wait=False)
             self.wait_alive(self.names, timeout)
         except BaseException:
+            self._own_logs = False  # the error names the log dir: keep it
             self.close()
             raise
         return self
@@ -254,9 +258,13 @@ class LocalTeam:
         for cg in self.cgroups.values():
             cg.remove()
         self.cgroups.clear()
+        if self._own_logs:
+            shutil.rmtree(self.log_dir, ignore_errors=True)
 
     def __enter__(self) -> "LocalTeam":
         return self.start()
 
     def __exit__(self, *exc) -> None:
+        if exc[0] is not None:
+            self._own_logs = False  # the nodes' logs are what explains the error
         self.close()
