@@ -120,3 +120,33 @@ def test_bench_sim_small_writes_json(tmp_path):
     data = json.loads(out.read_text())
     assert data["large"]["completed"] == 100 and data["large"]["lost"] == 0
     assert data["sweep"]["wall_seconds"] > 0
+
+
+def test_testbed_experiment_saves_finished_experiments_as_it_goes_and_on_ctrl_c(tmp_path, monkeypatch):
+    """A long `testbed experiment faults --mode all` keeps each finished
+    experiment in --out, and Ctrl-C prints and saves what finished. The
+    simulator's plan runner stands in for the testbed's (same plans, same
+    FaultRun records); the second experiment is interrupted."""
+    import ramps.experiments.faults as faults
+    import ramps.testbed.experiments as tbx
+
+    calls = []
+
+    def sim_runner(plan, *, seed=0, policy="ramps", **_testbed_options):
+        calls.append(plan.name)
+        if plan.mode == "simultaneous":
+            partial = json.loads(out_file.read_text())  # saved before the next experiment started
+            assert partial["partial"] is True and [e["mode"] for e in partial["experiments"]] == ["sequential"]
+            raise KeyboardInterrupt
+        return faults.run_plan(plan, seed=seed, policy=policy)
+
+    out_file = tmp_path / "faults.json"
+    monkeypatch.setattr(tbx, "run_plan", sim_runner)
+    r = runner.invoke(app, ["testbed", "experiment", "faults", "--mode", "all", "--kind", "crash", "--gap", "20",
+                            "--out", str(out_file)])
+    assert r.exit_code == 130, r.output
+    assert "interrupted: the 1 finished experiment(s) follow" in r.output
+    saved = json.loads(out_file.read_text())
+    assert saved["mode"] == "sequential" and saved["kind"] == "crash"
+    assert saved["summary"]["completed"] == 15 * saved["summary"]["runs"]
+    assert len(calls) == 2

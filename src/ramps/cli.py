@@ -772,8 +772,17 @@ def testbed_experiment_faults(
             for k in kinds:
                 reports.append(run_fault_experiment(m, k, policy=policy, runs=runs, runner=runner, first=gap, gap=gap,
                                                     world="testbed"))
+                if out_file is not None and len(modes) * len(kinds) > 1:  # a long run keeps what it has finished
+                    out_file.parent.mkdir(parents=True, exist_ok=True)
+                    out_file.write_bytes(msgspec.json.encode({"experiments": reports, "partial": True}) + b"\n")
     except (PermissionError, RampsError) as exc:
         fail(str(exc))
+    except KeyboardInterrupt:
+        if not reports:
+            raise typer.Exit(130)
+        err.print(f"interrupted: the {len(reports)} finished experiment(s) follow")
+        _emit(reports, print_fault_report, as_json=as_json, out_file=out_file)
+        raise typer.Exit(130)
     _emit(reports, print_fault_report, as_json=as_json, out_file=out_file)
     if any(r.summary["lost"] or r.summary["duplicated"] for r in reports):
         raise typer.Exit(1)

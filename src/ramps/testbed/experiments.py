@@ -16,9 +16,9 @@ the very function that measures the simulator (``_failure_record``):
 
 Distributions are where the origin has each program at the plan's snapshot
 times, from its trace: accepted by a robot and neither finished nor written
-off there (a robot runs at most one program per core and queues the rest,
-so its own count of running programs would hide the queue). Lost = programs whose future did not complete with the
-right checksum; duplicated = programs the origin delivered more than once.
+off there (the origin's own record of where its programs run). Lost =
+programs whose future did not complete with the right checksum; duplicated =
+programs the origin delivered more than once.
 
 ``run_campaign`` is the randomized version: random crash / cut / freeze /
 recover faults of non-origin robots during a workload, then the issue's
