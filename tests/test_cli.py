@@ -150,3 +150,32 @@ def test_testbed_experiment_saves_finished_experiments_as_it_goes_and_on_ctrl_c(
     assert saved["mode"] == "sequential" and saved["kind"] == "crash"
     assert saved["summary"]["completed"] == 15 * saved["summary"]["runs"]
     assert len(calls) == 2
+
+
+def test_testbed_campaign_ctrl_c_reports_the_runs_that_finished(tmp_path, monkeypatch):
+    """Ctrl-C during run 3 of a testbed campaign: the two finished runs are
+    printed and saved with `interrupted`, exit 130. The simulator's campaign
+    run stands in for a testbed run (same CampaignRun records)."""
+    import random
+
+    import ramps.experiments.campaign as sim_campaign
+    import ramps.testbed.experiments as tbx
+
+    def sim_run(run_seed, *, policy="ramps", robots=4, duration=20.0, **_testbed_options):
+        if run_seed % 1_000_000 == 2:
+            raise KeyboardInterrupt
+        sim = sim_campaign.run_one(run_seed, policy)
+        faults = tbx.campaign_plan(random.Random(run_seed), [f"r{i}" for i in range(1, robots + 1)], duration)
+        return tbx.CampaignRun(seed=run_seed, robots=sim.robots, programs=sim.programs, faults=faults,
+                               completed=sim.completed, lost=sim.lost, duplicated=sim.duplicated,
+                               not_rejoined=sim.not_rejoined, ok=sim.ok, seconds=0.1)
+
+    monkeypatch.setattr(tbx, "run_campaign_once", sim_run)
+    out_file = tmp_path / "campaign.json"
+    r = runner.invoke(app, ["testbed", "campaign", "--runs", "5", "--seed", "4", "--out", str(out_file)])
+    assert r.exit_code == 130, r.output
+    assert "interrupted: the 2 run(s) that finished follow" in r.output
+    saved = json.loads(out_file.read_text())
+    assert saved["interrupted"] is True and saved["runs"] == 2
+    assert [x["seed"] for x in saved["all_runs"]] == [4_000_000, 4_000_001]
+    assert saved["programs"] == sum(x["programs"] for x in saved["all_runs"]) > 0

@@ -863,7 +863,11 @@ def testbed_campaign(
                            discovery=discovery, keep_logs=keep_logs, only_seed=only_seed, progress=progress)
     except (PermissionError, RampsError) as exc:
         fail(str(exc))
+    if rep.interrupted:
+        err.print(f"interrupted: the {rep.runs} run(s) that finished follow")
     _emit([rep], print_campaign, as_json=as_json, out_file=out_file)
+    if rep.interrupted:
+        raise typer.Exit(130)
     if rep.lost or rep.duplicated or rep.not_rejoined:
         raise typer.Exit(1)
 

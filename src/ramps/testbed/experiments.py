@@ -210,6 +210,8 @@ class TestbedCampaignReport(CampaignReport, kw_only=True):
 
     failed_runs: list[CampaignRun]
     all_runs: list[CampaignRun] = []
+    #: stopped by Ctrl-C: ``runs`` counts the runs that finished
+    interrupted: bool = False
 
 
 def campaign_plan(rng: random.Random, robots: list[str], duration: float) -> list[tuple[float, str, str]]:
@@ -315,13 +317,18 @@ def run_campaign(runs: int, seed: int = 0, *, policy: str = "ramps", robots: int
     started = time.perf_counter()
     seeds = [only_seed] * runs if only_seed is not None else [seed * 1_000_000 + i for i in range(runs)]
     results = []
+    interrupted = False
     for i, run_seed in enumerate(seeds):
-        results.append(run_campaign_once(run_seed, policy=policy, robots=robots, duration=duration,
-                                         lease_ms=lease_ms, discovery=discovery, keep_logs=keep_logs, log=log))
+        try:
+            results.append(run_campaign_once(run_seed, policy=policy, robots=robots, duration=duration,
+                                             lease_ms=lease_ms, discovery=discovery, keep_logs=keep_logs, log=log))
+        except KeyboardInterrupt:  # the run's testbed is already down: report the runs that finished
+            interrupted = True
+            break
         if progress:
             progress(i + 1, runs, results[-1])
     return TestbedCampaignReport(
-        world="testbed", runs=runs, seed=seed, policy=policy, programs=sum(r.programs for r in results),
+        world="testbed", runs=len(results), interrupted=interrupted, seed=seed, policy=policy, programs=sum(r.programs for r in results),
         faults=sum(sum(1 for f in r.faults if f[2] != "recover") for r in results),
         completed=sum(r.completed for r in results), lost=sum(r.lost for r in results),
         duplicated=sum(r.duplicated for r in results), not_rejoined=sum(len(r.not_rejoined) for r in results),
