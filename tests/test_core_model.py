@@ -22,8 +22,19 @@ from collections import Counter
 import msgspec
 import pytest
 
-from ramps.core.cost import NetworkEstimate, comm_time, compute_time, share
-from ramps.core.loadview import LoadView
+from hypothesis import given
+from hypothesis import strategies as st
+
+from ramps.core.cost import (
+    NetworkEstimate,
+    comm_time,
+    compute_time,
+    nice_weight,
+    program_share,
+    share,
+    weighted_shares,
+)
+from ramps.core.loadview import LoadView, report_problem
 from ramps.core.messages import (
     MAX_MESSAGE_BYTES,
     MAX_NAME,
@@ -45,7 +56,7 @@ from ramps.core.messages import (
     decode,
     encode,
 )
-from ramps.core.policy import POLICIES, make_policy
+from ramps.core.policy import POLICIES, RampsPolicy, make_policy
 
 from corehelpers import choose, report, view_of
 
@@ -400,3 +411,97 @@ def test_ramps_exclude_moves_the_choice_but_never_empties_it() -> None:
     assert choose(policy, view, exclude=frozenset({"a"})) == "b"
     assert choose(policy, view, exclude=frozenset({"a", "b"})) == "o"
     assert choose(policy, view, exclude=frozenset({"a", "b", "o"})) == "a"
+
+
+# ------------------------------------------------------------- weighted sharing
+def test_nice_weights_are_the_kernels() -> None:
+    assert nice_weight(0) == 1.0
+    assert nice_weight(10) == pytest.approx(110 / 1024)
+    assert nice_weight(19) == pytest.approx(15 / 1024)
+    assert nice_weight(-20) == pytest.approx(88761 / 1024)
+    with pytest.raises(ValueError):
+        nice_weight(20)
+
+
+@pytest.mark.parametrize("cores, programs, background, weight, expected", [
+    (4, 1, 0, 0.1, 1.0),                  # a free core is a free core, whatever the weight
+    (4, 2, 2, 0.1, 1.0),
+    (1, 1, 1, 110 / 1024, 110 / 1134),    # CFS: nice 10 next to nice 0 on one core gets 9.7%
+    (2, 2, 1, 0.1, 0.5),                  # the busy task has a core, the two programs share the other
+    (4, 5, 3, 0.1, 0.2),                  # 3 cores busy, 5 programs share the fourth
+    (4, 5, 3, 0.5, 0.5 * 4 / 5.5),        # at half weight the busy tasks do not fill their cores
+    (4, 3, 6, 0.5, 4 * 0.5 / 7.5),        # nobody has a whole core
+    (2, 3, 1, 2.0, 2 * 2.0 / 7.0),        # heavier programs, still nobody has a core
+    (4, 2, 4, 4.0, 1.0),                  # heavier programs each get a core
+])
+def test_program_share(cores, programs, background, weight, expected) -> None:
+    assert program_share(cores, programs, background, weight) == pytest.approx(expected)
+
+
+def _water_fill(cores: float, programs: int, background: float, weight: float) -> float:
+    """Reference: bisect for the rate per unit weight that fills min(cores, tasks)
+    with no task above a core; a program's share is then that rate times its weight."""
+    def used(lam: float) -> float:
+        return programs * min(1.0, lam * weight) + background * min(1.0, lam)
+
+    target = min(cores, programs + background)
+    lo, hi = 0.0, 1e6
+    for _ in range(200):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if used(mid) < target else (lo, mid)
+    return min(1.0, hi * weight)
+
+
+@given(cores=st.integers(1, 16), programs=st.integers(1, 40), background=st.floats(0, 40),
+       weight=st.sampled_from([nice_weight(n) for n in range(-5, 20)]))
+def test_program_share_is_weighted_water_filling(cores, programs, background, weight) -> None:
+    assert program_share(cores, programs, background, weight) == pytest.approx(
+        _water_fill(cores, programs, background, weight), rel=1e-6, abs=1e-9)
+
+
+def test_equal_weights_are_the_papers_model() -> None:
+    for cores in (1, 2, 4):
+        for ramps in range(0, 10):
+            for bg in (0, 0.5, 3, 8):
+                assert program_share(cores, ramps + 1, bg, 1.0) == pytest.approx(share(cores, ramps + bg))
+
+
+def test_ramps_counts_that_a_busy_robots_own_software_comes_first() -> None:
+    """'busy' has 4 cores with 3.5 runnable processes of its own. At equal
+    weights a program would get 0.89 of a core there and 'busy' (speed 1)
+    beats the idle but slow 'slow' (speed 0.6). Its workers at nice 10
+    really get the half core the busy software leaves, so 'slow' is faster."""
+    def pick(weight: float) -> str:
+        view = view_of("o", report("o", cores=1, runnable=6.0),
+                       report("busy", cores=4, cpu_busy=3.5, runnable=3.5, program_weight=weight),
+                       report("slow", cores=4, speed=0.6), cores=1)
+        return choose(RampsPolicy(), view, work=50.0)
+
+    assert pick(1.0) == "busy"
+    assert pick(nice_weight(10)) == "slow"
+
+
+def test_a_load_report_with_an_impossible_program_weight_is_refused() -> None:
+    with pytest.raises(WireError, match="program_weight"):
+        decode(encode("a", report("a", program_weight=0.0)))
+    assert report_problem(report("a", program_weight=1e6)) is not None
+    assert report_problem(report("a", program_weight=nice_weight(10))) is None
+    view = view_of("o")
+    view.on_report(report("a", program_weight=float("nan")), 1.0)
+    assert view.bad_reports == 1 and view.candidates(1.0) == ["o"]
+
+
+@given(cores=st.integers(1, 16), weights=st.lists(st.sampled_from([nice_weight(n) for n in (0, 5, 10, 19)]),
+                                                  min_size=1, max_size=30))
+def test_weighted_shares_fill_the_cores_by_weight(cores, weights) -> None:
+    shares, level = weighted_shares(cores, weights)
+    assert all(0.0 < s <= 1.0 + 1e-9 for s in shares)
+    assert sum(shares) == pytest.approx(min(cores, len(weights)))
+    for w, s in zip(weights, shares):  # below a core: in proportion to weight
+        assert s == pytest.approx(1.0) or s == pytest.approx(w * level)
+    # the two-class case is program_share's
+    progs = [w for w in weights if w == weights[0]]
+    if len(set(weights)) <= 2 and weights[0] <= 1.0:
+        others = [w for w in weights if w != weights[0]]
+        if all(w == 1.0 for w in others):
+            assert shares[0] == pytest.approx(program_share(cores, len(progs), len(others), weights[0]))

@@ -29,6 +29,43 @@ def test_background_load_slows_programs_and_shows_in_averages():
     assert (busy, runnable, ramps) == pytest.approx((4.0, 9.0, 1.0))
 
 
+def test_niced_programs_get_what_the_background_leaves():
+    """CFS shares: a nice-10 program next to a nice-0 busy loop on one core
+    gets 110/1134 of it; next to 3 busy loops on 4 cores, the fourth core."""
+    from ramps.core.cost import nice_weight
+
+    w = nice_weight(10)
+    cpu = CPU(cores=1, speed=1.0, background=1, now=0.0, weight=w)
+    cpu.add(("p", 1), 1.0, 0.0)
+    t, _ = cpu.next_completion()
+    assert t == pytest.approx(1134 / 110)
+    assert cpu.averages(2.0, 1.0)[0] == pytest.approx(1.0)  # the core stays fully busy
+    cpu = CPU(cores=4, speed=1.0, background=3, now=0.0, weight=w)
+    for i in range(2):
+        cpu.add((f"p{i}", 1), 5.0, 0.0)
+    t, _ = cpu.next_completion()
+    assert t == pytest.approx(10.0)  # two programs share the one free core
+    assert cpu.averages(2.0, 1.0)[:2] == pytest.approx((4.0, 5.0))
+
+
+def test_the_simulated_team_avoids_a_robot_whose_own_software_is_busy():
+    """r2 has 4 cores and 3 busy processes of its own; r3 is idle but slower.
+    At equal weights (the paper's world) a second program on r2 gets 0.8 of
+    a core (25 s) and beats r3 (28.6 s). With workers at nice 10 it would
+    get half of the one free core (40 s), so it goes to r3 instead and the
+    makespan stays r3's."""
+    def run(nice: int):
+        robots = [RobotSpec(name="r1", cores=1), RobotSpec(name="r2", cores=4, background=3, worker_nice=nice),
+                  RobotSpec(name="r3", cores=4, speed=0.7)]
+        return simulate(Scenario(name="t", robots=robots, seed=1,
+                                 programs=[ProgramSpec(origin="r1", count=4, work=20.0)]))
+
+    assert run(0).distribution == {"r1": 1, "r2": 2, "r3": 1}
+    niced = run(10)
+    assert niced.distribution == {"r1": 1, "r2": 1, "r3": 2}
+    assert niced.makespan == pytest.approx(20.0 / 0.7, rel=0.01)
+
+
 def test_averages_cover_only_the_window():
     cpu = CPU(cores=4, speed=1.0, background=0, now=0.0)
     cpu.add(("p", 1), 100.0, 9.5)  # started half-way through the window [9, 10]
@@ -120,3 +157,12 @@ def test_same_seed_same_trace_different_seed_differs():
 def test_snapshots_show_where_programs_run():
     res = simulate(scenario(), snapshots=[10.0])
     assert res.snapshots["10"] == {"r1": 2, "r2": 2, "r3": 2}
+
+
+def test_a_worker_niceness_outside_linuxs_range_is_refused():
+    from ramps.sim.scenario import ScenarioError
+
+    sc = Scenario(name="t", robots=[RobotSpec(name="r1", worker_nice=25)],
+                  programs=[ProgramSpec(origin="r1")], seed=1)
+    with pytest.raises(ScenarioError, match="worker_nice"):
+        sc.check()

@@ -13,7 +13,8 @@ import pytest
 from test_testbed import REASON, others_leftovers, wait_until
 
 from ramps.runtime.localteam import cgroup_mode
-from ramps.testbed.caps import CFS_PERIOD_US, shares
+from ramps.core.cost import nice_weight
+from ramps.testbed.caps import CFS_PERIOD_US, niceness, shares
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(REASON is not None or cgroup_mode() != "v1",
                                                     reason=REASON or "per-program caps need cgroup v1")]
@@ -24,6 +25,22 @@ def test_shares_are_processor_sharing():
     assert shares(0.1, 4, 4) == 0.1
     assert shares(0.1, 4, 8) == pytest.approx(0.05)
     assert shares(0.2, 2, 3) == pytest.approx(0.2 * 2 / 3)
+
+
+def test_a_process_niceness_is_read_from_proc():
+    import os
+    import subprocess
+    import sys
+
+    p = subprocess.Popen([sys.executable, "-c", "import os, time; os.nice(7); time.sleep(30)"])
+    try:
+        mine = os.getpriority(os.PRIO_PROCESS, 0)
+        assert wait_until(lambda: niceness(p.pid) == min(19, mine + 7), 10)
+        assert niceness(os.getpid()) == os.getpriority(os.PRIO_PROCESS, 0)
+    finally:
+        p.kill()
+        p.wait()
+    assert niceness(p.pid) == 0  # gone
 
 
 def children(tb, robot: str = "r1") -> dict[str, dict]:
@@ -61,10 +78,20 @@ def test_a_lone_program_runs_at_one_emulated_core_and_busy_processes_share():
         rate = robot_rate(tb, 2.0)
         # capped at one emulated core (0.2), not the robot's 0.4 a lone process would take
         assert 0.12 < rate < 0.3, rate
-        # three busy processes join: 4 runnable on 2 cores, each gets half an emulated core
-        tb.add_load("r1", 3)
-        assert wait_until(lambda: sorted(c["quota"] for c in children(tb).values())
-                          == [int(core * 2 / 4 * CFS_PERIOD_US)] * 5, 10), children(tb)
+        # two busy processes (nice 0) join: 3 runnable on 2 cores, shared by CFS weight as on a robot;
+        # the workers at nice 10 (the busy one and the idle one) weigh 110/1024 of a busy process
+        tb.add_load("r1", 2)
+        w = nice_weight(10)
+        want = [core * x * CFS_PERIOD_US for x in (2 * w / (2 + w),) * 2 + (2 / (2 + w),) * 2]
+
+        def weighted() -> bool:
+            got = sorted(c["quota"] for c in children(tb).values())
+            return len(got) == 4 and all(abs(g - x) <= 2 for g, x in zip(got, want))
+
+        assert wait_until(weighted, 10), (children(tb), want)
+        tb.remove_load("r1")  # alone again: back to one emulated core
+        assert wait_until(lambda: any(c["quota"] == int(core * CFS_PERIOD_US) and c["usage"] > 2e8
+                                      for c in children(tb).values()), 20), children(tb)
         assert fut.result(timeout=120)["iterations"] == 48_000_000
         # a frozen robot: every process in its caps stops too
         tb.freeze("r1")

@@ -1,17 +1,31 @@
 """The cost model of the paper's eq. (1): move when T_here > T_there + T_comm.
 
 How this works: a program's computation time on a robot is its work divided
-by the speed one program gets there under processor sharing, ``speed *
-min(1, cores / (runnable + 1))``, where ``runnable`` counts the tasks already
-competing for the robot's cores (background processes and ramps programs) and
-``+ 1`` is the program itself. Communication time is the request, the
-acceptance and the result crossing the link: three latencies plus the bytes
-of parameters and result over the bandwidth. Pure functions, no state.
+by the speed one program gets there under processor sharing. With
+``programs`` ramps programs (the new one included) next to ``background``
+other runnable tasks on ``cores`` cores, each task gets at most one core and
+the cores are shared in proportion to the tasks' scheduler weights: Linux's
+CFS gives a process of niceness n the weight 1024 / 1.25**n (the kernel's
+table), so ramps workers at nice 10 weigh ``weight`` = 110/1024 of the
+robot's own software at nice 0. With ``weight`` = 1 (the paper's model) this
+is ``speed * min(1, cores / (runnable + 1))``, where ``runnable`` counts the
+tasks already competing (background and ramps programs) and ``+ 1`` is the
+program itself. Communication time is the request, the acceptance and the
+result crossing the link: three latencies plus the bytes of parameters and
+result over the bandwidth. Pure functions, no state.
 """
 
 from __future__ import annotations
 
 import msgspec
+
+#: the kernel's sched_prio_to_weight for nice -20..19 (kernel/sched/core.c)
+_CFS_WEIGHTS = (
+    88761, 71755, 56483, 46273, 36291, 29154, 23254, 18705, 14949, 11916,
+    9548, 7620, 6100, 4904, 3906, 3121, 2501, 1991, 1586, 1277,
+    1024, 820, 655, 526, 423, 335, 272, 215, 172, 137,
+    110, 87, 70, 56, 45, 36, 29, 23, 18, 15,
+)
 
 
 class NetworkEstimate(msgspec.Struct, frozen=True, kw_only=True):
@@ -21,8 +35,52 @@ class NetworkEstimate(msgspec.Struct, frozen=True, kw_only=True):
     bandwidth: float = 2.5e6
 
 
+def nice_weight(nice: int) -> float:
+    """CFS weight of a process at ``nice`` relative to one at nice 0 (10 -> 0.107)."""
+    if not -20 <= nice <= 19:
+        raise ValueError(f"nice must be -20..19, got {nice}")
+    return _CFS_WEIGHTS[nice + 20] / 1024.0
+
+
+def program_share(cores: float, programs: float, background: float = 0.0, weight: float = 1.0) -> float:
+    """Fraction of one core each of ``programs`` ramps programs gets next to
+    ``background`` other runnable tasks, the programs weighing ``weight`` each
+    against a background task's 1: weighted processor sharing with at most
+    one core per task, so the heavier class reaches a whole core first and the
+    lighter one shares what is left."""
+    if programs <= 0 or programs + background <= cores:
+        return 1.0
+    per_weight = cores / (background + weight * programs)
+    if max(weight, 1.0 if background > 0 else 0.0) * per_weight <= 1.0:
+        return weight * per_weight  # nobody has a whole core
+    if weight < 1.0:  # every background task has a core; the programs share the rest
+        return (cores - background) / programs
+    return 1.0  # the programs are the heavier class: each has a core
+
+
+def weighted_shares(cores: float, weights: list[float]) -> tuple[list[float], float]:
+    """Cores each task gets when tasks of these scheduler weights share
+    ``cores`` (at most one core each, the heaviest reach a whole core first),
+    and the cores per unit of weight of the tasks below a core (``inf`` when
+    every task has a whole one). ``program_share`` is its two-class case."""
+    order = sorted(range(len(weights)), key=lambda i: -weights[i])
+    out = [1.0] * len(weights)
+    left, weight_left = float(cores), float(sum(weights))
+    for n, i in enumerate(order):
+        if len(order) - n <= left:  # a core each for the rest
+            return out, float("inf")
+        if weights[i] * left / weight_left <= 1.0:  # nobody left reaches a core
+            level = left / weight_left
+            for j in order[n:]:
+                out[j] = weights[j] * level
+            return out, level
+        left -= 1.0
+        weight_left -= weights[i]
+    return out, float("inf")
+
+
 def share(cores: int, runnable: float) -> float:
-    """Fraction of one core a newly started task gets."""
+    """Fraction of one core a newly started task gets (all tasks weigh the same)."""
     return min(1.0, cores / (runnable + 1.0))
 
 

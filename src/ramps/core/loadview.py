@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 
-from ramps.core.messages import MAX_CORES, MAX_LOAD, MAX_SPEED, MIN_SPEED, LoadReport
+from ramps.core.messages import MAX_CORES, MAX_LOAD, MAX_SPEED, MAX_WEIGHT, MIN_SPEED, MIN_WEIGHT, LoadReport
 
 
 def report_problem(report: LoadReport) -> str | None:
@@ -37,6 +37,8 @@ def report_problem(report: LoadReport) -> str | None:
             return f"load report from {report.robot!r} has {name}={value!r}"
     if not MIN_SPEED <= report.speed <= MAX_SPEED:
         return f"load report from {report.robot!r} claims speed {report.speed!r}"
+    if not MIN_WEIGHT <= report.program_weight <= MAX_WEIGHT:
+        return f"load report from {report.robot!r} claims program weight {report.program_weight!r}"
     if report.ramps_running < 0 or report.accepted_total < 0 or report.finished_total < 0:
         return f"load report from {report.robot!r} has negative counters"
     return None
@@ -67,10 +69,12 @@ class _Robot:
 
 
 class LoadView:
-    def __init__(self, me: str, *, cores: int, speed: float, max_report_age: float = 10.0) -> None:
+    def __init__(self, me: str, *, cores: int, speed: float, max_report_age: float = 10.0,
+                 program_weight: float = 1.0) -> None:
         self.me = me
         self.cores = cores
         self.speed = speed
+        self.program_weight = program_weight
         self.max_report_age = max_report_age
         self._robots: dict[str, _Robot] = {me: _Robot()}
         self._blacklist: dict[str, tuple[int, int]] = {}
@@ -232,11 +236,14 @@ class LoadView:
         return [row[0] for row in self.scan(now, frozenset())]
 
     def scan(self, now: float, exclude: frozenset[str], paper: bool = False):
-        """(robot, cores, speed, runnable) for every candidate, in one pass.
+        """(robot, cores, speed, ramps, background, weight) for every candidate,
+        in one pass: ramps programs there by ramps' reading of the view, other
+        runnable tasks, and the scheduler weight of a program against them
+        (with ``paper``, ``ramps`` is the paper's load and background 0).
 
         The hot path of placement in large teams: the same reading as
-        ``candidates`` + ``ramps_programs`` + ``background`` (or, with
-        ``paper``, ``paper_load``), without building intermediate objects.
+        ``candidates`` + ``ramps_programs`` + ``background`` (or
+        ``paper_load``), without building intermediate objects.
         An ``exclude`` that would leave no candidate at all is ignored."""
         horizon = now - self.max_report_age
         blacklist = self._blacklist
@@ -246,18 +253,20 @@ class LoadView:
             if name != self.me:
                 if rep is None or rob.lost or rob.received_at < horizon or name in blacklist:
                     continue
+            background = 0.0
             if paper:
-                runnable = (rep.cpu_busy if rep else 0.0) + rob.paper_booked
+                ramps = (rep.cpu_busy if rep else 0.0) + rob.paper_booked
             else:
                 base = rep.ramps_running if rep else 0
-                runnable = max(0, base + rob.unseen_accept - rob.unseen_finish)
+                ramps = max(0, base + rob.unseen_accept - rob.unseen_finish)
                 if rep is not None and rep.runnable > rep.ramps_avg:
-                    runnable += rep.runnable - rep.ramps_avg
+                    background = rep.runnable - rep.ramps_avg
             if rep is None:
                 cores, speed = (self.cores, self.speed) if name == self.me else (1, 1.0)
+                weight = self.program_weight if name == self.me else 1.0
             else:
-                cores, speed = rep.cores, rep.speed
-            out.append((name, cores, speed, runnable))
+                cores, speed, weight = rep.cores, rep.speed, rep.program_weight
+            out.append((name, cores, speed, ramps, background, weight))
         if exclude:
             kept = [e for e in out if e[0] not in exclude]
             if kept:

@@ -53,6 +53,9 @@ MIN_SPEED = 1e-9
 MAX_SPEED = 1e9
 #: run-queue lengths, busy cores, load averages and windows (seconds)
 MAX_LOAD = 1e9
+#: scheduler weights of programs against nice 0 (CFS: nice 19 .. nice -20)
+MIN_WEIGHT = 15 / 1024
+MAX_WEIGHT = 88761 / 1024
 
 
 class WireError(ValueError):
@@ -84,6 +87,8 @@ Count = Annotated[int, Meta(ge=0)]
 #: a finite, non-negative float (NaN and infinities refused)
 Amount = Annotated[float, Meta(ge=0.0, le=sys.float_info.max)]
 Load = Annotated[float, Meta(ge=0.0, le=MAX_LOAD)]
+#: a scheduler weight relative to nice 0 (the kernel's range is 15/1024 .. 88761/1024)
+Weight = Annotated[float, Meta(ge=MIN_WEIGHT, le=MAX_WEIGHT)]
 Cores = Annotated[int, Meta(ge=1, le=MAX_CORES)]
 Speed = Annotated[float, Meta(ge=MIN_SPEED, le=MAX_SPEED)]
 
@@ -121,6 +126,10 @@ class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, ta
     #: malformed messages this node dropped since it started (undecodable,
     #: another protocol version, a load report about another robot)
     bad_messages: Count = 0
+    #: the scheduler weight of this robot's ramps programs against its own
+    #: software (CFS: nice 10 workers weigh 110/1024 of a nice-0 process), so
+    #: an origin knows what share a program gets next to a busy robot's work
+    program_weight: Weight = 1.0
 
 
 class OffloadRequest(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="offload"):

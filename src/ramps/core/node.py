@@ -81,15 +81,20 @@ class Node:
         incarnation: int = 0,
         registry: frozenset[str] | None = None,
         net: NetworkEstimate | None = None,
+        program_weight: float = 1.0,
     ) -> None:
         self.robot = robot
         self.cores = cores
         self.speed = speed
+        #: scheduler weight of this robot's programs against its own software
+        #: (``cost.nice_weight(worker_nice)`` on a real robot; 1 = equal sharing)
+        self.program_weight = program_weight
         self.incarnation = incarnation
         self.config = config or RampsConfig()
         self.rng = rng or random.Random(0)
         self.policy = make_policy(policy) if isinstance(policy, str) else policy
-        self.view = LoadView(robot, cores=cores, speed=speed, max_report_age=self.config.max_report_age)
+        self.view = LoadView(robot, cores=cores, speed=speed, max_report_age=self.config.max_report_age,
+                             program_weight=program_weight)
         self.origin = Origin(robot, self.view, self.policy, self.config, self.rng, net or NetworkEstimate())
         self.executor = Executor(robot, config=self.config, registry=registry, incarnation=incarnation)
         self._report_seq = 0
@@ -194,7 +199,7 @@ class Node:
         plus what was ``measured``."""
         return LoadReport(
             robot=self.robot, incarnation=self.incarnation, seq=self._report_seq, cores=self.cores,
-            speed=self.speed, ramps_running=len(self.executor.running),
+            speed=self.speed, program_weight=self.program_weight, ramps_running=len(self.executor.running),
             accepted_total=self.executor.accepted_total, finished_total=self.executor.finished_total, **measured,
         )
 

@@ -15,7 +15,9 @@ scheduler.
   action protocol); ties are broken at random.
 * ``ramps``: our default. Cost from run-queue length (8 stress processes look
   like 8, not like "100%"), ramps programs counted from bookings until a
-  report proves it includes them, eq. (1) with T_comm for remote hosts only;
+  report proves it includes them, the share a program gets weighted by the
+  host's scheduler weights (its workers at nice 10 yield to the robot's own
+  software, see ``cost.program_share``), eq. (1) with T_comm for remote hosts only;
   costs within ``tie_tolerance`` are equal, and the tie goes to the least
   utilised robot, then to the local one. The host checks the origin's
   estimate when the request arrives (``expected_runnable``) and turns the
@@ -33,7 +35,7 @@ from typing import ClassVar
 import msgspec
 
 from ramps.core.config import RampsConfig
-from ramps.core.cost import NetworkEstimate, comm_time
+from ramps.core.cost import NetworkEstimate, comm_time, program_share
 from ramps.core.loadview import LoadView
 
 
@@ -80,7 +82,7 @@ class PaperPolicy(Policy):
         work = req.work
         best_t = math.inf
         best: list[str] = []
-        for robot, cores, speed, busy in view.scan(now, exclude, paper=True):
+        for robot, cores, speed, busy, _, _ in view.scan(now, exclude, paper=True):
             t = work / speed * (1.0 + busy / cores)
             if t < best_t - 1e-9:
                 best_t, best = t, [robot]
@@ -100,8 +102,12 @@ class RampsPolicy(Policy):
         t_comm = comm_time(req.payload_size, req.result_size, net)
         rows = []
         t_best = math.inf
-        for robot, cores, speed, runnable in view.scan(now, exclude):
-            t = work / (speed * min(1.0, cores / (runnable + 1.0)))
+        for robot, cores, speed, ramps, background, weight in view.scan(now, exclude):
+            runnable = ramps + background
+            if background == 0.0 or weight == 1.0:  # equal sharing (the common, fast case)
+                t = work / (speed * min(1.0, cores / (runnable + 1.0)))
+            else:  # the robot's own busy software outweighs the program
+                t = work / (speed * program_share(cores, ramps + 1.0, background, weight))
             if robot != me:
                 t += t_comm
             rows.append((t, (runnable + 1.0) / cores, robot, runnable))

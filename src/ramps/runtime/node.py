@@ -33,6 +33,7 @@ from typing import Any, Callable
 
 import msgspec
 
+from ramps.core.cost import nice_weight
 from ramps.core.events import (
     Cancel,
     Deliver,
@@ -128,7 +129,7 @@ class NodeRuntime:
         return_freed_memory()
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=s.core,
                          rng=random.Random(self.incarnation), incarnation=self.incarnation,
-                         registry=self.registry.names())
+                         registry=self.registry.names(), program_weight=nice_weight(s.worker_nice))
         self.pool = WorkerPool(self.cores, self.registry.targets(), self._finished, nice=s.worker_nice)
         self.pool.start()
         self.sampler = LoadSampler(lambda: self.pool.busy() + self.pool.queued(), window=s.window,

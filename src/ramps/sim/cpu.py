@@ -2,7 +2,9 @@
 
 How this works: with ``k`` ramps programs and ``b`` background processes on
 ``c`` cores, every task runs at ``speed * min(1, c / (k + b))`` work units
-per second. Time only moves forward through ``advance(now)``; adding or
+per second when all weigh the same; programs at a lower scheduler ``weight``
+(a worker's niceness) get ``speed * cost.program_share(c, k, b, weight)``,
+the background the rest. Time only moves forward through ``advance(now)``; adding or
 removing a job first advances, then the rate changes. The CPU also keeps
 running integrals of busy cores, runnable tasks and ramps programs, so the
 load publisher can average them over its window exactly as a real robot's
@@ -13,16 +15,20 @@ from __future__ import annotations
 
 from collections import deque
 
+from ramps.core.cost import program_share
+
 Key = tuple[str, int]
 
 
 class CPU:
-    __slots__ = ("cores", "speed", "background", "jobs", "t", "frozen", "_hist", "_ib", "_ir", "_ik")
+    __slots__ = ("cores", "speed", "background", "weight", "jobs", "t", "frozen", "_hist", "_ib", "_ir", "_ik")
 
-    def __init__(self, cores: int, speed: float, background: int, now: float) -> None:
+    def __init__(self, cores: int, speed: float, background: int, now: float, weight: float = 1.0) -> None:
         self.cores = cores
         self.speed = speed
         self.background = background
+        #: scheduler weight of a ramps program against a background process
+        self.weight = weight
         #: remaining work per running program
         self.jobs: dict[Key, float] = {}
         self.t = now
@@ -37,9 +43,13 @@ class CPU:
         return 0 if self.frozen else len(self.jobs) + self.background
 
     def rate(self) -> float:
-        """Work units per second each task gets now."""
+        """Work units per second each ramps program gets now."""
         n = self.runnable()
-        return 0.0 if n == 0 else self.speed * min(1.0, self.cores / n)
+        if n == 0:
+            return 0.0
+        if self.weight == 1.0 or not self.background:
+            return self.speed * min(1.0, self.cores / n)
+        return self.speed * program_share(self.cores, len(self.jobs), self.background, self.weight)
 
     def _rates(self) -> tuple[float, float, float]:
         n = self.runnable()

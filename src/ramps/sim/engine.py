@@ -31,7 +31,7 @@ from typing import Any, Callable
 
 import msgspec
 
-from ramps.core.cost import NetworkEstimate
+from ramps.core.cost import NetworkEstimate, nice_weight
 from ramps.core.events import Deliver, Note, PeerAlive, PeerLost, ProgramFinished, Received, Send, StartProgram, StopProgram, Submit
 from ramps.core.messages import wire_size
 from ramps.core.node import Node, NodeStatistics
@@ -181,11 +181,12 @@ class Simulator:
         r.incarnation += 1
         r.alive, r.net_up, r.frozen = True, True, False
         r.epoch += 1
-        r.cpu = CPU(spec.cores, spec.speed, spec.background, now)
+        weight = nice_weight(spec.worker_nice)
+        r.cpu = CPU(spec.cores, spec.speed, spec.background, now, weight=weight)
         r.node = Node(
             spec.name, cores=spec.cores, speed=spec.speed, policy=self.policy, config=self.sc.config,
             rng=random.Random(self.rng.getrandbits(64)), incarnation=r.incarnation,
-            net=NetworkEstimate(latency=self.net.latency, bandwidth=self.net.bandwidth),
+            net=NetworkEstimate(latency=self.net.latency, bandwidth=self.net.bandwidth), program_weight=weight,
         )
         r.node.executor.background = float(spec.background)
         r.wake_at = math.inf

@@ -67,6 +67,10 @@ class RobotSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
     speed: float = 1.0
     #: CPU-bound processes that are not ramps programs (e.g. ``stress``)
     background: int = 0
+    #: niceness of the robot's ramps programs against that background (0:
+    #: equal shares, the paper's world; a ramps node's default is 10, where
+    #: a program gets about a tenth of what a busy process does)
+    worker_nice: int = 0
     #: expand this entry into ``count`` identical robots
     count: int | None = None
 
@@ -137,6 +141,8 @@ class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
                 raise ScenarioError(f"{p}.speed", f"must be > 0, got {r.speed}")
             if r.background < 0:
                 raise ScenarioError(f"{p}.background", f"must be >= 0, got {r.background}")
+            if not -20 <= r.worker_nice <= 19:
+                raise ScenarioError(f"{p}.worker_nice", f"must be -20..19 (a Linux niceness), got {r.worker_nice}")
             if r.count is not None:
                 if r.count < 1:
                     raise ScenarioError(f"{p}.count", f"must be >= 1, got {r.count}")

@@ -8,12 +8,17 @@ cost model use would not hold. So one small process per testbed (``python -m
 ramps.testbed.caps STATE_FILE``, started by ``Testbed.up``) moves every
 process of a robot except its node (the node's workers, background load)
 into its own child cgroup, and every ``PERIOD`` seconds sets each child's
-quota to its processor-sharing share of the robot::
+quota to its share of the robot under weighted processor sharing, as Linux
+shares a real robot's cores::
 
-    share = core * min(1, cores / busy)     core = quota / cores host cores
+    share = core * cost.weighted_shares(cores, weights of the busy children)
+    core = quota / cores host cores
 
-where ``busy`` counts the children that used CPU in the last period (the
-busy loops of background load always do; an idle worker does not). The
+where the busy children are those that used CPU in the last period (the
+busy loops of background load always do; an idle worker does not) and a
+child's weight is its process's CFS weight (``cost.nice_weight``): a worker
+at nice 10 next to busy load at nice 0 gets what the load leaves, as on a
+robot; at equal niceness this is ``core * min(1, cores / busy)``. The
 children's quotas never add up to more than the robot's, so the robot's own
 quota hardly throttles them (only the node's own few percent can push it
 over): measured on this kernel (cgroup v1), children of a throttled parent
@@ -35,6 +40,7 @@ import sys
 import time
 from pathlib import Path
 
+from ramps.core.cost import nice_weight, weighted_shares
 from ramps.runtime.measure import cgroup_usage
 
 #: seconds between two share updates
@@ -57,11 +63,20 @@ def _is_node(pid: int) -> bool:
 
 
 def shares(core: float, cores: int, busy: int) -> float:
-    """Host cores each busy process gets: one emulated core while there are
-    at most ``cores`` busy processes, an equal part of the robot beyond."""
+    """Host cores each busy process gets at equal niceness: one emulated core
+    while there are at most ``cores`` busy processes, an equal part beyond."""
     if busy <= cores:
         return core
     return core * cores / busy
+
+
+def niceness(pid: int) -> int:
+    """A process's niceness (0 if it is gone)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        return int(stat[stat.rindex(")") + 2:].split()[16])
+    except (OSError, ValueError, IndexError):
+        return 0
 
 
 class RobotCaps:
@@ -73,6 +88,7 @@ class RobotCaps:
         self.cores = cores
         self._usage: dict[str, float] = {}  # CPU seconds of each child at the last tick
         self._quota: dict[str, int] = {}
+        self._share: dict[str, float] = {}  # host cores of each child
         self.share = self.core
 
     def children(self) -> list[str]:
@@ -109,8 +125,8 @@ class RobotCaps:
         return moved
 
     def tick(self, dt: float) -> None:
-        """Drop empty children, count the busy ones, set every child's quota."""
-        busy = 0
+        """Drop empty children, find the busy ones, set every child's quota."""
+        busy: list[str] = []
         live = []
         for name in self.children():
             try:
@@ -126,16 +142,22 @@ class RobotCaps:
                             pass
                 self._usage.pop(name, None)
                 self._quota.pop(name, None)
+                self._share.pop(name, None)
                 continue
             live.append(name)
             used = cgroup_usage(self.cpu / name, self.acct / name if self.acct else None)
             before = self._usage.get(name)
             self._usage[name] = used
-            if before is not None and used - before >= BUSY_FRACTION * self.share * dt:
-                busy += 1
-        self.share = shares(self.core, self.cores, max(busy, 1))
-        q = max(1000, int(self.share * CFS_PERIOD_US))
+            if before is not None and used - before >= BUSY_FRACTION * self._share.get(name, self.share) * dt:
+                busy.append(name)
+        weight = {name: nice_weight(niceness(int(name[len(CHILD_PREFIX):]))) for name in live}
+        cores, level = weighted_shares(self.cores, [weight[n] for n in busy])
+        share = dict(zip(busy, cores))
+        # a nice-0 newcomer's share, for children adopted before the next tick
+        self.share = self.core * min(1.0, level) if busy else self.core
         for name in live:
+            self._share[name] = self.core * share.get(name, min(1.0, weight[name] * level))
+            q = max(1000, int(self._share[name] * CFS_PERIOD_US))
             if self._quota.get(name) != q:
                 try:
                     (self.cpu / name / "cpu.cfs_quota_us").write_text(str(q))

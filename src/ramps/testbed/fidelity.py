@@ -2,12 +2,14 @@
 
 How this works: one robot of ``cores`` emulated cores (``quota`` host cores)
 runs ``k`` identical programs of ``work`` units at once next to ``b`` busy
-background processes. Processor sharing (the simulator, the cost model,
-DESIGN.md section 4) says every program finishes after::
+background processes. Weighted processor sharing (the simulator, the cost
+model, DESIGN.md section 4) says every program finishes after::
 
-    work / speed * max(1, (k + b) / cores)
+    work / (speed * cost.program_share(cores, k, b, weight))
 
-where ``speed`` is one emulated core's units per second, measured once. Each
+where ``speed`` is one emulated core's units per second, measured once, and
+``weight`` that of the node's workers at nice 10 against the load at nice 0
+(at equal weights this is ``work / speed * max(1, (k + b) / cores)``). Each
 case submits the ``k`` programs from the robot itself (a team of one, so
 they run there) and times every result. It also reads the CPU the robot's
 cgroup used meanwhile: the model gives it ``core * min(k + b, cores)`` host
@@ -34,7 +36,9 @@ from typing import Callable
 
 import msgspec
 
+from ramps.core.cost import nice_weight, program_share
 from ramps.runtime.measure import cgroup_usage
+from ramps.runtime.settings import NodeSettings
 
 CASES = [(1, 0), (2, 0), (4, 0), (6, 0), (8, 0), (1, 2), (4, 2), (6, 2)]
 
@@ -71,8 +75,8 @@ class FidelityReport(msgspec.Struct, kw_only=True):
     unit_cpu_s: tuple[float, float]
 
 
-def model_time(work: float, speed: float, cores: int, programs: int, busy: int) -> float:
-    return work / speed * max(1.0, (programs + busy) / cores)
+def model_time(work: float, speed: float, cores: int, programs: int, busy: int, weight: float = 1.0) -> float:
+    return work / (speed * program_share(cores, programs, busy, weight))
 
 
 def _unit_cpu() -> float:
@@ -90,6 +94,7 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
     from ramps.testbed.experiments import SETTLE, identical_speed, wait_futures
 
     log = log or (lambda _m: None)
+    weight = nice_weight(NodeSettings().worker_nice)  # the testbed's nodes run with the default
     unit0 = _unit_cpu()
     speed = identical_speed(1, cores, quota)
     out: list[FidelityCase] = []
@@ -122,7 +127,7 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
                 raise RuntimeError(f"case {k} programs + {b} busy: {len(pending)} unfinished, "
                                    f"{len(bad)} failed ({bad[0].exception() if bad else ''})")
             time.sleep(0.05)
-            m = model_time(work, speed, cores, k, b)
+            m = model_time(work, speed, cores, k, b, weight)
             mean = statistics.fmean(took)
             cpu_m = quota / cores * min(k + b, cores)
             calib = quota / (cores * speed)  # CPU seconds of a unit when the speed was measured
