@@ -69,7 +69,9 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     load_scope: str = "auto"
     #: niceness of the worker processes that run programs (0-19): the node's
     #: own threads (heartbeats, replies) and the robot's own software come
-    #: first, so a robot full of programs still answers its team at once
+    #: first, so a robot full of programs still answers its team at once.
+    #: Load reports carry its CFS weight, so origins know that a program here
+    #: gets what the robot's busy software leaves (0: equal shares)
     worker_nice: int = 10
     #: largest encoded arguments accepted from a client, bytes
     max_args_bytes: int = 1024 * 1024
