@@ -35,18 +35,6 @@ def _unavailable() -> str | None:
     return None
 
 
-def _cgroup_pids_below(cg: str) -> list[str]:
-    from ramps.runtime.measure import cgroup_tree
-
-    out = []
-    for d in cgroup_tree(cg):
-        try:
-            out += (d / "cgroup.procs").read_text().split()
-        except OSError:  # a child cgroup removed as its process ended
-            pass
-    return out
-
-
 REASON = _unavailable()
 needs_testbed = pytest.mark.skipif(REASON is not None, reason=REASON or "")
 
@@ -187,13 +175,15 @@ def test_freeze_and_recover(bed, team):
 
 
 def test_load_runs_inside_the_robot(bed):
+    from ramps.testbed.bed import _cgroup_pids
+
     bed.add_load("r2", 2)
     pids = [p for p, _ in bed.robots["r2"]["load_pids"]]
     assert len(pids) == 2
     cg = bed.robots["r2"]["cgroup"][0]
     # the capper may already have moved each into a child cgroup of the robot's
-    members = set(_cgroup_pids_below(cg))
-    assert all(str(p) in members for p in pids)
+    members = set(_cgroup_pids([cg]))
+    assert all(p in members for p in pids)
     node_ns = os.readlink(f"/proc/{bed.robots['r2']['pid']}/ns/net")
     assert wait_until(lambda: all(os.readlink(f"/proc/{p}/ns/net") == node_ns for p in pids), 3)
     bed.crash("r2")  # a crash takes the load down too

@@ -72,9 +72,13 @@ def _emit(reports: list, printer, *, as_json: bool, out_file: Optional[Path]) ->
         for rep in reports:
             printer(rep, out)
     if out_file is not None:
-        out_file.parent.mkdir(parents=True, exist_ok=True)
-        out_file.write_bytes(data + b"\n")
+        _save_json(data, out_file)
         err.print(f"wrote {out_file}")
+
+
+def _save_json(data: bytes, out_file: Path) -> None:
+    out_file.parent.mkdir(parents=True, exist_ok=True)
+    out_file.write_bytes(data + b"\n")
 
 
 @app.command()
@@ -773,8 +777,7 @@ def testbed_experiment_faults(
                 reports.append(run_fault_experiment(m, k, policy=policy, runs=runs, runner=runner, first=gap, gap=gap,
                                                     world="testbed"))
                 if out_file is not None and len(modes) * len(kinds) > 1:  # a long run keeps what it has finished
-                    out_file.parent.mkdir(parents=True, exist_ok=True)
-                    out_file.write_bytes(msgspec.json.encode({"experiments": reports, "partial": True}) + b"\n")
+                    _save_json(msgspec.json.encode({"experiments": reports, "partial": True}), out_file)
     except (PermissionError, RampsError) as exc:
         fail(str(exc))
     except KeyboardInterrupt:

@@ -261,9 +261,8 @@ class LoadView:
                 ramps = max(0, base + rob.unseen_accept - rob.unseen_finish)
                 if rep is not None and rep.runnable > rep.ramps_avg:
                     background = rep.runnable - rep.ramps_avg
-            if rep is None:
-                cores, speed = (self.cores, self.speed) if name == self.me else (1, 1.0)
-                weight = self.program_weight if name == self.me else 1.0
+            if rep is None:  # only this robot gets here without a report
+                cores, speed, weight = self.cores, self.speed, self.program_weight
             else:
                 cores, speed, weight = rep.cores, rep.speed, rep.program_weight
             out.append((name, cores, speed, ramps, background, weight))

@@ -119,6 +119,16 @@ def _procs_running() -> int:
     return int(os.getloadavg()[0])
 
 
+def proc_stat_fields(pid: int) -> list[str] | None:
+    """The fields of ``/proc/<pid>/stat`` after the command name, from the
+    state (field 3 of proc(5), index 0 here), or None if the process is gone."""
+    try:
+        raw = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return raw[raw.rindex(")") + 2:].split()
+
+
 def cgroup_tree(d: Path | str) -> list[Path]:
     """A cgroup and every cgroup below it (the testbed caps each program in a
     child of its robot's), deepest first, so they can be removed in order."""

@@ -68,7 +68,7 @@ from typing import Any
 
 from ramps.errors import NoTeam, RampsError
 from ramps.runtime.localteam import CG_ROOT, RobotCgroup, cgroup_mode
-from ramps.runtime.measure import cgroup_tree
+from ramps.runtime.measure import cgroup_tree, proc_stat_fields
 from ramps.testbed import net
 
 STATE_DIR = Path(os.environ.get("RAMPS_TESTBED_STATE", "/run/ramps"))
@@ -85,12 +85,8 @@ class TestbedError(RampsError):
 # ====================================================================== processes
 def _proc_stat(pid: int) -> tuple[str, int] | None:
     """(state letter, start time in ticks) of a process, or None if gone."""
-    try:
-        raw = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return None
-    rest = raw[raw.rindex(")") + 2:].split()
-    return rest[0], int(rest[19])
+    rest = proc_stat_fields(pid)
+    return None if rest is None else (rest[0], int(rest[19]))
 
 
 def _alive(pid: int | None, start: int | None) -> str:

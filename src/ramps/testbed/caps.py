@@ -41,7 +41,7 @@ import time
 from pathlib import Path
 
 from ramps.core.cost import nice_weight, weighted_shares
-from ramps.runtime.measure import cgroup_usage
+from ramps.runtime.measure import cgroup_usage, proc_stat_fields
 
 #: seconds between two share updates
 PERIOD = 0.2
@@ -72,11 +72,8 @@ def shares(core: float, cores: int, busy: int) -> float:
 
 def niceness(pid: int) -> int:
     """A process's niceness (0 if it is gone)."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-        return int(stat[stat.rindex(")") + 2:].split()[16])
-    except (OSError, ValueError, IndexError):
-        return 0
+    rest = proc_stat_fields(pid)
+    return 0 if rest is None else int(rest[16])
 
 
 class RobotCaps:
@@ -151,8 +148,8 @@ class RobotCaps:
             if before is not None and used - before >= BUSY_FRACTION * self._share.get(name, self.share) * dt:
                 busy.append(name)
         weight = {name: nice_weight(niceness(int(name[len(CHILD_PREFIX):]))) for name in live}
-        cores, level = weighted_shares(self.cores, [weight[n] for n in busy])
-        share = dict(zip(busy, cores))
+        parts, level = weighted_shares(self.cores, [weight[n] for n in busy])
+        share = dict(zip(busy, parts))  # emulated cores of each busy child
         # a nice-0 newcomer's share, for children adopted before the next tick
         self.share = self.core * min(1.0, level) if busy else self.core
         for name in live:

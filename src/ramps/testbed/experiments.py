@@ -328,7 +328,8 @@ def run_campaign(runs: int, seed: int = 0, *, policy: str = "ramps", robots: int
         if progress:
             progress(i + 1, runs, results[-1])
     return TestbedCampaignReport(
-        world="testbed", runs=len(results), interrupted=interrupted, seed=seed, policy=policy, programs=sum(r.programs for r in results),
+        world="testbed", runs=len(results), interrupted=interrupted, seed=seed, policy=policy,
+        programs=sum(r.programs for r in results),
         faults=sum(sum(1 for f in r.faults if f[2] != "recover") for r in results),
         completed=sum(r.completed for r in results), lost=sum(r.lost for r in results),
         duplicated=sum(r.duplicated for r in results), not_rejoined=sum(len(r.not_rejoined) for r in results),

@@ -37,7 +37,7 @@ from typing import Callable
 import msgspec
 
 from ramps.core.cost import nice_weight, program_share
-from ramps.runtime.measure import cgroup_usage
+from ramps.runtime.measure import cgroup_usage, proc_stat_fields
 from ramps.runtime.settings import NodeSettings
 
 CASES = [(1, 0), (2, 0), (4, 0), (6, 0), (8, 0), (1, 2), (4, 2), (6, 2)]
@@ -167,12 +167,11 @@ def _worker_cpu(tb, robot: str = "r1") -> dict[int, float]:
         if pid in skip:
             continue
         try:
-            raw = Path(f"/proc/{pid}/stat").read_text()
             cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
         except OSError:
             continue
-        if b"ramps.runtime.worker" not in cmd:
+        f = proc_stat_fields(pid)
+        if f is None or b"ramps.runtime.worker" not in cmd:
             continue
-        f = raw[raw.rindex(")") + 2:].split()
         out[pid] = (int(f[11]) + int(f[12])) / tick  # utime + stime
     return out
