@@ -338,7 +338,8 @@ class LocalTeam:
 
     def wait_visible(self, names: list[str], timeout: float | None = None) -> None:
         """Until every node in ``names`` holds its liveliness token and has published
-        a load report that a fresh client (connected to every node) can see."""
+        a load report that a fresh client (connected to every node) can see, and
+        every running node reports that it sees all the others."""
         import ramps
         from ramps.errors import NoTeam
 
@@ -361,13 +362,20 @@ class LocalTeam:
             while True:
                 st = {r.robot: r for r in probe.status().robots}
                 missing = [n for n in names if n not in st or not st[n].alive or st[n].report_age is None]
+                # and every running node sees every other one: a node that this
+                # probe sees may not have reached its teammates yet (TLS, busy CI)
+                others = len(self.alive()) - 1
+                if not missing:
+                    missing = [n for n in self.alive() if n in st and (st[n].sees or 0) < others]
                 if not missing:
                     return
                 for n in missing:
                     if self.nodes[n].proc.poll() is not None:
                         raise AssertionError(f"node {n} exited with {self.nodes[n].proc.returncode}\n{self.logs(n)}")
                 if time.monotonic() > deadline:
-                    raise AssertionError(f"nodes {missing} of team {self.team} not visible after {timeout:g} s\n"
+                    sees = {n: st[n].sees for n in missing if n in st}
+                    raise AssertionError(f"nodes {missing} of team {self.team} not visible, or not seeing all "
+                                         f"{others} teammates (they see {sees}), after {timeout:g} s\n"
                                          + self.logs())
                 time.sleep(0.1)
         finally:

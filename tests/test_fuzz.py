@@ -78,7 +78,7 @@ reports = st.builds(
     speed=st.floats(m.MIN_SPEED, m.MAX_SPEED), cpu_busy=loads, runnable=loads, ramps_running=counts,
     ramps_avg=loads, accepted_total=counts, finished_total=counts, window=loads, mem_free=counts,
     cpu_per_core=st.lists(st.floats(0.0, 1.0), max_size=4), load_avg=loads,
-    blacklisted=st.lists(robots, max_size=3), bad_messages=counts,
+    blacklisted=st.lists(robots, max_size=3), bad_messages=counts, sees=st.none() | counts,
 )
 messages = st.one_of(
     reports,

@@ -240,6 +240,8 @@ def test_cli_submit_and_status(team3):
     for r in robots.values():
         assert r["alive"], r
         assert r["cores"] == 2 and r["report_age"] is not None, r
+        assert r["sees"] == 2, r  # each robot's own view holds both teammates
+    assert "sees" in team3.cli("status", "--team", team3.team, *eps, "--no-multicast", "--wait", "1").stdout
 
 
 # ---------------------------------------------------------------- nothing pickled
@@ -393,6 +395,9 @@ def test_node_leaving_hands_its_programs_back(tmp_path):
         # the rest of the team carries on
         again = results([team.submit("where", x=i) for i in range(4)])
         assert {r["robot"] for r in again} <= {"r1", "r3"}
+        # and the robots left say so in their reports: each sees one teammate now
+        wait_for(lambda: {r.robot: r.sees for r in team.status().robots if r.alive} == {"r1": 1, "r3": 1},
+                 15, "r1 and r3 to report that each sees one teammate")
 
 
 CGROUP_WHY_NOT = cgroup_support()

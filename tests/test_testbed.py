@@ -202,6 +202,8 @@ def test_cli_status_and_errors(bed):
     st = json.loads(r.stdout)
     assert st["team"] == bed.team and [x["robot"] for x in st["robots"]] == ["r1", "r2", "r3"]
     assert {x["robot"] for x in st["team_view"] if x["alive"]} == {"r1", "r2", "r3"}
+    # each robot, over the bridge from its own namespace, sees the two others
+    assert {x["robot"]: x.get("sees") for x in st["team_view"]} == {"r1": 2, "r2": 2, "r3": 2}
     r = subprocess.run([*RAMPS, "testbed", "crash", "r9", "--tb", bed.tb], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "unknown robot 'r9'" in r.stderr and "Traceback" not in r.stderr
     r = subprocess.run([*RAMPS, "testbed", "status", "--tb", "t999"], capture_output=True, text=True, timeout=60)

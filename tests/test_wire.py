@@ -66,10 +66,10 @@ def test_a_newer_version_with_an_unknown_body_is_still_a_version_error() -> None
 
 def test_an_old_load_report_without_the_newer_fields_still_decodes() -> None:
     full = _body(report("r1"))
-    for newer in ("bad_messages", "blacklisted", "cpu_per_core", "load_avg", "mem_free", "window"):
-        full.pop(newer)
+    for newer in ("bad_messages", "blacklisted", "cpu_per_core", "load_avg", "mem_free", "window", "sees"):
+        full.pop(newer, None)
     env = decode(_raw(full, sender="r1"))
-    assert env.msg.bad_messages == 0 and env.msg.blacklisted == []
+    assert env.msg.bad_messages == 0 and env.msg.blacklisted == [] and env.msg.sees is None
 
 
 # =================================================================== per-field limits
@@ -105,6 +105,7 @@ REP = _body(report("r1"))
     (REP, "accepted_total", -1),
     (REP, "mem_free", -1),
     (REP, "bad_messages", -1),
+    (REP, "sees", -1),
     (REP, "cpu_per_core", [0.5] * (m.MAX_CORES + 1)),
     (REP, "cpu_per_core", [math.nan]),
     (REP, "blacklisted", ["r2", "*"]),

@@ -478,7 +478,12 @@ def status(
     credentials: Optional[Path] = typer.Option(None, "--credentials", help=CREDENTIALS_HELP),
     as_json: bool = typer.Option(False, "--json", help="print the team view as JSON"),
 ) -> None:
-    """Show the team: robots, their load, running programs, blacklisted peers."""
+    """Show the team: robots, their load, running programs, blacklisted peers.
+
+    Each row is what that robot last published. "sees" is how many teammates
+    the robot itself could place a program on (fresh report, not written
+    off): a robot that sees fewer than the rest is cut off from part of the
+    team, even when this command sees everyone."""
     import time as _time
 
     from rich.table import Table
@@ -494,13 +499,14 @@ def status(
         return
     table = Table(title=f"team {st.team}", title_justify="left")
     for name in ("robot", "alive", "cores", "speed", "cpu busy", "per core %", "run queue", "load avg", "mem free",
-                 "programs", "done", "dropped msgs", "blacklists", "report age"):
+                 "programs", "done", "dropped msgs", "sees", "blacklists", "report age"):
         table.add_column(name, justify="left" if name in ("robot", "blacklists", "per core %") else "right")
     for r in st.robots:
         table.add_row(r.robot, "yes" if r.alive else "[red]no[/]", str(r.cores), f"{r.speed:g}", f"{r.cpu_busy:.2f}",
                       " ".join(f"{100 * c:.0f}" for c in r.cpu_per_core[:16]), f"{r.runnable:.1f}",
                       f"{r.load_avg:.2f}", f"{r.mem_free / 2**30:.1f} GiB", str(r.ramps_running),
-                      str(r.finished_total), str(r.bad_messages), ", ".join(r.blacklisted),
+                      str(r.finished_total), str(r.bad_messages), "-" if r.sees is None else str(r.sees),
+                      ", ".join(r.blacklisted),
                       "-" if r.report_age is None else f"{r.report_age:.1f} s")
     out.print(table)
 
@@ -662,14 +668,15 @@ def testbed_status(
     view = {r["robot"]: r for r in st.get("team_view", [])}
     table = Table(title=f"testbed {st['tb']}: team {st['team']}, {st['subnet']}, {st['quota']:g} host cores/robot",
                   title_justify="left")
-    for col in ("robot", "ip", "namespace", "link", "node", "load", "faults", "team: alive", "cores", "busy"):
+    for col in ("robot", "ip", "namespace", "link", "node", "load", "faults", "team: alive", "cores", "busy", "sees"):
         table.add_column(col)
     for r in st["robots"]:
         v = view.get(r["robot"])
         table.add_row(r["robot"], r["ip"], r["namespace"] or "missing", r["link"], f"{r['process']} ({r['pid']})",
                       f"{r['load_running']}/{r['load']}", ",".join(r["faults"]) or "-",
                       ("no" if "team_view" in st else "-") if v is None else ("yes" if v["alive"] else "no"),
-                      str(v.get("cores", "-")) if v else "-", f"{v['cpu_busy']:.2f}" if v and "cpu_busy" in v else "-")
+                      str(v.get("cores", "-")) if v else "-", f"{v['cpu_busy']:.2f}" if v and "cpu_busy" in v else "-",
+                      "-" if not v or v.get("sees") is None else str(v["sees"]))
     out.print(table)
     if "team_view_error" in st:
         err.print(f"team view: {st['team_view_error']}", highlight=False, soft_wrap=True)

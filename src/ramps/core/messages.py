@@ -130,6 +130,10 @@ class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, ta
     #: software (CFS: nice 10 workers weigh 110/1024 of a nice-0 process), so
     #: an origin knows what share a program gets next to a busy robot's work
     program_weight: Weight = 1.0
+    #: teammates this robot could place a program on when it reported (a
+    #: fresh report, neither blacklisted nor lost), so ``ramps status`` shows
+    #: a robot that does not see the whole team; None where not counted
+    sees: Count | None = None
 
 
 class OffloadRequest(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="offload"):

@@ -94,6 +94,7 @@ def random_report(rng: random.Random, robot: str | None = None) -> m.LoadReport:
         finished_total=_count(rng), window=_amount(rng, 2.0), mem_free=_count(rng),
         cpu_per_core=[rng.random() for _ in range(rng.randint(0, 4))], load_avg=_amount(rng),
         blacklisted=rng.sample(PEERS, rng.randint(0, 2)), bad_messages=_count(rng),
+        sees=rng.choice([None, _count(rng)]),
     )
 
 

@@ -69,6 +69,8 @@ class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
     load_avg: float = 0.0
     mem_free: int = 0
     report_age: float | None = None
+    #: teammates the robot could place a program on (None: not reported)
+    sees: int | None = None
 
 
 class TeamStatus(msgspec.Struct, frozen=True, kw_only=True):
@@ -317,7 +319,8 @@ class Team:
                                 ramps_running=rep.ramps_running, accepted_total=rep.accepted_total,
                                 finished_total=rep.finished_total, blacklisted=list(rep.blacklisted),
                                 cpu_per_core=list(rep.cpu_per_core), load_avg=rep.load_avg,
-                                mem_free=rep.mem_free, bad_messages=rep.bad_messages, report_age=now - at)
+                                mem_free=rep.mem_free, bad_messages=rep.bad_messages, report_age=now - at,
+                                sees=rep.sees)
                 rows.append(RobotStatus(**base))
         return TeamStatus(team=self.team, robots=rows)
 

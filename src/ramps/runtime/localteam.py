@@ -195,13 +195,21 @@ class LocalTeam:
                     t = t or Team(s, robot=names[0], timeout=0.5)  # short: notice dead nodes
                 except NoTeam:
                     t = None
+                blind: dict[str, int | None] = {}
                 if t is not None:
-                    alive = {r.robot for r in t.status().robots if r.alive}
-                    if set(names) <= alive:
-                        return
+                    rows = {r.robot: r for r in t.status().robots}
+                    running = [n for n, p in self.procs.items() if p.poll() is None]
+                    if all(n in rows and rows[n].alive for n in names):
+                        # and each node sees every other one, so the first
+                        # programs are not placed on part of the team
+                        blind = {n: rows[n].sees for n in running
+                                 if n in rows and (rows[n].sees or 0) < len(running) - 1}
+                        if not blind:
+                            return
                 if time.monotonic() > deadline:
-                    raise NoTeam(f"nodes {names} did not all join team {self.team} within {timeout:g} s; "
-                                 f"see {self.log_dir}")
+                    seeing = f" (nodes that do not see all their teammates yet: {blind})" if blind else ""
+                    raise NoTeam(f"nodes {names} did not all join team {self.team} within {timeout:g} s"
+                                 f"{seeing}; see {self.log_dir}")
                 time.sleep(0.05)
         finally:
             if t is not None:

@@ -102,6 +102,7 @@ class NodeRuntime:
         self.bad_messages = 0
         #: messages dropped because the driver's backlog was full, and its size
         self.overflow = 0
+        self._sees: frozenset[str] = frozenset()  # teammates in this robot's view at the last report
         self._backlog_bytes = 0
         #: a flood of bad messages is logged one line per DROP_LOG_PERIOD
         self._drop_logged_at = -DROP_LOG_PERIOD
@@ -466,13 +467,29 @@ class NodeRuntime:
         report = self.node.make_report(cpu_busy=min(busy, float(self.cores) if self.load_scope == "cgroup" else busy),
                                        runnable=runnable, ramps_avg=ramps_avg, window=self.s.window,
                                        mem_free=mem_free, cpu_per_core=per_core, load_avg=load1)
-        report = msgspec.structs.replace(report, bad_messages=self.bad_messages + self.overflow)  # `ramps status`
+        sees = frozenset(self.node.view.candidates(now)) - {self.robot}
+        if sees != self._sees:
+            self._log_view_change(self._sees, sees)
+            self._sees = sees
+        report = msgspec.structs.replace(report, bad_messages=self.bad_messages + self.overflow,  # `ramps status`
+                                         sees=len(sees))
         try:
             self._load_pub.put(encode(self.robot, report))
             if self._trace_wire:
                 self._write_trace("tx", "", "*", 0, "LoadReport")
         except Exception as exc:
             log.warning("node %s could not publish its load: %s", self.robot, exc)
+
+    def _log_view_change(self, before: frozenset[str], after: frozenset[str]) -> None:
+        """One line when teammates enter or leave this robot's view (the
+        robots it could place programs on), so a log tells who it saw when."""
+        def names(robots: frozenset[str]) -> str:
+            shown = sorted(robots)
+            return ", ".join(shown[:8]) + (f" and {len(shown) - 8} more" if len(shown) > 8 else "")
+
+        parts = [f"+{names(after - before)}" if after - before else "",
+                 f"-{names(before - after)}" if before - after else ""]
+        log.info("node %s sees %d teammate(s): %s", self.robot, len(after), " ".join(p for p in parts if p))
 
     def _shutdown(self, done: threading.Event) -> None:
         now = time.monotonic()

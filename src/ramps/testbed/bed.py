@@ -369,7 +369,8 @@ class Testbed:
 
     def wait_alive(self, robots: list[str] | None = None, timeout: float = 60.0) -> float:
         """Wait until ``robots`` (default all) are alive in the team and publish
-        their load, seen from the root namespace; return the seconds it took.
+        their load, seen from the root namespace, and every robot that does
+        sees all the others; return the seconds it took.
         Raises NoTeam with the tail of their logs."""
         robots = list(robots or self.names)
         t0 = time.monotonic()
@@ -380,13 +381,19 @@ class Testbed:
                     if self.process_state(r) == "dead":
                         raise NoTeam(f"the node of robot {r} exited at start:\n{self.log_tail(r)}")
                 # ready: alive (liveliness token) and publishing load (a report since we started looking),
-                # so placement policies already count the robot as a candidate
-                if set(robots) <= obs.ready():
-                    return time.monotonic() - t0
+                # and every ready robot counts all the others as candidates in its own view
+                ready = obs.ready()
+                blind = {}
+                if set(robots) <= ready:
+                    blind = {r: obs.report(r).sees for r in sorted(ready)
+                             if (obs.report(r).sees or 0) < len(ready) - 1}
+                    if not blind:
+                        return time.monotonic() - t0
                 if time.monotonic() > deadline:
                     tails = "\n".join(f"--- {r}:\n{self.log_tail(r)}" for r in robots)
+                    seeing = f" (robots that do not see all {len(ready) - 1} others: {blind})" if blind else ""
                     raise NoTeam(f"robots {', '.join(robots)} did not all join team {self.team} within "
-                                 f"{timeout:g} s\n{tails}")
+                                 f"{timeout:g} s{seeing}\n{tails}")
                 time.sleep(0.05)
 
     def log_tail(self, robot: str, lines: int = 15) -> str:
@@ -763,7 +770,7 @@ class Observer:
                 row: dict[str, Any] = dict(robot=r, alive=r in self.alive)
                 if rep is not None:
                     row.update(cores=rep.cores, speed=rep.speed, cpu_busy=rep.cpu_busy,
-                               running=rep.ramps_running, report_age=round(now - at, 3))
+                               running=rep.ramps_running, sees=rep.sees, report_age=round(now - at, 3))
                 rows.append(row)
             return rows
 
