@@ -89,3 +89,26 @@ def test_connect_to_a_missing_robot_fails_fast(team):
     with pytest.raises(NoTeam, match="node 'r9'"):
         ramps.connect(team=t.team, robot="r9", connect=[t.nodes["r1"].endpoint], multicast=False, timeout=1.5)
     assert time.monotonic() - started < 15
+
+
+def test_a_script_that_never_closes_its_team_still_exits(team):
+    """Zenoh runs subscriber callbacks on non-daemon threads: a script that
+    forgot ``team.close()`` used to hang forever after its last line."""
+    import json
+    import subprocess
+    import sys
+
+    t, _ = team
+    script = ("import json, sys, ramps\n"
+              "team = ramps.connect(team=sys.argv[1], robot='r1', connect=json.loads(sys.argv[2]), multicast=False,"
+              " timeout=20)\n"
+              "print(team.submit('where', x=7).result(timeout=30)['x'])\n")
+    started = time.monotonic()
+    try:
+        out = subprocess.run([sys.executable, "-c", script, t.team, json.dumps(t.endpoints())], capture_output=True,
+                             text=True, timeout=90, env=t._env(None))
+    except subprocess.TimeoutExpired:
+        pytest.fail("the script did not exit after its last line (an open Team kept it alive)")
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "7"
+    print(f"script ran and exited in {time.monotonic() - started:.1f} s")

@@ -24,12 +24,14 @@ names the robot that ran it and ``fut.attempts`` how many placements it took. A 
 from __future__ import annotations
 
 import asyncio
+import atexit
 import heapq
 import itertools
 import os
 import socket
 import threading
 import time
+import weakref
 from concurrent.futures import Future
 from typing import Any, Iterable, Iterator
 
@@ -80,6 +82,37 @@ class TeamStatus(msgspec.Struct, frozen=True, kw_only=True):
 
 _ERRORS = {"program": ProgramFailed, "refused": ProgramRefused, "bad_arguments": BadArguments}
 
+#: Teams still open, closed at interpreter exit if the application did not
+_OPEN: "weakref.WeakSet[Team]" = weakref.WeakSet()
+_OPEN_LOCK = threading.Lock()
+_EXIT_HOOKED = False
+
+
+def _close_open_teams() -> None:
+    """Close every Team the application left open. Zenoh runs subscriber
+    callbacks on non-daemon threads, so an open session would keep the
+    process alive after the script's last line; this runs before Python
+    waits for those threads (plain ``atexit`` would be too late)."""
+    with _OPEN_LOCK:
+        teams = list(_OPEN)
+    for team in teams:
+        try:
+            team.close()
+        except Exception:
+            pass
+
+
+def _track(team: "Team") -> None:
+    global _EXIT_HOOKED
+    with _OPEN_LOCK:
+        _OPEN.add(team)
+        if not _EXIT_HOOKED:
+            try:  # the hook concurrent.futures uses: before non-daemon threads are joined
+                threading._register_atexit(_close_open_teams)  # type: ignore[attr-defined]
+            except (AttributeError, RuntimeError):
+                atexit.register(_close_open_teams)
+            _EXIT_HOOKED = True
+
 
 class Team:
     def __init__(self, settings: NodeSettings, *, robot: str | None, timeout: float,
@@ -113,6 +146,7 @@ class Team:
                 self.session = zenoh.open(zenoh_config(settings, listen=listen))
         except zenoh.ZError as exc:
             raise TransportError(f"cannot open a Zenoh session for team {self.team!r}: {exc}") from exc
+        _track(self)
         self._subs = [
             self.session.declare_subscriber(keys.client(self.team, self.client_id), self._on_outcome),
             self.session.declare_subscriber(keys.load(self.team), self._on_report),
@@ -349,6 +383,8 @@ class Team:
             self.session.close()
         except Exception:
             pass
+        with _OPEN_LOCK:
+            _OPEN.discard(self)
 
     def __enter__(self) -> "Team":
         return self
