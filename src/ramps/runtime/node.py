@@ -138,6 +138,10 @@ class NodeRuntime:
                                    acct=acct if scope == "cgroup" else None)
         self.sampler.start()
         self.load_scope = scope
+        # a cgroup's CPU use is in host cores; a robot of ``cores`` emulated at a
+        # smaller quota reports it in its own cores, as its speed is scaled
+        self._busy_scale = (self.cores / quota if scope == "cgroup" and quota is not None and quota < self.cores
+                            else 1.0)
         if s.trace:
             try:
                 self._trace = open(s.trace, "a", buffering=1)
@@ -464,7 +468,9 @@ class NodeRuntime:
         busy, runnable, ramps_avg = self.sampler.averages()
         per_core, load1, mem_free = self.sampler.extras()
         self.node.executor.background = max(0.0, runnable - ramps_avg)
-        report = self.node.make_report(cpu_busy=min(busy, float(self.cores) if self.load_scope == "cgroup" else busy),
+        if self.load_scope == "cgroup":
+            busy = min(busy * self._busy_scale, float(self.cores))
+        report = self.node.make_report(cpu_busy=busy,
                                        runnable=runnable, ramps_avg=ramps_avg, window=self.s.window,
                                        mem_free=mem_free, cpu_per_core=per_core, load_avg=load1)
         sees = frozenset(self.node.view.candidates(now)) - {self.robot}

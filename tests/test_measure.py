@@ -1,0 +1,79 @@
+"""What a node's load sampler counts (``ramps.runtime.measure``).
+
+A robot's run queue is what the cost model weighs programs against, so the
+node's own threads must not be in it: they wake with every sample and made
+an idle emulated robot look 0.1-0.6 tasks busy. A process of the robot's is
+counted; a thread of the node is not, however busy.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+from runtime_team import RobotCgroup, cgroup_mode, cgroup_support
+
+from ramps.runtime import measure
+
+SPIN = '''
+import hashlib, json, subprocess, sys, threading, time
+from ramps.runtime.measure import LoadSampler, cgroup_dirs
+data = b"x" * (32 << 20)
+def spin():  # sha256 of a big buffer runs without the GIL: a thread of this process in state R
+    while True:
+        hashlib.sha256(data).digest()
+threading.Thread(target=spin, daemon=True).start()
+child = subprocess.Popen([sys.executable, "-c", "while True: pass"])  # another process of the robot
+cg, acct = cgroup_dirs()
+s = LoadSampler(lambda: 0, scope="cgroup", cgroup=cg, acct=acct, window=2.0, interval=0.05)
+s.start()
+time.sleep(2.5)
+print(json.dumps(s.averages()))
+child.kill()
+'''
+
+
+@pytest.mark.skipif(cgroup_support() is not None, reason=f"cpu cgroups unavailable: {cgroup_support()}")
+def test_cgroup_run_queue_counts_the_robots_processes_not_the_nodes_threads():
+    cg = RobotCgroup(f"measure-{time.monotonic_ns()}", 2.0, cgroup_mode())
+    try:
+        out = subprocess.run(cg.wrap([sys.executable, "-c", SPIN]), capture_output=True, text=True, timeout=60)
+    finally:
+        cg.remove()
+    assert out.returncode == 0, out.stderr
+    busy, runnable, ramps = json.loads(out.stdout.splitlines()[-1])
+    assert ramps == 0
+    # the busy child: one task; the spinning thread of the sampler's own process is not
+    assert 0.5 <= runnable <= 1.4, (busy, runnable)
+    assert busy > 0.8, (busy, runnable)  # both do use the CPU
+
+
+def test_own_running_counts_this_processes_busy_threads():
+    data = b"x" * (32 << 20)
+    stop = threading.Event()
+
+    def spin():
+        while not stop.is_set():
+            import hashlib
+            hashlib.sha256(data).digest()
+
+    t = threading.Thread(target=spin, daemon=True)
+    before = measure.own_running()
+    t.start()
+    try:
+        seen = max(measure.own_running() for _ in range(50) if not time.sleep(0.01))
+    finally:
+        stop.set()
+        t.join()
+    assert before >= 1  # the caller itself is running
+    assert seen >= 2, seen
+
+
+def test_speed_is_scaled_to_the_quota_of_a_core():
+    full = measure.measure_speed(0.1)
+    assert 0.05 < full < 20
+    assert measure.measure_speed(0.1, quota=0.25, cores=1) < full
