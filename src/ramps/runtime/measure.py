@@ -243,7 +243,10 @@ class LoadSampler:
                 runnable = float(running)
             else:
                 busy = psutil.cpu_percent(percpu=False) / 100.0 * ncpu
-                runnable = float(max(0, _procs_running() - own_running()))
+                # less the node's own running threads, this sampler among them; reading
+                # them costs ~0.5 ms, so only when something besides the sampler runs
+                host = _procs_running()
+                runnable = float(max(0, host - (own_running() if host > 1 else 1)))
             self._last_t = now
             with self._lock:
                 self._samples.append((now, busy, max(runnable, ramps), ramps))
