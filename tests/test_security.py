@@ -240,6 +240,13 @@ def test_zenoh_config_of_a_secured_team(team):
     assert "cert_common_names" not in sec.secure_zenoh_json("warehouse", creds)["access_control"]["subjects"][0]
     plain = zenoh_config(NodeSettings(robot="r1"))
     assert json.loads(plain.get_json("connect/exit_on_failure")) is not True
+    # secured or not, of two robots that scout each other only one dials (zenoh#2806);
+    # an application that listens nowhere cannot be dialled, so it dials everyone
+    app = zenoh_config(NodeSettings(robot="r1", connect=["tcp/127.0.0.1:7447"]), listen=[])
+    for cfg, want in ((c, "greater-zid"), (plain, "greater-zid"), (app, "always")):
+        for how in ("multicast", "gossip"):
+            strategy = json.loads(cfg.get_json(f"scouting/{how}/autoconnect_strategy"))
+            assert strategy["peer"]["to_peer"] == want, (how, strategy)
 
 
 def test_insecure_node_warns_once_per_process(monkeypatch, caplog):

@@ -196,6 +196,10 @@ def load_settings(*, config_file: str | os.PathLike | None = None, flags: dict[s
         raise ConfigError(f"bad setting: {exc}" + (f" (config file {path})" if path else "")) from None
 
 
+AUTOCONNECT_STRATEGY = '{peer: {to_router: "always", to_peer: "greater-zid"}}'
+AUTOCONNECT_ALWAYS = '{peer: {to_router: "always", to_peer: "always"}}'
+
+
 def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credentials=None,
                  exit_on_failure: bool = False):
     """A Zenoh peer configuration for these settings.
@@ -210,9 +214,18 @@ def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credential
     zenoh_runtime_defaults()
     c = zenoh.Config()
     c.insert_json5("mode", '"peer"')
-    c.insert_json5("listen/endpoints", json.dumps(s.listen_endpoints(listen)))
+    listening = s.listen_endpoints(listen)
+    c.insert_json5("listen/endpoints", json.dumps(listening))
     c.insert_json5("connect/endpoints", json.dumps(s.connect))
     c.insert_json5("scouting/multicast/enabled", "true" if s.multicast else "false")
+    # of two robots that find each other (multicast, gossip) only one dials: when both
+    # did, a lease that expired on one side only (a robot cut or frozen just past it)
+    # could leave the pair deaf to each other for good (eclipse-zenoh/zenoh#2806;
+    # seen here once in about 50 cut/freeze/crash recoveries on the testbed). A peer
+    # that listens nowhere (an application) cannot be dialled: it dials everyone.
+    strategy = AUTOCONNECT_STRATEGY if listening else AUTOCONNECT_ALWAYS
+    for how in ("multicast", "gossip"):
+        c.insert_json5(f"scouting/{how}/autoconnect_strategy", strategy)
     c.insert_json5("transport/link/tx/lease", str(s.lease_ms))
     c.insert_json5("transport/link/tx/keep_alive", "4")
     if s.secure:
