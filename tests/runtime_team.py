@@ -45,7 +45,7 @@ from typing import Any
 
 import psutil
 
-from ramps.runtime.localteam import RobotCgroup, cgroup_mode, free_port
+from ramps.runtime.localteam import RobotCgroup, cgroup_mode, free_port, partial_views
 
 TESTS_DIR = Path(__file__).resolve().parent
 #: unique to this pytest process: every process a LocalTeam starts carries it
@@ -364,9 +364,10 @@ class LocalTeam:
                 missing = [n for n in names if n not in st or not st[n].alive or st[n].report_age is None]
                 # and every running node sees every other one: a node that this
                 # probe sees may not have reached its teammates yet (TLS, busy CI)
-                others = len(self.alive()) - 1
+                running = self.alive()
+                others = len(running) - 1
                 if not missing:
-                    missing = [n for n in self.alive() if n in st and (st[n].sees or 0) < others]
+                    missing = list(partial_views({n: st[n].sees for n in running if n in st}, len(running)))
                 if not missing:
                     return
                 for n in missing:

@@ -8,6 +8,7 @@ counted; a thread of the node is not, however busy.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import subprocess
 import sys
@@ -58,14 +59,16 @@ def test_own_running_counts_this_processes_busy_threads():
 
     def spin():
         while not stop.is_set():
-            import hashlib
             hashlib.sha256(data).digest()
 
     t = threading.Thread(target=spin, daemon=True)
     before = measure.own_running()
     t.start()
+    seen = 0
     try:
-        seen = max(measure.own_running() for _ in range(50) if not time.sleep(0.01))
+        for _ in range(50):
+            seen = max(seen, measure.own_running())
+            time.sleep(0.01)
     finally:
         stop.set()
         t.join()

@@ -32,6 +32,13 @@ from ramps.runtime.measure import cgroup_tree
 CG_ROOT = Path("/sys/fs/cgroup")
 
 
+def partial_views(sees: dict[str, int | None], size: int) -> dict[str, int | None]:
+    """Of a team of ``size`` running robots, those whose own load reports say
+    they do not see all ``size - 1`` others yet (None: no count reported),
+    with what they see. Teams are handed over only when this is empty."""
+    return {robot: n for robot, n in sees.items() if (n or 0) < size - 1}
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -202,8 +209,7 @@ class LocalTeam:
                     if all(n in rows and rows[n].alive for n in names):
                         # and each node sees every other one, so the first
                         # programs are not placed on part of the team
-                        blind = {n: rows[n].sees for n in running
-                                 if n in rows and (rows[n].sees or 0) < len(running) - 1}
+                        blind = partial_views({n: rows[n].sees for n in running if n in rows}, len(running))
                         if not blind:
                             return
                 if time.monotonic() > deadline:

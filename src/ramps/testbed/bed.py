@@ -67,7 +67,7 @@ from pathlib import Path
 from typing import Any
 
 from ramps.errors import NoTeam, RampsError
-from ramps.runtime.localteam import CG_ROOT, RobotCgroup, cgroup_mode
+from ramps.runtime.localteam import CG_ROOT, RobotCgroup, cgroup_mode, partial_views
 from ramps.runtime.measure import cgroup_tree, proc_stat_fields
 from ramps.testbed import net
 
@@ -385,8 +385,7 @@ class Testbed:
                 ready = obs.ready()
                 blind = {}
                 if set(robots) <= ready:
-                    blind = {r: obs.report(r).sees for r in sorted(ready)
-                             if (obs.report(r).sees or 0) < len(ready) - 1}
+                    blind = partial_views({r: obs.report(r).sees for r in sorted(ready)}, len(ready))
                     if not blind:
                         return time.monotonic() - t0
                 if time.monotonic() > deadline:
