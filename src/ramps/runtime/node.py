@@ -71,6 +71,14 @@ log = logging.getLogger("ramps.node")
 MAX_BACKLOG_BYTES = 64 * 1024 * 1024
 #: seconds between two log lines about dropped messages (each is counted)
 DROP_LOG_PERIOD = 1.0
+#: a driver that wakes this much later than it allowed itself was stalled
+#: (frozen, starved of CPU, paused): see NodeRuntime._clock
+STALL_MIN = 0.5
+#: seconds after a stall during which a teammate's lost liveliness is held,
+#: in case it is only its lease on this stalled node that ran out
+STALL_GRACE = 3.0
+#: queued items handled before the timers fire (the rest after them)
+MAX_ITEMS_PER_ROUND = 10_000
 
 INSECURE_WARNING = (
     "INSECURE: team {team!r} runs without authentication or encryption: anyone who can reach this network "
@@ -111,6 +119,17 @@ class NodeRuntime:
         self._trace_wire = False
         self.session = None
         self.node: Node | None = None
+        #: the driver's stalls (see _clock): how many, seconds in all
+        self.stalls = 0
+        self.stalled_s = 0.0
+        self._stall_offset = 0.0
+        self._stalled_at = 0.0
+        self._last_read = 0.0
+        self._sleep_until = 0.0
+        #: teammates whose liveliness went just after a stall: robot -> core time it counts as lost
+        self._held_lost: dict[str, float] = {}
+        #: Prometheus metrics (``--metrics``), fed from the driver thread (ramps.observe.metrics)
+        self.metrics = None
 
     # ================================================================ lifecycle
     def start(self) -> "NodeRuntime":
@@ -149,6 +168,8 @@ class NodeRuntime:
                 self._teardown()
                 raise ConfigError(f"cannot write the trace file {s.trace}: {exc.strerror or exc}") from None
             self._trace_wire = s.trace_wire
+        if s.metrics:
+            self._serve_metrics(s.metrics)
         try:
             if s.secure:
                 self.session = open_session(lambda fast: zenoh_config(s, credentials=creds, exit_on_failure=fast),
@@ -180,6 +201,18 @@ class NodeRuntime:
         log.info("node %s joined team %s: %d cores, speed %.2f, load scope %s", self.robot, self.team,
                  self.cores, self.speed, scope)
         return self
+
+    def _serve_metrics(self, address: str) -> None:
+        from ramps.observe.metrics import NodeMetrics
+
+        self.metrics = NodeMetrics(self.robot, self.team, cores=self.cores, speed=self.speed, policy=self.s.policy)
+        try:
+            self.metrics.serve(address)
+        except (OSError, ValueError) as exc:
+            self.metrics = None
+            self._teardown()
+            raise ConfigError(f"cannot serve metrics on {address}: {getattr(exc, 'strerror', None) or exc}") from None
+        log.info("node %s serves Prometheus metrics on http://%s:%d/metrics", self.robot, *self.metrics.address)
 
     def _join_checks(self):
         """Secure mode: this robot's checked credentials, and whether Zenoh may
@@ -252,6 +285,8 @@ class NodeRuntime:
             self.sampler.stop()
         if getattr(self, "pool", None):
             self.pool.stop()
+        if self.metrics is not None:
+            self.metrics.close()
         if self._trace is not None:
             self._trace_wire = False
             self._trace.close()
@@ -276,34 +311,75 @@ class NodeRuntime:
                                                  result_size=len(value), retryable=retryable)))
 
     # ================================================================ driver
+    def _clock(self) -> float:
+        """The core's clock: monotonic time less every stall of this node.
+
+        A stall is a reading later than the driver allowed itself to be
+        (``_sleep_until``, or the previous reading) by more than STALL_MIN: the
+        process was frozen (SIGSTOP), starved of CPU on a busy robot, or
+        paused in a long collection. Nothing could be heard meanwhile, so the
+        core must not count that time as silence from its hosts (it would
+        write off healthy programs, its own included, the moment the node
+        wakes): the stall is taken out of the core's time. Deadlines stay
+        as long in the time the node was awake to hear."""
+        t = time.monotonic()
+        late = t - max(self._last_read, self._sleep_until)
+        if late > STALL_MIN:
+            self._stall_offset += late
+            self.stalls += 1
+            self.stalled_s += late
+            self._stalled_at = t
+            if self._trace is not None:
+                self._write_trace("stalled", "", "", 0, f"{late:.3f}", at=t)
+            log.warning("node %s: driver stalled for %.1f s (frozen, starved of CPU or paused); "
+                        "that time does not count as silence from teammates", self.robot, late)
+        self._last_read = t
+        self._sleep_until = 0.0
+        return t - self._stall_offset
+
     def _drive(self) -> None:
         node = self.node
-        next_pub = time.monotonic()
+        clock = self._clock
+        self._last_read = time.monotonic()
+        next_pub = clock()
         period = self.s.publish_period
         q = self._q
         while True:
-            now = time.monotonic()
+            now = clock()
             deadline = node.next_deadline()
             wake = next_pub if deadline is None else min(deadline, next_pub)
+            wake = min(wake, self._next_release()) if self._held_lost else wake
+            wait = max(0.0, wake - now)
+            self._sleep_until = time.monotonic() + wait
             try:
-                item = q.get(timeout=max(0.0, wake - now))
+                item = q.get(timeout=wait)
             except queue.Empty:
                 item = None
+            # every message queued before the timers fire: heartbeats and
+            # results that piled up while the node stalled count first
             actions: list = []
+            budget = MAX_ITEMS_PER_ROUND
             while item is not None:
-                now = time.monotonic()
+                now = clock()
                 if item[0] == "stop":
+                    self._apply(actions)
                     self._shutdown(item[1])
                     return
                 try:
                     actions.extend(self._handle(item, now))
                 except Exception:  # a bug must not take the node down; say so loudly
                     log.exception("node %s: error handling %s", self.robot, item[0])
+                if len(actions) >= 256:
+                    self._apply(actions)
+                    actions = []
+                budget -= 1
                 try:
-                    item = q.get_nowait() if len(actions) < 256 else None
+                    item = q.get_nowait() if budget > 0 else None
                 except queue.Empty:
                     item = None
-            now = time.monotonic()
+            now = clock()
+            if self._held_lost:
+                actions.extend(self._release_lost(now))
             if now >= next_pub:
                 self._publish(now)
                 next_pub = now + period if now - next_pub > period else next_pub + period
@@ -311,6 +387,32 @@ class NodeRuntime:
             if deadline is not None and deadline <= now:
                 actions.extend(node.tick(now))
             self._apply(actions)
+
+    def _on_liveliness(self, robot: str, alive: bool, now: float) -> list:
+        """A teammate's liveliness token came or went. Just after this node
+        stalled, every teammate's lease on it may have run out: their links
+        close and their tokens vanish here, then come back as soon as Zenoh
+        reconnects. Such a loss is held for STALL_GRACE and forgotten if the
+        robot comes back meanwhile; a robot that does not is lost then."""
+        if not alive and self._stalled_at and time.monotonic() - self._stalled_at < STALL_GRACE:
+            self._held_lost[robot] = now + STALL_GRACE
+            return []
+        if alive and self._held_lost.pop(robot, None) is not None:
+            if self._trace is not None:
+                self._write_trace("peer_back", "", robot, 0, "lost and back while this node recovered from a stall")
+            return []
+        return self.node.handle(PeerAlive(robot=robot) if alive else PeerLost(robot=robot), now)
+
+    def _next_release(self) -> float:
+        return min(self._held_lost.values())
+
+    def _release_lost(self, now: float) -> list:
+        out: list = []
+        for robot, when in list(self._held_lost.items()):
+            if when <= now:
+                del self._held_lost[robot]
+                out.extend(self.node.handle(PeerLost(robot=robot), now))
+        return out
 
     def _handle(self, item: tuple, now: float) -> list:
         kind = item[0]
@@ -354,7 +456,7 @@ class NodeRuntime:
                 return []
             if self._trace_wire:
                 self._write_trace("peer_alive" if alive else "peer_lost", "", robot, 0, "liveliness")
-            return node.handle(PeerAlive(robot=robot) if alive else PeerLost(robot=robot), now)
+            return self._on_liveliness(robot, alive, now)
         if kind == "call":
             item[1]()
             return []
@@ -403,6 +505,8 @@ class NodeRuntime:
     # ================================================================ outputs
     def _apply(self, actions: list) -> None:
         for a in actions:
+            if self.metrics is not None:
+                self.metrics.on_action(a, self.node)
             if isinstance(a, Send):
                 self._put(keys.inbox(self.team, a.to), encode(self.robot, a.msg))
                 if self._trace_wire:
@@ -479,6 +583,12 @@ class NodeRuntime:
             self._sees = sees
         report = msgspec.structs.replace(report, bad_messages=self.bad_messages + self.overflow,  # `ramps status`
                                          sees=len(sees))
+        if self.metrics is not None:
+            st = self.node.statistics()
+            self.metrics.on_report(cpu_busy=busy, runnable=runnable, load_avg=load1, mem_free=mem_free,
+                                   running=st.running, in_flight=st.active_programs, sees=len(sees),
+                                   blacklisted=len(st.blacklisted), dropped=report.bad_messages,
+                                   reports_received=st.reports_received)
         try:
             self._load_pub.put(encode(self.robot, report))
             if self._trace_wire:
@@ -498,7 +608,7 @@ class NodeRuntime:
         log.info("node %s sees %d teammate(s): %s", self.robot, len(after), " ".join(p for p in parts if p))
 
     def _shutdown(self, done: threading.Event) -> None:
-        now = time.monotonic()
+        now = self._clock()
         node = self.node
         out: list = []
         handed = node.executor.hand_back(now, out)

@@ -1,0 +1,104 @@
+"""End to end: a node that stays right when its robot stalls or half-dies
+(issue 14, runtime side). Real ``ramps node`` processes on loopback
+(``runtime_team.LocalTeam``), real workers, real signals.
+
+- A node frozen (SIGSTOP of the node process only, its workers run on) for
+  5 s restarts none of the programs it is origin of: its trace shows no
+  heartbeat timeout, no back-off and no second attempt, and each program
+  completes once.
+- A node killed alone (SIGKILL of the node process, not its group) takes its
+  worker processes with it at once: no work goes on that nobody will ever
+  collect.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+from runtime_team import LocalTeam, assert_no_leftovers
+
+pytestmark = pytest.mark.slow
+
+RESULT_TIMEOUT = 60.0
+
+
+@pytest.fixture(scope="module", autouse=True)
+def no_leftover_processes():
+    yield
+    assert_no_leftovers()
+
+
+def trace_lines(path: Path) -> list[dict]:
+    if not path.exists():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def wait_for(pred, timeout: float, what: str, poll: float = 0.05):
+    deadline = time.monotonic() + timeout
+    while True:
+        value = pred()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(poll)
+
+
+def _stall(t: LocalTeam, robot: str, seconds: float) -> None:
+    pid = t.nodes[robot].pid
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        time.sleep(seconds)
+    finally:
+        os.kill(pid, signal.SIGCONT)
+
+
+BAD = ("heartbeat_timeout", "backoff", "host_failed")
+
+
+def _assert_clean_trace(trace: list[dict], pid: str) -> None:
+    mine = [e for e in trace if e["program_id"] == pid]
+    bad = [e for e in mine if any(b in e["what"] or b in e["detail"] for b in BAD) or e["attempt"] > 1]
+    assert not bad, "the stalled origin wrote off a healthy program:\n" + "\n".join(map(str, mine))
+    delivered = [e for e in mine if e["what"] == "delivered"]
+    assert len(delivered) == 1, mine
+
+
+def test_stalled_origin_restarts_none_of_its_programs(tmp_path):
+    """SIGSTOP the origin's node 2 s into two 8 s programs, SIGCONT 5 s
+    later. One program runs on the stalled robot itself (the node's own
+    heartbeats), one on a teammate (its heartbeats and result queue up, or
+    Zenoh drops them, while the origin is frozen). Neither may be written
+    off: no heartbeat timeout, no back-off, no attempt 2, one delivery each."""
+    trace = tmp_path / "r1.trace"
+    t = LocalTeam(2, tmp_path, cores=2)
+    try:
+        t.start_node("r1", extra_env={"RAMPS_TRACE": str(trace)}, wait=False)
+        t.start_node("r2", wait=False)
+        t.wait_visible(["r1", "r2"])
+        team = t.client("r1")
+        futs = [team.options(policy="round_robin").submit("sleepy", seconds=8.0, tag=f"p{i}") for i in range(2)]
+        wait_for(lambda: all((t.marks / f"p{i}").exists() for i in range(2)), 20, "both programs to start")
+        hosts = sorted((t.marks / f"p{i}").read_text().split()[0] for i in range(2))
+        assert hosts == ["r1", "r2"], hosts
+        time.sleep(2.0)
+        _stall(t, "r1", 5.0)
+        res = [f.result(timeout=RESULT_TIMEOUT) for f in futs]
+        assert sorted(r["tag"] for r in res) == ["p0", "p1"]
+        time.sleep(0.5)
+        entries = trace_lines(trace)
+        pids = sorted({e["program_id"] for e in entries if e["what"] == "placed"})
+        assert len(pids) == 2, entries
+        stalls = [e for e in entries if e["what"] == "stalled"]
+        assert stalls and float(stalls[0]["detail"]) > 3.0, stalls  # the node saw its own stall
+        for pid in pids:
+            _assert_clean_trace(entries, pid)
+    finally:
+        t.close()
