@@ -351,6 +351,9 @@ def node(
     trace: Optional[Path] = typer.Option(None, "--trace", help="write every placement, failure and delivery decision to this file (JSON lines)"),
     secure: bool = typer.Option(False, "--secure", help=SECURE_HELP),
     credentials: Optional[Path] = typer.Option(None, "--credentials", help=CREDENTIALS_HELP),
+    metrics: Optional[str] = typer.Option(None, "--metrics", help="serve Prometheus metrics on ADDR:PORT, e.g. "
+                                          "127.0.0.1:9464 or 0.0.0.0:9464 for a Prometheus elsewhere (default off; "
+                                          "env RAMPS_METRICS)"),
     verbose: bool = typer.Option(False, "--verbose", "-v", help="log every blacklisting and failure"),
 ) -> None:
     """Run this robot's ramps node until Ctrl-C: load publisher, load server, program executor.
@@ -372,7 +375,7 @@ def node(
     s = _settings(robot=robot, team=team, listen=listen or None, connect=connect or None, multicast=multicast,
                   cores=cores, speed=speed, policy=policy, programs=program or None, config_file=config_file,
                   lease_ms=lease_ms, trace=str(trace) if trace else None, secure=secure or None,
-                  credentials=str(credentials) if credentials else None)
+                  credentials=str(credentials) if credentials else None, metrics=metrics)
     import signal
     import threading
 
@@ -387,7 +390,9 @@ def node(
               f"policy {s.policy}, load measured on the {rt.load_scope}; listening on {', '.join(s.listen_endpoints())}"
               + (f"; connecting to {', '.join(s.connect)}" if s.connect else "")
               + ("; multicast discovery on" if s.multicast else "")
-              + ("; secured: TLS with team certificates" if s.secure else ""), highlight=False, soft_wrap=True)
+              + ("; secured: TLS with team certificates" if s.secure else "")
+              + (f"; metrics on http://{rt.metrics.address[0]}:{rt.metrics.address[1]}/metrics" if rt.metrics else ""),
+              highlight=False, soft_wrap=True)
     err.print(f"programs: {', '.join(sorted(rt.registry.names()))}. Ctrl-C to leave the team.", highlight=False,
               soft_wrap=True)
     try:

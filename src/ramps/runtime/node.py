@@ -504,9 +504,10 @@ class NodeRuntime:
 
     # ================================================================ outputs
     def _apply(self, actions: list) -> None:
+        mnow = time.monotonic() - self._stall_offset  # the core's clock, for metrics' latencies
         for a in actions:
             if self.metrics is not None:
-                self.metrics.on_action(a, self.node)
+                self.metrics.on_action(a, self.node, mnow)
             if isinstance(a, Send):
                 self._put(keys.inbox(self.team, a.to), encode(self.robot, a.msg))
                 if self._trace_wire:

@@ -87,6 +87,8 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     secure: bool = False
     #: this robot's credentials directory from `ramps team add` (ca.pem, cert.pem, key.pem)
     credentials: str = ""
+    #: serve Prometheus metrics on this ADDR:PORT ("" = off; ramps.observe.metrics)
+    metrics: str = ""
     #: explicit credential files, overriding those of ``credentials``
     ca: str = ""
     cert: str = ""
@@ -111,6 +113,10 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
             raise ValueError(f"worker_nice must be 0..19, got {self.worker_nice}")
         if self.load_scope not in ("auto", "host", "cgroup"):
             raise ValueError(f"load_scope must be auto, host or cgroup, got {self.load_scope!r}")
+        if self.metrics:
+            from ramps.observe.metrics import parse_address
+
+            parse_address(self.metrics)  # raises ValueError with a message
         self._check_security()
 
     def _check_security(self) -> None:
@@ -151,6 +157,7 @@ _ENV = {
     "RAMPS_MEMBERS": ("members", "list"),
     "RAMPS_TRACE": ("trace", str),
     "RAMPS_TRACE_WIRE": ("trace_wire", "bool"),
+    "RAMPS_METRICS": ("metrics", str),
 }
 
 

@@ -1,0 +1,136 @@
+"""Prometheus metrics of real nodes (``ramps node --metrics``), scraped over HTTP.
+
+A three-robot team (tests/runtime_team.py), every node serving metrics on a
+free loopback port. r1 is the origin: its counters must move as programs
+complete, its latency histograms must gain observations (dispatch, and
+failure detection / recovery once r3 is killed under a program), and every
+scrape must parse as Prometheus exposition format.
+"""
+
+from __future__ import annotations
+
+import time
+import urllib.request
+
+import pytest
+from prometheus_client.parser import text_string_to_metric_families
+from runtime_team import LocalTeam
+
+from ramps.observe.metrics import parse_address
+from ramps.runtime.localteam import free_port
+
+RESULT_TIMEOUT = 60.0
+
+
+def scrape(port: int) -> dict[str, list]:
+    """name -> samples, from a real HTTP GET of /metrics (parsing fails on bad text)."""
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=10) as resp:
+        assert resp.status == 200
+        assert resp.headers["Content-Type"].startswith("text/plain")
+        text = resp.read().decode()
+    out: dict[str, list] = {}
+    for fam in text_string_to_metric_families(text):
+        for s in fam.samples:
+            out.setdefault(s.name, []).append(s)
+    return out
+
+
+def total(samples: dict[str, list], name: str, **labels) -> float:
+    return sum(s.value for s in samples.get(name, []) if all(s.labels.get(k) == v for k, v in labels.items()))
+
+
+def test_parse_address_defaults_and_errors():
+    assert parse_address("9464") == ("127.0.0.1", 9464)
+    assert parse_address(":9464") == ("127.0.0.1", 9464)
+    assert parse_address("0.0.0.0:9100") == ("0.0.0.0", 9100)
+    assert parse_address("[::1]:9100") == ("::1", 9100)
+    for bad in ("localhost:http", "1.2.3.4:70000", ""):
+        with pytest.raises(ValueError, match="metrics"):
+            parse_address(bad)
+
+
+@pytest.mark.slow
+def test_metrics_scraped_while_programs_run(tmp_path):
+    ports = {f"r{i}": free_port() for i in (1, 2, 3)}
+    t = LocalTeam(3, tmp_path)
+    try:
+        for name, port in ports.items():
+            t.start_node(name, wait=False, extra_args=["--metrics", f"127.0.0.1:{port}"])
+        t.wait_visible(list(ports))
+        before = scrape(ports["r1"])
+        assert total(before, "ramps_programs_delivered_total", robot="r1") == 0
+        assert total(before, "ramps_cores", robot="r1") == 2
+        team = t.client("r1")
+        futs = [team.submit("spin", seconds=0.2) for _ in range(6)]
+        bad = team.submit("fail")
+        during = scrape(ports["r1"])  # while they run: still parses
+        assert total(during, "ramps_programs_placed_total", robot="r1") >= 1
+        for f in futs:
+            f.result(RESULT_TIMEOUT)
+        with pytest.raises(Exception):
+            bad.result(RESULT_TIMEOUT)
+        after = scrape(ports["r1"])
+        assert total(after, "ramps_programs_delivered_total", robot="r1", program="spin", outcome="ok") == 6
+        assert total(after, "ramps_programs_delivered_total", robot="r1", program="fail", outcome="program") == 1
+        assert total(after, "ramps_programs_placed_total", robot="r1") >= 7
+        assert total(after, "ramps_dispatch_seconds_count", robot="r1") >= 7
+        assert total(after, "ramps_program_duration_seconds_count", robot="r1", program="spin") == 6
+        # the hosts' executors counted what they ran, by origin
+        ran = sum(total(scrape(p), "ramps_programs_run_total", origin="r1") for p in ports.values())
+        assert ran >= 7
+        assert sum(total(scrape(p), "ramps_programs_finished_total", program="spin", outcome="ok")
+                   for p in ports.values()) >= 6
+
+        # a host crashes under a program: failure detected, program re-placed and delivered
+        r3_before = total(after, "ramps_programs_placed_total", robot="r1", host="r3")
+        slow = [team.submit("sleepy", seconds=4.0, tag=f"m{i}") for i in range(6)]
+        marks = t.marks
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            if any((marks / f"m{i}").exists() and (marks / f"m{i}").read_text().startswith("r3")
+                   for i in range(6)):
+                break
+            time.sleep(0.1)
+        else:
+            pytest.fail("no program reached r3\n" + t.logs())
+        t.kill_node("r3")
+        for f in slow:
+            f.result(RESULT_TIMEOUT)
+        # the gauges come with the next load report (once a second)
+        deadline = time.monotonic() + 10
+        while True:
+            end = scrape(ports["r1"])
+            if total(end, "ramps_teammates_seen", robot="r1") == 1 or time.monotonic() > deadline:
+                break
+            time.sleep(0.3)
+        assert total(end, "ramps_programs_placed_total", robot="r1", host="r3") > r3_before
+        assert total(end, "ramps_program_attempts_failed_total", robot="r1", host="r3") >= 1
+        assert total(end, "ramps_failure_detection_seconds_count", robot="r1") >= 1
+        assert total(end, "ramps_recovery_seconds_count", robot="r1") >= 1
+        assert total(end, "ramps_programs_replaced_total", robot="r1", program="sleepy") >= 1
+        assert total(end, "ramps_blacklistings_total", robot="r1", host="r3") >= 1
+        assert total(end, "ramps_programs_delivered_total", robot="r1", program="sleepy", outcome="ok") == 6
+        assert total(end, "ramps_teammates_seen", robot="r1") == 1
+        assert total(end, "ramps_memory_free_bytes", robot="r1") > 0
+        info = end["ramps_node_info"][0].labels
+        assert info["team"] == t.team and info["robot"] == "r1"
+    finally:
+        t.close()
+
+
+@pytest.mark.slow
+def test_metrics_port_taken_is_a_clear_error(tmp_path):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        t = LocalTeam(1, tmp_path)
+        try:
+            r = t.cli("node", "--robot", "rx", "--team", t.team, "--no-multicast", "--listen",
+                      f"tcp/127.0.0.1:{free_port()}", "--speed", "1", "--metrics", f"127.0.0.1:{port}", timeout=60)
+        finally:
+            t.close()
+    assert r.returncode == 2, r.stderr
+    assert "cannot serve metrics" in r.stderr and str(port) in r.stderr
