@@ -7,7 +7,8 @@ needed besides prometheus_client's own:
 
 - ``on_action(action, node, now)`` for every action the core returns
   (``Note`` placed/accepted/failed/blacklisted, ``StartProgram``,
-  ``Deliver``, a ``ProgramResult`` sent): the counters and histograms;
+  ``Deliver``) and ``on_finished`` for every worker that ends: the
+  counters and histograms;
 - ``on_report(...)`` at every load report the node publishes (once a
   second): the gauges (load, run queue, teammates seen, ...).
 
@@ -32,8 +33,7 @@ from typing import Any
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, Info
 
 from ramps import __version__
-from ramps.core.events import Deliver, Note, Send, StartProgram
-from ramps.core.messages import ProgramResult
+from ramps.core.events import Deliver, Note, StartProgram
 
 #: latency buckets, seconds: from a loopback dispatch (~1 ms) to a slow recovery
 LATENCY_BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.0, 3.0, 5.0, 10.0, 30.0)
@@ -186,11 +186,6 @@ class NodeMetrics:
         elif isinstance(a, StartProgram):
             self.run.labels(me, a.program, a.origin).inc()
             self._remember(self._running, (a.program_id, a.attempt), a.program)
-        elif isinstance(a, Send) and isinstance(a.msg, ProgramResult):
-            m = a.msg
-            prog = self._running.pop((m.program_id, m.attempt), None)
-            if prog is not None:  # results are resent until acknowledged: count the first
-                self.finished.labels(me, prog, "ok" if m.ok else ("lost" if m.retryable else "error")).inc()
         elif isinstance(a, Deliver):
             prog = _program(node, a.program_id)
             self.delivered.labels(me, prog, "ok" if a.ok else (a.error_kind or "error")).inc()
@@ -198,6 +193,12 @@ class NodeMetrics:
             if ap is not None:
                 self.duration.labels(me, prog).observe(max(0.0, now - ap.submitted_at))
             self._written_off.pop(a.program_id, None)
+
+    def on_finished(self, f: Any) -> None:
+        """A worker of this robot's executor ended (``ProgramFinished``, driver thread)."""
+        prog = self._running.pop((f.program_id, f.attempt), None)
+        if prog is not None:
+            self.finished.labels(self.robot, prog, "ok" if f.ok else ("lost" if f.retryable else "error")).inc()
 
     def on_report(self, *, cpu_busy: float, runnable: float, load_avg: float, mem_free: int, running: int,
                   in_flight: int, sees: int, blacklisted: int, dropped: int, reports_received: int) -> None:

@@ -449,6 +449,8 @@ class NodeRuntime:
                 return []
             return node.handle(Received(sender=env.sender, msg=msg), now)
         if kind == "finished":
+            if self.metrics is not None:
+                self.metrics.on_finished(item[1])
             return node.handle(item[1], now)
         if kind == "live":
             robot, alive = item[1], item[2]
