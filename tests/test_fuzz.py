@@ -99,6 +99,10 @@ messages = st.one_of(
     st.builds(m.CancelSubmitted, client=robots, request_id=counts),
     st.builds(m.ProgramOutcome, request_id=counts, ok=st.booleans(), value=payloads, error=texts,
               error_kind=words, host=st.just("") | robots, attempts=counts),
+    st.builds(m.ProgramProgress, program_id=names, attempt=counts, host=robots, fraction=st.floats(0.0, 1.0),
+              detail=texts),
+    st.builds(m.ProgramUpdate, request_id=counts, state=words, host=st.just("") | robots, attempt=counts,
+              fraction=st.none() | st.floats(0.0, 1.0), detail=texts),
 )
 encodings = st.builds(encode, robots, messages)
 
@@ -113,7 +117,8 @@ msgpack_values = st.recursive(
 )
 TAGS = [cls.__struct_config__.tag for cls in (m.LoadReport, m.OffloadRequest, m.OffloadAccepted, m.OffloadRejected,
                                               m.Heartbeat, m.ProgramResult, m.ResultAck, m.CancelProgram,
-                                              m.SubmitProgram, m.CancelSubmitted, m.ProgramOutcome)]
+                                              m.SubmitProgram, m.CancelSubmitted, m.ProgramOutcome,
+                                              m.ProgramProgress, m.ProgramUpdate)]
 
 
 # =================================================================== the wire decoder
@@ -294,7 +299,7 @@ def test_core_survives_hostile_input_and_delivers_each_program_once(policy: str,
                 env = decode(bytes(raw))
             except WireError:
                 continue
-            if not isinstance(env.msg, (m.SubmitProgram, m.CancelSubmitted, m.ProgramOutcome)):
+            if not isinstance(env.msg, (m.SubmitProgram, m.CancelSubmitted, m.ProgramOutcome, m.ProgramUpdate)):
                 h._receive(env.sender, env.msg)
         elif step == "submit":
             n_submitted += 1

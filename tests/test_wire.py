@@ -122,6 +122,9 @@ def test_field_limits_are_enforced_while_decoding(body: dict, field: str, value)
     (m.ProgramResult(program_id="p", attempt=1, host="h", ok=False), "error", m.MAX_TEXT),
     (m.ProgramOutcome(request_id=1, ok=False), "error", m.MAX_OUTCOME_TEXT),
     (m.SubmitProgram(client="c", request_id=1, program="burn"), "policy", m.MAX_NAME),
+    (m.ProgramProgress(program_id="p", attempt=1, host="h", fraction=0.5), "detail", m.MAX_PROGRESS_TEXT),
+    (m.ProgramUpdate(request_id=1, state="running"), "detail", m.MAX_PROGRESS_TEXT),
+    (m.ProgramUpdate(request_id=1, state="running"), "state", m.MAX_NAME),
 ], ids=lambda x: x if isinstance(x, str) else None)
 def test_texts_up_to_their_limit_pass_and_one_more_is_refused(msg: m.Message, field: str, size: int) -> None:
     ok = msgspec.structs.replace(msg, **{field: "é" * size})  # characters, not bytes
@@ -341,3 +344,19 @@ def test_a_node_drops_and_counts_what_exceeds_its_backlog(monkeypatch) -> None:
     assert node._backlog_bytes == 900 and node.bad_messages == 1
     node._on_wire(_Sample(b"y" * 100))
     assert node.overflow == 20 and node._backlog_bytes == 1000
+
+
+@pytest.mark.parametrize("fraction", [-0.01, 1.01, math.nan, math.inf, -math.inf])
+def test_progress_is_a_fraction_between_0_and_1(fraction: float) -> None:
+    """A host's progress and a node's update carry a fraction 0..1; anything
+    else (NaN, infinities, out of range) is refused by the decoder."""
+    for msg in (m.ProgramProgress(program_id="p", attempt=1, host="h", fraction=0.5),
+                m.ProgramUpdate(request_id=1, state="progress", host="h", fraction=0.5)):
+        for ok in (0.0, 0.42, 1.0):
+            good = msgspec.structs.replace(msg, fraction=ok)
+            assert decode(encode("h", good)).msg == good
+        text = _refused(encode("h", msgspec.structs.replace(msg, fraction=fraction)))
+        assert "$.msg.fraction" in text
+    # an update before any progress has none; its host may be empty (not placed yet)
+    assert decode(encode("n", m.ProgramUpdate(request_id=3, state="placed"))).msg.fraction is None
+    _refused(encode("n", m.ProgramProgress(program_id="p", attempt=1, host="*", fraction=0.5)))

@@ -56,6 +56,15 @@ class ProgramFinished(_Rec, frozen=True, kw_only=True):
     retryable: bool = False
 
 
+class ProgressReported(_Rec, frozen=True, kw_only=True):
+    """A program the executor runs reported how far it is (driver -> core)."""
+
+    program_id: str
+    attempt: int
+    fraction: float
+    detail: str = ""
+
+
 class PeerLost(_Rec, frozen=True, kw_only=True):
     """The transport says a teammate is gone (Zenoh liveliness DELETE)."""
 
@@ -75,7 +84,7 @@ class Received(_Rec, frozen=True, kw_only=True):
     msg: Message
 
 
-Event = Submit | Cancel | ProgramFinished | PeerLost | PeerAlive | Received
+Event = Submit | Cancel | ProgramFinished | ProgressReported | PeerLost | PeerAlive | Received
 
 
 # ---------------------------------------------------------------- actions out
@@ -116,6 +125,16 @@ class Deliver(_Rec, frozen=True, kw_only=True):
     attempts: int = 0
 
 
+class Progress(_Rec, frozen=True, kw_only=True):
+    """A program this robot is origin of reported progress on ``host``."""
+
+    program_id: str
+    host: str
+    attempt: int
+    fraction: float
+    detail: str = ""
+
+
 class Note(_Rec, frozen=True, kw_only=True):
     """Something the core decided, for traces and logs. ``what`` is one of:
     placed, accepted, rejected, blacklisted, unblacklisted, failed, backoff,
@@ -128,9 +147,9 @@ class Note(_Rec, frozen=True, kw_only=True):
     detail: str = ""
 
 
-Action = Send | StartProgram | StopProgram | Deliver | Note
+Action = Send | StartProgram | StopProgram | Deliver | Progress | Note
 
 __all__ = [
-    "Submit", "Cancel", "ProgramFinished", "PeerLost", "PeerAlive", "Received", "Event",
-    "Send", "StartProgram", "StopProgram", "Deliver", "Note", "Action", "ProgramResult",
+    "Submit", "Cancel", "ProgramFinished", "ProgressReported", "PeerLost", "PeerAlive", "Received", "Event",
+    "Send", "StartProgram", "StopProgram", "Deliver", "Progress", "Note", "Action", "ProgramResult",
 ]

@@ -5,7 +5,8 @@ driver, ``OffloadAccepted`` for the origin) or turned away with a reason:
 ``unknown_program`` and ``bad_request`` are permanent, ``busy`` means the
 host has more runnable work than the origin expected (ramps negotiation) and
 the origin should place again at once. While programs run, the executor
-sends each origin one ``Heartbeat`` per period listing its programs. A result
+sends each origin one ``Heartbeat`` per period listing its programs, and the
+newest ``ProgramProgress`` of each that reported progress since. A result
 is sent to the origin and kept, resent every ``result_resend`` seconds, until
 the origin acknowledges it, so a result survives a lost message or an origin
 that is briefly cut off.
@@ -18,13 +19,15 @@ puts them in every report so origins can tell what a report includes.
 from __future__ import annotations
 
 from ramps.core.config import RampsConfig
-from ramps.core.events import Action, Note, ProgramFinished, Send, StartProgram, StopProgram
+from ramps.core.events import Action, Note, ProgramFinished, ProgressReported, Send, StartProgram, StopProgram
 from ramps.core.messages import (
+    MAX_PROGRESS_TEXT,
     CancelProgram,
     Heartbeat,
     OffloadAccepted,
     OffloadRejected,
     OffloadRequest,
+    ProgramProgress,
     ProgramRef,
     ProgramResult,
     ResultAck,
@@ -34,12 +37,16 @@ Key = tuple[str, int]
 
 
 class _Job:
-    __slots__ = ("origin", "program", "started_at")
+    __slots__ = ("origin", "program", "started_at", "progress", "detail", "progress_new")
 
     def __init__(self, origin: str, program: str, started_at: float) -> None:
         self.origin = origin
         self.program = program
         self.started_at = started_at
+        #: the latest progress the program reported, and whether the origin has it yet
+        self.progress: float | None = None
+        self.detail = ""
+        self.progress_new = False
 
 
 class Executor:
@@ -131,6 +138,18 @@ class Executor:
         if entry is not None and entry[0] == msg.origin:
             del self._outbox[key]
 
+    def on_progress(self, ev: ProgressReported, now: float, out: list[Action]) -> None:
+        """Keep the newest progress; the next heartbeat tick sends it to the
+        origin (so a chatty program costs one message a heartbeat period)."""
+        job = self.running.get((ev.program_id, ev.attempt))
+        if job is None:
+            return  # ended or withdrawn meanwhile
+        job.progress = min(1.0, max(0.0, ev.fraction)) if ev.fraction == ev.fraction else 0.0
+        job.detail = ev.detail[:MAX_PROGRESS_TEXT]
+        job.progress_new = True
+        if self._next_tick is None:
+            self._next_tick = now + self.config.heartbeat_period
+
     def on_ack(self, msg: ResultAck) -> None:
         entry = self._outbox.get((msg.program_id, msg.attempt))
         if entry is not None and entry[0] == msg.origin:
@@ -148,6 +167,7 @@ class Executor:
             by_origin.setdefault(job.origin, []).append(ProgramRef(pid, attempt))
         for origin, refs in by_origin.items():
             out.append(Send(to=origin, msg=Heartbeat(host=self.me, incarnation=self.incarnation, programs=refs)))
+        self._send_progress(out)
         for key, (origin, result, resend_at, expires) in list(self._outbox.items()):
             if now >= expires:
                 del self._outbox[key]
@@ -160,6 +180,13 @@ class Executor:
             self._next_tick = now + min(self.config.heartbeat_period, self.config.result_resend)
         else:
             self._next_tick = None
+
+    def _send_progress(self, out: list[Action]) -> None:
+        for (pid, attempt), job in self.running.items():
+            if job.progress_new and job.progress is not None:
+                job.progress_new = False
+                out.append(Send(to=job.origin, msg=ProgramProgress(
+                    program_id=pid, attempt=attempt, host=self.me, fraction=job.progress, detail=job.detail)))
 
     def hand_back(self, now: float, out: list[Action]) -> int:
         """Shutting down: end every running program with a retryable result so

@@ -23,6 +23,12 @@ robot that runs it; a robot is both at once for its local programs):
     host         --ProgramResult-->   origin   (resent until acknowledged)
     origin       --ResultAck-->       host
     origin       --CancelProgram-->   host     (program done elsewhere / moved)
+    host         --ProgramProgress--> origin   (what the program reported, with heartbeats)
+
+and between an application (client) and its robot's node:
+
+    client       --SubmitProgram-->   node     --ProgramOutcome--> client  (exactly one)
+    client       --CancelSubmitted--> node     --ProgramUpdate-->  client  (placed, running, progress)
 """
 
 from __future__ import annotations
@@ -56,6 +62,8 @@ MAX_LOAD = 1e9
 #: scheduler weights of programs against nice 0 (CFS: nice 19 .. nice -20)
 MIN_WEIGHT = 15 / 1024
 MAX_WEIGHT = 88761 / 1024
+#: longest progress text a program may attach to a fraction
+MAX_PROGRESS_TEXT = 256
 
 
 class WireError(ValueError):
@@ -91,6 +99,9 @@ Load = Annotated[float, Meta(ge=0.0, le=MAX_LOAD)]
 Weight = Annotated[float, Meta(ge=MIN_WEIGHT, le=MAX_WEIGHT)]
 Cores = Annotated[int, Meta(ge=1, le=MAX_CORES)]
 Speed = Annotated[float, Meta(ge=MIN_SPEED, le=MAX_SPEED)]
+#: how far a program is, 0..1
+Fraction = Annotated[float, Meta(ge=0.0, le=1.0)]
+ProgressText = Annotated[str, Meta(max_length=MAX_PROGRESS_TEXT)]
 
 
 class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="load"):
@@ -246,6 +257,33 @@ class ProgramOutcome(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True
     attempts: Count = 0
 
 
+class ProgramProgress(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="progress"):
+    """A running program said how far it is (host -> origin, at most once a
+    heartbeat period per program; advisory: never resent)."""
+
+    program_id: Name
+    attempt: Count
+    host: RobotName
+    fraction: Fraction
+    detail: ProgressText = ""
+
+
+class ProgramUpdate(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="update"):
+    """Where a submitted program stands, for its client (node -> client;
+    advisory, the one ``ProgramOutcome`` still ends it). ``state`` is
+    "placed" (offered to ``host``), "running" (``host`` accepted it),
+    "replaced" (offered again after a failure or a refusal), "host_failed"
+    (``host`` was written off; it will be placed again) or "progress"."""
+
+    request_id: Count
+    state: Word
+    host: OptRobotName = ""
+    attempt: Count = 0
+    #: the latest progress the program reported (None: none yet)
+    fraction: Fraction | None = None
+    detail: ProgressText = ""
+
+
 Message = Union[
     LoadReport,
     OffloadRequest,
@@ -258,6 +296,8 @@ Message = Union[
     SubmitProgram,
     CancelSubmitted,
     ProgramOutcome,
+    ProgramProgress,
+    ProgramUpdate,
 ]
 
 

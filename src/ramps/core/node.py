@@ -31,6 +31,7 @@ from ramps.core.events import (
     PeerAlive,
     PeerLost,
     ProgramFinished,
+    ProgressReported,
     Received,
     Send,
     Submit,
@@ -44,6 +45,7 @@ from ramps.core.messages import (
     OffloadAccepted,
     OffloadRejected,
     OffloadRequest,
+    ProgramProgress,
     ProgramResult,
     ResultAck,
 )
@@ -141,6 +143,8 @@ class Node:
             self.origin.submit(event, now, out)
         elif isinstance(event, ProgramFinished):
             self.executor.on_finished(event, now, out)
+        elif isinstance(event, ProgressReported):
+            self.executor.on_progress(event, now, out)
         elif isinstance(event, Cancel):
             self.origin.cancel(event.program_id, now, out)
         elif isinstance(event, PeerLost):
@@ -171,6 +175,8 @@ class Node:
             self.origin.on_result(msg, now, out)
         elif isinstance(msg, ResultAck):
             self.executor.on_ack(msg)
+        elif isinstance(msg, ProgramProgress):
+            self.origin.on_progress(msg, now, out)
         elif isinstance(msg, CancelProgram):
             self.executor.on_cancel(msg, now, out)
         else:

@@ -23,7 +23,7 @@ from collections import deque
 
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate
-from ramps.core.events import Action, Deliver, Note, Send, Submit
+from ramps.core.events import Action, Deliver, Note, Progress, Send, Submit
 from ramps.core.loadview import LoadView
 from ramps.core.messages import (
     CancelProgram,
@@ -31,6 +31,7 @@ from ramps.core.messages import (
     OffloadAccepted,
     OffloadRejected,
     OffloadRequest,
+    ProgramProgress,
     ProgramResult,
     ResultAck,
 )
@@ -102,6 +103,15 @@ class Origin:
 
     def on_result(self, msg: ProgramResult, now: float, out: list[Action]) -> None:
         self._route(msg.program_id, msg.attempt, msg.host, "result", now, out, msg)
+
+    def on_progress(self, msg: ProgramProgress, now: float, out: list[Action]) -> None:
+        """A host says how far a program is: pass it on if the attempt is
+        still wanted (advisory: no state changes, stale ones dropped)."""
+        ap = self.programs.get(msg.program_id)
+        if ap is None or ap.state in FINAL or ap.live.get(msg.attempt) != msg.host:
+            return
+        out.append(Progress(program_id=msg.program_id, host=msg.host, attempt=msg.attempt,
+                            fraction=msg.fraction, detail=msg.detail))
 
     def on_heartbeat(self, msg: Heartbeat, now: float, out: list[Action]) -> None:
         for ref in msg.programs:

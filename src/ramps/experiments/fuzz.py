@@ -46,6 +46,8 @@ from ramps.core.events import (
     PeerAlive,
     PeerLost,
     ProgramFinished,
+    Progress,
+    ProgressReported,
     Received,
     Send,
     StartProgram,
@@ -104,7 +106,7 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
     pid = pid or rng.choice(PROGRAM_IDS)
     attempt = rng.randint(0, 4) if attempt is None else attempt
     host = host or rng.choice(PEERS)
-    kind = rng.randrange(11)
+    kind = rng.randrange(13)
     if kind == 0:
         return random_report(rng)
     if kind == 1:
@@ -141,6 +143,14 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
                                policy=rng.choice(["", "ramps", "nope"]))
     if kind == 9:
         return m.CancelSubmitted(client=rng.choice(PEERS), request_id=_count(rng))
+    if kind == 11:
+        return m.ProgramProgress(program_id=pid, attempt=attempt, host=host,
+                                 fraction=rng.choice([0.0, 1.0, rng.random()]),
+                                 detail=rng.choice(["", "step 3", "d" * m.MAX_PROGRESS_TEXT]))
+    if kind == 12:
+        return m.ProgramUpdate(request_id=_count(rng), state=rng.choice(["placed", "running", "replaced", ""]),
+                               host=rng.choice(["", *PEERS]), attempt=_count(rng),
+                               fraction=rng.choice([None, 0.0, 1.0, rng.random()]), detail=rng.choice(["", "x"]))
     return m.ProgramOutcome(request_id=_count(rng), ok=rng.random() < 0.5, value=b"\x01", error="e",
                             error_kind=rng.choice(["", "program", "refused"]), host=rng.choice(["", *PEERS]),
                             attempts=_count(rng))
@@ -452,6 +462,11 @@ class CoreHarness:
             self._apply(node.handle(ProgramFinished(program_id=pid, attempt=attempt, ok=ok,
                                                     value=b"\x01" if ok else b"", error="" if ok else "boom",
                                                     retryable=not ok and rng.random() < 0.5), self.now))
+        elif k < 74 and node.executor.running:  # a running program reports progress, any value
+            pid, attempt = rng.choice(sorted(node.executor.running))
+            self._apply(node.handle(ProgressReported(program_id=pid, attempt=attempt,
+                                                     fraction=rng.choice(_FLOATS + [0.3]),
+                                                     detail=rng.choice(["", "x" * 1000])), self.now))
         elif k < 75 and node.origin.programs:  # (cancelling what it never had is local misuse)
             pid = rng.choice(sorted(node.origin.programs))
             self._apply(node.handle(Cancel(program_id=pid), self.now))
@@ -506,7 +521,7 @@ class CoreHarness:
 
     def _apply(self, actions: list) -> None:
         for a in actions:
-            if not isinstance(a, (Send, StartProgram, StopProgram, Deliver, Note)):
+            if not isinstance(a, (Send, StartProgram, StopProgram, Deliver, Progress, Note)):
                 raise AssertionError(f"not an action: {a!r}")
             if isinstance(a, Send):
                 if a.to == ME:
@@ -570,7 +585,8 @@ def run_fuzz(*, inputs: int = 100_000, seed: int = 0, core_share: float = 0.35, 
             by_kind[kind] += 1
             counts["decode_inputs"] += 1
             env = fuzz_decode(rng, data, kind, tally, counts)
-            if env is not None and not isinstance(env.msg, (m.SubmitProgram, m.CancelSubmitted, m.ProgramOutcome)):
+            if env is not None and not isinstance(env.msg, (m.SubmitProgram, m.CancelSubmitted, m.ProgramOutcome,
+                                                             m.ProgramUpdate)):
                 # what survived the decoder goes on to the core, as in a node
                 try:
                     harness.step(env)
