@@ -53,3 +53,10 @@ def fail() -> None:
 def big(n: int) -> bytes:
     """A result of ``n`` bytes."""
     return b"x" * n
+
+
+def stamp(seconds: float = 1.0) -> list:
+    """Sleep; return [started, ended] (CLOCK_MONOTONIC, one clock for every process)."""
+    started = time.monotonic()
+    time.sleep(seconds)
+    return [started, time.monotonic()]

@@ -384,7 +384,8 @@ class LocalTeam:
                 probe.close()
 
     def worker_pids(self, name: str) -> list[int]:
-        """The node's worker processes (``python -m ramps.runtime.worker``)."""
+        """The node's worker processes: forked by its fork server
+        (``python -m ramps.runtime.worker --fork-server``), or its own children."""
         try:
             kids = psutil.Process(self.nodes[name].pid).children()
         except psutil.NoSuchProcess:
@@ -392,7 +393,12 @@ class LocalTeam:
         out = []
         for k in kids:
             try:
-                if "ramps.runtime.worker" in " ".join(k.cmdline()):
+                cmd = k.cmdline()
+                if "ramps.runtime.worker" not in " ".join(cmd):
+                    continue
+                if "--fork-server" in cmd:
+                    out.extend(w.pid for w in k.children())
+                else:
                     out.append(k.pid)
             except psutil.Error:
                 continue

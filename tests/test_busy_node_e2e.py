@@ -102,3 +102,34 @@ def test_stalled_origin_restarts_none_of_its_programs(tmp_path):
             _assert_clean_trace(entries, pid)
     finally:
         t.close()
+
+
+def test_node_killed_alone_takes_its_workers_with_it(tmp_path):
+    """SIGKILL of the node process only (not its process group): the fork
+    server and the workers running its programs are gone from the process
+    table within 1 s, so no work goes on that nobody will collect."""
+    with LocalTeam(2, tmp_path, cores=2) as t:
+        team = t.client("r2")
+        futs = [team.options(policy="round_robin").submit("sleepy", seconds=30.0, tag=f"k{i}") for i in range(4)]
+        wait_for(lambda: sum(1 for i in range(4) if (t.marks / f"k{i}").exists()) == 4, 30, "programs to start")
+        on_r1 = [int(m.read_text().split()[1]) for m in t.marks.iterdir()
+                 if m.suffix != ".tmp" and m.read_text().split()[0] == "r1"]
+        assert on_r1, "round robin placed nothing on r1"
+        node = psutil.Process(t.nodes["r1"].pid)
+        doomed = [psutil.Process(p) for p in on_r1] + [c for c in node.children(recursive=True)]
+        os.kill(t.nodes["r1"].pid, signal.SIGKILL)  # the node alone: its workers are not signalled
+        t.nodes["r1"].proc.wait(10)
+
+        def gone(p: psutil.Process) -> bool:
+            try:
+                return p.status() == psutil.STATUS_ZOMBIE
+            except psutil.NoSuchProcess:
+                return True
+
+        deadline = time.monotonic() + 1.0
+        while time.monotonic() < deadline and not all(gone(p) for p in doomed):
+            time.sleep(0.02)
+        alive = [p.pid for p in doomed if not gone(p)]
+        assert not alive, f"processes of the killed node r1 still running: {alive}"
+        for f in futs:
+            f.cancel()

@@ -14,7 +14,7 @@ import msgspec
 from ramps.runtime.workers import WorkerPool
 
 TESTS = str(Path(__file__).parent)
-TARGETS = {"sleepy": "e2eprogs:sleepy", "where": "e2eprogs:where"}
+TARGETS = {"sleepy": "e2eprogs:sleepy", "where": "e2eprogs:where", "stamp": "e2eprogs:stamp"}
 
 
 def wait_until(pred, timeout: float, step: float = 0.02) -> bool:
@@ -106,3 +106,69 @@ def test_a_burst_of_tiny_programs_is_served_without_new_workers():
         assert pool.started <= 3, pool.started  # 1, give or take a hiccup of a slow machine
     finally:
         pool.stop()
+
+
+def test_programs_beyond_the_cores_all_run_at_once():
+    """Eight programs on a one-core robot (its limit: 8 workers per core):
+    the seven extra workers come from the fork server in milliseconds, so all
+    eight run together (each sleeps 1.2 s). Booting a fresh interpreter per
+    worker, one per GROW_AFTER (0.2 s), started the eighth after the first
+    had ended."""
+    pool, done = make_pool(1)
+    try:
+        keys = [(f"x{i}", 1) for i in range(8)]
+        for k in keys:
+            pool.run(k, "stamp", args(seconds=1.2))
+        assert wait_until(lambda: len(done) == 8, 30), done
+        spans = [v for ok, v, _ in done.values() if ok]
+        assert len(spans) == 8, done
+        last_start, first_end = max(s for s, _ in spans), min(e for _, e in spans)
+        assert last_start < first_end, f"not all at once: last started {last_start - first_end:.2f} s after the first ended"
+        assert pool.forked >= 8  # every worker came from the fork server
+    finally:
+        pool.stop()
+
+
+def test_fork_server_and_workers_die_with_their_pool_process(tmp_path):
+    """A process that owns a pool is SIGKILLed: its fork server and its
+    workers, mid-program, are gone (checked in the process table) at once."""
+    import signal
+    import subprocess
+    import sys
+
+    import psutil
+
+    script = (
+        "import os, sys, time, msgspec\n"
+        "from ramps.runtime.workers import WorkerPool\n"
+        "pool = WorkerPool(1, {'sleepy': 'e2eprogs:sleepy'}, lambda *a: None)\n"
+        "pool.start()\n"
+        "for i in range(3):\n"
+        "    pool.run((f'k{i}', 1), 'sleepy', msgspec.msgpack.encode({'seconds': 60}))\n"
+        "while len(pool.pids()) < 3: time.sleep(0.05)\n"
+        "print(' '.join(str(p) for p in [pool._server.pid, *pool.pids().values()]), flush=True)\n"
+        "time.sleep(120)\n"
+    )
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([TESTS, os.environ.get("PYTHONPATH", "")]))
+    owner = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, env=env, text=True,
+                             start_new_session=True)
+    try:
+        pids = [int(p) for p in owner.stdout.readline().split()]
+        assert len(pids) == 4, pids
+        procs = [psutil.Process(p) for p in pids]
+        os.kill(owner.pid, signal.SIGKILL)  # the owner alone, not its group
+        owner.wait(5)
+
+        def gone(p):
+            try:
+                return p.status() == psutil.STATUS_ZOMBIE
+            except psutil.NoSuchProcess:
+                return True
+
+        assert wait_until(lambda: all(gone(p) for p in procs), 1.0), [p.pid for p in procs if not gone(p)]
+    finally:
+        try:
+            os.killpg(owner.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        owner.wait(5)

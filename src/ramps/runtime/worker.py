@@ -79,6 +79,11 @@ def run(inp: BinaryIO, out: BinaryIO) -> None:
 
 
 def main() -> None:
+    if sys.argv[1:2] == ["--fork-server"]:  # the executor's fork server (ramps.runtime.forkserver)
+        from ramps.runtime.forkserver import main as serve
+
+        serve(int(sys.argv[2]), int(sys.argv[3]))
+        return
     proto_out = os.fdopen(os.dup(1), "wb", buffering=0)
     os.dup2(2, 1)  # prints from programs go to stderr
     sys.stdout = sys.stderr

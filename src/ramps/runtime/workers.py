@@ -1,23 +1,27 @@
 """The program executor's worker processes.
 
-How this works: ``size`` worker processes (the robot's cores) are started
-once as ``python -m ramps.runtime.worker``, so a program starts in well
-under a millisecond, a node's Zenoh threads are never forked and the
-caller's ``__main__`` is never re-imported. Each worker runs one program at
-a time; jobs and results travel as length-prefixed msgpack frames over the
-worker's own pipes (see ``ramps.runtime.worker``); nothing is pickled.
+How this works: ``size`` worker processes (the robot's cores) are kept
+ready, so a program starts in well under a millisecond. Workers are forked
+by the node's fork server (``python -m ramps.runtime.worker --fork-server``,
+see ``ramps.runtime.forkserver``), which has imported the programs already:
+a new worker costs milliseconds of CPU, not the 0.2 s of a fresh
+interpreter, a node's Zenoh threads are never forked and the caller's
+``__main__`` is never re-imported. Each worker runs one program at a time;
+jobs and results travel as length-prefixed msgpack frames over the worker's
+own pipes (see ``ramps.runtime.worker``); nothing is pickled. The fork server
+and its workers die with the node (``PR_SET_PDEATHSIG``), so a node killed
+alone leaves no work running that nobody will collect.
 
 Every program runs at once, as one process each, and the operating system
 shares the cores among them: processor sharing, which is what the cost model
 (``ramps.core.cost``), the simulator and the paper's prototype (one process
 per program) assume. When every worker is busy and none has finished a
-program (nor started) for ``GROW_AFTER``, a program that has waited that
-long gets a new worker, one at a time, up to ``max_size`` (default 8 per
-core, so a flood of programs cannot exhaust memory); beyond that programs
-wait in a FIFO queue. Starting
-a worker costs about 0.1 s of CPU, more than a short program, so a burst of
-tiny programs, which keeps the workers finishing, is served by the workers
-there are. A worker beyond ``size`` exits after ``RETIRE_AFTER`` idle.
+program (nor started) for ``GROW_AFTER``, every program that has waited that
+long gets a new worker at once, up to ``max_size`` (default 8 per core, so
+a flood of programs cannot exhaust memory); beyond that programs wait in a
+FIFO queue. A burst of tiny programs, which keeps the workers finishing, is
+served by the workers there are. A worker beyond ``size`` exits after
+``RETIRE_AFTER`` idle.
 
 One monitor thread watches every worker's output. A result is handed to
 ``on_finished``; a worker that dies under a program (killed, out of memory,
@@ -30,7 +34,10 @@ the core already knows.
 from __future__ import annotations
 
 import os
+import select
 import selectors
+import signal
+import socket
 import subprocess
 import sys
 import threading
@@ -47,18 +54,80 @@ Key = tuple[str, int]
 Finished = Callable[[Key, bool, bytes, str, bool], None]
 
 #: seconds a program waits, with no worker finishing or starting meanwhile, before the pool starts another
-GROW_AFTER = 0.2
+GROW_AFTER = 0.1
 #: seconds an extra worker (beyond one per core) stays idle before it exits
 RETIRE_AFTER = 2.0
+#: seconds the fork server may take to fork a worker (it imports the programs first)
+FORK_TIMEOUT = 60.0
 
 _enc = msgspec.msgpack.Encoder()
 _dec = msgspec.msgpack.Decoder()
 
 
+class _Forked:
+    """A worker forked by the fork server (``ramps.runtime.forkserver``): not
+    this process's child, so it is watched and signalled through a pidfd
+    (no pid reuse race); what ``_Worker`` uses of ``subprocess.Popen``."""
+
+    def __init__(self, pid: int, stdin, stdout) -> None:
+        self.pid = pid
+        self.stdin = stdin
+        self.stdout = stdout
+        self.returncode: int | None = None
+        try:
+            self._pidfd: int | None = os.pidfd_open(pid)
+        except (AttributeError, OSError):  # gone already, or no pidfds (old kernel)
+            self._pidfd = None
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            if self._pidfd is not None:
+                if select.select([self._pidfd], [], [], 0)[0]:
+                    self._ended()
+            else:
+                try:
+                    os.kill(self.pid, 0)
+                except ProcessLookupError:
+                    self._ended()
+        return self.returncode
+
+    def _ended(self) -> None:
+        self.returncode = -signal.SIGKILL if self._killed else 1  # the server reaps it: the status is not ours
+        if self._pidfd is not None:
+            os.close(self._pidfd)
+            self._pidfd = None
+
+    _killed = False
+
+    def kill(self) -> None:
+        if self.poll() is not None:
+            return
+        self._killed = True
+        try:
+            if self._pidfd is not None:
+                signal.pidfd_send_signal(self._pidfd, signal.SIGKILL)
+            else:
+                os.kill(self.pid, signal.SIGKILL)
+        except (ProcessLookupError, OSError):
+            pass
+
+    def wait(self, timeout: float | None = None) -> int:
+        end = None if timeout is None else time.monotonic() + timeout
+        while self.poll() is None:
+            left = None if end is None else end - time.monotonic()
+            if left is not None and left <= 0:
+                raise subprocess.TimeoutExpired(f"worker {self.pid}", timeout)
+            if self._pidfd is not None:
+                select.select([self._pidfd], [], [], left)
+            else:
+                time.sleep(0.01 if left is None else min(0.01, left))
+        return self.returncode
+
+
 class _Worker:
     __slots__ = ("proc", "fd", "buf", "job", "cancelled", "retiring", "idle_since")
 
-    def __init__(self, proc: subprocess.Popen) -> None:
+    def __init__(self, proc: subprocess.Popen | _Forked) -> None:
         self.proc = proc
         self.fd = proc.stdout.fileno()
         self.buf = bytearray()
@@ -89,6 +158,10 @@ class WorkerPool:
         self._thread = threading.Thread(target=self._monitor, name="ramps-workers", daemon=True)
         self.started = 0
         self.died = 0
+        #: workers forked by the fork server (all of them, unless it failed)
+        self.forked = 0
+        self._server: subprocess.Popen | None = None
+        self._server_sock: socket.socket | None = None
         #: when a worker last finished a program or was started (growth waits GROW_AFTER after it)
         self._last_progress = 0.0
 
@@ -99,11 +172,62 @@ class WorkerPool:
                 self._add_worker()
         self._thread.start()
 
+    def _start_server(self) -> None:
+        """The fork server (``ramps.runtime.forkserver``), with the programs' modules imported."""
+        ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        try:
+            self._server = subprocess.Popen(
+                [sys.executable, "-m", "ramps.runtime.worker", "--fork-server", str(os.getpid()),
+                 str(theirs.fileno())],
+                stdin=subprocess.DEVNULL, env=self.env, close_fds=True, pass_fds=(theirs.fileno(),))
+        finally:
+            theirs.close()
+        ours.settimeout(FORK_TIMEOUT)
+        ours.send(_enc.encode({"targets": self.targets}))
+        self._server_sock = ours
+
+    def _stop_server(self) -> None:
+        if self._server_sock is not None:
+            self._server_sock.close()
+            self._server_sock = None
+        if self._server is not None:
+            if self._server.poll() is None:
+                self._server.kill()
+            try:
+                self._server.wait(timeout=2)
+            except subprocess.TimeoutExpired:
+                pass
+            self._server = None
+
+    def _fork(self) -> _Forked:
+        """A new worker from the fork server (restarted once if it is gone)."""
+        for attempt in (1, 2):
+            if self._server is None or self._server.poll() is not None:
+                self._stop_server()
+                self._start_server()
+            job_r, job_w = os.pipe()
+            res_r, res_w = os.pipe()
+            try:
+                socket.send_fds(self._server_sock, [b"fork"], [job_r, res_w])
+                reply = self._server_sock.recv(16)
+                if len(reply) != 8:
+                    raise OSError("the fork server closed")
+            except OSError:
+                for fd in (job_w, res_r):
+                    os.close(fd)
+                self._stop_server()
+                if attempt == 2:
+                    raise
+                continue
+            finally:
+                os.close(job_r)
+                os.close(res_w)
+            self.forked += 1
+            return _Forked(int(reply), os.fdopen(job_w, "wb", buffering=0), os.fdopen(res_r, "rb", buffering=0))
+        raise AssertionError("unreachable")
+
     def _add_worker(self) -> None:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "ramps.runtime.worker"], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-            env=self.env, bufsize=0, close_fds=True, start_new_session=False,
-        )
+        proc = self._fork()
         proc.stdin.write(frame(_enc.encode({"targets": self.targets, "nice": self.nice})))
         w = _Worker(proc)
         self._workers.append(w)
@@ -133,6 +257,7 @@ class WorkerPool:
                 w.proc.stdout.close()
             except OSError:
                 pass
+        self._stop_server()
         if self._thread.is_alive():
             self._thread.join(timeout=2)
         self._sel.close()
@@ -196,7 +321,6 @@ class WorkerPool:
                     self._add_worker()
                 except OSError:  # out of processes or memory: the queue waits for a worker
                     return
-                self._last_progress = now  # one new worker per GROW_AFTER: it may be all it takes
                 idle.append(self._workers[-1])
             w = idle.pop(0)
             key, program, args, _ = self._queue.popleft()
@@ -273,8 +397,9 @@ class WorkerPool:
                             pass
                     if w.job is not None and not w.cancelled:
                         self.died += 1
+                        how = f"exit code {code}" if isinstance(w.proc, subprocess.Popen) else "killed or crashed"
                         finished.append((w.job, False, b"", f"worker process died under the program "
-                                                             f"(exit code {code})", True))
+                                                             f"({how})", True))
                     if len(self._workers) < self.size:
                         self._add_worker()
                 self._dispatch_locked()  # idle extra workers retire at the top of the loop

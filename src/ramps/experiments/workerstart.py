@@ -1,0 +1,153 @@
+"""How soon do programs beyond one per core start? (issue 14)
+
+``python -m ramps.experiments.workerstart [--cores 4] [--quota 0.32]
+[--programs 12] [--rounds 3] [--out FILE.json]``
+
+A robot of ``--cores`` cores, emulated as a cpu cgroup of ``--quota`` host
+cores (as the testbed's robots: 4 cores at 0.08 each = 0.32; root and a cpu
+cgroup controller needed, else it runs unconfined and says so), gets
+``--programs`` programs at once from its executor's worker pool
+(``ramps.runtime.workers.WorkerPool``, the real one). Each program notes the
+monotonic time it started and sleeps, so the CPU the robot spends is the
+pool's own: starting workers. Printed per round: the delay from submission
+to the start of each program (median, max), how many workers the pool
+started, and the CPU seconds the robot used (cgroup accounting).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import threading
+import time
+import uuid
+
+import msgspec
+
+
+def hold(seconds: float = 1.0) -> float:
+    """The program: when it started (CLOCK_MONOTONIC, one clock for every process)."""
+    started = time.monotonic()
+    time.sleep(seconds)
+    return started
+
+
+def _cpu_seconds() -> float | None:
+    """CPU time of this process's cgroup (v1 cpuacct or v2 cpu.stat), if readable."""
+    try:
+        line = open("/proc/self/cgroup").read().splitlines()
+    except OSError:
+        return None
+    for entry in line:
+        _, ctrls, path = entry.split(":", 2)
+        if "cpuacct" in ctrls.split(","):
+            try:
+                return int(open(f"/sys/fs/cgroup/cpuacct{path}/cpuacct.usage").read()) / 1e9
+            except OSError:
+                return None
+        if ctrls == "":
+            try:
+                for row in open(f"/sys/fs/cgroup{path}/cpu.stat"):
+                    if row.startswith("usage_usec"):
+                        return int(row.split()[1]) / 1e6
+            except OSError:
+                return None
+    return None
+
+
+def inner(cores: int, programs: int, rounds: int, hold_s: float) -> dict:
+    from ramps.runtime.workers import WorkerPool
+
+    done: dict = {}
+    ev = threading.Event()
+
+    def finished(key, ok, value, error, retryable):
+        done[key] = msgspec.msgpack.decode(value) if ok else error
+        if len(done) >= programs:
+            ev.set()
+
+    pool = WorkerPool(cores, {"hold": "ramps.experiments.workerstart:hold"}, finished, nice=10)
+    cpu0 = _cpu_seconds()
+    pool.start()
+    time.sleep(1.0)  # the pool's first workers are up before the first round
+    out = {"cores": cores, "programs": programs, "rounds": []}
+    try:
+        for r in range(rounds):
+            done.clear()
+            ev.clear()
+            started0, c0 = pool.started, _cpu_seconds()
+            t0 = time.monotonic()
+            for i in range(programs):
+                pool.run((f"p{i}", r + 1), "hold", msgspec.msgpack.encode({"seconds": hold_s}))
+            ev.wait(120)
+            delays = sorted(v - t0 for v in done.values() if isinstance(v, float))
+            c1 = _cpu_seconds()
+            row = {"round": r + 1, "delay_median_s": statistics.median(delays) if delays else None,
+                   "delay_max_s": delays[-1] if delays else None,
+                   "beyond_cores_max_s": delays[-1] if len(delays) > cores else None,
+                   "workers_started": pool.started - started0,
+                   "cpu_s": None if c0 is None or c1 is None else c1 - c0,
+                   "errors": [v for v in done.values() if not isinstance(v, float)]}
+            out["rounds"].append(row)
+            time.sleep(3.0)  # the extra workers retire (RETIRE_AFTER) before the next round
+    finally:
+        pool.stop()
+    out["startup_cpu_s"] = None if cpu0 is None else (_cpu_seconds() or 0) - cpu0
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m ramps.experiments.workerstart", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--cores", type=int, default=4, help="the robot's cores (its worker pool's size)")
+    ap.add_argument("--quota", type=float, default=0.32, help="host cores the robot's cgroup may use (0: no cgroup)")
+    ap.add_argument("--programs", type=int, default=12, help="programs submitted at once")
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--hold", type=float, default=4.0, help="seconds each program sleeps")
+    ap.add_argument("--out", help="save the figures as JSON here")
+    ap.add_argument("--inner", action="store_true", help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    if a.inner:
+        print(json.dumps(inner(a.cores, a.programs, a.rounds, a.hold)))
+        return 0
+    cmd = [sys.executable, "-m", "ramps.experiments.workerstart", "--inner", "--cores", str(a.cores),
+           "--programs", str(a.programs), "--rounds", str(a.rounds), "--hold", str(a.hold)]
+    cg = None
+    mode = "unconfined (no cgroup: not root or no cpu controller)"
+    if a.quota > 0 and os.geteuid() == 0:
+        from ramps.runtime.localteam import RobotCgroup, cgroup_mode
+
+        m = cgroup_mode()
+        if m is not None:
+            cg = RobotCgroup(f"ramps-workerstart-{uuid.uuid4().hex[:8]}", a.quota, m)
+            cmd = cg.wrap(cmd)
+            mode = f"a cpu cgroup of {a.quota:g} host cores ({m})"
+    try:
+        res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    finally:
+        if cg is not None:
+            cg.remove()
+    if res.returncode != 0:
+        print(res.stderr, file=sys.stderr)
+        return res.returncode
+    out = json.loads(res.stdout.strip().splitlines()[-1])
+    out["mode"] = mode
+    print(f"robot: {a.cores} cores in {mode}; {a.programs} programs submitted at once, each sleeps {a.hold:g} s")
+    print(f"pool start-up CPU (first {a.cores} workers): {out['startup_cpu_s']}")
+    print("round  start delay median  max      workers started  robot CPU s")
+    for r in out["rounds"]:
+        fmt = (lambda v: "-" if v is None else f"{v:.3f}")
+        print(f"{r['round']:>5}  {fmt(r['delay_median_s']):>18}  {fmt(r['delay_max_s']):>7}  "
+              f"{r['workers_started']:>15}  {fmt(r['cpu_s']):>11}" + (f"  errors: {r['errors']}" if r["errors"] else ""))
+    if a.out:
+        with open(a.out, "w") as f:
+            json.dump(out, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
