@@ -11,6 +11,13 @@ is sent to the origin and kept, resent every ``result_resend`` seconds, until
 the origin acknowledges it, so a result survives a lost message or an origin
 that is briefly cut off.
 
+An origin whose liveliness is lost (its robot crashed or left the network)
+and does not come back within ``origin_gone_after`` (ORIGIN_GONE_AFTER)
+is gone for good: its running programs are stopped and its unacknowledged
+results dropped, instead of running for nobody and being resent for
+``result_retention``. A new incarnation of that robot is a new origin; the
+programs of the old one are its to re-submit.
+
 Requests are idempotent: the same (program, attempt) twice is accepted once.
 ``accepted_total`` and ``finished_total`` only ever grow; the load publisher
 puts them in every report so origins can tell what a report includes.
@@ -34,6 +41,8 @@ from ramps.core.messages import (
 )
 
 Key = tuple[str, int]
+#: seconds an origin may be lost (liveliness) before its programs here are stopped
+ORIGIN_GONE_AFTER = 30.0
 
 
 class _Job:
@@ -66,6 +75,11 @@ class Executor:
         self.running: dict[Key, _Job] = {}
         self._outbox: dict[Key, tuple[str, ProgramResult, float, float]] = {}
         self._next_tick: float | None = None
+        #: origins whose liveliness went, and when (see on_origin_lost)
+        self._origins_lost: dict[str, float] = {}
+        self.origin_gone_after = ORIGIN_GONE_AFTER
+        #: programs stopped because their origin was gone for good
+        self.orphans_stopped = 0
         #: runnable tasks that are not ramps programs, as the driver measures
         self.background = 0.0
         self.accepted_total = 0
@@ -155,6 +169,41 @@ class Executor:
         if entry is not None and entry[0] == msg.origin:
             del self._outbox[(msg.program_id, msg.attempt)]
 
+    def on_origin_lost(self, robot: str, now: float) -> None:
+        """``robot``'s liveliness went. If it has programs or results here and
+        does not come back within ``origin_gone_after``, they are dropped
+        (``tick``)."""
+        if robot == self.me or robot in self._origins_lost:
+            return
+        if not any(j.origin == robot for j in self.running.values()) and \
+                not any(e[0] == robot for e in self._outbox.values()):
+            return
+        self._origins_lost[robot] = now
+        when = now + self.origin_gone_after
+        self._next_tick = when if self._next_tick is None else min(self._next_tick, when)
+
+    def on_origin_back(self, robot: str) -> None:
+        self._origins_lost.pop(robot, None)
+
+    def _drop_gone_origins(self, now: float, out: list[Action]) -> None:
+        for robot, since in list(self._origins_lost.items()):
+            if now - since < self.origin_gone_after:
+                continue
+            del self._origins_lost[robot]
+            for key, job in list(self.running.items()):
+                if job.origin == robot:
+                    del self.running[key]
+                    self.finished_total += 1
+                    self.orphans_stopped += 1
+                    out.append(StopProgram(program_id=key[0], attempt=key[1]))
+                    out.append(Note(what="origin_gone", program_id=key[0], robot=robot, attempt=key[1],
+                                    detail=f"origin lost for {now - since:.1f} s: program stopped"))
+            for key, entry in list(self._outbox.items()):
+                if entry[0] == robot:
+                    del self._outbox[key]
+                    out.append(Note(what="origin_gone", program_id=key[0], robot=robot, attempt=key[1],
+                                    detail=f"origin lost for {now - since:.1f} s: result dropped"))
+
     # ------------------------------------------------------------ timers
     def next_deadline(self) -> float | None:
         return self._next_tick
@@ -162,6 +211,8 @@ class Executor:
     def tick(self, now: float, out: list[Action]) -> None:
         if self._next_tick is None or now < self._next_tick:
             return
+        if self._origins_lost:
+            self._drop_gone_origins(now, out)
         by_origin: dict[str, list[ProgramRef]] = {}
         for (pid, attempt), job in self.running.items():
             by_origin.setdefault(job.origin, []).append(ProgramRef(pid, attempt))
@@ -180,6 +231,9 @@ class Executor:
             self._next_tick = now + min(self.config.heartbeat_period, self.config.result_resend)
         else:
             self._next_tick = None
+        if self._origins_lost:
+            gone = min(self._origins_lost.values()) + self.origin_gone_after
+            self._next_tick = gone if self._next_tick is None else min(self._next_tick, gone)
 
     def _send_progress(self, out: list[Action]) -> None:
         for (pid, attempt), job in self.running.items():

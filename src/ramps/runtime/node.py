@@ -401,6 +401,16 @@ class NodeRuntime:
             if self._trace is not None:
                 self._write_trace("peer_back", "", robot, 0, "lost and back while this node recovered from a stall")
             return []
+        return self._peer_event(robot, alive, now)
+
+    def _peer_event(self, robot: str, alive: bool, now: float) -> list:
+        """A teammate's liveliness, to the origin (its hosts) and to the
+        executor (its origins: one gone for good has its programs here
+        stopped, see ``Executor.on_origin_lost``)."""
+        if alive:
+            self.node.executor.on_origin_back(robot)
+        else:
+            self.node.executor.on_origin_lost(robot, now)
         return self.node.handle(PeerAlive(robot=robot) if alive else PeerLost(robot=robot), now)
 
     def _next_release(self) -> float:
@@ -411,7 +421,7 @@ class NodeRuntime:
         for robot, when in list(self._held_lost.items()):
             if when <= now:
                 del self._held_lost[robot]
-                out.extend(self.node.handle(PeerLost(robot=robot), now))
+                out.extend(self._peer_event(robot, False, now))
         return out
 
     def _handle(self, item: tuple, now: float) -> list:
