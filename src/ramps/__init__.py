@@ -25,3 +25,14 @@ def program(*args, **kwargs):
     from ramps.runtime.registry import program as _program
 
     return _program(*args, **kwargs)
+
+
+def progress(fraction: float, detail: str = "") -> bool:
+    """From inside a running program: report how far it is (0..1).
+
+    The fraction reaches the caller's future (``fut.progress``), ``ramps
+    status`` and ROS action feedback. Outside a ramps worker it does nothing;
+    see ``ramps.runtime.worker.report_progress``."""
+    from ramps.runtime.worker import report_progress
+
+    return report_progress(fraction, detail)

@@ -346,6 +346,10 @@ def node(
     speed: Optional[float] = typer.Option(None, "--speed", help="work units per second per core (default: measured)"),
     policy: Optional[str] = typer.Option(None, "--policy", "-p", help=POLICY_HELP),
     program: Optional[list[str]] = typer.Option(None, "--program", help="extra program as package.module:function (repeatable)"),
+    command: Optional[list[str]] = typer.Option(None, "--command", help="an executable as a program, NAME=PATH (repeatable; env RAMPS_COMMANDS): "
+                                                "arguments as a JSON object on stdin, result as JSON on stdout, failure = non-zero exit "
+                                                "(stderr tail returned), progress = 'RAMPS_PROGRESS 0.4' lines on stderr, killed with its "
+                                                "process group when withdrawn or after 600 s ([commands.NAME] timeout in --config)"),
     config_file: Optional[Path] = typer.Option(None, "--config", help="TOML config file (env RAMPS_CONFIG)"),
     lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh session lease: how fast a frozen or cut-off peer is noticed"),
     trace: Optional[Path] = typer.Option(None, "--trace", help="write every placement, failure and delivery decision to this file (JSON lines)"),
@@ -372,7 +376,16 @@ def node(
                         handlers=[RichHandler(console=err, show_path=False)])
     if policy is not None:
         _check_policy(policy)
-    s = _settings(robot=robot, team=team, listen=listen or None, connect=connect or None, multicast=multicast,
+    commands = None
+    if command:
+        from ramps.errors import ConfigError
+        from ramps.runtime.settings import parse_commands
+
+        try:
+            commands = {k: msgspec.to_builtins(v) for k, v in parse_commands(command).items()}
+        except (ConfigError, ValueError) as exc:
+            fail(str(exc))
+    s = _settings(robot=robot, commands=commands, team=team, listen=listen or None, connect=connect or None, multicast=multicast,
                   cores=cores, speed=speed, policy=policy, programs=program or None, config_file=config_file,
                   lease_ms=lease_ms, trace=str(trace) if trace else None, secure=secure or None,
                   credentials=str(credentials) if credentials else None, metrics=metrics)

@@ -15,8 +15,13 @@ the origin of the autonomous program and sends back exactly one
     fast = team.options(timeout=30).submit("route_plan", seed=1)
     value = await team.submit_async("route_plan", seed=2)
 
-``fut.cancel()`` withdraws the program from the team. Once done, ``fut.host``
-names the robot that ran it and ``fut.attempts`` how many placements it took. A per-call timeout
+``fut.cancel()`` withdraws the program from the team. While it runs,
+``fut.state`` ("submitted", "placed", "running", "replaced", "host_failed",
+then "done" or "failed"), ``fut.host``, ``fut.attempts`` and ``fut.progress``
+(0..1, or None until the program reports any; see ``ramps.progress``) follow
+it, and ``fut.add_update_callback(fn)`` calls ``fn(fut)`` on every change.
+Once done, ``fut.host`` names the robot that ran it and ``fut.attempts`` how
+many placements it took. A per-call timeout
 (``team.options(timeout=...)``) cancels the program and raises
 ``TimeoutError``. Errors are the ``ramps.errors`` tree.
 """
@@ -37,7 +42,16 @@ from typing import Any, Iterable, Iterator
 
 import msgspec
 
-from ramps.core.messages import CancelSubmitted, LoadReport, ProgramOutcome, SubmitProgram, WireError, decode, encode
+from ramps.core.messages import (
+    CancelSubmitted,
+    LoadReport,
+    ProgramOutcome,
+    ProgramUpdate,
+    SubmitProgram,
+    WireError,
+    decode,
+    encode,
+)
 from ramps.errors import (
     BadArguments,
     NoTeam,
@@ -78,6 +92,52 @@ class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
 class TeamStatus(msgspec.Struct, frozen=True, kw_only=True):
     team: str
     robots: list[RobotStatus]
+
+
+class ProgramFuture(Future):
+    """A ``concurrent.futures.Future`` that follows its program on the team.
+
+    ``program``: its name; ``state``: "submitted", "placed", "running",
+    "replaced" (placed again after a failure or refusal), "host_failed",
+    then "done" or "failed"; ``host``: the robot it was last offered to (the
+    one that ran it, once done); ``attempts``: placements so far;
+    ``progress``: the newest fraction (0..1) the program reported, or None;
+    ``progress_detail``: the text that came with it. Updates are advisory
+    (they may be lost or arrive late); the result is not."""
+
+    def __init__(self, program: str = "") -> None:
+        super().__init__()
+        self.program = program
+        self.state = "submitted"
+        self.host = ""
+        self.attempts = 0
+        self.progress: float | None = None
+        self.progress_detail = ""
+        self._update_callbacks: list = []
+
+    def add_update_callback(self, fn) -> None:
+        """Call ``fn(future)`` (on a ramps thread: do not block) whenever the
+        state, host or progress changes, and once when the future is done."""
+        self._update_callbacks.append(fn)
+        self.add_done_callback(fn)
+
+    def _updated(self, u: ProgramUpdate) -> None:
+        if self.done():
+            return
+        if u.state != "progress":
+            self.state = u.state
+        elif self.state in ("submitted", "placed", "replaced"):
+            self.state = "running"  # progress comes from a running program
+        if u.host:
+            self.host = u.host
+        self.attempts = max(self.attempts, u.attempt)
+        if u.fraction is not None:
+            self.progress, self.progress_detail = u.fraction, u.detail
+        for fn in list(self._update_callbacks):
+            try:
+                fn(self)
+            except Exception:  # a callback's bug must not stop the others (Future does the same)
+                pass
 
 
 _ERRORS = {"program": ProgramFailed, "refused": ProgramRefused, "bad_arguments": BadArguments}
@@ -123,7 +183,7 @@ class Team:
         self.registry = registry or default_registry
         self.client_id = keys.keys_safe_id(f"{socket.gethostname()}-{os.getpid()}-{os.urandom(3).hex()}")
         self._lock = threading.Lock()
-        self._futures: dict[int, Future] = {}
+        self._futures: dict[int, ProgramFuture] = {}
         self._ids = itertools.count(1)
         self._alive: set[str] = set()
         self._reports: dict[str, tuple[LoadReport, float]] = {}
@@ -219,7 +279,7 @@ class Team:
         ``policy``: placement policy for these calls (default: the node's)."""
         return _Options(self, timeout=timeout, local_only=local_only, work=work, policy=policy)
 
-    def submit(self, program: str, /, **kwargs: Any) -> Future:
+    def submit(self, program: str, /, **kwargs: Any) -> ProgramFuture:
         return self._submit(program, kwargs)
 
     def map(self, program: str, calls: Iterable[dict[str, Any]], *, timeout: float | None = None) -> Iterator[Any]:
@@ -234,7 +294,7 @@ class Team:
         return list(await asyncio.gather(*futs))
 
     def _submit(self, program: str, kwargs: dict[str, Any], *, timeout: float | None = None,
-                local_only: bool = False, work: float | None = None, policy: str = "") -> Future:
+                local_only: bool = False, work: float | None = None, policy: str = "") -> ProgramFuture:
         if self._closed:
             raise RuntimeError("this Team is closed")
         if not isinstance(program, str) or not program:
@@ -251,8 +311,7 @@ class Team:
             if len(args) > MAX_ARGS_BYTES:
                 raise BadArguments(f"arguments of {program!r} are {len(args)} bytes; the limit is {MAX_ARGS_BYTES}")
         rid = next(self._ids)
-        fut: Future = Future()
-        fut.program = program  # type: ignore[attr-defined]
+        fut = ProgramFuture(program)
         with self._lock:
             self._futures[rid] = fut
             if timeout is not None:
@@ -284,14 +343,21 @@ class Team:
         except WireError:
             return
         o = env.msg
+        if isinstance(o, ProgramUpdate):
+            with self._lock:
+                fut = self._futures.get(o.request_id)
+            if fut is not None:
+                fut._updated(o)
+            return
         if not isinstance(o, ProgramOutcome):
             return
         with self._lock:
             fut = self._futures.pop(o.request_id, None)
         if fut is None or fut.done():
             return
-        fut.host = o.host  # type: ignore[attr-defined]  # which robot ran it
-        fut.attempts = o.attempts  # type: ignore[attr-defined]
+        fut.host = o.host  # which robot ran it
+        fut.attempts = o.attempts
+        fut.state = "done" if o.ok else "failed"
         try:
             if o.ok:
                 try:
@@ -398,7 +464,7 @@ class _Options:
         self._team = team
         self._opts = opts
 
-    def submit(self, program: str, /, **kwargs: Any) -> Future:
+    def submit(self, program: str, /, **kwargs: Any) -> ProgramFuture:
         return self._team._submit(program, kwargs, **self._opts)
 
     def map(self, program: str, calls: Iterable[dict[str, Any]]) -> Iterator[Any]:

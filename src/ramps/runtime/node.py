@@ -21,7 +21,6 @@ clients told, then the liveliness token, subscribers and session close.
 
 from __future__ import annotations
 
-import inspect
 import json
 import logging
 import os
@@ -41,6 +40,8 @@ from ramps.core.events import (
     PeerAlive,
     PeerLost,
     ProgramFinished,
+    Progress,
+    ProgressReported,
     Received,
     Send,
     StartProgram,
@@ -51,6 +52,7 @@ from ramps.core.messages import (
     CancelSubmitted,
     LoadReport,
     ProgramOutcome,
+    ProgramUpdate,
     SubmitProgram,
     WireError,
     decode,
@@ -67,6 +69,8 @@ from ramps.runtime.settings import NodeSettings, zenoh_config
 from ramps.runtime.workers import WorkerPool
 
 log = logging.getLogger("ramps.node")
+#: core notes a client hears about (ProgramUpdate.state), as placed/running/host_failed
+_CLIENT_STATES = {"placed": "placed", "accepted": "running", "failed": "host_failed"}
 #: bytes of received messages waiting for the driver before new ones are dropped
 MAX_BACKLOG_BYTES = 64 * 1024 * 1024
 #: seconds between two log lines about dropped messages (each is counted)
@@ -99,10 +103,15 @@ class NodeRuntime:
         self.registry.load_entry_points()  # packages that declare ramps.programs
         for target in settings.programs:
             self.registry.add_target(target)
+        for name, cmd in settings.commands.items():  # executables (ramps.runtime.command)
+            self.registry.add_command(name, cmd.path, timeout=cmd.timeout, args=cmd.args, work=cmd.work,
+                                      local_only=cmd.local_only)
         self.on_note = on_note
         self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._clients: dict[str, tuple[str, int]] = {}
         self._requests: dict[tuple[str, int], str] = {}
+        #: the newest progress of programs this node is origin of, until delivered
+        self._progress: dict[str, tuple[float, str]] = {}
         self._seq = 0
         self._pubs: dict[str, Any] = {}
         self._stopped = threading.Event()
@@ -150,7 +159,8 @@ class NodeRuntime:
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=s.core,
                          rng=random.Random(self.incarnation), incarnation=self.incarnation,
                          registry=self.registry.names(), program_weight=nice_weight(s.worker_nice))
-        self.pool = WorkerPool(self.cores, self.registry.targets(), self._finished, nice=s.worker_nice)
+        self.pool = WorkerPool(self.cores, self.registry.targets(), self._finished, nice=s.worker_nice,
+                               on_progress=self._progress_reported)
         self.pool.start()
         self.sampler = LoadSampler(lambda: self.pool.busy() + self.pool.queued(), window=s.window,
                                    scope=scope, cgroup=cg if scope == "cgroup" else None,
@@ -310,6 +320,10 @@ class NodeRuntime:
         self._q.put(("finished", ProgramFinished(program_id=key[0], attempt=key[1], ok=ok, value=value, error=error,
                                                  result_size=len(value), retryable=retryable)))
 
+    def _progress_reported(self, key, fraction: float, detail: str) -> None:
+        self._q.put(("progress", ProgressReported(program_id=key[0], attempt=key[1], fraction=fraction,
+                                                  detail=detail)))
+
     # ================================================================ driver
     def _clock(self) -> float:
         """The core's clock: monotonic time less every stall of this node.
@@ -452,7 +466,7 @@ class NodeRuntime:
                 if pid is None or node.origin.programs[pid].state in ("done", "failed"):
                     return []
                 return node.handle(Cancel(program_id=pid), now)
-            if isinstance(msg, ProgramOutcome):
+            if isinstance(msg, (ProgramOutcome, ProgramUpdate)):
                 return []
             if isinstance(msg, LoadReport) and msg.robot != env.sender:
                 self.bad_messages += 1
@@ -461,6 +475,8 @@ class NodeRuntime:
         if kind == "finished":
             if self.metrics is not None:
                 self.metrics.on_finished(item[1])
+            return node.handle(item[1], now)
+        if kind == "progress":
             return node.handle(item[1], now)
         if kind == "live":
             robot, alive = item[1], item[2]
@@ -484,7 +500,7 @@ class NodeRuntime:
         self._clients[pid] = rkey
         try:
             spec = self.registry.get(m.program)
-            inspect.signature(spec.function()).bind(**decode_args(m.args))
+            spec.check_args(decode_args(m.args))
         except ProgramNotFound as exc:
             return self._tell_client(pid, ok=False, error=str(exc), kind="refused", host=self.robot)
         except Exception as exc:  # signature mismatch, undecodable arguments
@@ -509,6 +525,7 @@ class NodeRuntime:
             return []
         client, request_id = target
         self._requests.pop(target, None)
+        self._progress.pop(pid, None)
         self._put(keys.client(self.team, client), encode(self.robot, ProgramOutcome(
             request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts)),
             block=True)
@@ -537,13 +554,30 @@ class NodeRuntime:
                     self._write_trace("delivered", a.program_id, a.host, a.attempts, a.error_kind)
                 self._tell_client(a.program_id, ok=a.ok, value=a.value, error=a.error, kind=kind, host=a.host,
                                   attempts=a.attempts)
+            elif isinstance(a, Progress):
+                self._progress[a.program_id] = (a.fraction, a.detail)
+                self._update_client(a.program_id, "progress", a.host, a.attempt)
             elif isinstance(a, Note):
+                if a.what in _CLIENT_STATES and a.program_id in self._clients:
+                    state = _CLIENT_STATES[a.what]
+                    self._update_client(a.program_id, "replaced" if state == "placed" and a.attempt > 1 else state,
+                                        a.robot, a.attempt)
                 if self._trace is not None:
                     self._write_trace(a.what, a.program_id, a.robot, a.attempt, a.detail)
                 if a.what in ("blacklisted", "unblacklisted", "failed", "anomaly"):
                     log.info("node %s: %s %s %s %s", self.robot, a.what, a.robot, a.program_id, a.detail)
                 if self.on_note is not None:
                     self.on_note(a)
+
+    def _update_client(self, pid: str, state: str, host: str, attempt: int) -> None:
+        """Tell the program's client where it stands (advisory; see ProgramUpdate)."""
+        target = self._clients.get(pid)
+        if target is None:
+            return
+        fraction, detail = self._progress.get(pid, (None, ""))
+        self._put(keys.client(self.team, target[0]), encode(self.robot, ProgramUpdate(
+            request_id=target[1], state=state, host=host, attempt=attempt, fraction=fraction, detail=detail)),
+            block=True)
 
     def _write_trace(self, what: str, program_id: str, other: str, attempt: int, detail: str, *,
                      at: float | None = None) -> None:

@@ -9,6 +9,11 @@ profile: expected work (work units, about CPU-seconds on a reference core),
 payload and result sizes, and ``local_only`` for programs that must never
 leave their robot (they touch its hardware).
 
+An executable can be a program too (``ramps node --command NAME=PATH``, or a
+``[commands.NAME]`` table in the config file): its target is
+``exec:{...}`` and ``ramps.runtime.command`` runs it, arguments as JSON on
+stdin, result as JSON on stdout.
+
 Arguments are keyword arguments encoded with msgpack (msgspec); results are
 any msgpack-encodable value. Arguments are checked against the function's
 signature before anything is sent, so a bad call fails at the caller.
@@ -51,9 +56,27 @@ class ProgramSpec:
             self._fn = resolve(self.target)
         return self._fn
 
+    def check_args(self, kwargs: dict[str, Any]) -> None:
+        """Raise TypeError unless ``kwargs`` fit the program: its Python
+        signature, or JSON for an executable."""
+        fn = self.function()
+        check = getattr(fn, "check_args", None)
+        if check is not None:
+            check(kwargs)
+        else:
+            inspect.signature(fn).bind(**kwargs)
+
 
 def resolve(target: str) -> Callable[..., Any]:
-    """Import ``module:function``; raise ConfigError saying what is wrong."""
+    """Import ``module:function`` (or make the runner of an ``exec:``
+    target); raise ConfigError saying what is wrong."""
+    from ramps.runtime.command import TARGET_PREFIX, parse_target
+
+    if target.startswith(TARGET_PREFIX):
+        try:
+            return parse_target(target)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
     module, sep, attr = target.partition(":")
     if not sep or not module or not attr:
         raise ConfigError(f"program target {target!r} must look like 'package.module:function'")
@@ -94,6 +117,22 @@ class Registry:
         if spec is not None and name is None:
             return self.add(spec)
         return self.add(ProgramSpec(name or target.rsplit(":", 1)[-1].rsplit(".", 1)[-1], target, _fn=fn, **profile))
+
+    def add_command(self, name: str, path: str, *, timeout: float | None = None, args: list[str] | None = None,
+                    work: float = 1.0, local_only: bool = False) -> ProgramSpec:
+        """Register the executable at ``path`` as program ``name`` (checked
+        now: it must exist and be executable here)."""
+        from ramps.runtime.command import DEFAULT_TIMEOUT, CommandProgram, command_target
+
+        if not name or not name.replace("_", "a").replace("-", "a").replace(".", "a").isalnum():
+            raise ConfigError(f"command name {name!r}: use letters, digits, '_', '-' and '.'")
+        try:
+            target = command_target(path, timeout=timeout or DEFAULT_TIMEOUT, args=args, name=name)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        fn = resolve(target)
+        assert isinstance(fn, CommandProgram)
+        return self.add(ProgramSpec(name, target, work=work, local_only=local_only, _fn=fn))
 
     def load_entry_points(self) -> None:
         for ep in entry_points(group="ramps.programs"):
@@ -142,7 +181,7 @@ def program(name: str | None = None, *, work: float = 1.0, payload: int = 0, res
 def encode_args(spec: ProgramSpec, kwargs: dict[str, Any], *, max_bytes: int = MAX_ARGS_BYTES) -> bytes:
     """Check ``kwargs`` against the program's signature and encode them."""
     try:
-        inspect.signature(spec.function()).bind(**kwargs)
+        spec.check_args(kwargs)
     except TypeError as exc:
         raise BadArguments(f"bad arguments for program {spec.name!r}: {exc}") from None
     try:

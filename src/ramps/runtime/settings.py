@@ -22,6 +22,10 @@ A config file looks like::
     connect = ["tcp/192.168.1.12:7447"]
     programs = ["mypkg.plans:replan"]
 
+    [commands.detect]   # an executable as a program (ramps.runtime.command)
+    path = "/opt/robot/bin/detect"
+    timeout = 120       # seconds, then its process group is killed
+
     [core]              # ramps.core.config.RampsConfig
     heartbeat_timeout = 2.0
 """
@@ -41,6 +45,38 @@ from ramps.errors import ConfigError
 from ramps.runtime import keys
 
 
+class CommandEntry(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """An executable registered as a program (``ramps.runtime.command``)."""
+
+    path: str
+    #: seconds it may run before its process group is killed
+    timeout: float = 600.0
+    #: fixed command-line arguments, before nothing (the call's arguments come on stdin)
+    args: list[str] = []
+    #: expected work units, for placement (about CPU-seconds on a reference core)
+    work: float = 1.0
+    local_only: bool = False
+
+    def __post_init__(self) -> None:
+        if not self.path:
+            raise ValueError("a command needs a path")
+        if not (0 < self.timeout < float("inf")):
+            raise ValueError(f"command {self.path}: timeout must be > 0 seconds, got {self.timeout}")
+        if not (0 <= self.work < float("inf")):
+            raise ValueError(f"command {self.path}: work must be >= 0, got {self.work}")
+
+
+def parse_commands(items: list[str]) -> dict[str, CommandEntry]:
+    """``["detect=/opt/bin/detect", ...]`` (``--command``, ``RAMPS_COMMANDS``)."""
+    out: dict[str, CommandEntry] = {}
+    for item in items:
+        name, sep, path = item.partition("=")
+        if not sep or not name.strip() or not path.strip():
+            raise ConfigError(f"--command must look like NAME=PATH, got {item!r}")
+        out[name.strip()] = CommandEntry(path=path.strip())
+    return out
+
+
 class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     robot: str = ""
     team: str = "lab"
@@ -56,6 +92,8 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     policy: str = "ramps"
     #: extra programs, as "package.module:function"
     programs: list[str] = []
+    #: executables as programs: NAME -> path, time limit, ... (``--command NAME=PATH``)
+    commands: dict[str, CommandEntry] = {}
     #: load publisher: seconds between reports and averaging window
     publish_period: float = 1.0
     window: float = 1.0
@@ -151,6 +189,7 @@ _ENV = {
     "RAMPS_SPEED": ("speed", float),
     "RAMPS_POLICY": ("policy", str),
     "RAMPS_PROGRAMS": ("programs", "list"),
+    "RAMPS_COMMANDS": ("commands", "commands"),
     "RAMPS_LEASE_MS": ("lease_ms", int),
     "RAMPS_SECURE": ("secure", "bool"),
     "RAMPS_CREDENTIALS": ("credentials", str),
@@ -170,6 +209,9 @@ def _from_env(environ: dict[str, str]) -> dict[str, Any]:
         try:
             if kind == "list":
                 out[field] = [x.strip() for x in raw.split(",") if x.strip()]
+            elif kind == "commands":
+                out[field] = {k: msgspec.to_builtins(v) for k, v in
+                              parse_commands([x.strip() for x in raw.split(",") if x.strip()]).items()}
             elif kind == "bool":
                 if raw.lower() not in ("1", "0", "true", "false", "yes", "no", "on", "off"):
                     raise ValueError(raw)
@@ -194,7 +236,10 @@ def load_settings(*, config_file: str | os.PathLike | None = None, flags: dict[s
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
     data.update(_from_env(environ))
-    data.update({k: v for k, v in (flags or {}).items() if v is not None})
+    flags = dict(flags or {})
+    if flags.get("commands") is not None:  # --command adds to the config file's commands
+        flags["commands"] = {**data.get("commands", {}), **flags["commands"]}
+    data.update({k: v for k, v in flags.items() if v is not None})
     if default_robot and not data.get("robot"):
         data["robot"] = keys.keys_safe_id(socket.gethostname())
     try:

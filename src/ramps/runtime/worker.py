@@ -9,6 +9,9 @@ frame is a 4-byte big-endian length and a msgpack body:
     first frame in:   {"targets": {name: "module:function", ...}, "nice": n}
     each job in:      [program, args_bytes]
     each reply out:   [ok, value_bytes, error_text]
+    progress out:     {"progress": fraction, "detail": text}  (any number
+                      before the reply; from ``ramps.progress`` or an
+                      executable's ``RAMPS_PROGRESS`` stderr lines)
 
 Nothing is pickled. The worker runs one program at a time and exits when
 stdin closes.
@@ -16,9 +19,12 @@ stdin closes.
 
 from __future__ import annotations
 
+import math
 import os
 import struct
 import sys
+import threading
+import time
 import traceback
 from typing import Any, BinaryIO, Callable
 
@@ -42,7 +48,49 @@ def frame(body: bytes) -> bytes:
     return _LEN.pack(len(body)) + body
 
 
+#: at most one progress frame per this many seconds (the last one is never lost
+#: for long: the host forwards the newest with its next heartbeat anyway)
+PROGRESS_MIN_INTERVAL = 0.05
+#: longest progress text sent
+PROGRESS_TEXT = 200
+_progress_lock = threading.Lock()
+_progress_out: BinaryIO | None = None
+_progress_sent = 0.0
+
+
+def report_progress(fraction: float, detail: str = "") -> bool:
+    """Tell the caller how far the running program is (0..1, clamped).
+
+    Inside a worker the value travels to the program's origin and its
+    caller; anywhere else (a program called directly, in a test) it does
+    nothing. Returns whether it was sent. Cheap enough to call in a loop:
+    calls closer together than PROGRESS_MIN_INTERVAL are dropped, except 1.0."""
+    global _progress_sent
+    out = _progress_out
+    if out is None:
+        return False
+    try:
+        f = float(fraction)
+    except (TypeError, ValueError):
+        raise TypeError(f"progress is a number between 0 and 1, not {fraction!r}") from None
+    if not math.isfinite(f):
+        raise ValueError(f"progress is a number between 0 and 1, not {fraction!r}")
+    f = min(1.0, max(0.0, f))
+    now = time.monotonic()
+    with _progress_lock:
+        if now - _progress_sent < PROGRESS_MIN_INTERVAL and f < 1.0:
+            return False
+        _progress_sent = now
+        out.write(frame(_enc.encode({"progress": f, "detail": str(detail)[:PROGRESS_TEXT]})))
+        out.flush()
+    return True
+
+
 def run(inp: BinaryIO, out: BinaryIO) -> None:
+    # progress state lives in the importable module that ``ramps.progress``
+    # reaches, also when this file runs as ``__main__`` (python -m)
+    from ramps.runtime import worker as this
+    from ramps.runtime.command import CommandFailed
     from ramps.runtime.registry import MAX_RESULT_BYTES, decode_args, resolve
 
     first = read_frame(inp)
@@ -58,6 +106,8 @@ def run(inp: BinaryIO, out: BinaryIO) -> None:
         if body is None:
             return
         program, args = _dec.decode(body)
+        with this._progress_lock:
+            this._progress_out, this._progress_sent = out, 0.0
         try:
             fn = fns.get(program)
             if fn is None:
@@ -71,11 +121,15 @@ def run(inp: BinaryIO, out: BinaryIO) -> None:
                                          f"{MAX_RESULT_BYTES} bytes (send a path or split the work)"]
             except (TypeError, msgspec.EncodeError) as exc:
                 reply = [False, b"", f"program {program!r} returned a value that cannot be sent: {exc}"]
+        except CommandFailed as exc:  # an executable's failure: its own words, exit code and stderr
+            reply = [False, b"", str(exc)[:3500]]
         except Exception as exc:  # the program's own failure, reported to its origin
             tb = traceback.format_exception(type(exc), exc, exc.__traceback__)
             reply = [False, b"", "".join(tb[-6:])[-3000:]]
-        out.write(frame(_enc.encode(reply)))
-        out.flush()
+        with this._progress_lock:
+            this._progress_out = None
+            out.write(frame(_enc.encode(reply)))
+            out.flush()
 
 
 def main() -> None:

@@ -52,6 +52,8 @@ from ramps.runtime.worker import frame
 Key = tuple[str, int]
 #: on_finished(key, ok, value_bytes, error_text, retryable)
 Finished = Callable[[Key, bool, bytes, str, bool], None]
+#: on_progress(key, fraction, detail): a running program reported progress
+Progress = Callable[[Key, float, str], None]
 
 #: seconds a program waits, with no worker finishing or starting meanwhile, before the pool starts another
 GROW_AFTER = 0.1
@@ -139,13 +141,15 @@ class _Worker:
 
 class WorkerPool:
     def __init__(self, size: int, targets: dict[str, str], on_finished: Finished, *,
-                 env: dict[str, str] | None = None, nice: int = 0, max_size: int | None = None) -> None:
+                 env: dict[str, str] | None = None, nice: int = 0, max_size: int | None = None,
+                 on_progress: Progress | None = None) -> None:
         if size < 1:
             raise ValueError("a worker pool needs at least one worker")
         self.size = size
         self.max_size = max(size, max_size if max_size is not None else 8 * size)
         self.targets = dict(targets)
         self.on_finished = on_finished
+        self.on_progress = on_progress
         self.env = env
         self.nice = nice
         self._lock = threading.Lock()
@@ -361,6 +365,7 @@ class WorkerPool:
                     wait = retire + 0.01 if wait is None else min(wait, retire + 0.01)
             events = self._sel.select(wait)
             finished: list[tuple[Key, bool, bytes, str, bool]] = []
+            progress: list[tuple[Key, float, str]] = []
             with self._lock:
                 if self._stopping:
                     return
@@ -380,7 +385,12 @@ class WorkerPool:
                             if len(w.buf) < 4 + n:
                                 break
                             body, w.buf = bytes(w.buf[4:4 + n]), w.buf[4 + n:]
-                            ok, value, error = _dec.decode(body)
+                            reply = _dec.decode(body)
+                            if isinstance(reply, dict):  # progress of the running program, not its end
+                                if w.job is not None and not w.cancelled:
+                                    progress.append((w.job, reply.get("progress", 0.0), reply.get("detail", "")))
+                                continue
+                            ok, value, error = reply
                             if w.job is not None and not w.cancelled:
                                 finished.append((w.job, ok, value, error, False))
                             w.job = None
@@ -403,5 +413,8 @@ class WorkerPool:
                     if len(self._workers) < self.size:
                         self._add_worker()
                 self._dispatch_locked()  # idle extra workers retire at the top of the loop
+            if self.on_progress is not None:
+                for p in progress:
+                    self.on_progress(*p)
             for item in finished:
                 self.on_finished(*item)

@@ -1,0 +1,313 @@
+"""Programs that are executables: a C++ planner, a detector, a script.
+
+How this works: ``ramps node --command NAME=PATH`` (or a ``[commands.NAME]``
+table in the config file) registers an executable installed on the robot as
+the program NAME. As for Python programs, only the name and the arguments
+travel (weak mobility): the same executable must be installed on every
+robot that may run it, at the path its own node was given.
+
+The contract with the executable (``docs/ros2.md`` repeats it):
+
+- **arguments**: the call's keyword arguments, one JSON object on stdin
+  (``{"seed": 3, "goal": [1, 2]}``), then end of input. Extra command-line
+  arguments fixed at registration (``args``) come first on argv.
+- **result**: stdout, one JSON value (whitespace around it is ignored; empty
+  stdout is ``null``). Anything else on stdout is an error, so log to stderr.
+- **failure**: a non-zero exit code (or death by a signal). The caller gets a
+  ``ProgramFailed`` naming the exit code and the last ``STDERR_TAIL``
+  characters of stderr.
+- **progress**: a line ``RAMPS_PROGRESS <fraction> [text]`` on stderr, the
+  fraction between 0 and 1; it reaches the caller's future (``fut.progress``)
+  and ROS action feedback. Such lines are not part of the stderr tail.
+- **time limit**: ``timeout`` seconds (default ``DEFAULT_TIMEOUT``); then the
+  process group is killed and the caller gets a clear error.
+- **environment**: the node's, plus ``RAMPS_PROGRAM`` (the program's name).
+- **process group**: the executable runs in its own session and process
+  group. The whole group is killed (SIGKILL) when the program ends (strays
+  left behind), times out, is withdrawn, is moved elsewhere, or its node
+  leaves or dies: a small guardian process, forked before the executable
+  starts, holds the group's id and kills it as soon as the worker that ran
+  it is gone, however it went (``WorkerPool.cancel`` kills that worker).
+
+The executable runs inside an ordinary worker process
+(``ramps.runtime.worker``), so placement, heartbeats, failure recovery and
+cancellation are those of every other program.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import selectors
+import signal
+import subprocess
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+#: seconds an executable may run unless its registration says otherwise
+DEFAULT_TIMEOUT = 600.0
+#: characters of stderr returned with a failure (the wire limits errors to 4096)
+STDERR_TAIL = 2000
+#: the prefix of a progress line on stderr
+PROGRESS_PREFIX = b"RAMPS_PROGRESS"
+#: target strings of command programs in the registry start with this
+TARGET_PREFIX = "exec:"
+
+
+class CommandFailed(Exception):
+    """The executable failed; ``str()`` is the whole message for the caller."""
+
+
+def command_target(path: str, *, timeout: float = DEFAULT_TIMEOUT, args: list[str] | None = None,
+                   name: str = "") -> str:
+    """The registry target of an executable (``exec:{json}``): what a worker
+    needs to run it. Checks now, so a typo fails when the node starts."""
+    p = Path(path).expanduser()
+    if not p.is_absolute():
+        p = p.resolve()
+    if not p.is_file():
+        raise ValueError(f"command {path!r}: no such file")
+    if not os.access(p, os.X_OK):
+        raise ValueError(f"command {path!r} is not executable (chmod +x it)")
+    if not (isinstance(timeout, (int, float)) and math.isfinite(timeout) and timeout > 0):
+        raise ValueError(f"command {path!r}: timeout must be a positive number of seconds, got {timeout!r}")
+    return TARGET_PREFIX + json.dumps({"path": str(p), "timeout": float(timeout), "args": list(args or []),
+                                        "name": name or p.name})
+
+
+def parse_target(target: str) -> "CommandProgram":
+    try:
+        d = json.loads(target[len(TARGET_PREFIX):])
+        return CommandProgram(d["path"], timeout=float(d.get("timeout", DEFAULT_TIMEOUT)), args=d.get("args", []),
+                              name=d.get("name", ""))
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"bad command target {target!r}: {exc}") from None
+
+
+def parse_progress(line: bytes) -> tuple[float, str] | None:
+    """``RAMPS_PROGRESS 0.42 text`` -> (0.42, "text"); None if not such a line
+    or the fraction is not a number in [0, 1]."""
+    if not line.startswith(PROGRESS_PREFIX):
+        return None
+    parts = line[len(PROGRESS_PREFIX):].decode("utf-8", "replace").strip().split(None, 1)
+    if not parts:
+        return None
+    try:
+        fraction = float(parts[0])
+    except ValueError:
+        return None
+    if not 0.0 <= fraction <= 1.0:
+        return None
+    return fraction, (parts[1] if len(parts) > 1 else "")
+
+
+class CommandProgram:
+    """A registered executable; calling it runs it once (in a worker)."""
+
+    def __init__(self, path: str, *, timeout: float = DEFAULT_TIMEOUT, args: list[str] | None = None,
+                 name: str = "") -> None:
+        self.path = path
+        self.timeout = timeout
+        self.args = list(args or [])
+        self.name = name or Path(path).name
+
+    def __repr__(self) -> str:
+        return f"CommandProgram({self.path!r}, timeout={self.timeout:g})"
+
+    def __call__(self, **kwargs: Any) -> Any:
+        return self.run(kwargs)
+
+    def check_args(self, kwargs: dict[str, Any]) -> None:
+        """Arguments must be JSON (no bytes, no non-string keys)."""
+        try:
+            json.dumps(kwargs, allow_nan=False)
+        except (TypeError, ValueError) as exc:
+            raise TypeError(f"arguments of an executable travel as JSON: {exc}") from None
+
+    def run(self, kwargs: dict[str, Any], *, on_progress: Callable[[float, str], None] | None = None) -> Any:
+        try:
+            stdin = json.dumps(kwargs, allow_nan=False).encode()
+        except (TypeError, ValueError) as exc:
+            raise CommandFailed(f"arguments of {self.name} cannot be passed as JSON: {exc}") from None
+        if on_progress is None:
+            from ramps.runtime import worker
+
+            on_progress = worker.report_progress
+        from ramps.runtime.registry import MAX_RESULT_BYTES
+
+        env = dict(os.environ)
+        env["RAMPS_PROGRAM"] = self.name
+        guard_r, guard_w = os.pipe()
+        try:
+            proc = subprocess.Popen([self.path, *self.args], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, env=env, start_new_session=True, close_fds=True)
+        except OSError as exc:
+            os.close(guard_r)
+            os.close(guard_w)
+            raise CommandFailed(f"{self.name}: cannot start {self.path}: {exc.strerror or exc}") from None
+        guardian = _start_guardian(proc.pid, guard_r, guard_w)
+        os.close(guard_r)
+        deadline = time.monotonic() + self.timeout
+        try:
+            out, err_tail, timed_out, too_big = _communicate(proc, stdin, deadline, MAX_RESULT_BYTES, on_progress)
+            if not (timed_out or too_big):
+                try:  # it may close its output and go on running
+                    proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+                except subprocess.TimeoutExpired:
+                    timed_out = True
+        finally:
+            _kill_group(proc.pid)  # strays the executable left behind, before its group id can be reused
+            proc.wait()
+            try:
+                os.write(guard_w, b"d")  # done: the guardian leaves without killing
+            except OSError:
+                pass
+            os.close(guard_w)
+            if guardian:
+                try:
+                    os.waitpid(guardian, 0)
+                except ChildProcessError:
+                    pass
+        tail = err_tail.decode("utf-8", "replace")[-STDERR_TAIL:]
+        if timed_out:
+            raise CommandFailed(f"{self.name} did not finish within its time limit of {self.timeout:g} s and was "
+                                f"killed" + _stderr(tail))
+        if too_big:
+            raise CommandFailed(f"{self.name} wrote more than {MAX_RESULT_BYTES} bytes on stdout (results must fit "
+                                "one message: write a file and return its path)")
+        code = proc.returncode
+        if code != 0:
+            if code < 0:
+                try:
+                    how = f"was killed by signal {signal.Signals(-code).name}"
+                except ValueError:
+                    how = f"was killed by signal {-code}"
+            else:
+                how = f"exited with code {code}"
+            raise CommandFailed(f"{self.name} {how}" + _stderr(tail))
+        text = out.strip()
+        if not text:
+            return None
+        try:
+            return json.loads(text)
+        except (ValueError, UnicodeDecodeError) as exc:
+            head = text[:200].decode("utf-8", "replace")
+            raise CommandFailed(f"{self.name} exited 0 but its stdout is not JSON ({exc}); it began with {head!r}"
+                                + _stderr(tail)) from None
+
+
+def _stderr(tail: str) -> str:
+    return f"; stderr (last {STDERR_TAIL} characters):\n{tail}" if tail.strip() else "; stderr was empty"
+
+
+def _kill_group(pgid: int) -> None:
+    try:
+        os.killpg(pgid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def _start_guardian(pgid: int, read_fd: int, write_fd: int) -> int:
+    """Fork a process that kills group ``pgid`` when the worker dies.
+
+    It leaves the worker's process group (a crash that kills the node's
+    whole group must not take the guardian along) and blocks on ``read_fd``:
+    a byte means the worker finished the program itself; end of input
+    without one means the worker is gone: kill the group."""
+    try:
+        pid = os.fork()
+    except OSError:
+        return 0  # no guardian: the program still runs and is killed when it ends normally
+    if pid:
+        return pid
+    try:  # the child: only os-level calls, then _exit
+        os.closerange(0, read_fd)  # the worker's pipes too: the pool must see the worker's end at once
+        os.closerange(read_fd + 1, os.sysconf("SC_OPEN_MAX") if hasattr(os, "sysconf") else 1024)
+        os.setsid()
+        try:
+            got = os.read(read_fd, 1)
+        except OSError:
+            got = b""
+        if not got:
+            _kill_group(pgid)
+    finally:
+        os._exit(0)
+
+
+def _communicate(proc: subprocess.Popen, stdin: bytes, deadline: float, max_out: int,
+                 on_progress: Callable[[float, str], None]) -> tuple[bytes, bytes, bool, bool]:
+    """Feed stdin, collect stdout and stderr (progress lines parsed out,
+    stderr kept as a bounded tail) until both close or the time is up."""
+    sel = selectors.DefaultSelector()
+    out = bytearray()
+    err_tail = bytearray()
+    line = bytearray()
+    pos = 0
+    assert proc.stdin and proc.stdout and proc.stderr
+    for f in (proc.stdin, proc.stdout, proc.stderr):
+        os.set_blocking(f.fileno(), False)
+    if stdin:
+        sel.register(proc.stdin, selectors.EVENT_WRITE)
+    else:
+        proc.stdin.close()
+    sel.register(proc.stdout, selectors.EVENT_READ)
+    sel.register(proc.stderr, selectors.EVENT_READ)
+    timed_out = too_big = False
+    try:
+        while sel.get_map():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                timed_out = True
+                break
+            for key, _ in sel.select(min(left, 1.0)):
+                f = key.fileobj
+                if f is proc.stdin:
+                    try:
+                        pos += os.write(f.fileno(), stdin[pos:pos + 65536])
+                    except (BrokenPipeError, OSError):
+                        pos = len(stdin)  # it does not read its input: fine
+                    if pos >= len(stdin):
+                        sel.unregister(f)
+                        f.close()
+                    continue
+                try:
+                    chunk = os.read(f.fileno(), 65536)
+                except BlockingIOError:
+                    continue
+                if not chunk:
+                    sel.unregister(f)
+                    continue
+                if f is proc.stdout:
+                    out += chunk
+                    if len(out) > max_out:
+                        too_big = True
+                        return bytes(out), bytes(err_tail), False, True
+                    continue
+                line += chunk
+                while True:
+                    nl = line.find(b"\n")
+                    if nl < 0:
+                        if len(line) > 4096:  # a very long line without a newline: no progress in it
+                            err_tail += line
+                            line.clear()
+                        break
+                    one = bytes(line[:nl + 1])
+                    del line[:nl + 1]
+                    prog = parse_progress(one.strip())
+                    if prog is not None:
+                        on_progress(*prog)
+                    else:
+                        err_tail += one
+                if len(err_tail) > 4 * STDERR_TAIL:
+                    del err_tail[:-STDERR_TAIL * 2]
+    finally:
+        sel.close()
+        for f in (proc.stdin, proc.stdout, proc.stderr):
+            try:
+                f.close()
+            except OSError:
+                pass
+    err_tail += line
+    return bytes(out), bytes(err_tail), timed_out, too_big
