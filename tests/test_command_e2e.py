@@ -26,7 +26,7 @@ import psutil
 import pytest
 from runtime_team import LocalTeam, assert_no_leftovers
 
-from ramps.errors import ProgramFailed
+from ramps.errors import ProgramFailed, ProgramLost
 
 pytestmark = pytest.mark.slow
 
@@ -204,11 +204,17 @@ def test_killed_robot_kills_its_executables_and_the_program_moves(tmp_path):
         marks = {tag: _marks(t, tag) for tag in futs}
         victim = next(robot for _, _, robot in marks.values() if robot != "r1")
         doomed = [pid for shell, child, robot in marks.values() if robot == victim for pid in (shell, child)]
+        # a client whose own node (the origin) dies is told so, not left waiting
+        orphan = t.client(victim).submit("hang", tag="orphan")
+        _marks(t, "orphan")
         for tag, (_, _, robot) in marks.items():
             if robot == victim:
                 (t.marks / tag).unlink()  # so the re-placed copy's marks can be read
         t.kill_node(victim)
         assert _gone(doomed) == [], f"{victim}'s executables survived its node"
+        with pytest.raises(ProgramLost, match=f"robot {victim}, the origin of this program"):
+            orphan.result(RESULT_TIMEOUT)
+        assert orphan.state == "failed"
         # each program of the dead robot is placed again and starts on another robot
         for tag, (_, _, robot) in marks.items():
             if robot == victim:

@@ -140,6 +140,10 @@ class ProgramFuture(Future):
                 pass
 
 
+#: seconds a client waits for its node to come back before failing the
+#: programs it submitted there (a lease that flapped comes back within ~1 s)
+ORIGIN_GONE_GRACE = 3.0
+
 _ERRORS = {"program": ProgramFailed, "refused": ProgramRefused, "bad_arguments": BadArguments}
 
 #: Teams still open, closed at interpreter exit if the application did not
@@ -228,6 +232,28 @@ class Team:
                 self._alive.add(robot)
             else:
                 self._alive.discard(robot)
+                if robot == getattr(self, "robot", None) and self._futures and not self._closed:
+                    # our node, the origin of every pending program, is gone: unless it
+                    # is back soon (a lease that flapped), nobody will ever answer them
+                    t = threading.Timer(ORIGIN_GONE_GRACE, self._origin_gone, args=(robot,))
+                    t.daemon = True
+                    t.start()
+
+    def _origin_gone(self, robot: str) -> None:
+        with self._lock:
+            if robot in self._alive or self._closed:
+                return
+            futs = list(self._futures.values())
+            self._futures.clear()
+        for f in futs:
+            f.state = "failed"
+            try:
+                f.set_exception(ProgramLost(f"{f.program}: robot {robot}, the origin of this program (the node this "
+                                            f"client submitted to), left the team or died; the program is lost "
+                                            f"with it. Submit it again to another robot's node.", host=f.host,
+                                            attempts=f.attempts))
+            except Exception:  # done or cancelled meanwhile
+                pass
 
     def _on_report(self, sample) -> None:
         try:
