@@ -409,11 +409,13 @@ def node(
     err.print(f"programs: {', '.join(sorted(rt.registry.names()))}. Ctrl-C to leave the team.", highlight=False,
               soft_wrap=True)
     try:
-        while not stop.wait(0.5):
+        while not stop.wait(0.5) and not rt.wait(0):
             pass
     finally:
         err.print(f"ramps node {rt.robot}: leaving the team, handing running programs back ...")
         rt.stop()
+    if rt.revoked_self:
+        fail(f"robot {rt.robot} was revoked by team {rt.team} (revocation list {rt.revocations.seq}): it left the team")
 
 
 def _parse_arg(text: str) -> tuple[str, object]:

@@ -3,6 +3,8 @@
     ramps team init --team warehouse        # a team CA in ./ramps-team (ca.key never leaves this machine)
     ramps team add r1                       # r1's bundle in ./ramps-team/r1: ca.pem, cert.pem, key.pem
     ramps team show                         # the CA and every robot issued, with expiry dates
+    ramps team revoke r3 --connect tls/192.168.1.11:7447 --credentials ramps-team/admin
+                                            # shut r3 out: a signed list the running team adopts
 
 Rules as in ``ramps.cli``: user mistakes end with a one-line message and exit
 code 2. The work is done by ``ramps.runtime.security``; this module parses and
@@ -98,3 +100,56 @@ def team_show(directory: Path = typer.Option(Path("ramps-team"), "--dir", "-d", 
             _out.print(f"  {c.robot:16s} valid until {c.not_after:%Y-%m-%d}")
         except CredentialsError as exc:
             _out.print(f"  {sub.name:16s} [red]{exc}[/]")
+
+
+@team_app.command("revoke")
+def team_revoke(
+    robots: list[str] = typer.Argument(..., help="robot name(s) to shut out (certificate common names)"),
+    directory: Path = typer.Option(Path("ramps-team"), "--dir", "-d", help=DIR_HELP),
+    connect: list[str] | None = typer.Option(None, "--connect", "-c", help="a teammate's endpoint to tell the running team through, e.g. tls/192.168.1.11:7447 (repeatable; without it, only the files are written)"),
+    credentials: Path | None = typer.Option(None, "--credentials", help="a team bundle to join with when telling the team (e.g. one made by `ramps team add admin`); default: the first bundle in --dir that is not revoked"),
+    multicast: bool = typer.Option(False, "--multicast/--no-multicast", help="find the team by multicast scouting"),
+    wait: float = typer.Option(10.0, "--wait", min=0.5, help="seconds to wait for a teammate to link when telling the team"),
+) -> None:
+    """Revoke ROBOT: no teammate accepts anything from it any more, and it may not join.
+
+    Adds ROBOT to the team's revocation list, signed with the CA key, in
+    DIR/revoked.json and in every robot bundle under DIR (copy it to robots
+    that were offline: `scp ramps-team/revoked.json ROBOT:.ramps-credentials/`).
+    With --connect (or --multicast) the running team is told at once: every
+    node checks the signature, adopts the list, passes it on to teammates
+    that were away, shuts the robot out (its programs are placed elsewhere)
+    and a revoked robot's own node leaves the team. A robot that keeps its
+    network links and lies about its name is not stopped by this; replace
+    the team CA (`ramps team init --force`) for a compromised robot."""
+    from ramps.errors import CredentialsError
+    from ramps.runtime import revocation, security
+
+    try:
+        rl, written = revocation.revoke(directory, list(robots))
+    except (CredentialsError, ValueError) as exc:
+        _fail(str(exc))
+    _out.print(f"team [bold]{rl.team}[/]: revocation list {rl.seq} names {', '.join(rl.robots)}; written to "
+               f"{', '.join(str(p) for p in written)}")
+    if not connect and not multicast:
+        _out.print("the running team was not told (no --connect): nodes learn it from these files at start, "
+                   "or from any teammate that has it")
+        return
+    if credentials is None:
+        bundles = [sub for sub in sorted(directory.iterdir()) if (sub / security.BUNDLE_CERT).exists()
+                   and sub.name not in rl.robots]
+        if not bundles:
+            _fail(f"no bundle to join the team with in {directory}: make one with `ramps team add admin "
+                  f"--dir {directory}`, or pass --credentials")
+        credentials = bundles[0]
+    try:
+        peers, _ = revocation.publish(rl, team=rl.team, connect=list(connect or []), credentials=str(credentials),
+                                   multicast=multicast, wait=wait)
+    except (CredentialsError, ValueError) as exc:
+        _fail(str(exc))
+    except Exception as exc:  # Zenoh failing to open: say so plainly
+        _fail(f"could not join team {rl.team!r} to tell it: {exc}")
+    if not peers:
+        _fail(f"no teammate linked within {wait:g} s at {', '.join(connect or ['multicast'])}: the team was not told "
+              "(the list files are written; nodes read them at start)")
+    _out.print(f"told the running team ({peers} teammate(s) linked); every node passes it on")

@@ -185,6 +185,13 @@ class Executor:
     def on_origin_back(self, robot: str) -> None:
         self._origins_lost.pop(robot, None)
 
+    def stop_origin(self, robot: str, now: float, out: list[Action]) -> None:
+        """``robot`` may not have anything run here any more (revoked): stop its
+        programs and drop its results now."""
+        if robot != self.me:
+            self._origins_lost[robot] = now - self.origin_gone_after
+            self._drop_gone_origins(now, out)
+
     def _drop_gone_origins(self, now: float, out: list[Action]) -> None:
         for robot, since in list(self._origins_lost.items()):
             if now - since < self.origin_gone_after:

@@ -61,7 +61,7 @@ from ramps.core.messages import (
 from ramps.core.node import Node
 from ramps.core.policy import POLICIES
 from ramps.errors import ConfigError, NotAdmitted, ProgramNotFound, TransportError
-from ramps.runtime import keys
+from ramps.runtime import keys, revocation
 from ramps.runtime.measure import LoadSampler, cgroup_dirs, cgroup_quota, detect_cores, measure_speed
 from ramps.runtime.registry import Registry, decode_args, default_registry
 from ramps.runtime.security import admission, open_session, settings_credentials
@@ -137,6 +137,15 @@ class NodeRuntime:
         self._sleep_until = 0.0
         #: teammates whose liveliness went just after a stall: robot -> core time it counts as lost
         self._held_lost: dict[str, float] = {}
+        #: secured team: the newest revocation list, the robots it names, the CA that signs it
+        self.revocations: revocation.RevocationList | None = None
+        self._revoked: frozenset[str] = frozenset()
+        self._ca_cert = None
+        self._revocation_file: str | None = None
+        self._republish_at = 0.0
+        #: messages dropped because their sender is revoked; this robot itself was revoked
+        self.revoked_dropped = 0
+        self.revoked_self = False
         #: Prometheus metrics (``--metrics``), fed from the driver thread (ramps.observe.metrics)
         self.metrics = None
 
@@ -147,6 +156,8 @@ class NodeRuntime:
         s = self.s
         zenoh.try_init_log_from_env()  # RUST_LOG=zenoh=debug shows Zenoh's own view (links, leases)
         creds, exit_on_failure = self._join_checks()
+        if creds is not None:
+            self._load_revocations(creds)
         cg, acct = cgroup_dirs()
         quota = cgroup_quota(cg)
         scope = s.load_scope
@@ -197,6 +208,10 @@ class NodeRuntime:
                     lambda smp: put(("live", keys.robot_of(str(smp.key_expr)), smp.kind == zenoh.SampleKind.PUT)),
                     history=True),
             ]
+            if self._ca_cert is not None:
+                self._subs.append(self.session.declare_subscriber(
+                    revocation.revoked_key(self.team),
+                    lambda smp: put(("revoked", smp.payload.to_bytes()))))
             self._load_pub = self.session.declare_publisher(keys.load(self.team, self.robot))
             self._token = self.session.liveliness().declare_token(keys.alive(self.team, self.robot))
         except zenoh.ZError as exc:
@@ -378,6 +393,8 @@ class NodeRuntime:
                 if item[0] == "stop":
                     self._apply(actions)
                     self._shutdown(item[1])
+                    if self.revoked_self:  # nobody asked: leave the team now (run_node and the CLI see wait())
+                        self._teardown()
                     return
                 try:
                     actions.extend(self._handle(item, now))
@@ -408,6 +425,8 @@ class NodeRuntime:
         close and their tokens vanish here, then come back as soon as Zenoh
         reconnects. Such a loss is held for STALL_GRACE and forgotten if the
         robot comes back meanwhile; a robot that does not is lost then."""
+        if robot in self._revoked:
+            return []
         if not alive and self._stalled_at and time.monotonic() - self._stalled_at < STALL_GRACE:
             self._held_lost[robot] = now + STALL_GRACE
             return []
@@ -426,6 +445,65 @@ class NodeRuntime:
         else:
             self.node.executor.on_origin_lost(robot, now)
         return self.node.handle(PeerAlive(robot=robot) if alive else PeerLost(robot=robot), now)
+
+    # ================================================================ revocation
+    def _load_revocations(self, creds) -> None:
+        """Secured team: the list saved beside this robot's credentials, if
+        any. A robot on it does not join (``NotAdmitted``)."""
+        from ramps.runtime.security import _load_cert
+
+        self._ca_cert = _load_cert(creds.ca, "team CA certificate")
+        self._revocation_file = str(creds.cert.parent / revocation.REVOKED_FILE)
+        rl = revocation.load(self._revocation_file, self._ca_cert, self.team)
+        if rl is None:
+            return
+        if self.robot in rl.robots:
+            raise NotAdmitted(f"robot {self.robot!r} is revoked by team {self.team!r} (revocation list {rl.seq} "
+                              f"of {rl.issued}, {self._revocation_file}): it may not join the team")
+        self.revocations, self._revoked = rl, frozenset(rl.robots)
+
+    def _on_revocations(self, data: bytes, now: float) -> list:
+        """A revocation list from the team: adopt it if it is newer and signed
+        by the team CA; shut the newly revoked robots out (or leave, if this
+        robot is one of them). Anything else is remote bad input: counted."""
+        try:
+            rl = revocation.decode(data, self._ca_cert, self.team)
+        except Exception as exc:  # CredentialsError, or anything odd in a foreign message
+            self.bad_messages += 1
+            log.warning("node %s ignored a revocation list: %s", self.robot, exc)
+            return []
+        if self.revocations is not None and rl.seq <= self.revocations.seq:
+            return []
+        new = sorted(set(rl.robots) - self._revoked)
+        self.revocations, self._revoked = rl, frozenset(rl.robots)
+        self._republish_at = 0.0  # pass it on now
+        try:
+            revocation.save(self._revocation_file, rl)
+        except OSError as exc:
+            log.warning("node %s could not save revocation list %d to %s: %s", self.robot, rl.seq,
+                        self._revocation_file, exc)
+        out: list = []
+        for robot in new:
+            if self._trace is not None:
+                self._write_trace("revoked", "", robot, 0, f"list {rl.seq}")
+            if robot == self.robot:
+                self.revoked_self = True
+                continue
+            log.warning("node %s: robot %s is revoked by the team (list %d): shut out", self.robot, robot, rl.seq)
+            self._held_lost.pop(robot, None)
+            self.node.executor.stop_origin(robot, now, out)
+            out.extend(self.node.handle(PeerLost(robot=robot), now))
+        if self.revoked_self:
+            log.error("node %s: this robot is revoked by team %s (list %d): handing programs back and leaving",
+                      self.robot, self.team, rl.seq)
+            self._q.put(("stop", threading.Event()))
+        return out
+
+    def _republish(self, now: float) -> None:
+        if self.revocations is None or now < self._republish_at or self.session is None:
+            return
+        self._republish_at = now + revocation.REPUBLISH_PERIOD
+        self._put(revocation.revoked_key(self.team), revocation.encode(self.revocations))
 
     def _next_release(self) -> float:
         return min(self._held_lost.values())
@@ -456,6 +534,9 @@ class NodeRuntime:
                     self._drop_logged_at, self._drops_unlogged = now, 0
                 return []
             msg = env.msg
+            if env.sender in self._revoked:  # refused at the ramps layer (see ramps.runtime.revocation)
+                self.revoked_dropped += 1
+                return []
             if self._trace_wire:
                 self._write_trace("rx", getattr(msg, "program_id", ""), env.sender, getattr(msg, "attempt", 0),
                                   f"{type(msg).__name__} queued {now - item[2]:.3f} s", at=item[2])
@@ -488,6 +569,8 @@ class NodeRuntime:
         if kind == "call":
             item[1]()
             return []
+        if kind == "revoked":
+            return self._on_revocations(item[1], now)
         raise ValueError(f"unknown queue item {kind!r}")
 
     def _client_submit(self, m: SubmitProgram, now: float) -> list:
@@ -642,6 +725,7 @@ class NodeRuntime:
                 self._write_trace("tx", "", "*", 0, "LoadReport")
         except Exception as exc:
             log.warning("node %s could not publish its load: %s", self.robot, exc)
+        self._republish(now)
 
     def _log_view_change(self, before: frozenset[str], after: frozenset[str]) -> None:
         """One line when teammates enter or leave this robot's view (the
@@ -699,7 +783,7 @@ def run_node(settings: NodeSettings, *, install_signals: bool = True) -> NodeRun
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: stop.set())
     try:
-        while not stop.wait(0.5):
+        while not stop.wait(0.5) and not rt.wait(0):
             pass
     finally:
         rt.stop()
