@@ -1,6 +1,7 @@
 # The two commands of the README:
 #   make demo   -> the main job (bootstraps .venv on first use)
-#   make test   -> the whole test suite (bootstraps .venv on first use)
+#   make test   -> the whole test suite (bootstraps .venv on first use, with the
+#                  ROS 2 extra so the ROS face is tested too)
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
@@ -11,7 +12,7 @@ STAMP  := $(VENV)/.installed
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[test]'
+	$(BIN)/python -m pip install -q -e '.[test,ros]'
 	@touch $(STAMP)
 
 demo: $(STAMP)

@@ -34,6 +34,8 @@ app.add_typer(sim_app, name="sim")
 app.add_typer(bench_app, name="bench")
 from ramps.cli_team import team_app  # noqa: E402  (ramps team init/add)
 app.add_typer(team_app, name="team")
+from ramps.ros.cli import register as _register_ros  # noqa: E402  (ramps ros; rclpy only when it runs)
+_register_ros(app)
 
 # a pipe or a CI log gets wide tables instead of wrapped ones
 out = Console(width=None if sys.stdout.isatty() else 200)

@@ -1,0 +1,60 @@
+"""``ramps ros``: the command (rclpy is imported only when it runs)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+ROS_HELP = ("Expose this robot's ramps team to ROS 2 (needs: pip install 'ramps-robotics\\[ros]').\n\n"
+            "Every registered program becomes runnable from ROS: send a goal as JSON on /ROBOT/ramps/goal "
+            "(std_msgs/String, e.g. {\"goal_id\": \"g1\", \"program\": \"route_plan\", \"args\": {\"seed\": 3}}), "
+            "read feedback (host, state, progress) on /ROBOT/ramps/feedback and the result on /ROBOT/ramps/result; "
+            "cancel by sending the goal id on /ROBOT/ramps/cancel (the program is withdrawn from the team); goal "
+            "states are on /ROBOT/ramps/status (action_msgs/GoalStatusArray).\n\n"
+            "Every robot's load and health go to /diagnostics (diagnostic_msgs/DiagnosticArray).\n\n"
+            "The options are ROS parameters too: --ros-args -p team:=warehouse -p connect:=\"['tcp/10.0.0.2:7447']\". "
+            "See docs/ros2.md.")
+
+
+def register(app: typer.Typer) -> None:
+    @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True}, help=ROS_HELP)
+    def ros(
+        ctx: typer.Context,
+        team: Optional[str] = typer.Option(None, "--team", "-t", help="team name (parameter team; default lab)"),
+        robot: Optional[str] = typer.Option(None, "--robot", "-r", help="the ramps node to submit to, normally this "
+                                            "robot's (parameter robot; default: the one named after this host)"),
+        connect: Optional[list[str]] = typer.Option(None, "--connect", "-c", help="Zenoh endpoint of the team "
+                                                    "(repeatable; parameter connect)"),
+        multicast: Optional[bool] = typer.Option(None, "--multicast/--no-multicast", help="find the team by UDP multicast"),
+        secure: bool = typer.Option(False, "--secure", help="secured team (parameter secure)"),
+        credentials: Optional[Path] = typer.Option(None, "--credentials", help="credentials directory (parameter credentials)"),
+        diagnostics_period: Optional[float] = typer.Option(None, "--diagnostics-period", min=0.05,
+                                                           help="seconds between /diagnostics messages (default 1)"),
+        namespace: Optional[str] = typer.Option(None, "--namespace", help="ROS namespace of the face (default: /<robot>)"),
+    ) -> None:
+        from ramps.ros import missing
+
+        why = missing()
+        if why is not None:
+            typer.echo(f"ramps ros: {why}", err=True)
+            raise typer.Exit(2)
+        from ramps.errors import RampsError
+        from ramps.ros.face import ros_name, run
+
+        overrides = {k: v for k, v in {
+            "team": team, "robot": robot, "connect": list(connect) if connect else None, "multicast": multicast,
+            "secure": True if secure else None, "credentials": str(credentials) if credentials else None,
+            "diagnostics_period": diagnostics_period}.items() if v is not None}
+        ns = namespace if namespace is not None else ("/" + ros_name(robot) if robot else "")
+        try:
+            run(namespace=ns, overrides=overrides, ros_args=list(ctx.args))
+        except (RampsError, ValueError) as exc:
+            typer.echo(f"ramps ros: {exc}", err=True)
+            raise typer.Exit(2)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(0)

@@ -1,0 +1,371 @@
+"""``ramps ros``: a robot's ramps team as ROS 2 topics (needs the ``ros`` extra).
+
+How this works: ``RosFace`` is an rclpy node and a ramps client
+(``ramps.connect``) of its robot's ramps node, the origin of every program it
+submits. ROS clients send goals as JSON on a topic; each goal becomes one
+``team.submit``; the program's ``ProgramFuture`` updates (placed, running,
+re-placed, progress) become feedback, its outcome becomes the result, and
+cancelling the goal cancels the future, which withdraws the program from the
+team. The team's load reports are published as ``diagnostic_msgs``.
+
+Why topics and not a ROS action: an action needs its own interface type,
+built by ``rosidl`` into C type support. The ROS 2 wheels on PyPI carry no
+CMake package configurations and no C headers of ``rosidl_runtime_c``, so an
+interface package cannot be built from them, and no installed package
+defines a generic action (only ``test_msgs/Fibonacci``). So the action is
+spelled out on standard types every ROS tool shows: goals, cancels, feedback
+and results as JSON in ``std_msgs/String``, and the goal states on
+``action_msgs/GoalStatusArray`` with the standard codes. ``RunProgram.action``
+beside this module is the interface a built package would declare
+(docs/ros2.md).
+
+Names (relative to the node, ``/<robot>/ramps/...`` by default):
+
+- ``~/goal`` (std_msgs/String, in): ``{"goal_id": "g1", "program": "route_plan",
+  "args": {"seed": 3}, "timeout": 60}``; ``goal_id`` optional (one is made),
+  ``timeout`` optional (seconds, then the program is withdrawn)
+- ``~/cancel`` (std_msgs/String, in): a goal id
+- ``~/feedback`` (std_msgs/String, out): ``{"goal_id", "program", "state",
+  "host", "attempt", "progress", "detail"}``; state: accepted, placed,
+  running, replaced, host_failed, progress
+- ``~/result`` (std_msgs/String, out, latched for 100): ``{"goal_id",
+  "program", "ok", "value" | "error" and "error_kind", "host", "attempts"}``;
+  error_kind: program, refused, bad_arguments, bad_goal, cancelled, lost,
+  timeout
+- ``~/status`` (action_msgs/GoalStatusArray, out, latched): every goal of
+  the last minute; goal ids are ``uuid5(NAMESPACE_URL, "ramps:" + goal_id)``
+- ``/diagnostics`` (diagnostic_msgs/DiagnosticArray, out): one status per
+  robot ("ramps: r2": cores, speed, CPU busy, run queue, programs, ...), and
+  one for this face; every ``diagnostics_period`` seconds
+
+Parameters: team, robot (the origin node; default any), connect (string
+array of Zenoh endpoints), multicast, secure, credentials,
+diagnostics_period (s), goal_timeout (s, 0 = none), connect_timeout (s).
+
+Rules: Zenoh callbacks and future callbacks only enqueue; one rclpy timer
+drains the queue and publishes, so every ROS call happens on the executor's
+thread. A bad goal gets an error result (and a log line), never an exception.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import queue
+import re
+import time
+import uuid
+from typing import Any
+
+import rclpy
+from action_msgs.msg import GoalInfo, GoalStatus, GoalStatusArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
+from unique_identifier_msgs.msg import UUID
+
+#: seconds a finished goal stays in the status array
+KEEP_FINISHED = 60.0
+#: longest goal message accepted, bytes (ramps' own argument limit is 1 MiB)
+MAX_GOAL_BYTES = 1024 * 1024 + 4096
+#: seconds between two drains of the event queue (feedback latency)
+PUMP_PERIOD = 0.05
+
+RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+LATCHED = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+STATUS_QOS = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+_FUTURE_STATES = {"submitted": "accepted", "placed": "placed", "running": "running", "replaced": "replaced",
+                  "host_failed": "host_failed"}
+
+
+def ros_name(text: str) -> str:
+    """A robot name as a ROS namespace token (letters, digits, underscores)."""
+    out = re.sub(r"[^A-Za-z0-9_]", "_", text) or "ramps"
+    return out if not out[0].isdigit() else "r" + out
+
+
+def goal_uuid(goal_id: str) -> bytes:
+    return uuid.uuid5(uuid.NAMESPACE_URL, "ramps:" + goal_id).bytes
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, (bytes, bytearray, memoryview)):
+        return {"base64": base64.b64encode(bytes(value)).decode()}
+    return str(value)
+
+
+class _Goal:
+    __slots__ = ("goal_id", "program", "uuid", "stamp", "status", "fut", "done_at")
+
+    def __init__(self, goal_id: str, program: str, stamp) -> None:
+        self.goal_id = goal_id
+        self.program = program
+        self.uuid = goal_uuid(goal_id)
+        self.stamp = stamp
+        self.status = GoalStatus.STATUS_ACCEPTED
+        self.fut = None
+        self.done_at: float | None = None
+
+
+class RosFace(Node):
+    def __init__(self, *, namespace: str = "", overrides: dict[str, Any] | None = None, team=None) -> None:
+        super().__init__("ramps", namespace=namespace,
+                         parameter_overrides=[Parameter(k, value=v) for k, v in (overrides or {}).items()])
+        p = self._declare()
+        self.params = p
+        if team is None:
+            import ramps
+
+            team = ramps.connect(team=p["team"], robot=p["robot"] or None, connect=p["connect"] or None,
+                                 multicast=p["multicast"], secure=p["secure"] or None,
+                                 credentials=p["credentials"] or None, timeout=p["connect_timeout"])
+        self.team = team
+        self.origin = team.robot
+        self._events: queue.SimpleQueue = queue.SimpleQueue()
+        self._goals: dict[str, _Goal] = {}
+        self._ids = 0
+        self._status_dirty = True
+        self.bad_goals = 0
+        self.pub_feedback = self.create_publisher(String, "~/feedback", RELIABLE)
+        self.pub_result = self.create_publisher(String, "~/result", LATCHED)
+        self.pub_status = self.create_publisher(GoalStatusArray, "~/status", STATUS_QOS)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
+        self.create_subscription(String, "~/goal", lambda m: self._events.put(("goal", m.data)), RELIABLE)
+        self.create_subscription(String, "~/cancel", lambda m: self._events.put(("cancel", m.data)), RELIABLE)
+        self.create_timer(PUMP_PERIOD, self._pump)
+        self.create_timer(p["diagnostics_period"], self._publish_diagnostics)
+        self.get_logger().info(
+            f"ramps ROS face of team {team.team!r} via robot {self.origin}: goals on "
+            f"{self.resolve_topic_name('~/goal')}, results on {self.resolve_topic_name('~/result')}, "
+            f"load on /diagnostics every {p['diagnostics_period']:g} s")
+
+    def _declare(self) -> dict[str, Any]:
+        defaults = {"team": "lab", "robot": "", "multicast": True, "secure": False, "credentials": "",
+                    "diagnostics_period": 1.0, "goal_timeout": 0.0, "connect_timeout": 10.0}
+        out = {k: self.declare_parameter(k, v).value for k, v in defaults.items()}
+        out["connect"] = list(self.declare_parameter("connect", Parameter.Type.STRING_ARRAY).value or [])
+        if not out["diagnostics_period"] > 0:
+            raise ValueError(f"diagnostics_period must be > 0 s, got {out['diagnostics_period']}")
+        return out
+
+    # ------------------------------------------------------------ the one thread that talks to ROS
+    def _pump(self) -> None:
+        deadline = time.monotonic() + PUMP_PERIOD
+        while time.monotonic() < deadline:
+            try:
+                kind, data = self._events.get_nowait()
+            except queue.Empty:
+                break
+            try:
+                if kind == "goal":
+                    self._on_goal(data)
+                elif kind == "cancel":
+                    self._on_cancel(data.strip())
+                elif kind == "update":
+                    self._on_update(data)
+                elif kind == "done":
+                    self._on_done(data)
+            except Exception as exc:  # a bug here must not stop the face: say so
+                self.get_logger().error(f"ramps ROS face: error handling {kind}: {type(exc).__name__}: {exc}")
+        self._expire()
+        if self._status_dirty:
+            self._publish_status()
+
+    def _on_goal(self, text: str) -> None:
+        goal_id = ""
+        try:
+            if len(text) > MAX_GOAL_BYTES:
+                raise ValueError(f"goal is {len(text)} bytes; the limit is {MAX_GOAL_BYTES}")
+            goal = json.loads(text)
+            if not isinstance(goal, dict):
+                raise ValueError("a goal is a JSON object: {\"program\": NAME, \"args\": {...}}")
+            goal_id = str(goal.get("goal_id") or "")
+            program = goal.get("program")
+            args = goal.get("args", {})
+            timeout = goal.get("timeout", self.params["goal_timeout"]) or None
+            if not isinstance(program, str) or not program:
+                raise ValueError("goal needs \"program\": the name of a registered program")
+            if not isinstance(args, dict):
+                raise ValueError("\"args\" must be a JSON object of keyword arguments")
+            if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0):
+                raise ValueError(f"\"timeout\" must be a positive number of seconds, got {timeout!r}")
+        except ValueError as exc:
+            self.bad_goals += 1
+            self.get_logger().warning(f"bad goal refused: {exc}")
+            self._result({"goal_id": goal_id, "program": "", "ok": False, "error": f"bad goal: {exc}",
+                          "error_kind": "bad_goal", "host": "", "attempts": 0})
+            return
+        if not goal_id:
+            self._ids += 1
+            goal_id = f"{self.origin}-{int(time.time())}-{self._ids}"
+        if goal_id in self._goals:
+            self.get_logger().warning(f"goal {goal_id!r} was sent already; ignored")
+            return
+        g = self._goals[goal_id] = _Goal(goal_id, program, self.get_clock().now().to_msg())
+        self._status_dirty = True
+        try:
+            fut = self.team.options(timeout=timeout).submit(program, **args)
+        except Exception as exc:  # unknown program, arguments that cannot be sent, a closed team
+            self._finish(g, {"ok": False, "error": str(exc), "error_kind": _kind(exc), "host": "", "attempts": 0})
+            return
+        g.fut = fut
+        g.status = GoalStatus.STATUS_EXECUTING
+        self._feedback(g, "accepted", "", 0, None, "")
+        fut.add_update_callback(lambda f, gid=goal_id: self._events.put(("done" if f.done() else "update", gid)))
+
+    def _on_cancel(self, goal_id: str) -> None:
+        g = self._goals.get(goal_id)
+        if g is None or g.done_at is not None:
+            self.get_logger().info(f"cancel of unknown or finished goal {goal_id!r} ignored")
+            return
+        g.status = GoalStatus.STATUS_CANCELING
+        self._status_dirty = True
+        if g.fut is not None:
+            g.fut.cancel()  # withdraws the program from the team; the done callback reports it
+
+    def _on_update(self, goal_id: str) -> None:
+        g = self._goals.get(goal_id)
+        if g is None or g.fut is None or g.done_at is not None:
+            return
+        f = g.fut
+        self._feedback(g, _FUTURE_STATES.get(f.state, f.state), f.host, f.attempts, f.progress, f.progress_detail)
+
+    def _on_done(self, goal_id: str) -> None:
+        g = self._goals.get(goal_id)
+        if g is None or g.fut is None or g.done_at is not None:
+            return
+        f = g.fut
+        if f.cancelled():
+            out = {"ok": False, "error": "cancelled: the program was withdrawn from the team", "error_kind": "cancelled"}
+        else:
+            exc = f.exception()
+            if exc is None:
+                out = {"ok": True, "value": f.result()}
+            else:
+                out = {"ok": False, "error": f"{type(exc).__name__}: {exc}", "error_kind": _kind(exc)}
+        out.update(host=f.host, attempts=f.attempts)
+        self._finish(g, out)
+
+    def _finish(self, g: _Goal, out: dict[str, Any]) -> None:
+        g.done_at = time.monotonic()
+        kind = out.get("error_kind")
+        g.status = (GoalStatus.STATUS_SUCCEEDED if out["ok"] else
+                    GoalStatus.STATUS_CANCELED if kind == "cancelled" else GoalStatus.STATUS_ABORTED)
+        self._status_dirty = True
+        self._result({"goal_id": g.goal_id, "program": g.program, **out})
+
+    # ------------------------------------------------------------ publishing
+    def _feedback(self, g: _Goal, state: str, host: str, attempt: int, progress, detail: str) -> None:
+        self.pub_feedback.publish(String(data=json.dumps({
+            "goal_id": g.goal_id, "program": g.program, "state": state, "host": host, "attempt": attempt,
+            "progress": progress, "detail": detail})))
+
+    def _result(self, out: dict[str, Any]) -> None:
+        self.pub_result.publish(String(data=json.dumps(out, default=_jsonable)))
+
+    def _expire(self) -> None:
+        horizon = time.monotonic() - KEEP_FINISHED
+        for gid in [gid for gid, g in self._goals.items() if g.done_at is not None and g.done_at < horizon]:
+            del self._goals[gid]
+            self._status_dirty = True
+
+    def _publish_status(self) -> None:
+        self._status_dirty = False
+        arr = GoalStatusArray()
+        for g in self._goals.values():
+            arr.status_list.append(GoalStatus(goal_info=GoalInfo(goal_id=UUID(uuid=list(g.uuid)), stamp=g.stamp),
+                                              status=g.status))
+        self.pub_status.publish(arr)
+
+    def _publish_diagnostics(self) -> None:
+        st = self.team.status()
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        period = self.params["diagnostics_period"]
+        robots = [r for r in st.robots]
+        team_size = sum(1 for r in robots if r.alive)
+        origin_alive = any(r.robot == self.origin and r.alive for r in robots)
+        for r in robots:
+            arr.status.append(robot_status(r, team_size, stale_after=max(5.0, 3 * period)))
+        running = sum(1 for g in self._goals.values() if g.done_at is None)
+        face = DiagnosticStatus(name="ramps: ros face", hardware_id=self.origin)
+        if origin_alive:
+            face.level, face.message = DiagnosticStatus.OK, f"goals go to robot {self.origin}; {running} running"
+        else:
+            face.level = DiagnosticStatus.ERROR
+            face.message = (f"robot {self.origin} (this face's ramps node) is gone: goals cannot run "
+                            f"({running} lost with it)")
+        face.values = [KeyValue(key="origin", value=self.origin), KeyValue(key="team", value=st.team),
+                       KeyValue(key="goals running", value=str(running)),
+                       KeyValue(key="bad goals", value=str(self.bad_goals))]
+        arr.status.append(face)
+        self.pub_diag.publish(arr)
+
+    def close(self) -> None:
+        """Withdraw running goals (their results say so), leave the team."""
+        for g in self._goals.values():
+            if g.done_at is None and g.fut is not None:
+                g.fut.cancel()
+        try:
+            self.team.close()
+        finally:
+            self.destroy_node()
+
+
+def robot_status(r, team_size: int, *, stale_after: float) -> DiagnosticStatus:
+    """One robot's load report as a DiagnosticStatus (OK / WARN / ERROR)."""
+    s = DiagnosticStatus(name=f"ramps: {r.robot}", hardware_id=r.robot)
+    if not r.alive:
+        s.level, s.message = DiagnosticStatus.ERROR, "gone: not in the team"
+    elif r.report_age is None:
+        s.level, s.message = DiagnosticStatus.WARN, "alive, no load report yet"
+    elif r.report_age > stale_after:
+        s.level, s.message = DiagnosticStatus.WARN, f"load report {r.report_age:.1f} s old"
+    elif r.blacklisted or (r.sees is not None and r.sees < team_size - 1):
+        s.level = DiagnosticStatus.WARN
+        s.message = (f"sees {r.sees} of {team_size - 1} teammates" if r.sees is not None and r.sees < team_size - 1
+                     else f"wrote off {', '.join(r.blacklisted)}")
+    else:
+        s.level = DiagnosticStatus.OK
+        s.message = f"{r.cpu_busy:.1f}/{r.cores} cores busy, {r.ramps_running} program(s)"
+    vals = {"cores": r.cores, "speed": f"{r.speed:g}", "cpu busy": f"{r.cpu_busy:.2f}", "run queue": f"{r.runnable:.2f}",
+            "load avg": f"{r.load_avg:.2f}", "programs running": r.ramps_running, "programs done": r.finished_total,
+            "mem free MiB": r.mem_free // 2**20, "sees": "-" if r.sees is None else r.sees,
+            "blacklisted": ",".join(r.blacklisted), "dropped messages": r.bad_messages,
+            "report age s": "-" if r.report_age is None else f"{r.report_age:.1f}"}
+    s.values = [KeyValue(key=k, value=str(v)) for k, v in vals.items()]
+    return s
+
+
+def _kind(exc: BaseException) -> str:
+    from ramps.errors import BadArguments, ProgramFailed, ProgramLost, ProgramNotFound, ProgramRefused
+
+    for cls, kind in ((ProgramFailed, "program"), (ProgramRefused, "refused"), (ProgramNotFound, "refused"),
+                      (BadArguments, "bad_arguments"), (ProgramLost, "lost"), (TimeoutError, "timeout")):
+        if isinstance(exc, cls):
+            return kind
+    return "error"
+
+
+def run(*, namespace: str, overrides: dict[str, Any], ros_args: list[str] | None = None) -> None:
+    """``ramps ros``: run the face until Ctrl-C / SIGTERM."""
+    import signal
+
+    rclpy.init(args=["ramps-ros", *(ros_args or [])])
+    face = None
+    try:
+        face = RosFace(namespace=namespace, overrides=overrides)
+        signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
+        try:
+            rclpy.spin(face)
+        except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
+            pass
+    finally:
+        if face is not None:
+            face.close()
+        rclpy.try_shutdown()

@@ -1,0 +1,207 @@
+"""End to end with real ROS 2: a plain rclpy client uses a 3-robot team through ``ramps ros``.
+
+Skipped when the ``ros`` extra (rclpy from the PyPI wheels) is not installed.
+The test's ROS graph is private: a ROS domain id of its own and discovery
+limited to this host. The ROS user's side below is plain rclpy with standard
+message types (std_msgs/String goals and results carrying JSON,
+diagnostic_msgs/DiagnosticArray), written as a ROS user would.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import sys
+import time
+import uuid
+
+import psutil
+import pytest
+from runtime_team import LocalTeam, assert_no_leftovers
+
+rclpy = pytest.importorskip("rclpy", reason="the ros extra is not installed (pip install 'ramps-robotics[ros]')")
+from ramps.ros import missing  # noqa: E402
+
+if missing() is not None:
+    pytest.skip(missing(), allow_module_level=True)
+
+from action_msgs.msg import GoalStatus, GoalStatusArray  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
+
+pytestmark = pytest.mark.slow
+
+WAIT = 60.0
+RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+LATCHED = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def private_ros_graph():
+    """A domain of our own, discovery on this host only; restored after."""
+    saved = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
+    os.environ["ROS_DOMAIN_ID"] = str(random.Random(uuid.uuid4().int).randint(1, 100))
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    rclpy.init()
+    yield
+    rclpy.try_shutdown()
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
+    assert_no_leftovers()
+
+
+class StepperTeam(LocalTeam):
+    def start_node(self, name, cores=None, extra_env=None, *, wait=True, extra_args=None):
+        return super().start_node(name, cores, extra_env, wait=wait,
+                                  extra_args=["--program", "e2e_progress_progs:stepper"] + (extra_args or []))
+
+
+class RosUser:
+    """What a ROS engineer writes: publishers for goals and cancels, subscribers for the rest."""
+
+    def __init__(self, robot: str = "r1") -> None:
+        self.node = rclpy.create_node(f"user_{uuid.uuid4().hex[:6]}")
+        base = f"/{robot}/ramps"
+        self.goal = self.node.create_publisher(String, f"{base}/goal", RELIABLE)
+        self.cancel_pub = self.node.create_publisher(String, f"{base}/cancel", RELIABLE)
+        self.feedback: list[dict] = []
+        self.results: dict[str, dict] = {}
+        self.status: dict[bytes, int] = {}
+        self.diagnostics: list[DiagnosticArray] = []
+        self.node.create_subscription(String, f"{base}/feedback", lambda m: self.feedback.append(json.loads(m.data)),
+                                      RELIABLE)
+        self.node.create_subscription(String, f"{base}/result", self._on_result, LATCHED)
+        self.node.create_subscription(GoalStatusArray, f"{base}/status", self._on_status,
+                                      QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                                                 durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self.diagnostics.append, RELIABLE)
+
+    def _on_result(self, m: String) -> None:
+        r = json.loads(m.data)
+        self.results[r["goal_id"]] = r
+
+    def _on_status(self, m: GoalStatusArray) -> None:
+        for s in m.status_list:
+            self.status[bytes(s.goal_info.goal_id.uuid)] = s.status
+
+    def spin_until(self, pred, what: str, timeout: float = WAIT):
+        deadline = time.monotonic() + timeout
+        while True:
+            rclpy.spin_once(self.node, timeout_sec=0.05)
+            v = pred()
+            if v:
+                return v
+            if time.monotonic() > deadline:
+                raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+
+    def send(self, goal_id: str, program: str, **args) -> None:
+        self.goal.publish(String(data=json.dumps({"goal_id": goal_id, "program": program, "args": args})))
+
+    def cancel(self, goal_id: str) -> None:
+        self.cancel_pub.publish(String(data=goal_id))
+
+    def of(self, goal_id: str) -> list[dict]:
+        return [f for f in self.feedback if f["goal_id"] == goal_id]
+
+
+def start_face(t: LocalTeam, robot: str = "r1"):
+    return t.spawn([sys.executable, "-m", "ramps.cli", "ros", "--team", t.team, "--robot", robot,
+                    "--no-multicast", "--diagnostics-period", "0.5", *sum((["--connect", e] for e in t.endpoints()), [])],
+                   name=f"rosface-{robot}")
+
+
+def test_rclpy_client_runs_programs_sees_feedback_and_cancels(tmp_path):
+    with StepperTeam(3, tmp_path, cores=1) as t:
+        face = start_face(t)
+        user = RosUser("r1")
+        try:
+            user.spin_until(lambda: user.goal.get_subscription_count() > 0 and user.diagnostics,
+                            "the ramps ROS face to appear")
+            # a subscriber sees every robot's load on /diagnostics
+            names = user.spin_until(lambda: {s.name for a in user.diagnostics[-3:] for s in a.status
+                                             if s.level == DiagnosticStatus.OK} >= {"ramps: r1", "ramps: r2", "ramps: r3"},
+                                    "every robot OK on /diagnostics")
+            assert names
+            last = user.diagnostics[-1]
+            r2 = next(s for s in last.status if s.name == "ramps: r2")
+            assert {kv.key for kv in r2.values} >= {"cores", "cpu busy", "run queue", "programs running"}
+            assert dict((kv.key, kv.value) for kv in r2.values)["cores"] == "1"
+            # goals: every one gets its result, with feedback naming host and progress
+            for i in range(4):
+                user.send(f"g{i}", "stepper", steps=4, dt=0.3)
+            user.send("w", "where", x=5)
+            user.send("bad", "no_such_program")
+            user.goal.publish(String(data="{not json"))
+            user.spin_until(lambda: all(g in user.results for g in ("g0", "g1", "g2", "g3", "w", "bad")),
+                            "every goal's result")
+            for i in range(4):
+                r = user.results[f"g{i}"]
+                assert r["ok"] and r["value"]["steps"] == 4 and r["host"] == r["value"]["robot"], r
+                fb = user.of(f"g{i}")
+                assert any(f["state"] == "running" and f["host"] in ("r1", "r2", "r3") for f in fb), fb
+                assert any(f["progress"] is not None and 0 < f["progress"] <= 1 for f in fb), fb
+            assert user.results["w"]["ok"] and user.results["w"]["value"]["x"] == 5
+            assert not user.results["bad"]["ok"] and user.results["bad"]["error_kind"] == "refused"
+            assert "no_such_program" in user.results["bad"]["error"]
+            assert {r["host"] for r in user.results.values() if r["ok"]} - {"r1"}, "programs never left r1"
+            user.spin_until(lambda: user.status.get(uuid.uuid5(uuid.NAMESPACE_URL, "ramps:g0").bytes)
+                            == GoalStatus.STATUS_SUCCEEDED, "g0 SUCCEEDED on the status topic")
+            # cancelling a goal withdraws its program: its worker process goes
+            user.send("long", "sleepy", seconds=120, tag="rosc")
+            mark = t.marks / "rosc"
+            user.spin_until(lambda: mark.exists(), "the long goal to start")
+            robot, pid = mark.read_text().split()
+            pid = int(pid)
+            user.cancel("long")
+            r = user.spin_until(lambda: user.results.get("long"), "the cancelled goal's result")
+            assert not r["ok"] and r["error_kind"] == "cancelled", r
+            user.spin_until(lambda: not psutil.pid_exists(pid) or psutil.Process(pid).status() == psutil.STATUS_ZOMBIE,
+                            f"the worker running the withdrawn program on {robot} to go")
+            user.spin_until(lambda: user.status.get(uuid.uuid5(uuid.NAMESPACE_URL, "ramps:long").bytes)
+                            == GoalStatus.STATUS_CANCELED, "the long goal CANCELED on the status topic")
+        finally:
+            user.node.destroy_node()
+            face.terminate()
+            face.wait(20)
+
+
+def test_a_host_killed_mid_goal_loses_nothing_and_a_dead_origin_is_reported(tmp_path):
+    with StepperTeam(3, tmp_path, cores=1) as t:
+        face = start_face(t)
+        user = RosUser("r1")
+        try:
+            user.spin_until(lambda: user.goal.get_subscription_count() > 0, "the ramps ROS face to appear")
+            for i in range(3):
+                user.send(f"k{i}", "stepper", steps=10, dt=0.5)
+            hosts = user.spin_until(lambda: {f["goal_id"]: f["host"] for f in user.feedback
+                                             if f["state"] == "running"} if len({f["goal_id"] for f in user.feedback
+                                                                                   if f["state"] == "running"}) == 3
+                                    else None, "all three goals running")
+            victim = next(h for h in hosts.values() if h != "r1")
+            t.kill_node(victim)
+            user.spin_until(lambda: all(f"k{i}" in user.results for i in range(3)), "every goal's result")
+            for i in range(3):
+                r = user.results[f"k{i}"]
+                assert r["ok"] and r["host"] != victim, r
+            moved = [g for g, h in hosts.items() if h == victim]
+            for g in moved:
+                states = [f["state"] for f in user.of(g)]
+                assert "host_failed" in states or "replaced" in states, states
+            # now the robot under the ROS face itself dies: its goals fail, clearly, and diagnostics say so
+            user.send("orphan", "stepper", steps=100, dt=0.5)
+            user.spin_until(lambda: any(f["state"] == "running" for f in user.of("orphan")), "the orphan running")
+            t.kill_node("r1")
+            r = user.spin_until(lambda: user.results.get("orphan"), "the orphan's result")
+            assert not r["ok"] and r["error_kind"] == "lost" and "robot r1, the origin" in r["error"], r
+            user.spin_until(lambda: any(s.name == "ramps: ros face" and s.level == DiagnosticStatus.ERROR
+                                        and "r1" in s.message for a in user.diagnostics[-2:] for s in a.status),
+                            "the face's ERROR on /diagnostics")
+        finally:
+            user.node.destroy_node()
+            face.terminate()
+            face.wait(20)
