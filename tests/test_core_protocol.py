@@ -7,6 +7,7 @@ from __future__ import annotations
 import pytest
 
 from ramps.core.events import (
+    PublishReport,
     Cancel,
     Deliver,
     Note,
@@ -320,18 +321,33 @@ def test_late_result_during_backoff_is_acknowledged_and_discarded() -> None:
 # =================================================================== rejections
 def test_busy_rejection_replaces_at_once_without_backoff() -> None:
     team = busy_origin_team()
-    team.nodes["a"].executor.background = 6.0  # load o's view does not show yet
+    # load o's view does not show yet, enough that b (idle, half a's speed) is now better
+    team.nodes["a"].executor.background = 12.0
     submit(team)
     team.deliver()
     [rej] = team.sent(OffloadRejected, by="a")
     assert (rej.reason, rej.permanent) == ("busy", False)
-    assert rej.report is not None and rej.report.runnable == 6.0
+    assert rej.report is not None and rej.report.runnable == 12.0
     assert [(n.robot, n.attempt) for n in team.notes("placed")] == [("a", 1), ("b", 2)]
     assert not team.notes("backoff") and not team.notes("blacklisted")
-    assert team.nodes["o"].view.report_of("a").runnable == 6.0  # the fresh report was taken in
+    assert team.nodes["o"].view.report_of("a").runnable == 12.0  # the fresh report was taken in
     assert team.program("p").state is ProgramState.RUNNING
     assert team.nodes["o"].statistics().rejections == 1
     assert team.nodes["a"].statistics().refused == 1
+
+
+def test_busier_host_still_better_than_the_alternative_takes_the_program() -> None:
+    # a has 6 tasks o does not know of: the program gets 4/7 of a 2.0 core
+    # there (44 s), still sooner than on idle b (50 s): eq. (1) holds at the host
+    team = busy_origin_team()
+    team.nodes["a"].executor.background = 6.0
+    submit(team)
+    [req] = team.sent(OffloadRequest, to="a")
+    assert req.time_budget == 50.0  # b's computation; both pay the same link
+    team.deliver()
+    assert not team.sent(OffloadRejected, by="a")
+    assert [(n.robot, n.attempt) for n in team.notes("placed")] == [("a", 1)]
+    assert team.program("p").state is ProgramState.RUNNING
 
 
 def test_after_max_rejections_the_request_is_forced() -> None:
@@ -489,7 +505,8 @@ def _request(**kw) -> OffloadRequest:
 def test_executor_resends_unacknowledged_result_until_acknowledged() -> None:
     a = Node("a", cores=1, speed=1.0)
     a.handle(Received(sender="o", msg=_request()), 0.0)
-    [send] = a.handle(ProgramFinished(program_id="p", attempt=1, ok=True, value=b"v"), 1.0)
+    [send] = [x for x in a.handle(ProgramFinished(program_id="p", attempt=1, ok=True, value=b"v"), 1.0)
+              if isinstance(x, Send)]
     first = send.msg
     resent: list[float] = []
     now = 1.0
@@ -536,7 +553,7 @@ def test_executor_heartbeats_list_programs_per_origin() -> None:
     a.handle(Received(sender="o", msg=_request(program_id="p1")), 0.0)
     a.handle(Received(sender="o", msg=_request(program_id="p2")), 0.0)
     a.handle(Received(sender="q", msg=_request(program_id="q1", origin="q")), 0.0)
-    beats = {x.to: x.msg for x in a.tick(a.next_deadline()) if isinstance(x, Send)}
+    beats = {x.to: x.msg for x in a.tick(a.executor.next_deadline()) if isinstance(x, Send)}
     assert beats == {
         "o": Heartbeat(host="a", incarnation=7, programs=[ProgramRef("p1", 1), ProgramRef("p2", 1)]),
         "q": Heartbeat(host="a", incarnation=7, programs=[ProgramRef("q1", 1)]),
@@ -547,8 +564,10 @@ def test_executor_cancel_stops_only_the_origins_own_program() -> None:
     a = Node("a", cores=4, speed=1.0)
     a.handle(Received(sender="o", msg=_request()), 0.0)
     assert a.handle(Received(sender="x", msg=CancelProgram(program_id="p", attempt=1, origin="x")), 0.1) == []
-    assert a.handle(Received(sender="o", msg=CancelProgram(program_id="p", attempt=1, origin="o")), 0.2) == [
-        StopProgram(program_id="p", attempt=1)]
+    stopped = a.handle(Received(sender="o", msg=CancelProgram(program_id="p", attempt=1, origin="o")), 0.2)
+    assert stopped[0] == StopProgram(program_id="p", attempt=1)
+    assert [type(x) for x in stopped[1:]] == [PublishReport]  # the team hears at once that a is idle again
+    assert stopped[1].report.ramps_running == 0
     assert not a.executor.running
     assert a.handle(ProgramFinished(program_id="p", attempt=1, ok=True), 0.5) == []  # nobody wants it
 

@@ -26,6 +26,8 @@ from hypothesis import strategies as st
 
 from ramps.core import messages as m
 from ramps.core.events import (
+    Progress,
+    PublishReport,
     Cancel,
     Deliver,
     Note,
@@ -327,7 +329,7 @@ def test_node_survives_arbitrary_input_and_never_delivers_twice(policy, seed, da
             if isinstance(ev, Submit):
                 submitted.add(ev.program_id)
         for a in actions:
-            assert isinstance(a, (Send, StartProgram, StopProgram, Deliver, Note)), a
+            assert isinstance(a, (Send, StartProgram, StopProgram, Deliver, Progress, PublishReport, Note)), a
             if isinstance(a, Send):
                 assert a.to != "n", "a message to itself escaped the loopback"
             if isinstance(a, Deliver):

@@ -90,6 +90,9 @@ REP = _body(report("r1"))
     (REQ, "work", -1.0),
     (REQ, "expected_runnable", math.nan),
     (REQ, "expected_runnable", -0.5),
+    (REQ, "time_budget", math.nan),
+    (REQ, "time_budget", math.inf),
+    (REQ, "time_budget", -1.0),
     (REP, "cores", 0),
     (REP, "cores", m.MAX_CORES + 1),
     (REP, "speed", 0.0),
@@ -360,3 +363,12 @@ def test_progress_is_a_fraction_between_0_and_1(fraction: float) -> None:
     # an update before any progress has none; its host may be empty (not placed yet)
     assert decode(encode("n", m.ProgramUpdate(request_id=3, state="placed"))).msg.fraction is None
     _refused(encode("n", m.ProgramProgress(program_id="p", attempt=1, host="*", fraction=0.5)))
+
+
+def test_a_load_report_lists_at_most_max_listed_running_programs() -> None:
+    rep = msgspec.structs.replace(report("r1"), running=[m.RunningProgram("route_plan", "r2", 0.5)] * m.MAX_LISTED)
+    assert decode(encode("r1", rep)).msg.running[0] == m.RunningProgram("route_plan", "r2", 0.5)
+    text = _refused(encode("r1", msgspec.structs.replace(rep, running=rep.running + [m.RunningProgram("p", "o")])))
+    assert "$.msg.running" in text
+    for bad in (m.RunningProgram("p", "o", 1.5), m.RunningProgram("p", "*"), m.RunningProgram("", "o")):
+        _refused(encode("r1", msgspec.structs.replace(rep, running=[bad])))

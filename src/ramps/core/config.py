@@ -35,7 +35,7 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     max_rejections: int = 3
     #: extra runnable tasks a host tolerates over the origin's estimate before
     #: it turns an offload away (ramps negotiation)
-    admission_slack: float = 1.0
+    admission_slack: float = 0.5
     #: with no report from any teammate for this long, an origin treats itself
     #: as cut off and runs displaced programs locally, still wanting the
     #: remote copies it wrote off just before (see Origin._revive_written_off)
@@ -46,6 +46,12 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: keep arriving is suspected, not written off: its copy stays wanted and
     #: the program is also placed elsewhere at once; the first result wins
     hedge_suspects: bool = True
+    #: a host publishes a report of the instant whenever the programs it runs
+    #: change, so origins deciding at once see each other's placements within
+    #: a network latency instead of a report period (policies that share
+    #: load only, see ``ramps.core.node``); at most one per interval
+    prompt_reports: bool = True
+    prompt_report_interval: float = 0.05
 
     def __post_init__(self) -> None:
         for name in self.__struct_fields__:
@@ -68,4 +74,5 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             heartbeat_timeout=5.0,
             backoff_max=10.0,
             hedge_suspects=False,
+            prompt_reports=False,
         )

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import msgspec
 
-from ramps.core.messages import Message, ProgramResult
+from ramps.core.messages import LoadReport, Message, ProgramResult
 
 
 class _Rec(msgspec.Struct, frozen=True, kw_only=True):
@@ -135,6 +135,13 @@ class Progress(_Rec, frozen=True, kw_only=True):
     detail: str = ""
 
 
+class PublishReport(_Rec, frozen=True, kw_only=True):
+    """Publish this load report to the team now: the robot's programs changed
+    since its last report (see ``Node``'s prompt reports)."""
+
+    report: LoadReport
+
+
 class Note(_Rec, frozen=True, kw_only=True):
     """Something the core decided, for traces and logs. ``what`` is one of:
     placed, accepted, rejected, blacklisted, unblacklisted, failed, backoff,
@@ -147,9 +154,9 @@ class Note(_Rec, frozen=True, kw_only=True):
     detail: str = ""
 
 
-Action = Send | StartProgram | StopProgram | Deliver | Progress | Note
+Action = Send | StartProgram | StopProgram | Deliver | Progress | PublishReport | Note
 
 __all__ = [
     "Submit", "Cancel", "ProgramFinished", "ProgressReported", "PeerLost", "PeerAlive", "Received", "Event",
-    "Send", "StartProgram", "StopProgram", "Deliver", "Progress", "Note", "Action", "ProgramResult",
+    "Send", "StartProgram", "StopProgram", "Deliver", "Progress", "PublishReport", "Note", "Action", "ProgramResult",
 ]

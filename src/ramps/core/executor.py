@@ -26,6 +26,7 @@ puts them in every report so origins can tell what a report includes.
 from __future__ import annotations
 
 from ramps.core.config import RampsConfig
+from ramps.core.cost import program_share
 from ramps.core.events import Action, Note, ProgramFinished, ProgressReported, Send, StartProgram, StopProgram
 from ramps.core.messages import (
     MAX_PROGRESS_TEXT,
@@ -66,6 +67,9 @@ class Executor:
         config: RampsConfig,
         registry: frozenset[str] | None = None,
         incarnation: int = 0,
+        cores: float = float("inf"),
+        speed: float = 1.0,
+        program_weight: float = 1.0,
     ) -> None:
         self.me = me
         self.config = config
@@ -87,6 +91,11 @@ class Executor:
         self.refused = 0
         #: the node is shutting down: take nothing new
         self.closing = False
+        #: this robot's capacity, for admission (a program that gets a whole
+        #: core is never turned away; see ``_still_best_here``)
+        self.cores = cores
+        self.speed = speed
+        self.program_weight = program_weight
 
     # ------------------------------------------------------------ inputs
     def on_offload(self, req: OffloadRequest, now: float, out: list[Action], report_now=None) -> None:
@@ -104,8 +113,12 @@ class Executor:
         elif self.closing:
             reject = ("closing", False, f"{self.me} is shutting down")
         elif req.expected_runnable is not None and not req.force:
+            # turned away only if the program would not get a whole core here
+            # and more is running than the origin counted on (several origins
+            # deciding on the same data); the rejection carries a fresh report
             actual = self.background + len(self.running)
-            if actual > req.expected_runnable + self.config.admission_slack:
+            if (actual + 1.0 > self.cores and actual > req.expected_runnable + self.config.admission_slack
+                    and not self._still_best_here(req)):
                 reject = ("busy", False, f"{actual:.1f} runnable here, origin expected {req.expected_runnable:.1f}")
         if reject is not None:
             self.refused += 1
@@ -125,6 +138,15 @@ class Executor:
             program_id=req.program_id, attempt=req.attempt, host=self.me, accept_seq=self.accepted_total)))
         if self._next_tick is None:
             self._next_tick = now + self.config.heartbeat_period
+
+    def _still_best_here(self, req: OffloadRequest) -> bool:
+        """Busier than the origin thought, but the program still computes
+        here within the time it would take on the origin's best other robot
+        (``time_budget``): take it."""
+        if req.time_budget is None:
+            return False
+        share = program_share(self.cores, len(self.running) + 1.0, self.background, self.program_weight)
+        return req.work / (self.speed * share) <= req.time_budget * (1.0 + self.config.tie_tolerance)
 
     def on_finished(self, ev: ProgramFinished, now: float, out: list[Action]) -> None:
         key = (ev.program_id, ev.attempt)

@@ -161,6 +161,11 @@ class OffloadRequest(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True
     #: ramps negotiation: runnable tasks the origin expects on the host when
     #: the program arrives; None = no admission check (other policies)
     expected_runnable: Amount | None = None
+    #: ramps negotiation: the longest computation here (seconds) that still
+    #: beats the best other robot the origin could use; a host busier than
+    #: expected still takes the program if it computes it within this time
+    #: (eq. 1 checked against the host's true load)
+    time_budget: Amount | None = None
     #: set after too many rejections: the host must take it
     force: bool = False
 

@@ -12,6 +12,15 @@ measured (CPU, run queue) and what the executor knows (programs running,
 accepted and finished counts). Drivers publish it to every teammate and
 feed it to this node too, as the paper's local load server hears the local
 load publisher.
+
+Prompt reports (policies that share load, ``Policy.shares_load``): several
+origins deciding at once on reports up to a period old pile onto the same
+hosts. So when the programs running here change (one accepted, one
+finished), the node publishes a report of that instant at once
+(``PublishReport``), at most one per ``prompt_report_interval``, and its own
+view of itself is updated at once: an origin always knows exactly what its
+own robot runs. This is the paper's cNAMP (origins learn each other's
+bookings) done by the host, which is the one robot that knows them all.
 """
 
 from __future__ import annotations
@@ -32,6 +41,7 @@ from ramps.core.events import (
     PeerLost,
     ProgramFinished,
     ProgressReported,
+    PublishReport,
     Received,
     Send,
     Submit,
@@ -98,27 +108,60 @@ class Node:
         self.view = LoadView(robot, cores=cores, speed=speed, max_report_age=self.config.max_report_age,
                              program_weight=program_weight)
         self.origin = Origin(robot, self.view, self.policy, self.config, self.rng, net or NetworkEstimate())
-        self.executor = Executor(robot, config=self.config, registry=registry, incarnation=incarnation)
+        self.executor = Executor(robot, config=self.config, registry=registry, incarnation=incarnation,
+                                 cores=cores, speed=speed, program_weight=program_weight)
         self._report_seq = 0
+        #: prompt reports: (accepted, finished) counts last published, the
+        #: time of the last one, and when the next one is due
+        self._prompt = self.policy.shares_load and self.config.prompt_reports
+        self._published = (0, 0)
+        self._prompted_at = -float("inf")
+        self._prompt_due: float | None = None
 
     # ------------------------------------------------------------ driving
     def handle(self, event: Event, now: float) -> list[Action]:
         out: list[Action] = []
         self._dispatch(event, now, out)
-        return self._loopback(out, now)
+        return self._prompt_report(self._loopback(out, now), now)
 
     def tick(self, now: float) -> list[Action]:
+        # the executor first: the heartbeats of programs running here reach
+        # this robot's origin before it checks for silent hosts, so a node
+        # that was stalled (busy robot, GC pause, SIGSTOP) does not write off
+        # its own programs (issue 14)
         out: list[Action] = []
-        self.origin.tick(now, out)
         self.executor.tick(now, out)
-        return self._loopback(out, now)
+        out = self._loopback(out, now)
+        more: list[Action] = []
+        self.origin.tick(now, more)
+        out.extend(self._loopback(more, now))
+        return self._prompt_report(out, now)
 
     def next_deadline(self) -> float | None:
-        a = self.origin.next_deadline()
-        b = self.executor.next_deadline()
-        if a is None:
-            return b
-        return a if b is None else min(a, b)
+        times = [t for t in (self.origin.next_deadline(), self.executor.next_deadline(), self._prompt_due)
+                 if t is not None]
+        return min(times) if times else None
+
+    def _prompt_report(self, out: list[Action], now: float) -> list[Action]:
+        """Publish a report of this instant when the programs running here
+        changed (see the module docstring)."""
+        if not self._prompt:
+            return out
+        counts = (self.executor.accepted_total, self.executor.finished_total)
+        if counts == self._published:
+            self._prompt_due = None
+            return out
+        self.view.on_report(self.current_report(), now, fresh=True)
+        due = self._prompted_at + self.config.prompt_report_interval
+        if now < due:
+            self._prompt_due = due
+            return out
+        self._published, self._prompted_at, self._prompt_due = counts, now, None
+        self._report_seq += 1
+        report = self.current_report()
+        self.view.on_report(report, now)
+        out.append(PublishReport(report=report))
+        return out
 
     def _loopback(self, out: list[Action], now: float) -> list[Action]:
         """Hand messages addressed to this robot straight back in."""

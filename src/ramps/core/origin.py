@@ -259,7 +259,7 @@ class Origin:
 
     def place(self, ap: AutonomousProgram, now: float, out: list[Action], *, host: str | None = None) -> None:
         sub = ap.submit
-        expected = None
+        expected = budget = None
         if host is None and sub.local_only:
             host = self.me
         if host is None:
@@ -273,6 +273,7 @@ class Origin:
             host = placement.host
             if policy.negotiates:
                 expected = placement.expected_runnable
+                budget = placement.time_budget
         if ap.host is not None and ap.host not in ap.live.values():
             self._by_host.get(ap.host, set()).discard(ap.program_id)
         ap.attempt += 1
@@ -287,7 +288,7 @@ class Origin:
         out.append(Send(to=host, msg=OffloadRequest(
             program_id=ap.program_id, attempt=ap.attempt, origin=self.me, host=host,
             program=sub.program, args=sub.args, payload_size=sub.payload_size, work=sub.work,
-            expected_runnable=expected, force=ap.rejections >= self.config.max_rejections,
+            expected_runnable=expected, time_budget=budget, force=ap.rejections >= self.config.max_rejections,
         )))
         self._set_timer(ap, now + self.config.connect_timeout, "connect_timeout")
 

@@ -52,12 +52,18 @@ class Placement(msgspec.Struct, frozen=True, kw_only=True):
     expected_runnable: float | None = None
     #: estimated seconds to completion there, for traces
     expected_time: float | None = None
+    #: the longest computation on the host that still beats the best other
+    #: candidate, seconds (ramps negotiation, see ``OffloadRequest``)
+    time_budget: float | None = None
 
 
 class Policy:
     name: ClassVar[str] = ""
     #: whether hosts should check ``expected_runnable`` on arrival
     negotiates: ClassVar[bool] = False
+    #: whether hosts publish prompt reports when their programs change
+    #: (``RampsConfig.prompt_reports``); the paper's prototype did not
+    shares_load: ClassVar[bool] = False
 
     def choose(
         self,
@@ -95,6 +101,7 @@ class PaperPolicy(Policy):
 class RampsPolicy(Policy):
     name = "ramps"
     negotiates = True
+    shares_load = True
 
     def choose(self, req, view, now, rng, *, net, config, exclude=frozenset()):
         me = view.me
@@ -122,7 +129,11 @@ class RampsPolicy(Policy):
         pick = next((row for row in tied if row[2] == me), None)
         if pick is None:
             pick = tied[0] if len(tied) == 1 else rng.choice(tied)
-        return Placement(host=pick[2], expected_runnable=pick[3], expected_time=pick[0])
+        alternative = min((row[0] for row in rows if row[2] != pick[2]), default=None)
+        budget = None
+        if alternative is not None and math.isfinite(alternative):
+            budget = alternative - (t_comm if pick[2] != me else 0.0)
+        return Placement(host=pick[2], expected_runnable=pick[3], expected_time=pick[0], time_budget=budget)
 
 
 class RoundRobinPolicy(Policy):

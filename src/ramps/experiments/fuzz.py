@@ -52,6 +52,7 @@ from ramps.core.events import (
     Send,
     StartProgram,
     StopProgram,
+    PublishReport,
     Submit,
 )
 from ramps.core.node import Node
@@ -97,6 +98,8 @@ def random_report(rng: random.Random, robot: str | None = None) -> m.LoadReport:
         cpu_per_core=[rng.random() for _ in range(rng.randint(0, 4))], load_avg=_amount(rng),
         blacklisted=rng.sample(PEERS, rng.randint(0, 2)), bad_messages=_count(rng),
         sees=rng.choice([None, _count(rng)]),
+        running=[m.RunningProgram(rng.choice(PROGRAMS), rng.choice(PEERS), rng.choice([None, 0.0, rng.random(), 1.0]))
+                 for _ in range(rng.choice([0, 0, 1, 3]))],
     )
 
 
@@ -114,6 +117,7 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
                                 program=rng.choice(PROGRAMS), args=rng.randbytes(rng.randint(0, 16)),
                                 payload_size=_count(rng), work=_amount(rng, 60.0),
                                 expected_runnable=None if rng.random() < 0.5 else _amount(rng),
+                                time_budget=None if rng.random() < 0.5 else _amount(rng, 120.0),
                                 force=rng.random() < 0.3)
     if kind == 2:
         return m.OffloadAccepted(program_id=pid, attempt=attempt, host=host, accept_seq=_count(rng))
@@ -521,7 +525,7 @@ class CoreHarness:
 
     def _apply(self, actions: list) -> None:
         for a in actions:
-            if not isinstance(a, (Send, StartProgram, StopProgram, Deliver, Progress, Note)):
+            if not isinstance(a, (Send, StartProgram, StopProgram, Deliver, Progress, PublishReport, Note)):
                 raise AssertionError(f"not an action: {a!r}")
             if isinstance(a, Send):
                 if a.to == ME:

@@ -42,6 +42,7 @@ from ramps.core.events import (
     ProgramFinished,
     Progress,
     ProgressReported,
+    PublishReport,
     Received,
     Send,
     StartProgram,
@@ -52,7 +53,9 @@ from ramps.core.messages import (
     CancelSubmitted,
     LoadReport,
     ProgramOutcome,
+    MAX_LISTED,
     ProgramUpdate,
+    RunningProgram,
     SubmitProgram,
     WireError,
     decode,
@@ -637,6 +640,8 @@ class NodeRuntime:
                     self._write_trace("delivered", a.program_id, a.host, a.attempts, a.error_kind)
                 self._tell_client(a.program_id, ok=a.ok, value=a.value, error=a.error, kind=kind, host=a.host,
                                   attempts=a.attempts)
+            elif isinstance(a, PublishReport):
+                self._publish_prompt(a.report)
             elif isinstance(a, Progress):
                 self._progress[a.program_id] = (a.fraction, a.detail)
                 self._update_client(a.program_id, "progress", a.host, a.attempt)
@@ -712,7 +717,8 @@ class NodeRuntime:
             self._log_view_change(self._sees, sees)
             self._sees = sees
         report = msgspec.structs.replace(report, bad_messages=self.bad_messages + self.overflow,  # `ramps status`
-                                         sees=len(sees))
+                                         sees=len(sees), running=self._running_list())
+        self._last_report = report
         if self.metrics is not None:
             st = self.node.statistics()
             self.metrics.on_report(cpu_busy=busy, runnable=runnable, load_avg=load1, mem_free=mem_free,
@@ -726,6 +732,24 @@ class NodeRuntime:
         except Exception as exc:
             log.warning("node %s could not publish its load: %s", self.robot, exc)
         self._republish(now)
+
+    def _publish_prompt(self, report) -> None:
+        """A report of the instant from the core (its programs changed), with
+        what only the sampler measures taken from the last periodic report."""
+        last = getattr(self, "_last_report", None)
+        if last is not None:
+            report = msgspec.structs.replace(report, mem_free=last.mem_free, cpu_per_core=last.cpu_per_core,
+                                             load_avg=last.load_avg, bad_messages=last.bad_messages,
+                                             sees=last.sees)
+        try:
+            self._load_pub.put(encode(self.robot, report))
+        except Exception as exc:
+            log.warning("node %s could not publish its load: %s", self.robot, exc)
+
+    def _running_list(self) -> list[RunningProgram]:
+        """The programs this robot runs, with their progress (``ramps status``)."""
+        jobs = list(self.node.executor.running.values())[:MAX_LISTED]
+        return [RunningProgram(j.program, j.origin, j.progress) for j in jobs]
 
     def _log_view_change(self, before: frozenset[str], after: frozenset[str]) -> None:
         """One line when teammates enter or leave this robot's view (the

@@ -32,7 +32,8 @@ from typing import Any, Callable
 import msgspec
 
 from ramps.core.cost import NetworkEstimate, nice_weight
-from ramps.core.events import Deliver, Note, PeerAlive, PeerLost, ProgramFinished, Received, Send, StartProgram, StopProgram, Submit
+from ramps.core.events import (Deliver, Note, PeerAlive, PeerLost, ProgramFinished, PublishReport, Received, Send,
+                               StartProgram, StopProgram, Submit)
 from ramps.core.messages import wire_size
 from ramps.core.node import Node, NodeStatistics
 from ramps.sim.cpu import CPU
@@ -208,6 +209,8 @@ class Simulator:
                     self._cpu_changed(r)
             elif isinstance(a, Deliver):
                 self._delivered(r, a)
+            elif isinstance(a, PublishReport):
+                self._broadcast(r, a.report)
             elif isinstance(a, Note):
                 if self._trace_on:
                     self.trace.append(TraceEntry(self.now, node.robot, a.what, a.program_id, a.robot, a.attempt, a.detail))
@@ -267,6 +270,10 @@ class Simulator:
         report = r.node.make_report(cpu_busy=busy, runnable=runnable, ramps_avg=ramps_avg, window=pub.window)
         if r.spec.name in self.subscribers:
             self._handle(r, Received(sender=r.spec.name, msg=report))
+        self._broadcast(r, report)
+
+    def _broadcast(self, r: _Robot, report) -> None:
+        """A load report on its way to every robot that places programs."""
         if not r.net_up:
             return
         delay = self.net.latency + wire_size(report) / self.net.bandwidth
