@@ -1,0 +1,121 @@
+"""``ramps report``, ``ramps top`` and ``ramps bench metrics``: seeing the team.
+
+    ramps report r1.trace.jsonl -o run.html     # timeline, load, distribution of a run
+    ramps top --connect tcp/192.168.1.12:7447   # live view of the team (Ctrl-C quits)
+    ramps bench metrics                         # what --metrics costs an idle node
+
+Rules as in ``ramps.cli``: user mistakes end with a one-line message and exit
+code 2. The work is done by ``ramps.observe``; this module parses and prints.
+``register(app, bench_app)`` adds the commands to the main app.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+
+_out = Console(highlight=False, soft_wrap=True)
+_err = Console(stderr=True, highlight=False, soft_wrap=True)
+
+
+def _fail(message: str) -> None:
+    _err.print(f"[bold red]error:[/] {message}")
+    raise typer.Exit(2)
+
+
+def bench_metrics(
+    seconds: float = typer.Option(60.0, "--seconds", min=5.0, help="how long both nodes are measured"),
+    scrape_every: float = typer.Option(15.0, "--scrape-every", min=0.1,
+                                       help="seconds between scrapes (Prometheus' default is 15)"),
+    out_file: Path = typer.Option(Path("bench-results/metrics.json"), "--out", "-o", help="where to save the JSON"),
+) -> None:
+    """CPU cost of serving Prometheus metrics on an idle node: one node with --metrics (scraped over
+    HTTP) next to one without, for the same seconds, plus the CPU of one /metrics render."""
+    from ramps.observe.metrics_cost import measure_idle_cost
+
+    _err.print(f"two idle one-robot teams on loopback, one serving metrics scraped every {scrape_every:g} s; "
+               f"measuring {seconds:g} s ...")
+    r = measure_idle_cost(seconds=seconds, scrape_every=scrape_every)
+    _out.print(f"idle node with metrics: {r['node_with_metrics_core_pct']:.2f}% of a core, without: "
+               f"{r['node_without_metrics_core_pct']:.2f}%; serving metrics costs "
+               f"{r['metrics_cost_core_pct']:+.2f}% of a core ({r['scrapes']} scrapes in {r['seconds']:.0f} s)")
+    _out.print(f"one /metrics render ({r['render_bytes']} bytes, a busy node's series): {r['render_cpu_ms']:.2f} ms "
+               f"CPU = {r['render_cost_at_15s_core_pct']:.3f}% of a core scraped every 15 s, "
+               f"{r['render_cost_at_1s_core_pct']:.2f}% every 1 s")
+    out_file.parent.mkdir(parents=True, exist_ok=True)
+    out_file.write_text(json.dumps(r, indent=2) + "\n")
+    _out.print(f"saved {out_file}")
+
+
+def report(
+    paths: list[Path] = typer.Argument(..., help="node trace files (`ramps node --trace`, JSON lines; several "
+                                       "robots' files merge), one simulator result (`ramps sim run --json "
+                                       "--trace`), or one experiment result (`ramps sim paper --json`, "
+                                       "`ramps testbed experiment faults --out`)"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="the HTML report (default: "
+                                            "<first file's name>.html in this directory)"),
+    png: Optional[Path] = typer.Option(None, "--png", help="also write every figure as a PNG into this directory"),
+    title: str = typer.Option("", "--title", help="the report's title (default: from the run)"),
+) -> None:
+    """A self-contained HTML report of a run (and PNGs): a Gantt timeline of every program per robot
+    (attempts, failures and when they were noticed, re-placements), each robot's load over time, and
+    the distribution; or the paper's figures from experiment results."""
+    from ramps.observe.report import ReportError, make_report, write_html, write_pngs
+
+    try:
+        rep = make_report(paths, title=title)
+    except ReportError as exc:
+        _fail(str(exc))
+    html_path = out_file or Path(paths[0].name.split(".")[0] + ".html")
+    write_html(rep, html_path)
+    _out.print(f"report: {html_path} ({len(rep.figures)} figures" + (
+        f", {len(rep.table) - 1} events" if len(rep.table) > 1 else "") + ")")
+    for line in rep.summary:
+        _out.print(f"  {line[0]}: {line[1]}")
+    if png is not None:
+        for p in write_pngs(rep, png):
+            _out.print(f"  {p}")
+
+
+def sim_paper_plot(directory: Path, experiment: str, *, policy: str, runs: int, seed: int,
+                   out_file: Optional[Path]) -> None:
+    """``ramps sim paper --plot DIR``: run the experiments (in parallel) and draw the paper's figures."""
+    import time
+
+    from ramps.observe.paper_plots import run_all, write_figures
+
+    wanted = {"all": ("unloaded", "loaded", "faults"), "unloaded": ("unloaded",), "loaded": ("loaded",),
+              "faults": ("faults",)}.get(experiment)
+    if wanted is None:
+        _fail(f"unknown experiment {experiment!r}; choose unloaded, loaded, faults or all")
+    started = time.perf_counter()
+    _err.print(f"running {', '.join(wanted)} ({runs} run(s) per configuration, policy {policy}) ...")
+    doc = run_all(experiments=wanted, policy=policy, runs=runs, seed=seed)
+    paths = write_figures(doc, directory)
+    for e in ("unloaded", "loaded"):
+        if e in doc:
+            sm = doc[e]["summary"]
+            _out.print(f"{e}: {sm['distributions']} distributions, {sm['optimal']} optimal, {sm['near_optimal']} "
+                       f"near optimal, {sm['non_optimal']} non optimal; lost {sm['lost']}, duplicated "
+                       f"{sm['duplicated']}")
+    for f in doc.get("faults", []):
+        _out.print(f"faults {f['mode']} {f['kind']}: {len(f['runs'])} run(s), lost {f['summary'].get('lost')}, "
+                   f"duplicated {f['summary'].get('duplicated')}")
+    if out_file is not None:
+        out_file.parent.mkdir(parents=True, exist_ok=True)
+        out_file.write_text(json.dumps(doc) + "\n")
+        _out.print(f"saved {out_file}")
+    _out.print(f"wrote {len(paths)} figures to {directory}/ in {time.perf_counter() - started:.1f} s: "
+               + ", ".join(p.name for p in paths))
+
+
+def register(app: typer.Typer, bench_app: typer.Typer) -> None:
+    app.command("report")(report)
+    bench_app.command("metrics")(bench_metrics)
+
+
+__all__ = ["register"]
