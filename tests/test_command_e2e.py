@@ -16,6 +16,7 @@ caller's future with the host and state.
 
 from __future__ import annotations
 
+import json
 import os
 import sys
 import textwrap
@@ -223,3 +224,25 @@ def test_killed_robot_kills_its_executables_and_the_program_moves(tmp_path):
         for f in futs.values():
             assert f.cancel()
         t.close()
+
+
+def test_ramps_status_shows_running_programs_and_their_progress(team, client):
+    fut = client.submit("stepper", steps=40, dt=0.3)
+    try:
+        deadline = time.monotonic() + RESULT_TIMEOUT
+        while fut.progress is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert fut.progress is not None, "no progress before the status check"
+        eps = [a for ep in team.endpoints() for a in ("--connect", ep)]
+        st = team.cli("status", "--team", team.team, *eps, "--no-multicast", "--json", "--wait", "2.5")
+        assert st.returncode == 0, st.stderr
+        rows = {r["robot"]: r for r in json.loads(st.stdout)["robots"]}
+        listed = [(robot, p) for robot, r in rows.items() for p in r["running"]]
+        ours = [(robot, p) for robot, p in listed if p[0] == "stepper"]
+        assert ours, listed
+        robot, (program, origin, progress) = ours[0]
+        assert robot == fut.host and origin == "r1" and progress is not None and 0 < progress <= 1, ours
+        table = team.cli("status", "--team", team.team, *eps, "--no-multicast", "--wait", "1.5").stdout
+        assert "running programs" in table and "stepper" in table and "%" in table, table
+    finally:
+        fut.cancel()

@@ -79,6 +79,7 @@ reports = st.builds(
     ramps_avg=loads, accepted_total=counts, finished_total=counts, window=loads, mem_free=counts,
     cpu_per_core=st.lists(st.floats(0.0, 1.0), max_size=4), load_avg=loads,
     blacklisted=st.lists(robots, max_size=3), bad_messages=counts, sees=st.none() | counts,
+    running=st.lists(st.builds(m.RunningProgram, names, robots, st.none() | st.floats(0.0, 1.0)), max_size=3),
 )
 messages = st.one_of(
     reports,

@@ -540,6 +540,14 @@ def status(
                       ", ".join(r.blacklisted),
                       "-" if r.report_age is None else f"{r.report_age:.1f} s")
     out.print(table)
+    running = [(r.robot, p) for r in st.robots for p in r.running]
+    if running:
+        progs = Table(title="running programs", title_justify="left")
+        for name in ("host", "program", "origin", "progress"):
+            progs.add_column(name, justify="right" if name == "progress" else "left")
+        for host, p in running:
+            progs.add_row(host, p.program, p.origin, "-" if p.progress is None else f"{100 * p.progress:.0f}%")
+        out.print(progs)
 
 
 @app.command()

@@ -64,6 +64,8 @@ MIN_WEIGHT = 15 / 1024
 MAX_WEIGHT = 88761 / 1024
 #: longest progress text a program may attach to a fraction
 MAX_PROGRESS_TEXT = 256
+#: most running programs a load report lists
+MAX_LISTED = 256
 
 
 class WireError(ValueError):
@@ -145,6 +147,18 @@ class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, ta
     #: fresh report, neither blacklisted nor lost), so ``ramps status`` shows
     #: a robot that does not see the whole team; None where not counted
     sees: Count | None = None
+    #: the programs running here (at most MAX_LISTED), with their progress,
+    #: for ``ramps status`` and the ROS face's diagnostics
+    running: Annotated[list["RunningProgram"], Meta(max_length=MAX_LISTED)] = []
+
+
+class RunningProgram(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
+    """A program a host runs, as its load report lists it: [program, origin, progress]."""
+
+    program: Name
+    origin: RobotName
+    #: the newest progress it reported, None before any
+    progress: Fraction | None = None
 
 
 class OffloadRequest(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="offload"):

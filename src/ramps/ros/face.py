@@ -339,6 +339,9 @@ def robot_status(r, team_size: int, *, stale_after: float) -> DiagnosticStatus:
             "blacklisted": ",".join(r.blacklisted), "dropped messages": r.bad_messages,
             "report age s": "-" if r.report_age is None else f"{r.report_age:.1f}"}
     s.values = [KeyValue(key=k, value=str(v)) for k, v in vals.items()]
+    for i, p in enumerate(r.running):  # what runs there, and how far it is
+        s.values.append(KeyValue(key=f"program {i + 1}", value=f"{p.program} from {p.origin}"
+                                 + ("" if p.progress is None else f", {100 * p.progress:.0f}%")))
     return s
 
 

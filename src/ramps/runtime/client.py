@@ -47,6 +47,7 @@ from ramps.core.messages import (
     LoadReport,
     ProgramOutcome,
     ProgramUpdate,
+    RunningProgram,
     SubmitProgram,
     WireError,
     decode,
@@ -87,6 +88,8 @@ class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
     report_age: float | None = None
     #: teammates the robot could place a program on (None: not reported)
     sees: int | None = None
+    #: programs running there: [program, origin robot, progress 0..1 or None]
+    running: list[RunningProgram] = []
 
 
 class TeamStatus(msgspec.Struct, frozen=True, kw_only=True):
@@ -446,7 +449,7 @@ class Team:
                                 finished_total=rep.finished_total, blacklisted=list(rep.blacklisted),
                                 cpu_per_core=list(rep.cpu_per_core), load_avg=rep.load_avg,
                                 mem_free=rep.mem_free, bad_messages=rep.bad_messages, report_age=now - at,
-                                sees=rep.sees)
+                                sees=rep.sees, running=list(rep.running))
                 rows.append(RobotStatus(**base))
         return TeamStatus(team=self.team, robots=rows)
 
