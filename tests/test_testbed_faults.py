@@ -183,3 +183,17 @@ def test_testbed_campaign_one_run():
     rep = run_campaign(1, seed=3, robots=3, duration=12.0)
     assert rep.runs == 1 and rep.lost == 0 and rep.duplicated == 0 and rep.not_rejoined == 0, rep.failed_runs
     assert rep.completed == rep.programs > 0
+
+
+def test_testbed_stress_campaign_one_run():
+    """Seed 28 kills r2's node alone, puts 5 busy processes on r3, cuts r3
+    twice and stalls the origin r1 for 1.9 s: nothing lost or duplicated, no
+    restart that a fault does not explain, no orphan, nothing left running."""
+    from ramps.testbed.experiments import run_campaign
+
+    rep = run_campaign(1, seed=0, only_seed=28, robots=3, duration=12.0, stress=True)
+    run = rep.all_runs[0]
+    kinds = {k.split(":")[0] for _, _, k in run.faults}
+    assert {"node_crash", "stall", "pressure"} <= kinds, run.faults
+    assert run.ok, run
+    assert rep.unexplained_restarts == 0 and rep.left_running == 0 and rep.orphans == 0

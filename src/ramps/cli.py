@@ -889,11 +889,14 @@ def testbed_campaign(
     discovery: str = typer.Option("both", "--discovery", help=DISCOVERY_HELP),
     keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="keep the node logs and traces of failed runs here"),
     only_seed: Optional[int] = typer.Option(None, "--only-seed", help="re-run just this run seed (as printed by a failed run)"),
+    stress: bool = typer.Option(True, "--stress/--no-stress", help="also stall nodes alone (0.5-5 s, the origin too), kill nodes alone, and put CPU pressure on robots; then check nothing was restarted without cause or left running (--no-stress: crashes, cuts and freezes only, as before 2026-11-23)"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
 ) -> None:
     """Random crashes, cuts, freezes and recoveries of non-origin robots during a workload, on real
-    processes; after every run: every program completed exactly once, recovered robots rejoined."""
+    processes; after every run: every program completed exactly once, recovered robots rejoined.
+    With --stress (default) also node-only stalls and crashes and CPU pressure, and the checks that no
+    program was restarted without cause and nothing was left running."""
     from ramps.errors import RampsError
     from ramps.experiments.report import print_campaign
     from ramps.testbed.experiments import run_campaign
@@ -902,22 +905,29 @@ def testbed_campaign(
     _check_discovery(discovery)
 
     def progress(done, total, run):
-        mark = "ok" if run.ok else f"FAILED lost {run.lost} dup {run.duplicated} not rejoined {run.not_rejoined}"
+        mark = "ok" if run.ok else (f"FAILED lost {run.lost} dup {run.duplicated} not rejoined {run.not_rejoined}"
+                                    + (f" unexplained restarts {run.unexplained}" if run.unexplained else "")
+                                    + (f" left running {run.left_running}" if run.left_running else "")
+                                    + (f" orphans {run.orphans}" if run.orphans else ""))
         err.print(f"run {done}/{total} (seed {run.seed}): {run.programs} programs, "
                   f"{sum(1 for f in run.faults if f[2] != 'recover')} faults, {run.seconds:.0f} s: {mark}",
                   highlight=False)
 
     try:
         rep = run_campaign(runs, seed, policy=policy, robots=robots, duration=duration, lease_ms=lease_ms,
-                           discovery=discovery, keep_logs=keep_logs, only_seed=only_seed, progress=progress)
+                           discovery=discovery, keep_logs=keep_logs, only_seed=only_seed, progress=progress,
+                           stress=stress)
     except (PermissionError, RampsError) as exc:
         fail(str(exc))
     if rep.interrupted:
         err.print(f"interrupted: the {rep.runs} run(s) that finished follow")
     _emit([rep], print_campaign, as_json=as_json, out_file=out_file)
+    if stress:
+        err.print(f"stress checks: {rep.unexplained_restarts} unexplained restart(s), {rep.left_running} robot(s) "
+                  f"left running programs, {rep.orphans} orphaned process(es) of nodes killed alone", highlight=False)
     if rep.interrupted:
         raise typer.Exit(130)
-    if rep.lost or rep.duplicated or rep.not_rejoined:
+    if rep.lost or rep.duplicated or rep.not_rejoined or rep.unexplained_restarts or rep.left_running or rep.orphans:
         raise typer.Exit(1)
 
 
