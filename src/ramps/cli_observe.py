@@ -113,8 +113,90 @@ def sim_paper_plot(directory: Path, experiment: str, *, policy: str, runs: int, 
                + ", ".join(p.name for p in paths))
 
 
+TEAM_HELP = "team name (env RAMPS_TEAM)"
+CONNECT_HELP = "Zenoh endpoint of a teammate, e.g. tcp/192.168.1.12:7447 (repeatable; env RAMPS_CONNECT)"
+
+
+def top(
+    team: Optional[str] = typer.Option(None, "--team", "-t", help=TEAM_HELP),
+    connect: Optional[list[str]] = typer.Option(None, "--connect", "-c", help=CONNECT_HELP),
+    multicast: Optional[bool] = typer.Option(None, "--multicast/--no-multicast", help="find the team by UDP multicast"),
+    secure: bool = typer.Option(False, "--secure", help="secured team: TLS and team certificates (env RAMPS_SECURE)"),
+    credentials: Optional[Path] = typer.Option(None, "--credentials", help="credentials directory from `ramps team "
+                                               "add` (env RAMPS_CREDENTIALS)"),
+    interval: float = typer.Option(0.25, "--interval", min=0.05, max=5.0, help="seconds between refreshes"),
+    frames: int = typer.Option(0, "--frames", min=0, help="print this many frames, one per interval, then exit "
+                               "(no live screen: for logs and scripts)"),
+    once: bool = typer.Option(False, "--once", help="print one frame after --wait seconds and exit"),
+    wait: float = typer.Option(2.5, "--wait", min=0.0, help="with --once: seconds to listen first"),
+    gone_after: float = typer.Option(10.0, "--exit-after", min=0.5, help="exit when no robot has been alive for "
+                                     "this many seconds (the team disappeared)"),
+    events: int = typer.Option(12, "--events", min=1, max=200, help="recent events shown"),
+) -> None:
+    """A live view of the team: every robot with its cores, speed, CPU, run queue, programs running
+    and in flight, free memory, whom it sees and whom it wrote off, and a scrolling list of events
+    (robots joining and leaving, programs starting, finishing and moving). Robots that disappear
+    stay, greyed, with how long ago they were last heard. Ctrl-C quits."""
+    import time
+
+    from rich.live import Live
+
+    from ramps.errors import ConfigError, RampsError
+    from ramps.observe.top import TopModel, render
+    from ramps.runtime.client import Team
+    from ramps.runtime.settings import load_settings
+
+    try:
+        s = load_settings(flags={"team": team, "connect": connect or None, "multicast": multicast,
+                                 "secure": secure or None, "credentials": str(credentials) if credentials else None},
+                          default_robot=False)
+        t = Team(s, robot=None, timeout=5.0)
+    except (ConfigError, RampsError) as exc:
+        _fail(str(exc))
+    model = TopModel(t.team)
+    last_alive = time.monotonic()
+    reason = ""
+
+    def step() -> bool:
+        nonlocal last_alive, reason
+        now = time.monotonic()
+        model.update(t.status(), now)
+        if model.alive():
+            last_alive = now
+        elif now - last_alive >= gone_after:
+            reason = f"team {model.team} gone: no robot alive for {gone_after:g} s"
+            return False
+        return True
+
+    try:
+        if once or frames:
+            if once:
+                time.sleep(wait)
+            for i in range(1 if once else frames):
+                going = step()
+                _out.print(render(model, time.monotonic(), events=events))
+                if not going:
+                    break
+                if i + 1 < frames:
+                    time.sleep(interval)
+        else:
+            with Live(render(model, time.monotonic(), events=events, interval=interval), console=_out,
+                      refresh_per_second=max(2.0, 1 / interval), transient=False) as live:
+                while step():
+                    live.update(render(model, time.monotonic(), events=events, interval=interval))
+                    time.sleep(interval)
+                live.update(render(model, time.monotonic(), events=events, interval=interval))
+    except KeyboardInterrupt:
+        reason = "interrupted"
+    finally:
+        t.close()
+    if reason:
+        _err.print(reason)
+
+
 def register(app: typer.Typer, bench_app: typer.Typer) -> None:
     app.command("report")(report)
+    app.command("top")(top)
     bench_app.command("metrics")(bench_metrics)
 
 
