@@ -358,7 +358,9 @@ def test_the_harness_catches_a_double_delivery() -> None:
 def test_fuzz_benchmark_short_run_finds_nothing(seed: int) -> None:
     res = run_fuzz(inputs=4000, seed=seed, fresh_node_every=500)
     assert res["exceptions"] == 0, res["exception_samples"]
-    assert res["decoder_inputs"] + res["args_inputs"] + res["core_events"] == res["inputs"] == 4000
+    assert (res["decoder_inputs"] + res["args_inputs"] + res["core_events"] + res["revocation_inputs"]
+            == res["inputs"] == 4000)
+    assert res["revocations_ok"] > 0 and res["revocations_refused"] > 0  # signed lists pass, the rest is refused
     assert res["decoded"] > 0 and res["wire_errors"] > 0 and res["core_from_decoder"] > 0
     assert res["programs_delivered"] > 0
     kinds = {"truncated", "bit_flips", "wrong_version", "wrong_shape", "deep_nesting", "pickle"}

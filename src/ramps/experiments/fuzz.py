@@ -3,7 +3,7 @@
 How this works: one seeded ``random.Random`` makes every input, so a seed
 replays a run exactly (the hypothesis tests in tests/test_fuzz.py cover the
 same ground with shrinking; this is the long run, with no test dependency).
-Three targets, in shares of the input count:
+Four targets, in shares of the input count:
 
 * the wire decoder ``ramps.core.messages.decode``: random bytes, valid
   encodings of every message type truncated, bit-flipped, edited and spliced,
@@ -14,6 +14,10 @@ Three targets, in shares of the input count:
 * the program-argument decoder ``ramps.runtime.registry.decode_args``, which
   a node runs on a client's bytes: it may raise ``BadArguments`` or msgspec's
   decode errors (the node turns either into a ``bad_arguments`` outcome);
+* the revocation-list decoder ``ramps.runtime.revocation.decode``, which a
+  secured node runs on whatever arrives on ``ramps/<team>/revoked``: a list
+  signed by a throwaway team CA, mutated and truncated, or random msgpack; it
+  may only return the list or raise ``CredentialsError``;
 * the core: a ``Node`` fed valid but hostile messages from any sender (itself
   included), messages that came out of the decoder, replays of what it sent
   and what it heard, reordered batches, its own programs ending, peers lost
@@ -394,6 +398,39 @@ def fuzz_decode(rng: random.Random, data: bytes, kind: str, tally: _Tally, out: 
     return env
 
 
+def _signed_list() -> tuple[bytes, Any]:
+    """A revocation list signed by a throwaway team CA, and that CA's certificate."""
+    import tempfile
+
+    from ramps.runtime import revocation, security
+
+    with tempfile.TemporaryDirectory() as d:
+        security.create_ca(d, "fuzz")
+        rl, _ = revocation.revoke(d, ["r3", "r7"])
+        ca_cert, _, _ = security.load_ca(d)
+    return revocation.encode(rl), ca_cert
+
+
+def fuzz_revocations(rng: random.Random, good: bytes, ca_cert, tally: _Tally, out: Counter) -> None:
+    """One input at the revocation-list decoder a secured node runs on ``ramps/<team>/revoked``."""
+    from ramps.errors import CredentialsError
+    from ramps.runtime import revocation
+
+    data = bytearray(good) if rng.random() < 0.6 else bytearray(_enc.encode(random_object(rng)))
+    for _ in range(rng.randint(0, 4)):
+        if data:
+            data[rng.randrange(len(data))] = rng.choice(INTERESTING)
+    if rng.random() < 0.2:
+        data = data[:rng.randint(0, len(data))]
+    try:
+        revocation.decode(bytes(data), ca_cert, "fuzz")
+        out["revocations_ok"] += 1
+    except CredentialsError:  # the node counts it as a bad message and keeps its list
+        out["revocations_refused"] += 1
+    except Exception as exc:
+        tally.failed("revocation", "list", exc, bytes(data))
+
+
 def fuzz_args(rng: random.Random, tally: _Tally, out: Counter) -> None:
     """One input at the program-argument decoder a node runs on a client's bytes."""
     if rng.random() < 0.5:
@@ -543,7 +580,8 @@ class CoreHarness:
 
 # ====================================================================== the run
 def run_fuzz(*, inputs: int = 100_000, seed: int = 0, core_share: float = 0.35, args_share: float = 0.1,
-             fresh_node_every: int = 2000, progress: Callable[[int], None] | None = None) -> dict:
+             fresh_node_every: int = 2000, progress: Callable[[int], None] | None = None,
+             revocation_share: float = 0.02) -> dict:
     """Feed ``inputs`` generated inputs to the decoders and the core; return the figures."""
     rng = random.Random(seed)
     kinds, weights = [k[0] for k in WIRE_KINDS], [k[1] for k in WIRE_KINDS]
@@ -555,6 +593,7 @@ def run_fuzz(*, inputs: int = 100_000, seed: int = 0, core_share: float = 0.35, 
     harness = CoreHarness(rng, rng.choice(policies))
     nodes = 1
     core_steps = 0
+    signed = None  # a signed revocation list and its CA, made on first use
     started = time.perf_counter()
     for i in range(inputs):
         r = rng.random()
@@ -576,6 +615,11 @@ def run_fuzz(*, inputs: int = 100_000, seed: int = 0, core_share: float = 0.35, 
         elif r < core_share + args_share:
             target = "args"
             fuzz_args(rng, tally, counts)
+        elif r < core_share + args_share + revocation_share:
+            target = "revocation"
+            if signed is None:
+                signed = _signed_list()
+            fuzz_revocations(rng, signed[0], signed[1], tally, counts)
         else:
             target = "decode"
             n_wire = counts["decode_inputs"]
@@ -615,6 +659,8 @@ def run_fuzz(*, inputs: int = 100_000, seed: int = 0, core_share: float = 0.35, 
         "core_from_decoder": counts["core_from_decoder"], "core_nodes": nodes,
         "decoded": counts["decoded"], "wire_errors": counts["wire_error"],
         "args_ok": counts["args_ok"], "args_refused": counts["args_refused"],
+        "revocation_inputs": counts["revocation"], "revocations_ok": counts["revocations_ok"],
+        "revocations_refused": counts["revocations_refused"],
         "programs_delivered": counts["core_delivered"], "wire_kinds": dict(sorted(by_kind.items())),
         "exceptions": tally.exceptions, "exception_samples": tally.samples,
     }
