@@ -176,17 +176,22 @@ def test_a_host_killed_mid_goal_loses_nothing_and_a_dead_origin_is_reported(tmp_
         user = RosUser("r1")
         try:
             user.spin_until(lambda: user.goal.get_subscription_count() > 0, "the ramps ROS face to appear")
-            for i in range(3):
-                user.send(f"k{i}", "stepper", steps=10, dt=0.5)
-            hosts = user.spin_until(lambda: {f["goal_id"]: f["host"] for f in user.feedback
-                                             if f["state"] == "running"} if len({f["goal_id"] for f in user.feedback
-                                                                                   if f["state"] == "running"}) == 3
-                                    else None, "all three goals running")
+            def running() -> dict[str, str]:
+                return {f["goal_id"]: f["host"] for f in user.feedback if f["state"] == "running"}
+
+            goals = []
+            for i in range(6):  # until one runs away from r1 (placement decides where)
+                goals.append(f"k{i}")
+                user.send(goals[-1], "stepper", steps=12, dt=0.5)
+                user.spin_until(lambda: goals[-1] in running(), f"goal {goals[-1]} running")
+                if len(goals) >= 3 and set(running().values()) - {"r1"}:
+                    break
+            hosts = running()
             victim = next(h for h in hosts.values() if h != "r1")
             t.kill_node(victim)
-            user.spin_until(lambda: all(f"k{i}" in user.results for i in range(3)), "every goal's result")
-            for i in range(3):
-                r = user.results[f"k{i}"]
+            user.spin_until(lambda: all(g in user.results for g in goals), "every goal's result")
+            for g in goals:
+                r = user.results[g]
                 assert r["ok"] and r["host"] != victim, r
             moved = [g for g, h in hosts.items() if h == victim]
             for g in moved:
