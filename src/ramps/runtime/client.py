@@ -144,8 +144,10 @@ class ProgramFuture(Future):
 
 
 #: seconds a client waits for its node to come back before failing the
-#: programs it submitted there (a lease that flapped comes back within ~1 s)
-ORIGIN_GONE_GRACE = 3.0
+#: programs it submitted there (a lease that flapped comes back within ~1 s;
+#: a node stalled for a few seconds, frozen or starved of CPU, comes back
+#: after its stall plus ~1 s to reconnect, and keeps its programs: issue 14)
+ORIGIN_GONE_GRACE = 10.0
 
 _ERRORS = {"program": ProgramFailed, "refused": ProgramRefused, "bad_arguments": BadArguments}
 
