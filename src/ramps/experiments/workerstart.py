@@ -12,6 +12,11 @@ monotonic time it started and sleeps, so the CPU the robot spends is the
 pool's own: starting workers. Printed per round: the delay from submission
 to the start of each program (median, max), how many workers the pool
 started, and the CPU seconds the robot used (cgroup accounting).
+
+``--death N``: N times, a process that owns a pool of 2 workers running 4
+programs is killed alone (SIGKILL, not its group); printed: how long until its
+fork server and workers are gone from the process table (they must die with
+their node, ``PR_SET_PDEATHSIG``).
 """
 
 from __future__ import annotations
@@ -100,6 +105,49 @@ def inner(cores: int, programs: int, rounds: int, hold_s: float) -> dict:
     return out
 
 
+_OWNER = (
+    "import time, msgspec\n"
+    "from ramps.runtime.workers import WorkerPool\n"
+    "pool = WorkerPool(2, {'hold': 'ramps.experiments.workerstart:hold'}, lambda *a: None)\n"
+    "pool.start()\n"
+    "for i in range(4): pool.run((f'k{i}', 1), 'hold', msgspec.msgpack.encode({'seconds': 60}))\n"
+    "while len(pool.pids()) < 4: time.sleep(0.05)\n"
+    "print(' '.join(str(p) for p in [pool._server.pid, *pool.pids().values()]), flush=True)\n"
+    "time.sleep(120)\n")
+
+
+def death_times(trials: int) -> list[float]:
+    """Seconds from SIGKILL of a pool's owner until its fork server and workers are gone."""
+    import signal
+
+    import psutil
+
+    def gone(p: psutil.Process) -> bool:
+        try:
+            return p.status() == psutil.STATUS_ZOMBIE
+        except psutil.NoSuchProcess:
+            return True
+
+    out = []
+    for _ in range(trials):
+        owner = subprocess.Popen([sys.executable, "-c", _OWNER], stdout=subprocess.PIPE, text=True,
+                                 start_new_session=True)
+        try:
+            procs = [psutil.Process(int(p)) for p in owner.stdout.readline().split()]
+            t0 = time.monotonic()
+            os.kill(owner.pid, signal.SIGKILL)
+            while not all(gone(p) for p in procs) and time.monotonic() - t0 < 10:
+                time.sleep(0.001)
+            out.append(time.monotonic() - t0 if all(gone(p) for p in procs) else float("inf"))
+        finally:
+            try:
+                os.killpg(owner.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            owner.wait()
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m ramps.experiments.workerstart", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -109,11 +157,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--hold", type=float, default=4.0, help="seconds each program sleeps")
     ap.add_argument("--out", help="save the figures as JSON here")
+    ap.add_argument("--death", type=int, default=0, metavar="N",
+                    help="instead: N times, kill a pool's owner alone and time its workers' end")
     ap.add_argument("--inner", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.inner:
         print(json.dumps(inner(a.cores, a.programs, a.rounds, a.hold)))
         return 0
+    if a.death:
+        times = death_times(a.death)
+        print("fork server and 4 workers gone after SIGKILL of their owner alone: "
+              + ", ".join(f"{t * 1000:.1f} ms" for t in times))
+        if a.out:
+            with open(a.out, "w") as f:
+                json.dump({"death_s": times}, f, indent=1)
+        return 0 if all(t < 1.0 for t in times) else 1
     cmd = [sys.executable, "-m", "ramps.experiments.workerstart", "--inner", "--cores", str(a.cores),
            "--programs", str(a.programs), "--rounds", str(a.rounds), "--hold", str(a.hold)]
     cg = None
