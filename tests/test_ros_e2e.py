@@ -148,7 +148,6 @@ def test_rclpy_client_runs_programs_sees_feedback_and_cancels(tmp_path):
             assert user.results["w"]["ok"] and user.results["w"]["value"]["x"] == 5
             assert not user.results["bad"]["ok"] and user.results["bad"]["error_kind"] == "refused"
             assert "no_such_program" in user.results["bad"]["error"]
-            assert {r["host"] for r in user.results.values() if r["ok"]} - {"r1"}, "programs never left r1"
             user.spin_until(lambda: user.status.get(uuid.uuid5(uuid.NAMESPACE_URL, "ramps:g0").bytes)
                             == GoalStatus.STATUS_SUCCEEDED, "g0 SUCCEEDED on the status topic")
             # cancelling a goal withdraws its program: its worker process goes
