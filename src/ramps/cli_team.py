@@ -120,8 +120,9 @@ def team_revoke(
     node checks the signature, adopts the list, passes it on to teammates
     that were away, shuts the robot out (its programs are placed elsewhere)
     and a revoked robot's own node leaves the team. A robot that keeps its
-    network links and lies about its name is not stopped by this; replace
-    the team CA (`ramps team init --force`) for a compromised robot."""
+    network links and lies about its name is not stopped by this: for a
+    compromised robot, restart the nodes with `members` naming the others
+    (config file or RAMPS_MEMBERS), or replace the team CA (`ramps team init --force`)."""
     from ramps.errors import CredentialsError
     from ramps.runtime import revocation, security
 

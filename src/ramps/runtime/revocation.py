@@ -23,8 +23,13 @@ What this cannot do: Zenoh's TLS and access control are configured when a
 session opens and cannot drop an established link, and they do not tell the
 application which certificate sent a message. A revoked robot that keeps
 its Zenoh links and lies about its name is therefore not stopped by the
-list alone; replace the team CA for a robot that is compromised, not just
-retired or lost. Only a secured team has revocation (an open team has no
+list alone. At the transport, a node's ``members`` setting (config file or
+``RAMPS_MEMBERS``: the certificate names it admits) refuses a certificate
+from the session's start, whatever name it claims; a deny rule for the
+revoked names alone does not (with ``default_permission: deny``, Zenoh
+1.10 lets the team's allow rule win: measured on loopback). So for a robot
+that is compromised, not just retired or lost: list the others in
+``members`` and restart the nodes, or replace the team CA. Only a secured team has revocation (an open team has no
 CA to sign a list with).
 
 Wire and file format: msgpack on the wire, JSON in the file, both the
