@@ -9,8 +9,10 @@ scrape must parse as Prometheus exposition format.
 
 from __future__ import annotations
 
+import json
 import time
 import urllib.request
+from pathlib import Path
 
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
@@ -37,6 +39,33 @@ def scrape(port: int) -> dict[str, list]:
 
 def total(samples: dict[str, list], name: str, **labels) -> float:
     return sum(s.value for s in samples.get(name, []) if all(s.labels.get(k) == v for k, v in labels.items()))
+
+
+def check_report_of_node_trace(trace: Path, tmp: Path) -> None:
+    """The timeline of a real origin's trace: r3's attempts end where r1 wrote them off (the trace's
+    "failed" lines), each is placed again on a live robot after that and delivered from there."""
+    from ramps.observe.report import make_report, write_html
+    from ramps.observe.timeline import build_timeline, load_run
+
+    lines = [json.loads(x) for x in trace.read_text().splitlines()]
+    t0 = min(x["wall"] for x in lines)
+    failed = {(x["program_id"], x["attempt"]): x["wall"] - t0 for x in lines if x["what"] == "failed"
+              and x["other"] == "r3"}
+    delivered = {x["program_id"]: (x["wall"] - t0, x["other"]) for x in lines if x["what"] == "delivered"}
+    assert failed, "r1's trace has no attempt on r3 written off"
+    tl = build_timeline(*load_run([trace]))
+    on_r3 = {(a.program_id, a.attempt): a for a in tl.attempts if a.host == "r3" and a.outcome == "failed"}
+    assert set(on_r3) == set(failed)
+    for key, a in on_r3.items():
+        assert a.end == pytest.approx(failed[key], abs=1e-6) and a.detail in ("host_lost", "heartbeat_timeout")
+    moved = {prev.program_id: nxt for prev, nxt in tl.replacements() if (prev.program_id, prev.attempt) in failed}
+    assert set(moved) == {pid for pid, _ in failed}
+    for pid, nxt in moved.items():
+        assert nxt.host in ("r1", "r2") and nxt.start >= failed[(pid, nxt.attempt - 1)]
+        assert nxt.outcome == "delivered" and (nxt.end, nxt.host) == pytest.approx(delivered[pid])
+    assert sum(tl.distribution.values()) == len(delivered) - 1  # the program that raised is not in it
+    page = write_html(make_report([trace]), tmp / "r1.html").read_text()
+    assert page.count("data:image/png;base64,") == 3 and "host_lost" in page or "heartbeat_timeout" in page
 
 
 def test_grafana_dashboard_queries_only_metrics_a_node_serves():
@@ -84,7 +113,8 @@ def test_metrics_scraped_while_programs_run(tmp_path):
     t = LocalTeam(3, tmp_path)
     try:
         for name, port in ports.items():
-            t.start_node(name, wait=False, extra_args=["--metrics", f"127.0.0.1:{port}"])
+            t.start_node(name, wait=False, extra_args=["--metrics", f"127.0.0.1:{port}"]
+                         + (["--trace", str(tmp_path / "r1.trace.jsonl")] if name == "r1" else []))
         t.wait_visible(list(ports))
         before = scrape(ports["r1"])
         assert total(before, "ramps_programs_delivered_total", robot="r1") == 0
@@ -144,6 +174,9 @@ def test_metrics_scraped_while_programs_run(tmp_path):
         assert total(end, "ramps_memory_free_bytes", robot="r1") > 0
         info = end["ramps_node_info"][0].labels
         assert info["team"] == t.team and info["robot"] == "r1"
+
+        # and `ramps report` of r1's trace shows the crash as the origin saw it
+        check_report_of_node_trace(tmp_path / "r1.trace.jsonl", tmp_path)
     finally:
         t.close()
 

@@ -43,13 +43,22 @@ def text_of(model: TopModel) -> str:
     return c.export_text()
 
 
-def top_cmd(t: LocalTeam, *extra: str) -> list[str]:
+def top_cmd(t: LocalTeam, *extra: str, secure: bool = True) -> list[str]:
+    creds = ["--secure", "--credentials", str(t.credentials("app"))] if secure else []
     return [sys.executable, "-m", "ramps.cli", "top", "--team", t.team, "--no-multicast",
-            *sum((["--connect", e] for e in t.endpoints()), []), *extra]
+            *sum((["--connect", e] for e in t.endpoints()), []), *creds, *extra]
 
 
-def test_top_shows_a_join_a_crash_and_programs_moving_then_quits(tmp_path):
-    with LocalTeam(3, tmp_path) as t:
+def test_top_on_a_secured_team_shows_a_join_a_crash_and_programs_moving_then_quits(tmp_path):
+    with LocalTeam(3, tmp_path, secure=True) as t:
+        r = subprocess.run(top_cmd(t, "--frames", "3", "--interval", "0.3"), capture_output=True, text=True,
+                           timeout=60)
+        assert r.returncode == 0, r.stderr
+        assert r.stdout.count("3 of 3 robots alive") == 3, r.stdout
+        # without credentials: a clear error, no traceback
+        r = subprocess.run(top_cmd(t, secure=False), capture_output=True, text=True, timeout=60)
+        assert r.returncode == 2 and "secure mode" in r.stderr and "Traceback" not in r.stderr
+
         team = t.client("r1")
         model = TopModel()
         watch_until(model, team, lambda: len(model.alive()) == 3, 20, "three robots")
@@ -104,17 +113,3 @@ def test_top_shows_a_join_a_crash_and_programs_moving_then_quits(tmp_path):
                 p.kill()
         assert p.returncode == 0, err
         assert "gone: no robot alive" in err and "Traceback" not in err
-
-
-def test_top_frames_on_a_secured_team(tmp_path):
-    with LocalTeam(3, tmp_path, secure=True) as t:
-        creds = str(t.credentials("app"))
-        r = subprocess.run(top_cmd(t, "--secure", "--credentials", creds, "--frames", "3", "--interval", "0.3"),
-                           capture_output=True, text=True, timeout=60)
-        assert r.returncode == 0, r.stderr
-        assert r.stdout.count("3 of 3 robots alive") == 3, r.stdout
-        for name in ("r1", "r2", "r3"):
-            assert name in r.stdout
-        # without credentials: a clear error, no traceback
-        r = subprocess.run(top_cmd(t), capture_output=True, text=True, timeout=60)
-        assert r.returncode == 2 and "secure mode" in r.stderr and "Traceback" not in r.stderr

@@ -560,6 +560,8 @@ def demo(
     kill_at: float = typer.Option(3.0, "--kill-at", help="seconds into the ramps run when --kill strikes"),
     shared: bool = typer.Option(False, "--shared", help="no cgroups: the nodes share this machine's cores"),
     as_json: bool = typer.Option(False, "--json", help="print the report as JSON"),
+    report: Path = typer.Option(Path("ramps-demo-report.html"), "--report", help="where to save the HTML report "
+                                "of the ramps run (timeline, load, distribution; the nodes' trace beside it)"),
 ) -> None:
     """The main job: a team of real nodes on this machine runs the paper's scenario.
 
@@ -591,7 +593,8 @@ def demo(
     try:
         with progress:
             rep = run_demo(robots=robots, programs=programs, arguments=dict(sizes[size]), loaded=loaded or [],
-                           kill=kill, kill_at=kill_at, emulate=False if shared else None, on_progress=on_progress)
+                           kill=kill, kill_at=kill_at, emulate=False if shared else None, on_progress=on_progress,
+                           report=str(report))
     except (ValueError, PermissionError) as exc:
         fail(str(exc))
     if as_json:
@@ -624,6 +627,9 @@ def demo(
     for ph in rep.phases:
         for e in ph.errors[:3]:
             err.print(f"[red]{ph.name}: {e}[/]", highlight=False, soft_wrap=True)
+    if rep.report:
+        out.print(f"report of the ramps run: {rep.report} (open it in a browser; trace: {rep.trace}, redraw with "
+                  f"`ramps report {rep.trace}`)", highlight=False, soft_wrap=True)
 
 
 # ====================================================================== testbed (emulated robots)

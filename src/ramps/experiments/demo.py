@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 import time
 from collections import Counter
+from pathlib import Path
 from typing import Callable
 
 import msgspec
@@ -46,6 +47,9 @@ class DemoReport(msgspec.Struct, kw_only=True):
     speedup_vs_single: float
     ratio_to_round_robin: float
     wall_seconds: float
+    #: the HTML report of the ramps phase (ramps.observe.report), and the nodes' trace it was drawn from
+    report: str = ""
+    trace: str = ""
 
 
 #: the demo's instance: ~1.4 CPU s per program on the development machine, so
@@ -97,7 +101,9 @@ def run_demo(*, robots: int = 5, programs: int = 15, program: str = "route_plan"
              loaded: list[str] | None = None, kill: str | None = None, kill_at: float = 3.0,
              emulate: bool | None = None,
              on_progress: Callable[[str, int, int, Counter], None] | None = None,
-             on_phase: Callable[[str], None] | None = None) -> DemoReport:
+             on_phase: Callable[[str], None] | None = None, report: str | None = None) -> DemoReport:
+    """``report``: where to save an HTML report of the ramps phase (its
+    nodes' trace is kept beside it, ``<name>.trace.jsonl``); None: none."""
     started = time.perf_counter()
     host_cores = len(os.sched_getaffinity(0))
     can_emulate = cgroup_mode() is not None
@@ -119,7 +125,13 @@ def run_demo(*, robots: int = 5, programs: int = 15, program: str = "route_plan"
     if kill == names[0]:
         raise ValueError("the origin r1 cannot be killed: its programs would be nobody's concern (paper 3.3)")
     phases = []
-    with LocalTeam(names, cpu_quota=quota) as team:
+    windows: dict[str, tuple[float, float]] = {}  # phase -> Unix times, to cut its part of the trace
+    trace = str(Path(report).with_suffix(".trace.jsonl")) if report else None
+    if trace:
+        Path(trace).parent.mkdir(parents=True, exist_ok=True)
+        Path(trace).write_text("")
+    env = dict(os.environ, RAMPS_TRACE=trace) if trace else None  # every node appends its decisions
+    with LocalTeam(names, cpu_quota=quota, env=env) as team:
         for name in loaded:
             team.add_load(name, 8)
         client = team.client("r1")
@@ -142,15 +154,25 @@ def run_demo(*, robots: int = 5, programs: int = 15, program: str = "route_plan"
                                 ("single robot (r1)", {"local_only": True})):
                 if on_phase:
                     on_phase(title)
+                w0 = time.time()
                 phases.append(_run_phase(title, client, calls, program=program, options=opts,
                                          on_progress=on_progress, during=during if title == "ramps" else None))
+                windows[title] = (w0, time.time())
                 if killed and title == "ramps":
                     team.start_node(kill)  # back for the baselines, so they run on the same team
                     time.sleep(2.5)
         finally:
             client.close()
     ramps_t, rr_t, single_t = (p.makespan for p in phases)
+    saved = ""
+    if report:
+        from ramps.observe.report import make_report, write_html
+
+        what = (f"{programs} x {program} from r1 placed by ramps on {robots} robots"
+                + (f", {kill} killed at {kill_at:g} s" if kill else "") + (f", loaded: {', '.join(loaded)}" if loaded
+                                                                           else ""))
+        saved = str(write_html(make_report([trace], title=f"ramps demo: {what}", window=windows["ramps"]), report))
     return DemoReport(mode=mode, robots=names, robot_cores=quota or host_cores, programs=programs, program=program,
                       arguments=args, loaded=loaded, killed=kill, phases=phases,
                       speedup_vs_single=single_t / ramps_t, ratio_to_round_robin=ramps_t / rr_t,
-                      wall_seconds=time.perf_counter() - started)
+                      wall_seconds=time.perf_counter() - started, report=saved, trace=trace or "")

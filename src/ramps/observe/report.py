@@ -102,8 +102,9 @@ def run_report(tl: Timeline, *, title: str = "") -> Report:
     return rep
 
 
-def make_report(paths: list[Path], *, title: str = "") -> Report:
-    """A report of whatever ``paths`` hold (see the module docstring)."""
+def make_report(paths: list[Path], *, title: str = "", window: tuple[float, float] | None = None) -> Report:
+    """A report of whatever ``paths`` hold (see the module docstring);
+    ``window``: of node traces, only the part between these Unix times."""
     paths = [Path(p) for p in paths]
     if len(paths) == 1:
         doc = _json_document(paths[0])
@@ -111,7 +112,7 @@ def make_report(paths: list[Path], *, title: str = "") -> Report:
             from ramps.observe.paper_plots import experiment_report
 
             return experiment_report(doc, title=title or paths[0].name)
-    events, extra = load_run(paths)
+    events, extra = load_run(paths, window=window)
     return run_report(build_timeline(events, extra), title=title)
 
 

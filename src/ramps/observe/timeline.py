@@ -115,9 +115,10 @@ class Timeline:
 
 
 # ====================================================================== loading
-def load_run(paths: list[Path]) -> tuple[list[Event], dict]:
+def load_run(paths: list[Path], *, window: tuple[float, float] | None = None) -> tuple[list[Event], dict]:
     """Events from one simulator result or from one or more node traces, and
-    extra facts (``programs`` records of a simulator run, ``robots``, ``title``)."""
+    extra facts (``programs`` records of a simulator run, ``robots``, ``title``).
+    ``window``: node traces only, the (from, to) Unix times to keep."""
     if not paths:
         raise ReportError("no trace given")
     texts = []
@@ -134,6 +135,8 @@ def load_run(paths: list[Path]) -> tuple[list[Event], dict]:
     events: list[Event] = []
     for p, text in texts:
         events.extend(_from_jsonl(p, text))
+    if window is not None:
+        events = [e for e in events if window[0] <= e.t <= window[1]]
     if not events:
         raise ReportError(f"no trace entries in {', '.join(str(p) for p, _ in texts)} (is it a `ramps node --trace` "
                           "file of a node that ran programs?)")
