@@ -186,12 +186,13 @@ def test_testbed_campaign_one_run():
 
 
 def test_testbed_stress_campaign_one_run():
-    """Seed 28 kills r2's node alone, puts 5 busy processes on r3, cuts r3
-    twice and stalls the origin r1 for 1.9 s: nothing lost or duplicated, no
-    restart that a fault does not explain, no orphan, nothing left running."""
+    """Seed 221: two origins (r1, r2, each with its own application), r3's
+    node killed alone, the origin r2 stalled, 4 busy processes on r3: nothing
+    lost or duplicated, no restart that a fault does not explain, no orphan,
+    nothing left running."""
     from ramps.testbed.experiments import run_campaign
 
-    rep = run_campaign(1, seed=0, only_seed=28, robots=3, duration=12.0, stress=True)
+    rep = run_campaign(1, seed=0, only_seed=221, robots=3, duration=12.0, stress=True)
     run = rep.all_runs[0]
     kinds = {k.split(":")[0] for _, _, k in run.faults}
     assert {"node_crash", "stall", "pressure"} <= kinds, run.faults

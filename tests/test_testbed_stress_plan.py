@@ -7,6 +7,8 @@ from __future__ import annotations
 import random
 from collections import Counter
 
+import pytest
+
 from ramps.testbed.experiments import campaign_plan, stress_plan
 
 NAMES = ["r1", "r2", "r3", "r4"]
@@ -18,10 +20,11 @@ def test_same_seed_same_plan_and_the_classic_plan_is_unchanged():
     assert campaign_plan(random.Random(5), NAMES, 20.0) == campaign_plan(random.Random(5), NAMES, 20.0)
 
 
-def test_every_fault_is_undone_and_the_origin_only_stalls_briefly():
+@pytest.mark.parametrize("origins", [1, 2])
+def test_every_fault_is_undone_and_the_origins_only_stall_briefly(origins):
     kinds: Counter = Counter()
     for seed in range(300):
-        plan = stress_plan(random.Random(seed), NAMES, 20.0)
+        plan = stress_plan(random.Random(seed), NAMES, 20.0, origins=origins)
         open_faults: dict[str, str] = {}
         for at, robot, kind in plan:
             base = kind.split(":")[0]
@@ -33,11 +36,12 @@ def test_every_fault_is_undone_and_the_origin_only_stalls_briefly():
             else:
                 assert robot not in open_faults, (seed, plan)  # one fault of a robot at a time
                 open_faults[robot] = base
-                if robot == "r1":
+                if robot in NAMES[:origins]:
                     assert base == "stall", (seed, plan)
         assert not open_faults, (seed, plan)
-        stalls = [(a, r) for a, r, k in plan if r == "r1"]
-        if stalls:
-            assert stalls[1][0] - stalls[0][0] <= 2.0 + 0.01
+        for origin in NAMES[:origins]:
+            stalls = [a for a, r, k in plan if r == origin]
+            if stalls:
+                assert stalls[1] - stalls[0] <= 2.0 + 0.01
     for k in ("crash", "cut", "freeze", "stall", "node_crash", "pressure"):
         assert kinds[k] > 10, kinds

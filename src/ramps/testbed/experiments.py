@@ -255,15 +255,17 @@ STRESSES = ["crash", "cut", "freeze", "stall", "node_crash", "pressure", "pressu
 EXPLAINED_AFTER = 5.0
 
 
-def stress_plan(rng: random.Random, robots: list[str], duration: float) -> list[tuple[float, str, str]]:
+def stress_plan(rng: random.Random, robots: list[str], duration: float,
+                origins: int = 1) -> list[tuple[float, str, str]]:
     """``campaign_plan`` with the stresses of a busy or half-dead robot
     (issue 14): besides crashes, cuts and freezes, a node stalled alone for
     0.5-5 s (``stall``, then ``recover``), a node killed alone (``node_crash``,
     then ``recover``), and host CPU pressure (``pressure:N``: N busy processes
-    appear, ``unload``: they vanish); the origin (first robot) itself may
-    stall for 0.5-2 s, and must then restart none of its programs."""
+    appear, ``unload``: they vanish) of robots that are not origins; each
+    origin (the first ``origins`` robots) may stall for 0.5-2 s, and must
+    then restart none of its programs."""
     faults: list[tuple[float, str, str]] = []
-    for robot in robots[1:]:
+    for robot in robots[origins:]:
         t = rng.uniform(0.5, duration * 0.3)
         for _ in range(rng.randint(0, 3)):
             if t > duration * 0.8:
@@ -282,9 +284,10 @@ def stress_plan(rng: random.Random, robots: list[str], duration: float) -> list[
                 t += rng.uniform(1.0, duration * 0.3)
                 faults.append((round(min(t, duration * 0.9), 2), robot, "recover"))
             t += rng.uniform(0.5, duration * 0.2)
-    if rng.random() < 0.4:
-        t = rng.uniform(1.0, duration * 0.7)
-        faults += [(round(t, 2), robots[0], "stall"), (round(t + rng.uniform(0.5, 2.0), 2), robots[0], "recover")]
+    for origin in robots[:origins]:
+        if rng.random() < 0.4:
+            t = rng.uniform(1.0, duration * 0.7)
+            faults += [(round(t, 2), origin, "stall"), (round(t + rng.uniform(0.5, 2.0), 2), origin, "recover")]
     return sorted(faults)
 
 
@@ -314,7 +317,12 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
     log = log or (lambda _m: None)
     rng = random.Random(seed)
     names = [f"r{i}" for i in range(1, robots + 1)]
-    faults = (stress_plan if stress else campaign_plan)(rng, names, duration)
+    if stress:  # one or two origins (r1, r2), each with its own application
+        origins = names[:2] if robots >= 3 and rng.random() < 0.4 else names[:1]
+        faults = stress_plan(rng, names, duration, origins=len(origins))
+    else:
+        origins = names[:1]
+        faults = campaign_plan(rng, names, duration)
     n_programs = rng.randint(8, 24)
     units = [round(rng.uniform(0.05, 0.6), 3) for _ in range(n_programs)]
     spacing = duration * 0.6 / n_programs
@@ -331,6 +339,7 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
     with Testbed(names, cores=2, speed=speed, policy=policy, lease_ms=lease_ms, discovery=discovery) as tb, \
             Observer(tb) as obs, \
             tb.client("r1", timeout=30.0) as team:
+        teams = [team] + [tb.client(o, timeout=30.0) for o in origins[1:]]
         time.sleep(SETTLE)
         t0 = time.monotonic()
         timeline = sorted([(at, "fault", r, k) for at, r, k in faults] +
@@ -339,7 +348,7 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
             time.sleep(max(0.0, t0 + at - time.monotonic()))
             if what == "submit":
                 u = units[int(kind)]
-                futures.append((u, team.options(work=u).submit("burn", units=u)))
+                futures.append((u, teams[int(kind) % len(teams)].options(work=u).submit("burn", units=u)))
             elif kind == "recover":
                 tb.recover(robot, wait=False)
                 if robot in began:
@@ -389,11 +398,13 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
         else:
             not_rejoined += [f"{r} (blacklisted at r1 or not alive)" for r in missing]
         time.sleep(0.2)
-        trace = read_trace(tb.log_dir / "r1.trace.jsonl")
-        dup = sum(n - 1 for n in delivered_counts(trace).values() if n > 1)
+        traces = {o: read_trace(tb.log_dir / f"{o}.trace.jsonl") for o in origins}
+        dup = sum(n - 1 for tr in traces.values() for n in delivered_counts(tr).values() if n > 1)
         for robot, at in began.items():  # faults never recovered explain what followed them
             spans.setdefault(robot, []).append((at, float("inf")))
-        unexplained = _unexplained(trace, spans, names[0]) if stress else []
+        unexplained = [f"{o}: {u}" for o, tr in traces.items() for u in _unexplained(tr, spans, o)] if stress else []
+        for t in teams[1:]:
+            t.close()
         if stress:  # nothing left running: every robot idle, no orphaned worker
             deadline = time.monotonic() + 15.0
             while True:
