@@ -42,9 +42,9 @@ Parameters: team, robot (the origin node; default any), connect (string
 array of Zenoh endpoints), multicast, secure, credentials,
 diagnostics_period (s), goal_timeout (s, 0 = none), connect_timeout (s).
 
-Rules: Zenoh callbacks and future callbacks only enqueue; one rclpy timer
-drains the queue and publishes, so every ROS call happens on the executor's
-thread. A bad goal gets an error result (and a log line), never an exception.
+Rules: future callbacks (Zenoh threads) only enqueue and trigger a guard
+condition; the executor's thread drains the queue and publishes, so every
+ROS call happens on that one thread. A bad goal gets an error result (and a log line), never an exception.
 """
 
 from __future__ import annotations
@@ -70,8 +70,8 @@ from unique_identifier_msgs.msg import UUID
 KEEP_FINISHED = 60.0
 #: longest goal message accepted, bytes (ramps' own argument limit is 1 MiB)
 MAX_GOAL_BYTES = 1024 * 1024 + 4096
-#: seconds between two drains of the event queue (feedback latency)
-PUMP_PERIOD = 0.05
+#: seconds between two looks at the goals without news (expiry, status)
+HOUSEKEEPING_PERIOD = 0.5
 
 RELIABLE = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 LATCHED = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
@@ -135,9 +135,11 @@ class RosFace(Node):
         self.pub_result = self.create_publisher(String, "~/result", LATCHED)
         self.pub_status = self.create_publisher(GoalStatusArray, "~/status", STATUS_QOS)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
-        self.create_subscription(String, "~/goal", lambda m: self._events.put(("goal", m.data)), RELIABLE)
-        self.create_subscription(String, "~/cancel", lambda m: self._events.put(("cancel", m.data)), RELIABLE)
-        self.create_timer(PUMP_PERIOD, self._pump)
+        self.create_subscription(String, "~/goal", lambda m: self._handle("goal", m.data), RELIABLE)
+        self.create_subscription(String, "~/cancel", lambda m: self._handle("cancel", m.data), RELIABLE)
+        # future callbacks (Zenoh threads) enqueue and wake the executor through this
+        self._wake = self.create_guard_condition(self._pump)
+        self.create_timer(HOUSEKEEPING_PERIOD, self._pump)
         self.create_timer(p["diagnostics_period"], self._publish_diagnostics)
         self.get_logger().info(
             f"ramps ROS face of team {team.team!r} via robot {self.origin}: goals on "
@@ -154,26 +156,35 @@ class RosFace(Node):
         return out
 
     # ------------------------------------------------------------ the one thread that talks to ROS
+    def _enqueue(self, kind: str, goal_id: str) -> None:
+        """From any thread: hand a future's news to the executor's thread."""
+        self._events.put((kind, goal_id))
+        self._wake.trigger()
+
     def _pump(self) -> None:
-        deadline = time.monotonic() + PUMP_PERIOD
-        while time.monotonic() < deadline:
+        for _ in range(10_000):
             try:
                 kind, data = self._events.get_nowait()
             except queue.Empty:
                 break
-            try:
-                if kind == "goal":
-                    self._on_goal(data)
-                elif kind == "cancel":
-                    self._on_cancel(data.strip())
-                elif kind == "update":
-                    self._on_update(data)
-                elif kind == "done":
-                    self._on_done(data)
-            except Exception as exc:  # a bug here must not stop the face: say so
-                self.get_logger().error(f"ramps ROS face: error handling {kind}: {type(exc).__name__}: {exc}")
+            self._handle(kind, data)
         self._expire()
         if self._status_dirty:
+            self._publish_status()
+
+    def _handle(self, kind: str, data: str) -> None:
+        try:
+            if kind == "goal":
+                self._on_goal(data)
+            elif kind == "cancel":
+                self._on_cancel(data.strip())
+            elif kind == "update":
+                self._on_update(data)
+            elif kind == "done":
+                self._on_done(data)
+        except Exception as exc:  # a bug here must not stop the face: say so
+            self.get_logger().error(f"ramps ROS face: error handling {kind}: {type(exc).__name__}: {exc}")
+        if self._status_dirty and kind in ("goal", "cancel"):
             self._publish_status()
 
     def _on_goal(self, text: str) -> None:
@@ -216,7 +227,7 @@ class RosFace(Node):
         g.fut = fut
         g.status = GoalStatus.STATUS_EXECUTING
         self._feedback(g, "accepted", "", 0, None, "")
-        fut.add_update_callback(lambda f, gid=goal_id: self._events.put(("done" if f.done() else "update", gid)))
+        fut.add_update_callback(lambda f, gid=goal_id: self._enqueue("done" if f.done() else "update", gid))
 
     def _on_cancel(self, goal_id: str) -> None:
         g = self._goals.get(goal_id)
