@@ -116,6 +116,15 @@ def test_revoked_robot_is_shut_out_by_every_teammate_and_the_others_keep_running
         team = t.client("r1")
         before = [team.options(policy="round_robin").submit("where", x=i).result(60)["robot"] for i in range(3)]
         assert "r3" in before  # r3 was a working teammate
+        # a teammate without the CA key forges a list shutting r1 out: every node ignores it
+        sec.create_ca(tmp_path / "forger", t.team)
+        forged, _ = rv.revoke(tmp_path / "forger", ["r1"])
+        assert rv.publish(forged, team=t.team, connect=[t.nodes["r2"].endpoint],
+                          credentials=str(t.credentials("admin")))[0] >= 1
+        time.sleep(1.0)
+        assert not any(e["what"] == "revoked" for r in traces for e in _trace(traces[r]))
+        assert all(t.nodes[r].proc.poll() is None for r in ("r1", "r2", "r3"))
+        assert "not signed by the team CA" in t.logs("r2")
         rl, _ = rv.revoke(t.ca_dir, ["r3"])
         peers, sent_at = rv.publish(rl, team=t.team, connect=[t.nodes["r1"].endpoint],
                                     credentials=str(t.credentials("admin")))

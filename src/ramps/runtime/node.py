@@ -473,7 +473,9 @@ class NodeRuntime:
             rl = revocation.decode(data, self._ca_cert, self.team)
         except Exception as exc:  # CredentialsError, or anything odd in a foreign message
             self.bad_messages += 1
-            log.warning("node %s ignored a revocation list: %s", self.robot, exc)
+            if now - self._drop_logged_at >= DROP_LOG_PERIOD:  # a flood is one line a period
+                log.warning("node %s ignored a revocation list: %s", self.robot, exc)
+                self._drop_logged_at = now
             return []
         if self.revocations is not None and rl.seq <= self.revocations.seq:
             return []
