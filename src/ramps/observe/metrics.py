@@ -41,6 +41,9 @@ LATENCY_BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0,
 DURATION_BUCKETS = (0.01, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5, 10, 25, 50, 100, 250, 500, 1000)
 #: (program, attempt) offers and failures remembered for latency figures; older are forgotten
 MAX_PENDING = 10_000
+#: why an origin writes an attempt off (ramps.core.program); their series exist from the start at 0,
+#: since Prometheus' rate() and increase() cannot see the first event of a series born at 1
+FAILURE_REASONS = ("host_lost", "heartbeat_timeout", "connect_timeout", "worker_lost")
 
 
 def parse_address(text: str) -> tuple[str, int]:
@@ -125,6 +128,11 @@ class NodeMetrics:
                                registry=reg).labels(robot)
         self.reports = Counter("ramps_load_reports_received", "teammates' load reports received", r,
                                registry=reg).labels(robot)
+        for reason in FAILURE_REASONS:
+            self.detection.labels(robot, reason)
+        self.recovery.labels(robot)
+        self.dispatch.labels(robot)
+        self._known: set[tuple[str, str]] = set()  # (host, program) whose series exist
         self._dropped_seen = 0
         self._reports_seen = 0
         self._offered: dict[tuple[str, int], float] = {}  # (pid, attempt) -> when placed
@@ -158,6 +166,7 @@ class NodeMetrics:
             what = a.what
             if what == "placed":
                 prog = _program(node, a.program_id)
+                self._born(a.robot, prog)
                 self.placed.labels(me, a.robot, prog).inc()
                 if a.attempt > 1:
                     self.replaced.labels(me, prog).inc()
@@ -218,6 +227,22 @@ class NodeMetrics:
         if reports_received > self._reports_seen:
             self.reports.inc(reports_received - self._reports_seen)
         self._reports_seen = max(self._reports_seen, reports_received)
+
+    def _born(self, host: str, prog: str) -> None:
+        """Create at 0 the series a placement on ``host`` may move later, so
+        that their first increment shows in rate() and increase()."""
+        if (host, prog) in self._known or len(self._known) > MAX_PENDING:
+            return
+        self._known.add((host, prog))
+        me = self.robot
+        for reason in FAILURE_REASONS:
+            self.failed.labels(me, host, prog, reason)
+        self.accepted.labels(me, host, prog)
+        self.rejected.labels(me, host)
+        self.blacklisted.labels(me, host)
+        self.replaced.labels(me, prog)
+        self.delivered.labels(me, prog, "ok")
+        self.duration.labels(me, prog)
 
     @staticmethod
     def _remember(table: dict, key, value) -> None:
