@@ -27,23 +27,24 @@ def _submit_remote(t: FakeTeam, pid: str = "p1") -> StartProgram:
     return starts[-1]
 
 
-def test_progress_reaches_the_origin_with_the_next_heartbeat() -> None:
+def test_progress_travels_at_once_then_at_most_with_each_heartbeat() -> None:
     t = _team()
     start = _submit_remote(t)
-    for f in (0.1, 0.2, 0.42):  # three reports within one period: only the newest travels
+    for f in (0.1, 0.2, 0.42):  # the first travels at once; the rest of the period, only the newest
         t.handle("h", ProgressReported(program_id="p1", attempt=start.attempt, fraction=f, detail=f"step {f}"))
-    assert not t.actions(Progress, "o")  # nothing before the heartbeat tick
+        t.deliver()
+    assert [p.fraction for p in t.actions(Progress, "o")] == [0.1]
     t.advance(t.now + 0.6)
     got = t.actions(Progress, "o")
     assert [(p.program_id, p.host, p.attempt, p.fraction, p.detail) for p in got] == \
-        [("p1", "h", start.attempt, 0.42, "step 0.42")]
-    assert len(t.sent(ProgramProgress, by="h", to="o")) == 1
+        [("p1", "h", start.attempt, 0.1, "step 0.1"), ("p1", "h", start.attempt, 0.42, "step 0.42")]
+    assert len(t.sent(ProgramProgress, by="h", to="o")) == 2
     # no new progress: the next heartbeats carry none
     t.advance(t.now + 2.0)
-    assert len(t.actions(Progress, "o")) == 1
-    t.handle("h", ProgressReported(program_id="p1", attempt=start.attempt, fraction=0.9))
-    t.advance(t.now + 0.6)
-    assert [p.fraction for p in t.actions(Progress, "o")] == [0.42, 0.9]
+    assert len(t.actions(Progress, "o")) == 2
+    t.handle("h", ProgressReported(program_id="p1", attempt=start.attempt, fraction=0.9))  # quiet for long: at once
+    t.deliver()
+    assert [p.fraction for p in t.actions(Progress, "o")] == [0.1, 0.42, 0.9]
 
 
 def test_out_of_range_progress_is_clamped_and_long_text_cut() -> None:

@@ -5,8 +5,9 @@ driver, ``OffloadAccepted`` for the origin) or turned away with a reason:
 ``unknown_program`` and ``bad_request`` are permanent, ``busy`` means the
 host has more runnable work than the origin expected (ramps negotiation) and
 the origin should place again at once. While programs run, the executor
-sends each origin one ``Heartbeat`` per period listing its programs, and the
-newest ``ProgramProgress`` of each that reported progress since. A result
+sends each origin one ``Heartbeat`` per period listing its programs; a
+program's progress goes to its origin at once, or with the next heartbeat if
+some went less than a period ago (``ProgramProgress``, the newest only). A result
 is sent to the origin and kept, resent every ``result_resend`` seconds, until
 the origin acknowledges it, so a result survives a lost message or an origin
 that is briefly cut off.
@@ -47,7 +48,7 @@ ORIGIN_GONE_AFTER = 30.0
 
 
 class _Job:
-    __slots__ = ("origin", "program", "started_at", "progress", "detail", "progress_new")
+    __slots__ = ("origin", "program", "started_at", "progress", "detail", "progress_new", "progress_sent_at")
 
     def __init__(self, origin: str, program: str, started_at: float) -> None:
         self.origin = origin
@@ -57,6 +58,7 @@ class _Job:
         self.progress: float | None = None
         self.detail = ""
         self.progress_new = False
+        self.progress_sent_at = -float("inf")
 
 
 class Executor:
@@ -175,15 +177,19 @@ class Executor:
             del self._outbox[key]
 
     def on_progress(self, ev: ProgressReported, now: float, out: list[Action]) -> None:
-        """Keep the newest progress; the next heartbeat tick sends it to the
-        origin (so a chatty program costs one message a heartbeat period)."""
+        """Send progress to the origin at once if none went for a heartbeat
+        period, else keep the newest for the next heartbeat tick (so a chatty
+        program costs at most two messages a period, and a quiet one's news
+        travels without waiting)."""
         job = self.running.get((ev.program_id, ev.attempt))
         if job is None:
             return  # ended or withdrawn meanwhile
         job.progress = min(1.0, max(0.0, ev.fraction)) if ev.fraction == ev.fraction else 0.0
         job.detail = ev.detail[:MAX_PROGRESS_TEXT]
         job.progress_new = True
-        if self._next_tick is None:
+        if now - job.progress_sent_at >= self.config.heartbeat_period:
+            self._send_one_progress(ev.program_id, ev.attempt, job, now, out)
+        elif self._next_tick is None:
             self._next_tick = now + self.config.heartbeat_period
 
     def on_ack(self, msg: ResultAck) -> None:
@@ -247,7 +253,7 @@ class Executor:
             by_origin.setdefault(job.origin, []).append(ProgramRef(pid, attempt))
         for origin, refs in by_origin.items():
             out.append(Send(to=origin, msg=Heartbeat(host=self.me, incarnation=self.incarnation, programs=refs)))
-        self._send_progress(out)
+        self._send_progress(now, out)
         for key, (origin, result, resend_at, expires) in list(self._outbox.items()):
             if now >= expires:
                 del self._outbox[key]
@@ -264,12 +270,16 @@ class Executor:
             gone = min(self._origins_lost.values()) + self.origin_gone_after
             self._next_tick = gone if self._next_tick is None else min(self._next_tick, gone)
 
-    def _send_progress(self, out: list[Action]) -> None:
+    def _send_progress(self, now: float, out: list[Action]) -> None:
         for (pid, attempt), job in self.running.items():
             if job.progress_new and job.progress is not None:
-                job.progress_new = False
-                out.append(Send(to=job.origin, msg=ProgramProgress(
-                    program_id=pid, attempt=attempt, host=self.me, fraction=job.progress, detail=job.detail)))
+                self._send_one_progress(pid, attempt, job, now, out)
+
+    def _send_one_progress(self, pid: str, attempt: int, job: _Job, now: float, out: list[Action]) -> None:
+        job.progress_new = False
+        job.progress_sent_at = now
+        out.append(Send(to=job.origin, msg=ProgramProgress(
+            program_id=pid, attempt=attempt, host=self.me, fraction=job.progress, detail=job.detail)))
 
     def hand_back(self, now: float, out: list[Action]) -> int:
         """Shutting down: end every running program with a retryable result so
