@@ -122,8 +122,10 @@ def test_metrics_scraped_while_programs_run(tmp_path):
         team = t.client("r1")
         futs = [team.submit("spin", seconds=0.2) for _ in range(6)]
         bad = team.submit("fail")
-        during = scrape(ports["r1"])  # while they run: still parses
-        assert total(during, "ramps_programs_placed_total", robot="r1") >= 1
+        deadline = time.monotonic() + 30
+        while total(scrape(ports["r1"]), "ramps_programs_placed_total", robot="r1") < 1:  # parses while they run
+            assert time.monotonic() < deadline, "no placement counted"
+            time.sleep(0.05)
         for f in futs:
             f.result(RESULT_TIMEOUT)
         with pytest.raises(Exception):
