@@ -210,14 +210,19 @@ def _from_env(environ: dict[str, str]) -> dict[str, Any]:
             if kind == "list":
                 out[field] = [x.strip() for x in raw.split(",") if x.strip()]
             elif kind == "commands":
-                out[field] = {k: msgspec.to_builtins(v) for k, v in
-                              parse_commands([x.strip() for x in raw.split(",") if x.strip()]).items()}
+                try:
+                    cmds = parse_commands([x.strip() for x in raw.split(",") if x.strip()])
+                except ValueError as exc:
+                    raise ConfigError(f"environment variable {var}={raw!r}: {exc} (NAME=PATH,NAME=PATH)") from None
+                out[field] = {k: msgspec.to_builtins(v) for k, v in cmds.items()}
             elif kind == "bool":
                 if raw.lower() not in ("1", "0", "true", "false", "yes", "no", "on", "off"):
                     raise ValueError(raw)
                 out[field] = raw.lower() in ("1", "true", "yes", "on")
             else:
                 out[field] = kind(raw)
+        except ConfigError:
+            raise
         except ValueError:
             raise ConfigError(f"environment variable {var}={raw!r} is not a valid {field}") from None
     return out
