@@ -133,3 +133,19 @@ def test_node_killed_alone_takes_its_workers_with_it(tmp_path):
         assert not alive, f"processes of the killed node r1 still running: {alive}"
         for f in futs:
             f.cancel()
+
+
+def test_result_that_ends_during_a_stall_reaches_the_client(tmp_path):
+    """A program ends while its origin's node is frozen; the node delivers it
+    the moment it wakes, before its application's link (which the lease
+    closed meanwhile) is back. The outcome used to be published into the
+    void and the application waited for ever; now it waits for the client."""
+    with LocalTeam(1, tmp_path, cores=2) as t:
+        team = t.client("r1")
+        fut = team.options(local_only=True).submit("sleepy", seconds=1.5, tag="s")
+        wait_for(lambda: (t.marks / "s").exists(), 20, "the program to start")
+        _stall(t, "r1", 4.0)  # the program ends 1.5 s in; the client's link lapses (lease 1 s)
+        woke = time.monotonic()
+        r = fut.result(timeout=RESULT_TIMEOUT)
+        print(f"outcome reached the client {time.monotonic() - woke:.2f} s after the node woke")
+        assert r["tag"] == "s" and r["robot"] == "r1"

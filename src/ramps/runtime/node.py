@@ -86,6 +86,9 @@ STALL_MIN = 0.5
 STALL_GRACE = 3.0
 #: queued items handled before the timers fire (the rest after them)
 MAX_ITEMS_PER_ROUND = 10_000
+#: seconds an outcome waits for its client to be reachable, and between two looks
+OUTCOME_HOLD = 30.0
+OUTCOME_RETRY = 0.05
 
 INSECURE_WARNING = (
     "INSECURE: team {team!r} runs without authentication or encryption: anyone who can reach this network "
@@ -140,6 +143,8 @@ class NodeRuntime:
         self._sleep_until = 0.0
         #: teammates whose liveliness went just after a stall: robot -> core time it counts as lost
         self._held_lost: dict[str, float] = {}
+        #: outcomes waiting for their client to be reachable: (key, bytes, monotonic deadline)
+        self._held_outcomes: list[tuple[str, bytes, float]] = []
         #: secured team: the newest revocation list, the robots it names, the CA that signs it
         self.revocations: revocation.RevocationList | None = None
         self._revoked: frozenset[str] = frozenset()
@@ -381,6 +386,7 @@ class NodeRuntime:
             deadline = node.next_deadline()
             wake = next_pub if deadline is None else min(deadline, next_pub)
             wake = min(wake, self._next_release()) if self._held_lost else wake
+            wake = min(wake, now + OUTCOME_RETRY) if self._held_outcomes else wake
             wait = max(0.0, wake - now)
             self._sleep_until = time.monotonic() + wait
             try:
@@ -421,6 +427,8 @@ class NodeRuntime:
             if deadline is not None and deadline <= now:
                 actions.extend(node.tick(now))
             self._apply(actions)
+            if self._held_outcomes:
+                self._flush_outcomes()
 
     def _on_liveliness(self, robot: str, alive: bool, now: float) -> list:
         """A teammate's liveliness token came or went. Just after this node
@@ -614,10 +622,42 @@ class NodeRuntime:
         client, request_id = target
         self._requests.pop(target, None)
         self._progress.pop(pid, None)
-        self._put(keys.client(self.team, client), encode(self.robot, ProgramOutcome(
-            request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts)),
-            block=True)
+        self._send_outcome(keys.client(self.team, client), encode(self.robot, ProgramOutcome(
+            request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts)))
         return []
+
+    def _send_outcome(self, key: str, data: bytes) -> None:
+        """An outcome is sent once, never resent. If no subscriber of that
+        client matches its key right now (after this node stalled, the
+        client's link to it is being rebuilt: an outcome published then was
+        lost, and the client waited for ever), it is held until one does, for
+        OUTCOME_HOLD at most, then sent regardless."""
+        if self._held_outcomes or not self._client_reachable(key):
+            self._held_outcomes.append((key, data, time.monotonic() + OUTCOME_HOLD))
+            return
+        self._put(key, data, block=True)
+
+    def _client_reachable(self, key: str) -> bool:
+        if self.session is None:
+            return True
+        try:
+            pub = self._pubs.get(key)
+            if pub is None:
+                import zenoh
+
+                pub = self._pubs[key] = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+            return bool(pub.matching_status.matching)
+        except Exception:  # cannot tell: send
+            return True
+
+    def _flush_outcomes(self) -> None:
+        held, self._held_outcomes = self._held_outcomes, []
+        now = time.monotonic()
+        for i, (key, data, until) in enumerate(held):
+            if now < until and not self._client_reachable(key):
+                self._held_outcomes = held[i:]  # in order: the rest waits too
+                return
+            self._put(key, data, block=True)
 
     # ================================================================ outputs
     def _apply(self, actions: list) -> None:
@@ -773,6 +813,9 @@ class NodeRuntime:
             if ap.state not in ("done", "failed"):
                 out.extend(node.handle(Cancel(program_id=pid), now))
         self._apply(node._loopback(out, now))
+        for key, data, _ in self._held_outcomes:  # leaving: the last chance to send them
+            self._put(key, data, block=True)
+        self._held_outcomes = []
         log.info("node %s leaving team %s: handed back %d program(s)", self.robot, self.team, handed)
         if self.bad_messages:
             log.warning("node %s dropped %d malformed message(s) while it ran", self.robot, self.bad_messages)
