@@ -134,11 +134,33 @@ def _import_times(runs: int = 15) -> tuple[dict[str, float], dict[str, float]]:
     return _summary(plain), _summary(hidden)
 
 
+def startup(pythons: list[str], runs: int = 15) -> dict:
+    """``python -c pass`` and ``import ramps.cli`` under each interpreter
+    (e.g. one venv without the ros extra, one with it), interleaved."""
+    res: dict = {py: {"python -c pass": [], "import ramps.cli": []} for py in pythons}
+    for _ in range(runs):
+        for py in pythons:
+            for what, code in (("python -c pass", "pass"), ("import ramps.cli", "import ramps.cli")):
+                t0 = time.perf_counter()
+                subprocess.run([py, "-c", code], check=True)
+                res[py][what].append(time.perf_counter() - t0)
+    return {py: {w: _summary(v) for w, v in d.items()} for py, d in res.items()}
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--calls", type=int, default=30, help="calls of each program (default 30)")
     ap.add_argument("--out", default="", help="save the figures as JSON here")
+    ap.add_argument("--startup", nargs="+", metavar="PYTHON", default=None,
+                    help="only compare interpreter start-up of these pythons (venvs with and without the ros extra)")
     a = ap.parse_args(argv)
+    if a.startup:
+        res = {"date": time.strftime("%Y-%m-%d"), "startup": startup(a.startup)}
+        for py, d in res["startup"].items():
+            print(f"{py}: " + ", ".join(f"{w} p50 {v['p50_ms']:.0f} ms (min {v['min_ms']:.0f})" for w, v in d.items()))
+        if a.out:
+            Path(a.out).write_text(json.dumps(res, indent=2) + "\n")
+        return res
     from ramps.runtime.localteam import LocalTeam
 
     res: dict = {"date": time.strftime("%Y-%m-%d"), "calls": a.calls, "host_cpus": os.cpu_count()}
