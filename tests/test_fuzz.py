@@ -35,6 +35,7 @@ from ramps.core.events import (
     PeerAlive,
     PeerLost,
     ProgramFinished,
+    ProgressReported,
     Received,
     Submit,
 )
@@ -269,7 +270,7 @@ def aimed(h: CoreHarness):
 
 
 STEPS = ["hostile", "hostile", "aimed", "aimed", "replay_sent", "replay_heard", "reorder", "from_the_wire",
-         "submit", "finish", "cancel", "peer", "tick", "to_deadline"]
+         "submit", "finish", "progress", "cancel", "peer", "tick", "to_deadline"]
 
 
 @CORE
@@ -318,6 +319,10 @@ def test_core_survives_hostile_input_and_delivers_each_program_once(policy: str,
             ok = data.draw(st.booleans())
             h._apply(node.handle(ProgramFinished(program_id=pid, attempt=attempt, ok=ok,
                                                  retryable=not ok and data.draw(st.booleans())), h.now))
+        elif step == "progress" and node.executor.running:  # any float a program may report
+            pid, attempt = data.draw(st.sampled_from(sorted(node.executor.running)))
+            h._apply(node.handle(ProgressReported(program_id=pid, attempt=attempt, fraction=data.draw(st.floats()),
+                                                  detail=data.draw(texts)), h.now))
         elif step == "cancel" and node.origin.programs:
             h._apply(node.handle(Cancel(program_id=data.draw(st.sampled_from(sorted(node.origin.programs)))), h.now))
         elif step == "peer":
