@@ -32,7 +32,10 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     tie_tolerance: float = 0.02
     #: how many times in a row a program may be turned away by busy hosts
     #: before the next host is asked to take it regardless (ramps negotiation)
-    max_rejections: int = 3
+    max_rejections: int = 8
+    #: after a second rejection in a row a program waits uniform(0, this)
+    #: seconds, doubling with each further one, before it is placed again
+    contention_backoff: float = 0.05
     #: extra runnable tasks a host tolerates over the origin's estimate before
     #: it turns an offload away (ramps negotiation)
     admission_slack: float = 0.5
@@ -51,7 +54,7 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: a network latency instead of a report period (policies that share
     #: load only, see ``ramps.core.node``); at most one per interval
     prompt_reports: bool = True
-    prompt_report_interval: float = 0.05
+    prompt_report_interval: float = 0.0
 
     def __post_init__(self) -> None:
         for name in self.__struct_fields__:

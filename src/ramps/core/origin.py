@@ -319,12 +319,25 @@ class Origin:
         if msg.report is not None and self.view.on_report(msg.report, now, fresh=True):
             out.append(Note(what="unblacklisted", robot=msg.report.robot))
         ap.rejections += 1
-        ap.excluded.add(host)
+        if msg.reason != "busy" or msg.report is None:
+            # a busy host sent its true load, which the view now holds: it may
+            # still be the best choice (the origin then expects what it has)
+            ap.excluded.add(host)
         if host == self.me and msg.reason == "closing":
             # this robot is shutting down: a local_only program (or any, when
             # no teammate is left) would be offered here again at once and
             # turned away forever; wait instead (the driver cancels it)
             self._backoff(ap, now, out)
+            return
+        if ap.rejections >= 2 and self.config.contention_backoff > 0:
+            # turned away again: several origins are placing on the same few
+            # robots at this moment; wait a random moment (doubling) so their
+            # prompt reports arrive before this program tries again
+            wait = self.rng.uniform(0.0, self.config.contention_backoff * 2 ** (ap.rejections - 2))
+            ap.state = S.BACKOFF
+            out.append(Note(what="backoff", program_id=ap.program_id, attempt=ap.attempt,
+                            detail=f"{wait:.3f} after {ap.rejections} rejections"))
+            self._set_timer(ap, now + wait, "backoff_done")
             return
         self.place(ap, now, out)
 

@@ -19,7 +19,8 @@ scheduler.
   host's scheduler weights (its workers at nice 10 yield to the robot's own
   software, see ``cost.program_share``), eq. (1) with T_comm for remote hosts only;
   costs within ``tie_tolerance`` are equal, and the tie goes to the least
-  utilised robot, then to the local one. The host checks the origin's
+  utilised robot, then to the one with less busy software of its own, then
+  to the local one. The host checks the origin's
   estimate when the request arrives (``expected_runnable``) and turns the
   program away if it is busier than the origin thought, which fixes the
   greedy "location thrashing" of several origins deciding on the same data.
@@ -117,15 +118,19 @@ class RampsPolicy(Policy):
                 t = work / (speed * program_share(cores, ramps + 1.0, background, weight))
             if robot != me:
                 t += t_comm
-            rows.append((t, (runnable + 1.0) / cores, robot, runnable))
+            rows.append((t, (runnable + 1.0) / cores, robot, runnable, background))
             if t < t_best:
                 t_best = t
         # costs within the tolerance are equal (eq. 1 cannot tell them apart);
-        # then the least utilised robot wins, then this robot, then chance
+        # then the least utilised robot wins, then the one whose load is more
+        # ramps programs (they end; busy software does not), then this robot,
+        # then chance
         limit = t_best * (1.0 + config.tie_tolerance) + 1e-9
         tied = [row for row in rows if row[0] <= limit]
         u_best = min(row[1] for row in tied)
         tied = [row for row in tied if row[1] <= u_best + 1e-9]
+        b_best = min(row[4] for row in tied)
+        tied = [row for row in tied if row[4] <= b_best + 1e-9]
         pick = next((row for row in tied if row[2] == me), None)
         if pick is None:
             pick = tied[0] if len(tied) == 1 else rng.choice(tied)
