@@ -28,6 +28,9 @@ import time
 from pathlib import Path
 
 SHECHO = "#!/bin/sh\nexec cat\n"
+#: starts a grandchild, says both pids in the file named by its "mark" argument, waits
+HANG = ("#!/bin/sh\nmark=$(sed 's/.*\"mark\": *\"\\([^\"]*\\)\".*/\\1/')\nsleep 300 &\n"
+        "echo $$ $! > \"$mark.tmp\"\nmv \"$mark.tmp\" \"$mark\"\nwait\n")
 PYECHO = f"#!{sys.executable}\nimport json, sys\njson.dump(json.load(sys.stdin), sys.stdout)\n"
 PROGRESS = (f"#!{sys.executable}\nimport json, sys, time\njson.load(sys.stdin)\n"
             "print(f'RAMPS_PROGRESS 0.5 {time.time():.6f}', file=sys.stderr, flush=True)\n"
@@ -65,6 +68,28 @@ def _progress_latency(team, calls: int) -> list[float]:
         fut.result(60)
         if lat:
             out.append(lat[0])
+    return out
+
+
+def _withdrawal(team, tmp: str, calls: int) -> list[float]:
+    """fut.cancel() of a running executable -> its process group gone from the process table."""
+    import psutil
+
+    out = []
+    for i in range(calls):
+        mark = Path(tmp) / f"hang{i}"
+        fut = team.submit("hang", mark=str(mark))
+        deadline = time.monotonic() + 60
+        while not mark.exists() and time.monotonic() < deadline:
+            time.sleep(0.01)
+        pids = [int(x) for x in mark.read_text().split()]
+        t0 = time.perf_counter()
+        fut.cancel()
+        while any(psutil.pid_exists(p) and psutil.Process(p).status() != psutil.STATUS_ZOMBIE for p in pids):
+            if time.perf_counter() - t0 > 30:
+                raise RuntimeError(f"processes {pids} of a withdrawn executable survived 30 s")
+            time.sleep(0.002)
+        out.append(time.perf_counter() - t0)
     return out
 
 
@@ -166,7 +191,7 @@ def main(argv: list[str] | None = None) -> dict:
     res: dict = {"date": time.strftime("%Y-%m-%d"), "calls": a.calls, "host_cpus": os.cpu_count()}
     with tempfile.TemporaryDirectory(prefix="ramps-progbench-") as tmp:
         cmds = []
-        for name, text in (("shecho", SHECHO), ("pyecho", PYECHO), ("progress", PROGRESS)):
+        for name, text in (("shecho", SHECHO), ("pyecho", PYECHO), ("progress", PROGRESS), ("hang", HANG)):
             p = Path(tmp) / name
             p.write_text(text)
             p.chmod(0o755)
@@ -184,6 +209,10 @@ def main(argv: list[str] | None = None) -> dict:
                 res["progress_latency"] = _summary(pl)
                 print(f"progress: line on stderr -> fut.progress p50 {res['progress_latency']['p50_ms']:.0f} ms, "
                       f"max {res['progress_latency']['max_ms']:.0f} ms ({len(pl)} programs)")
+                wd = _withdrawal(team, tmp, max(3, a.calls // 5))
+                res["withdrawal"] = _summary(wd)
+                print(f"withdrawn executable: fut.cancel() -> its process group gone p50 "
+                      f"{res['withdrawal']['p50_ms']:.0f} ms, max {res['withdrawal']['max_ms']:.0f} ms ({len(wd)} programs)")
             finally:
                 team.close()
             ros = _ros_latency(lt, a.calls)

@@ -10,7 +10,7 @@ from __future__ import annotations
 INSTALL_HINT = (
     "the ROS 2 face needs rclpy and a middleware: pip install 'ramps-robotics[ros]' "
     "(ROS 2 from PyPI wheels: ros-rclpy, ros-rmw-fastrtps-cpp, ros-std-msgs, ros-action-msgs, "
-    "ros-diagnostic-msgs; about 160 MB), or run inside a sourced ROS 2 installation that has them"
+    "ros-diagnostic-msgs; about 140 MB installed), or run inside a sourced ROS 2 installation that has them"
 )
 
 
