@@ -155,6 +155,45 @@ def _sim_faults(mode: str, kind: str, *, policy: str, runs: int, seed: int, as_j
         raise typer.Exit(1)
 
 
+@sim_app.command("sweep")
+def sim_sweep(
+    family: str = typer.Option("multi-origin", "--family", "-f",
+                               help="multi-origin (all six below), or one of idle-burst, idle-staggered, "
+                                    "loaded-burst, loaded-staggered, mixed-burst, mixed-staggered"),
+    scenarios: int = typer.Option(36, "--scenarios", "-n", min=1, help="generated scenarios per family"),
+    seeds: int = typer.Option(3, "--seeds", min=1, help="simulation seeds per scenario"),
+    policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
+    seed: int = typer.Option(0, "--seed", help="generates the scenarios; the same seed gives the same sweep"),
+    as_json: bool = typer.Option(False, "--json", help="write the results as JSON to stdout instead of tables"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
+) -> None:
+    """Several origins at once: generated teams of 3-20 robots where 2 to all
+    of them submit programs in one burst or staggered over 10 s, each run
+    compared with the best achievable under the same model.
+
+    A family is a kind of team (idle and identical, some robots running busy
+    processes, or mixed cores and speeds) and a timing. Each scenario runs
+    the chosen policy and round robin on the same seeds. The table shows the
+    median makespan divided by a lower bound no schedule can beat, and by an
+    omniscient central scheduler; the default sweep (216 scenarios x 3
+    seeds) takes a few minutes.
+    """
+    from ramps.experiments.report import print_sweep
+    from ramps.experiments.sweep import FAMILIES, TEAMS, TIMINGS, run_sweep
+
+    _check_policy(policy)
+    if family not in FAMILIES:
+        fail(f"unknown family {family!r}; choose multi-origin or one of "
+             + ", ".join(f"{t}-{s}" for t in TEAMS for s in TIMINGS))
+    total = scenarios * len(FAMILIES[family])
+    with Progress(TextColumn(f"sweep {family} / {policy}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err, transient=True) as progress:
+        task = progress.add_task("sweep", total=total)
+        rep = run_sweep(family, per_family=scenarios, seeds=seeds, seed=seed, policy=policy,
+                        progress=lambda done, total: progress.update(task, completed=done))
+    _emit([rep], print_sweep, as_json=as_json, out_file=out_file)
+
+
 @sim_app.command("campaign")
 def sim_campaign(
     runs: int = typer.Option(1000, "--runs", "-n", min=1, help="random runs"),

@@ -1,0 +1,118 @@
+"""Several origins placing at once, in the simulator, against the best
+achievable under the model (``ramps.experiments.sweep``), healthy and with
+failures. The simulator is deterministic for a seed, so these are checks of
+behaviour, not of timing."""
+
+from __future__ import annotations
+
+import pytest
+
+from ramps.core.config import RampsConfig
+from ramps.experiments.metrics import Machine, optimal_allocation
+from ramps.experiments.sweep import generate, lower_bound, oracle, run_scenario
+from ramps.sim.engine import Simulator, simulate
+from ramps.sim.scenario import FaultSpec, ProgramSpec, RobotSpec, Scenario
+
+
+def two_origins(**kw) -> Scenario:
+    """The scenario of issue 10: three idle 4-core robots, r1 and r2 each
+    submit 6 programs of 53 units at once, 0.05 s apart."""
+    return Scenario(
+        robots=[RobotSpec(name=f"r{i}") for i in (1, 2, 3)],
+        programs=[ProgramSpec(origin="r1", count=6, spacing=0.05), ProgramSpec(origin="r2", count=6, spacing=0.05)],
+        **kw,
+    )
+
+
+@pytest.mark.parametrize("seed", range(1, 7))
+def test_two_origins_at_once_share_the_team_evenly(seed: int) -> None:
+    res = simulate(two_origins(), policy="ramps", seed=seed)
+    assert sorted(res.distribution.values()) == [4, 4, 4]  # was 5-4-3 (66.4 s) on seeds 1 and 2
+    assert res.makespan == pytest.approx(53.3, abs=0.1)
+    assert (res.completed, res.lost, res.duplicated) == (12, 0, 0)
+
+
+@pytest.mark.parametrize("prompt", [True, False])
+def test_origins_see_each_others_placements_within_a_latency(prompt: bool) -> None:
+    # r1 and r2 are swamped, so r1's program goes to r3; 30 ms later r2's
+    # view of r3 holds it with prompt reports, and only after r3's next
+    # periodic report (up to 2 s) without them
+    sc = Scenario(
+        robots=[RobotSpec(name="r1", background=8), RobotSpec(name="r2", background=8), RobotSpec(name="r3")],
+        programs=[ProgramSpec(origin="r1", count=1), ProgramSpec(origin="r2", count=1, at=50.0)],
+        config=RampsConfig(prompt_reports=prompt), until=5.03,
+    )
+    sim = Simulator(sc, policy="ramps", seed=4)
+    sim.run()
+    assert sim.robots["r3"].node.executor.running  # it went to r3
+    seen = sim.robots["r2"].node.view.ramps_programs("r3")
+    assert seen == (1 if prompt else 0)
+
+
+@pytest.mark.parametrize("team", ["idle", "loaded", "mixed"])
+def test_generated_bursts_stay_close_to_the_bound(team: str) -> None:
+    for i in range(3):
+        sc = generate(team, "burst", i, seed=0)
+        res = run_scenario(sc, policy="ramps", seeds=1, seed=i)
+        assert res.runs[0].lost == res.runs[0].duplicated == 0
+        assert res.ratio_lower_bound <= 1.06, (sc.name, res.ratio_lower_bound, res.runs[0].distribution)
+        assert res.ratio_round_robin >= res.ratio_lower_bound - 1e-9
+
+
+def test_bounds_bracket_what_a_team_can_do() -> None:
+    for team in ("idle", "loaded", "mixed"):
+        for timing in ("burst", "staggered"):
+            sc = generate(team, timing, 0, seed=1)
+            lb, (orc, dist) = lower_bound(sc), oracle(sc)
+            assert 0 < lb <= orc + 1e-9
+            assert sum(dist) == sum(p.count for p in sc.programs)
+            res = simulate(sc, policy="ramps", seed=3)
+            assert res.makespan >= lb - 1e-6  # nothing beats the lower bound
+
+
+def test_lower_bound_of_a_single_burst_is_the_started_together_optimum() -> None:
+    sc = Scenario(robots=[RobotSpec(name="a", cores=4), RobotSpec(name="b", cores=2, background=2)],
+                  programs=[ProgramSpec(origin="a", count=9, spacing=0.0)])
+    team = [Machine(4, 1.0, 0), Machine(2, 1.0, 2)]
+    assert lower_bound(sc) == pytest.approx(optimal_allocation(9, team, 53.0)[1])
+
+
+def test_several_origins_with_a_crash_and_a_cut_lose_nothing_and_spread_the_rest() -> None:
+    # four origins on six robots submit at once; r5 crashes and r6 is cut off
+    # while everything runs: every program is delivered exactly once, nothing
+    # is left on the failed robots, and the survivors finish close to the
+    # best they could do alone from the start
+    robots = [RobotSpec(name=f"r{i}") for i in range(1, 7)]
+    programs = [ProgramSpec(origin=f"r{i}", count=6, spacing=0.05) for i in (1, 2, 3, 4)]
+    faults = [FaultSpec(at=10.0, robot="r5", kind="crash"), FaultSpec(at=12.0, robot="r6", kind="network")]
+    sc = Scenario(robots=robots, programs=programs, faults=faults)
+    for seed in range(3):
+        res = simulate(sc, policy="ramps", seed=seed)
+        assert (res.completed, res.lost, res.duplicated) == (24, 0, 0)
+        assert res.distribution.get("r5", 0) == 0
+        survivors = [Machine(4, 1.0, 0)] * 4
+        best_alone = optimal_allocation(24, survivors, 53.0)[1]
+        # the lost work restarts after detection and back-off: at most one
+        # program's time more than the survivors' best
+        assert res.makespan <= best_alone + 53.0 + 5.0, res.distribution
+
+
+def test_sweep_command_prints_and_saves_a_row_per_family(tmp_path) -> None:
+    import json
+
+    from typer.testing import CliRunner
+
+    from ramps.cli import app
+
+    out = tmp_path / "sweep.json"
+    res = CliRunner().invoke(app, ["sim", "sweep", "-f", "loaded-burst", "-n", "2", "--seeds", "1", "-o", str(out)],
+                             catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    assert "loaded-burst" in res.output and "round robin" in res.output
+    data = json.loads(out.read_text())
+    [row] = data["families"]
+    assert (row["family"], row["scenarios"], row["runs"]) == ("loaded-burst", 2, 2)
+    assert row["lost"] == row["duplicated"] == 0
+    assert 1.0 <= row["median_ratio"] <= row["worst_ratio"]
+    bad = CliRunner().invoke(app, ["sim", "sweep", "-f", "nope"])
+    assert bad.exit_code != 0 and "unknown family" in bad.output
