@@ -251,3 +251,11 @@ def test_ramps_status_shows_running_programs_and_their_progress(team, client):
         assert "running programs" in table and "stepper" in table and "%" in table, table
     finally:
         fut.cancel()
+
+
+def test_ramps_submit_progress_prints_host_state_and_progress(team):
+    eps = [a for ep in team.endpoints() for a in ("--connect", ep)]
+    run = team.cli("submit", "stepper", "--arg", "steps=4", "--arg", "dt=0.3", "--team", team.team, "--robot", "r1",
+                   *eps, "--no-multicast", "--progress")
+    assert run.returncode == 0, run.stderr
+    assert "stepper: running on r" in run.stderr and "% step " in run.stderr, run.stderr

@@ -501,6 +501,8 @@ def submit(
     count: int = typer.Option(1, "--count", "-n", min=1, help="submit the same call this many times"),
     timeout: Optional[float] = typer.Option(None, "--timeout", help="give up (and withdraw the program) after this many seconds"),
     as_json: bool = typer.Option(False, "--json", help="print results as JSON lines"),
+    progress: bool = typer.Option(False, "--progress", help="print each program's placement, host and progress "
+                                  "on stderr as it changes"),
     secure: bool = typer.Option(False, "--secure", help=SECURE_HELP),
     credentials: Optional[Path] = typer.Option(None, "--credentials", help=CREDENTIALS_HELP),
 ) -> None:
@@ -515,6 +517,12 @@ def submit(
         started = _time.perf_counter()
         try:
             futs = [t.options(timeout=timeout).submit(program, **args) for _ in range(count)]
+            if progress:
+                for i, f in enumerate(futs):
+                    f.add_update_callback(lambda f, i=i: None if f.done() else err.print(
+                        f"[{i + 1}/{count}] {f.program}: {f.state} on {f.host or '?'}"
+                        + ("" if f.progress is None else f" {100 * f.progress:.0f}% {f.progress_detail}"),
+                        highlight=False, soft_wrap=True))
         except RampsError as exc:
             fail(str(exc))
         code = 0
