@@ -311,37 +311,53 @@ def fault_distributions(reports: list[dict], kind: str):
     return fig
 
 
-def figures(doc) -> list[tuple[str, str, object]]:
-    """(name, caption, matplotlib figure) for every experiment in ``doc``."""
+def _builders(doc) -> list[tuple[str, str, object]]:
+    """(name, caption, function returning the figure) for every experiment in ``doc``."""
     parts = split_documents(doc)
     out = []
     if "unloaded" in parts:
         out.append(("unloaded-makespan", "Makespan on an unloaded team, ours next to the paper's measured times.",
-                    unloaded_makespan(parts["unloaded"])))
+                    lambda: unloaded_makespan(parts["unloaded"])))
         out.append(("unloaded-spread", "Unevenness of the distributions, ours next to the paper's Table 3.",
-                    unloaded_spread(parts["unloaded"])))
+                    lambda: unloaded_spread(parts["unloaded"])))
     if "loaded" in parts:
-        out.append(("loaded-makespan", "Makespan on a loaded team of 5.", loaded_makespan(parts["loaded"])))
+        out.append(("loaded-makespan", "Makespan on a loaded team of 5.", lambda: loaded_makespan(parts["loaded"])))
         out.append(("loaded-share", "Programs placed on loaded robots, ours next to the paper's Table 4.",
-                    loaded_share(parts["loaded"])))
+                    lambda: loaded_share(parts["loaded"])))
     kinds = sorted({r["kind"] for r in parts["faults"]}, key=["crash", "network", "mixed"].index)
     for k in kinds:
         out.append((f"faults-{k}", f"Distributions after {k} failures, ours next to the paper's tables.",
-                    fault_distributions(parts["faults"], k)))
+                    lambda k=k: fault_distributions(parts["faults"], k)))
     return out
 
 
-def write_figures(doc, directory: Path, *, dpi: int = 110) -> list[Path]:
+def figures(doc) -> list[tuple[str, str, object]]:
+    """(name, caption, matplotlib figure) for every experiment in ``doc``."""
+    return [(name, caption, build()) for name, caption, build in _builders(doc)]
+
+
+def _write_one(args) -> str:
+    doc, name, path, dpi = args
     plt = _plt()
+    build = next(b for n, _, b in _builders(doc) if n == name)
+    fig = build()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
+def write_figures(doc, directory: Path, *, dpi: int = 110, workers: int | None = None) -> list[Path]:
+    """Every figure of ``doc`` as ``<directory>/<name>.png``, drawn ``workers`` at a time (default: CPUs)."""
+    import os
+
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    paths = []
-    for name, _caption, fig in figures(doc):
-        p = directory / f"{name}.png"
-        fig.savefig(p, dpi=dpi)
-        plt.close(fig)
-        paths.append(p)
-    return paths
+    jobs = [(doc, name, str(directory / f"{name}.png"), dpi) for name, _, _ in _builders(doc)]
+    n = min(len(jobs), workers or os.cpu_count() or 1)
+    if n <= 1:
+        return [Path(_write_one(j)) for j in jobs]
+    with ProcessPoolExecutor(max_workers=n) as pool:
+        return [Path(p) for p in pool.map(_write_one, jobs)]
 
 
 def experiment_report(doc, *, title: str = ""):

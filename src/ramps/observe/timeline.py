@@ -24,6 +24,7 @@ as the trace says; nothing here guesses when a fault really struck.
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -231,6 +232,8 @@ def build_timeline(events: list[Event], extra: dict | None = None) -> Timeline:
                      ok=bool(rec.get("ok")))
             deliveries[rec["program_id"]] = (float(rec["delivered_at"]), bool(rec.get("ok")))
             end = max(end, float(rec["delivered_at"]))
+    if not extra.get("robots"):  # node traces: r1, r2, ..., r10 in natural order
+        robots.sort(key=lambda r: [int(x) if x.isdigit() else x for x in re.split(r"(\d+)", r)])
     distribution = {r: 0 for r in robots}
     for a in attempts.values():
         if a.outcome == "delivered" and deliveries.get(a.program_id, (0, False))[1]:
