@@ -153,8 +153,44 @@ def test_peer_lost_writes_the_host_off_at_once() -> None:
     assert (failed.robot, failed.detail) == ("a", "host_lost")
     assert team.nodes["o"].view.is_blacklisted("a")
     assert team.program("p").state is ProgramState.BACKOFF
-    team.advance(0.3 + CFG.backoff_max)
+    # the host's session is gone for certain: a short jitter, not the
+    # paper's back-off of up to backoff_max
+    [wait] = [float(n.detail) for n in team.notes("backoff")]
+    assert 0.0 <= wait <= CFG.backoff_lost_max < CFG.backoff_max
+    team.advance(0.3 + CFG.backoff_lost_max)
     assert [n.robot for n in team.notes("placed")] == ["a", "b"]
+
+
+def test_silent_host_keeps_the_papers_backoff() -> None:
+    # a heartbeat timeout is not certain death (a lost message, a frozen
+    # host): the randomised back-off that keeps origins from herding stays
+    team = busy_origin_team()
+    for i in range(20):
+        submit(team, pid=f"p{i}")
+    team.deliver()
+    team.cut.update({"a", "b"})
+    team.advance(CFG.heartbeat_timeout + 1.0)
+    waits = [float(n.detail) for n in team.notes("backoff")]
+    assert len(waits) == 20 and max(waits) > CFG.backoff_lost_max and max(waits) <= CFG.backoff_max
+
+
+def test_a_stalled_node_keeps_its_own_programs() -> None:
+    # issue 14: a node whose driver stalls (busy robot, GC pause, SIGSTOP)
+    # used to check heartbeat timeouts before sending its own programs'
+    # heartbeats, and wrote its own programs off
+    n = Node("r1", cores=4, speed=1.0)
+    acts = n.handle(Submit(program_id="p", program="x", work=50.0), 0.0)
+    assert any(isinstance(a, StartProgram) for a in acts)
+    t = 0.0
+    for _ in range(4):
+        t += 0.5
+        n.tick(t)
+    for stall in (2.5, 5.0):
+        t += stall
+        acts = n.tick(t)
+        assert not [a for a in acts if isinstance(a, StopProgram)]
+        assert not [a for a in acts if isinstance(a, Note) and a.what in ("failed", "backoff")]
+    assert n.origin.programs["p"].state is ProgramState.RUNNING and n.origin.programs["p"].attempt == 1
 
 
 def test_isolated_origin_runs_the_program_itself_and_keeps_the_remote_copy_wanted() -> None:
@@ -350,7 +386,7 @@ def test_busier_host_still_better_than_the_alternative_takes_the_program() -> No
     assert team.program("p").state is ProgramState.RUNNING
 
 
-def test_after_max_rejections_the_request_is_forced() -> None:
+def test_rejections_teach_the_origin_each_hosts_true_load() -> None:
     hosts = ["a", "b", "c", "d"]
     team = Team({"o": (1, 1.0), **{h: (4, 1.0) for h in hosts}})
     team.nodes["o"].executor.background = 10.0
@@ -359,13 +395,37 @@ def test_after_max_rejections_the_request_is_forced() -> None:
         team.nodes[h].executor.background = 9.0  # all busier than o thinks
     submit(team)
     team.deliver()
+    team.advance(5.0)
     requests = team.sent(OffloadRequest, by="o")
-    assert [r.force for r in requests] == [False] * CFG.max_rejections + [True]
-    assert len({r.host for r in requests}) == len(requests)  # each rejecting host excluded
+    # each rejection carried the host's true load; once the last unknown host
+    # was known to be no worse than the others, the program stayed there
+    assert len(requests) == len(hosts) and not any(r.force for r in requests)
+    assert {r.host for r in requests} == set(hosts)
+    assert len(team.sent(OffloadRejected, by=None)) == len(hosts) - 1
+    assert team.actions(StartProgram, requests[-1].host)
+    assert team.program("p").state is ProgramState.RUNNING
+    # after the second rejection in a row, short random waits (contention)
+    waits = [n.detail for n in team.notes("backoff")]
+    assert len(waits) == 2 and all("rejections" in w for w in waits)
+    assert not team.notes("blacklisted")
+
+
+def test_after_max_rejections_the_request_is_forced() -> None:
+    hosts = ["a", "b", "c", "d"]
+    team = Team({"o": (1, 1.0), **{h: (4, 1.0) for h in hosts}}, config=RampsConfig(max_rejections=2))
+    team.nodes["o"].executor.background = 10.0
+    team.publish()
+    for h in hosts:
+        team.nodes[h].executor.background = 9.0
+    submit(team)
+    team.deliver()
+    team.advance(5.0)
+    requests = team.sent(OffloadRequest, by="o")
+    assert [r.force for r in requests] == [False, False, True]
     forced = requests[-1]
     assert team.actions(StartProgram, forced.host)  # taken regardless of load
     assert team.program("p").state is ProgramState.RUNNING
-    assert not team.notes("backoff") and not team.notes("blacklisted")
+    assert not team.notes("blacklisted")
 
 
 def test_permanent_rejection_delivers_a_clear_error() -> None:

@@ -21,6 +21,9 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     heartbeat_timeout: float = 2.0
     #: a failed program waits uniform(0, backoff_max) before it is re-placed
     backoff_max: float = 2.0
+    #: programs of a host whose session is certainly gone (liveliness: a
+    #: connection reset or an expired lease) wait only uniform(0, this)
+    backoff_lost_max: float = 0.1
     #: a host resends an unacknowledged result this often
     result_resend: float = 1.0
     #: a host keeps an unacknowledged result this long (origin cut off)
@@ -76,6 +79,7 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             heartbeat_period=1.0,
             heartbeat_timeout=5.0,
             backoff_max=10.0,
+            backoff_lost_max=10.0,
             hedge_suspects=False,
             prompt_reports=False,
         )

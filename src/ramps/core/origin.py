@@ -377,7 +377,11 @@ class Origin:
                                                        origin=self.me)))
         if self.view.blacklist(host):
             out.append(Note(what="blacklisted", robot=host, program_id=ap.program_id, detail=reason))
-        self._backoff(ap, now, out)
+        # a host whose session is gone (connection reset, lease expired) is
+        # certainly unreachable: its programs need only a short jitter, since
+        # hosts' admission and prompt reports keep the origins re-placing at
+        # once from piling up; silence (a timeout) keeps the paper's back-off
+        self._backoff(ap, now, out, certain=reason == "host_lost")
 
     def _still_publishing(self, host: str | None, reason: str, now: float) -> bool:
         if not self.config.hedge_suspects or host is None or host == self.me or self.view.is_lost(host):
@@ -390,13 +394,13 @@ class Origin:
         # cut or frozen host's last report is older than that.
         return window is not None and age is not None and age < window - self.config.heartbeat_period
 
-    def _backoff(self, ap: AutonomousProgram, now: float, out: list[Action]) -> None:
+    def _backoff(self, ap: AutonomousProgram, now: float, out: list[Action], *, certain: bool = False) -> None:
         if ap.failures >= self.config.max_attempts:
             self._deliver(ap, now, out, ok=False, host=ap.host or "", kind="failed",
                           error=f"gave up after {ap.failures} failed attempts")
             return
         ap.state = S.BACKOFF
-        wait = self.rng.uniform(0.0, self.config.backoff_max)
+        wait = self.rng.uniform(0.0, self.config.backoff_lost_max if certain else self.config.backoff_max)
         out.append(Note(what="backoff", program_id=ap.program_id, attempt=ap.attempt, detail=f"{wait:.3f}"))
         self._set_timer(ap, now + wait, "backoff_done")
 
