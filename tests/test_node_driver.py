@@ -1,0 +1,89 @@
+"""The node driver's own clock and its view of teammates after a stall
+(``ramps.runtime.node.NodeRuntime._clock`` / ``_on_liveliness``), without
+Zenoh or processes: a fake monotonic clock and the real core ``Node``.
+The end-to-end version (SIGSTOP of a real node) is tests/test_busy_node_e2e.py."""
+
+from __future__ import annotations
+
+import pytest
+
+from corehelpers import report
+
+import ramps.runtime.node as rn
+from ramps.core.events import Received
+from ramps.core.node import Node
+from ramps.runtime.settings import load_settings
+
+
+class FakeTime:
+    def __init__(self) -> None:
+        self.t = 1000.0
+
+    def monotonic(self) -> float:
+        return self.t
+
+    def time(self) -> float:
+        return self.t
+
+
+def wait(rt, fake: FakeTime, seconds: float) -> None:
+    """The driver sleeps ``seconds`` because it chose to (not a stall)."""
+    rt._sleep_until = fake.t + seconds
+    fake.t += seconds
+
+
+@pytest.fixture
+def driver(monkeypatch):
+    fake = FakeTime()
+    monkeypatch.setattr(rn, "time", fake)
+    rt = rn.NodeRuntime(load_settings(flags={"robot": "r1", "team": "t"}, environ={}))
+    rt.node = Node("r1", cores=2, speed=1.0)
+    for r in ("r2", "r3"):  # teammates the load server knows
+        rt.node.handle(Received(sender=r, msg=report(r)), fake.t)
+    rt._last_read = fake.t
+    return rt, fake
+
+
+def test_a_wait_the_driver_chose_is_not_a_stall_but_a_late_wake_is(driver):
+    rt, fake = driver
+    now0 = rt._clock()
+    rt._sleep_until = fake.t + 2.0  # the driver sleeps 2 s until its next deadline
+    fake.t += 2.2  # woke a little late: normal jitter
+    assert rt._clock() == pytest.approx(now0 + 2.2) and rt.stalls == 0
+    rt._sleep_until = fake.t + 1.0
+    fake.t += 6.0  # frozen 5 s past its wake-up
+    now = rt._clock()
+    assert rt.stalls == 1 and rt.stalled_s == pytest.approx(5.0)
+    assert now == pytest.approx(now0 + 2.2 + 1.0)  # the core never sees the 5 s
+    fake.t += 0.3  # handling items back to back: no stall
+    assert rt._clock() == pytest.approx(now + 0.3) and rt.stalls == 1
+
+
+def test_teammates_lost_right_after_a_stall_are_held_and_forgotten_if_back(driver):
+    rt, fake = driver
+    rt._clock()
+    rt._sleep_until = fake.t
+    fake.t += 4.0
+    now = rt._clock()  # a 4 s stall
+    assert rt._on_liveliness("r2", False, now) == []  # held, not yet a loss
+    assert not rt.node.view.is_lost("r2")
+    wait(rt, fake, 0.2)
+    assert rt._on_liveliness("r2", True, rt._clock()) == []  # back: both forgotten
+    assert rt._held_lost == {}
+    # r3 goes just after the stall and does not come back: lost when the grace ends
+    rt._on_liveliness("r3", False, rt._clock())
+    wait(rt, fake, rn.STALL_GRACE / 2)
+    assert rt._release_lost(rt._clock()) == [] and "r3" in rt._held_lost
+    wait(rt, fake, rn.STALL_GRACE)
+    rt._release_lost(rt._clock())
+    assert rt._held_lost == {}
+    assert rt.node.view.is_lost("r3")
+
+
+def test_far_from_a_stall_a_lost_teammate_is_lost_at_once(driver):
+    rt, fake = driver
+    rt._clock()
+    fake.t += rn.STALL_GRACE + 10  # no stall: the driver allowed itself this wait
+    rt._sleep_until = fake.t
+    rt._on_liveliness("r2", False, rt._clock())
+    assert rt._held_lost == {} and rt.node.view.is_lost("r2")
