@@ -198,39 +198,6 @@ def test_progress_lines_of_an_executable_reach_the_future(team, client):
     assert fut.progress is not None and fut.progress >= got[0][0]
 
 
-def test_killed_robot_kills_its_executables_and_the_program_moves(tmp_path):
-    with CommandTeam(3, tmp_path, cores=1) as t:
-        c = t.client("r1")
-        futs, marks = {}, {}
-        for i in range(1, 7):  # until one runs away from r1 (placement decides where)
-            tag = f"k{i}"
-            futs[tag] = c.submit("hang", tag=tag)
-            marks[tag] = _marks(t, tag)
-            if i >= 3 and any(robot != "r1" for _, _, robot in marks.values()):
-                break
-        victim = next(robot for _, _, robot in marks.values() if robot != "r1")
-        doomed = [pid for shell, child, robot in marks.values() if robot == victim for pid in (shell, child)]
-        # a client whose own node (the origin) dies is told so, not left waiting
-        orphan = t.client(victim).submit("hang", tag="orphan")
-        _marks(t, "orphan")
-        for tag, (_, _, robot) in marks.items():
-            if robot == victim:
-                (t.marks / tag).unlink()  # so the re-placed copy's marks can be read
-        t.kill_node(victim)
-        assert _gone(doomed) == [], f"{victim}'s executables survived its node"
-        with pytest.raises(ProgramLost, match=f"robot {victim}, the origin of this program"):
-            orphan.result(RESULT_TIMEOUT)
-        assert orphan.state == "failed"
-        # each program of the dead robot is placed again and starts on another robot
-        for tag, (_, _, robot) in marks.items():
-            if robot == victim:
-                _, _, again = _marks(t, tag, timeout=60)
-                assert again != victim
-        for f in futs.values():
-            assert f.cancel()
-        t.close()
-
-
 def test_ramps_status_shows_running_programs_and_their_progress(team, client):
     fut = client.submit("stepper", steps=40, dt=0.3)
     try:
@@ -239,7 +206,7 @@ def test_ramps_status_shows_running_programs_and_their_progress(team, client):
             time.sleep(0.1)
         assert fut.progress is not None, "no progress before the status check"
         eps = [a for ep in team.endpoints() for a in ("--connect", ep)]
-        st = team.cli("status", "--team", team.team, *eps, "--no-multicast", "--json", "--wait", "2.5")
+        st = team.cli("status", "--team", team.team, *eps, "--no-multicast", "--json", "--wait", "1.5")
         assert st.returncode == 0, st.stderr
         rows = {r["robot"]: r for r in json.loads(st.stdout)["robots"]}
         listed = [(robot, p) for robot, r in rows.items() for p in r["running"]]
@@ -247,7 +214,7 @@ def test_ramps_status_shows_running_programs_and_their_progress(team, client):
         assert ours, listed
         robot, (program, origin, progress) = ours[0]
         assert robot == fut.host and origin == "r1" and progress is not None and 0 < progress <= 1, ours
-        table = team.cli("status", "--team", team.team, *eps, "--no-multicast", "--wait", "1.5").stdout
+        table = team.cli("status", "--team", team.team, *eps, "--no-multicast", "--wait", "1.2").stdout
         assert "running programs" in table and "stepper" in table and "%" in table, table
     finally:
         fut.cancel()
@@ -259,3 +226,30 @@ def test_ramps_submit_progress_prints_host_state_and_progress(team):
                    *eps, "--no-multicast", "--progress")
     assert run.returncode == 0, run.stderr
     assert "stepper: running on r" in run.stderr and "% step " in run.stderr, run.stderr
+
+
+def test_killed_robot_kills_its_executables_and_the_program_moves(team, client):
+    """Last in this module: it kills a robot of the shared team."""
+    t, c = team, client
+    futs = {tag: c.options(policy="round_robin").submit("hang", tag=tag) for tag in ("k1", "k2", "k3")}
+    marks = {tag: _marks(t, tag) for tag in futs}  # round robin from r1: one on each robot
+    victim = next(robot for _, _, robot in marks.values() if robot != "r1")
+    doomed = [pid for shell, child, robot in marks.values() if robot == victim for pid in (shell, child)]
+    # a client whose own node (the origin) dies is told so, not left waiting
+    orphan = t.client(victim).submit("hang", tag="orphan")
+    _marks(t, "orphan")
+    for tag, (_, _, robot) in marks.items():
+        if robot == victim:
+            (t.marks / tag).unlink()  # so the re-placed copy's marks can be read
+    t.kill_node(victim)
+    assert _gone(doomed) == [], f"{victim}'s executables survived its node"
+    with pytest.raises(ProgramLost, match=f"robot {victim}, the origin of this program"):
+        orphan.result(RESULT_TIMEOUT)
+    assert orphan.state == "failed"
+    # each program of the dead robot is placed again and starts on another robot
+    for tag, (_, _, robot) in marks.items():
+        if robot == victim:
+            _, _, again = _marks(t, tag, timeout=60)
+            assert again != victim
+    for f in futs.values():
+        assert f.cancel()

@@ -99,8 +99,9 @@ class RosUser:
             if time.monotonic() > deadline:
                 raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
 
-    def send(self, goal_id: str, program: str, **args) -> None:
-        self.goal.publish(String(data=json.dumps({"goal_id": goal_id, "program": program, "args": args})))
+    def send(self, goal_id: str, program: str, policy: str = "", **args) -> None:
+        self.goal.publish(String(data=json.dumps({"goal_id": goal_id, "program": program, "args": args,
+                                                  "policy": policy})))
 
     def cancel(self, goal_id: str) -> None:
         self.cancel_pub.publish(String(data=goal_id))
@@ -109,103 +110,106 @@ class RosUser:
         return [f for f in self.feedback if f["goal_id"] == goal_id]
 
 
+@pytest.fixture(scope="module")
+def team(tmp_path_factory):
+    """Three robots and r1's ROS face, shared; the last test kills robots."""
+    with StepperTeam(3, tmp_path_factory.mktemp("rosteam"), cores=1) as t:
+        face = start_face(t)
+        try:
+            yield t
+        finally:
+            face.terminate()
+            face.wait(20)
+
+
+@pytest.fixture(scope="module")
+def user(team):
+    u = RosUser("r1")
+    u.spin_until(lambda: u.goal.get_subscription_count() > 0, "the ramps ROS face to appear")
+    yield u
+    u.node.destroy_node()
+
+
 def start_face(t: LocalTeam, robot: str = "r1"):
     return t.spawn([sys.executable, "-m", "ramps.cli", "ros", "--team", t.team, "--robot", robot,
                     "--no-multicast", "--diagnostics-period", "0.5", *sum((["--connect", e] for e in t.endpoints()), [])],
                    name=f"rosface-{robot}")
 
 
-def test_rclpy_client_runs_programs_sees_feedback_and_cancels(tmp_path):
-    with StepperTeam(3, tmp_path, cores=1) as t:
-        face = start_face(t)
-        user = RosUser("r1")
-        try:
-            user.spin_until(lambda: user.goal.get_subscription_count() > 0 and user.diagnostics,
-                            "the ramps ROS face to appear")
-            # a subscriber sees every robot's load on /diagnostics
-            names = user.spin_until(lambda: {s.name for a in user.diagnostics[-3:] for s in a.status
-                                             if s.level == DiagnosticStatus.OK} >= {"ramps: r1", "ramps: r2", "ramps: r3"},
-                                    "every robot OK on /diagnostics")
-            assert names
-            last = user.diagnostics[-1]
-            r2 = next(s for s in last.status if s.name == "ramps: r2")
-            assert {kv.key for kv in r2.values} >= {"cores", "cpu busy", "run queue", "programs running"}
-            assert dict((kv.key, kv.value) for kv in r2.values)["cores"] == "1"
-            # goals: every one gets its result, with feedback naming host and progress
-            for i in range(4):
-                user.send(f"g{i}", "stepper", steps=4, dt=0.3)
-            user.send("w", "where", x=5)
-            user.send("bad", "no_such_program")
-            user.goal.publish(String(data="{not json"))
-            user.spin_until(lambda: all(g in user.results for g in ("g0", "g1", "g2", "g3", "w", "bad")),
-                            "every goal's result")
-            for i in range(4):
-                r = user.results[f"g{i}"]
-                assert r["ok"] and r["value"]["steps"] == 4 and r["host"] == r["value"]["robot"], r
-                fb = user.of(f"g{i}")
-                assert any(f["state"] == "running" and f["host"] in ("r1", "r2", "r3") for f in fb), fb
-                assert any(f["progress"] is not None and 0 < f["progress"] <= 1 for f in fb), fb
-            assert user.results["w"]["ok"] and user.results["w"]["value"]["x"] == 5
-            assert not user.results["bad"]["ok"] and user.results["bad"]["error_kind"] == "refused"
-            assert "no_such_program" in user.results["bad"]["error"]
-            user.spin_until(lambda: user.status.get(uuid.uuid5(uuid.NAMESPACE_URL, "ramps:g0").bytes)
-                            == GoalStatus.STATUS_SUCCEEDED, "g0 SUCCEEDED on the status topic")
-            # cancelling a goal withdraws its program: its worker process goes
-            user.send("long", "sleepy", seconds=120, tag="rosc")
-            mark = t.marks / "rosc"
-            user.spin_until(lambda: mark.exists(), "the long goal to start")
-            robot, pid = mark.read_text().split()
-            pid = int(pid)
-            user.cancel("long")
-            r = user.spin_until(lambda: user.results.get("long"), "the cancelled goal's result")
-            assert not r["ok"] and r["error_kind"] == "cancelled", r
-            user.spin_until(lambda: not psutil.pid_exists(pid) or psutil.Process(pid).status() == psutil.STATUS_ZOMBIE,
-                            f"the worker running the withdrawn program on {robot} to go")
-            user.spin_until(lambda: user.status.get(uuid.uuid5(uuid.NAMESPACE_URL, "ramps:long").bytes)
-                            == GoalStatus.STATUS_CANCELED, "the long goal CANCELED on the status topic")
-        finally:
-            user.node.destroy_node()
-            face.terminate()
-            face.wait(20)
+def test_rclpy_client_runs_programs_sees_feedback_and_cancels(team, user):
+    t = team
+    user.spin_until(lambda: user.diagnostics, "/diagnostics")
+    # a subscriber sees every robot's load on /diagnostics
+    names = user.spin_until(lambda: {s.name for a in user.diagnostics[-3:] for s in a.status
+                                     if s.level == DiagnosticStatus.OK} >= {"ramps: r1", "ramps: r2", "ramps: r3"},
+                            "every robot OK on /diagnostics")
+    assert names
+    last = user.diagnostics[-1]
+    r2 = next(s for s in last.status if s.name == "ramps: r2")
+    assert {kv.key for kv in r2.values} >= {"cores", "cpu busy", "run queue", "programs running"}
+    assert dict((kv.key, kv.value) for kv in r2.values)["cores"] == "1"
+    # goals: every one gets its result, with feedback naming host and progress
+    for i in range(4):
+        user.send(f"g{i}", "stepper", steps=4, dt=0.3)
+    user.send("w", "where", x=5)
+    user.send("bad", "no_such_program")
+    user.goal.publish(String(data="{not json"))
+    user.spin_until(lambda: all(g in user.results for g in ("g0", "g1", "g2", "g3", "w", "bad")),
+                    "every goal's result")
+    for i in range(4):
+        r = user.results[f"g{i}"]
+        assert r["ok"] and r["value"]["steps"] == 4 and r["host"] == r["value"]["robot"], r
+        fb = user.of(f"g{i}")
+        assert any(f["state"] == "running" and f["host"] in ("r1", "r2", "r3") for f in fb), fb
+        assert any(f["progress"] is not None and 0 < f["progress"] <= 1 for f in fb), fb
+    assert user.results["w"]["ok"] and user.results["w"]["value"]["x"] == 5
+    assert not user.results["bad"]["ok"] and user.results["bad"]["error_kind"] == "refused"
+    assert "no_such_program" in user.results["bad"]["error"]
+    user.spin_until(lambda: user.status.get(uuid.uuid5(uuid.NAMESPACE_URL, "ramps:g0").bytes)
+                    == GoalStatus.STATUS_SUCCEEDED, "g0 SUCCEEDED on the status topic")
+    # cancelling a goal withdraws its program: its worker process goes
+    user.send("long", "sleepy", seconds=120, tag="rosc")
+    mark = t.marks / "rosc"
+    user.spin_until(lambda: mark.exists(), "the long goal to start")
+    robot, pid = mark.read_text().split()
+    pid = int(pid)
+    user.cancel("long")
+    r = user.spin_until(lambda: user.results.get("long"), "the cancelled goal's result")
+    assert not r["ok"] and r["error_kind"] == "cancelled", r
+    user.spin_until(lambda: not psutil.pid_exists(pid) or psutil.Process(pid).status() == psutil.STATUS_ZOMBIE,
+                    f"the worker running the withdrawn program on {robot} to go")
+    user.spin_until(lambda: user.status.get(uuid.uuid5(uuid.NAMESPACE_URL, "ramps:long").bytes)
+                    == GoalStatus.STATUS_CANCELED, "the long goal CANCELED on the status topic")
 
 
-def test_a_host_killed_mid_goal_loses_nothing_and_a_dead_origin_is_reported(tmp_path):
-    with StepperTeam(3, tmp_path, cores=1) as t:
-        face = start_face(t)
-        user = RosUser("r1")
-        try:
-            user.spin_until(lambda: user.goal.get_subscription_count() > 0, "the ramps ROS face to appear")
-            def running() -> dict[str, str]:
-                return {f["goal_id"]: f["host"] for f in user.feedback if f["state"] == "running"}
+def test_a_host_killed_mid_goal_loses_nothing_and_a_dead_origin_is_reported(team, user):
+    """Last in this module: it kills robots of the shared team."""
+    t = team
 
-            goals = []
-            for i in range(6):  # until one runs away from r1 (placement decides where)
-                goals.append(f"k{i}")
-                user.send(goals[-1], "stepper", steps=12, dt=0.5)
-                user.spin_until(lambda: goals[-1] in running(), f"goal {goals[-1]} running")
-                if len(goals) >= 3 and set(running().values()) - {"r1"}:
-                    break
-            hosts = running()
-            victim = next(h for h in hosts.values() if h != "r1")
-            t.kill_node(victim)
-            user.spin_until(lambda: all(g in user.results for g in goals), "every goal's result")
-            for g in goals:
-                r = user.results[g]
-                assert r["ok"] and r["host"] != victim, r
-            moved = [g for g, h in hosts.items() if h == victim]
-            for g in moved:
-                states = [f["state"] for f in user.of(g)]
-                assert "host_failed" in states or "replaced" in states, states
-            # now the robot under the ROS face itself dies: its goals fail, clearly, and diagnostics say so
-            user.send("orphan", "stepper", steps=100, dt=0.5)
-            user.spin_until(lambda: any(f["state"] == "running" for f in user.of("orphan")), "the orphan running")
-            t.kill_node("r1")
-            r = user.spin_until(lambda: user.results.get("orphan"), "the orphan's result")
-            assert not r["ok"] and r["error_kind"] == "lost" and "robot r1, the origin" in r["error"], r
-            user.spin_until(lambda: any(s.name == "ramps: ros face" and s.level == DiagnosticStatus.ERROR
-                                        and "r1" in s.message for a in user.diagnostics[-2:] for s in a.status),
-                            "the face's ERROR on /diagnostics")
-        finally:
-            user.node.destroy_node()
-            face.terminate()
-            face.wait(20)
+    def running() -> dict[str, str]:
+        return {f["goal_id"]: f["host"] for f in user.feedback if f["state"] == "running"}
+
+    goals = ["k0", "k1", "k2"]
+    for g in goals:  # round robin from r1: one goal on each robot
+        user.send(g, "stepper", policy="round_robin", steps=8, dt=0.4)
+    user.spin_until(lambda: set(goals) <= set(running()), "all three goals running")
+    hosts = {g: h for g, h in running().items() if g in goals}
+    victim = next(h for h in hosts.values() if h != "r1")
+    t.kill_node(victim)
+    user.spin_until(lambda: all(g in user.results for g in goals), "every goal's result")
+    for g in goals:
+        r = user.results[g]
+        assert r["ok"] and r["host"] != victim, r
+    moved = [g for g, h in hosts.items() if h == victim]
+    for g in moved:
+        states = [f["state"] for f in user.of(g)]
+        assert "host_failed" in states or "replaced" in states, states
+    # now the robot under the ROS face itself dies: its goals fail, clearly, and diagnostics say so
+    user.send("orphan", "stepper", steps=100, dt=0.5)
+    user.spin_until(lambda: any(f["state"] == "running" for f in user.of("orphan")), "the orphan running")
+    t.kill_node("r1")
+    r = user.spin_until(lambda: user.results.get("orphan"), "the orphan's result")
+    assert not r["ok"] and r["error_kind"] == "lost" and "robot r1, the origin" in r["error"], r
+    user.spin_until(lambda: any(s.name == "ramps: ros face" and s.level == DiagnosticStatus.ERROR
+                                and "r1" in s.message for a in user.diagnostics[-2:] for s in a.status),
+                    "the face's ERROR on /diagnostics")

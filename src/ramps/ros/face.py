@@ -23,7 +23,8 @@ Names (relative to the node, ``/<robot>/ramps/...`` by default):
 
 - ``~/goal`` (std_msgs/String, in): ``{"goal_id": "g1", "program": "route_plan",
   "args": {"seed": 3}, "timeout": 60}``; ``goal_id`` optional (one is made),
-  ``timeout`` optional (seconds, then the program is withdrawn)
+  ``timeout`` optional (seconds, then the program is withdrawn), ``policy``
+  optional (a placement policy for this goal: ramps, round_robin, ...)
 - ``~/cancel`` (std_msgs/String, in): a goal id
 - ``~/feedback`` (std_msgs/String, out): ``{"goal_id", "program", "state",
   "host", "attempt", "progress", "detail"}``; state: accepted, placed,
@@ -156,10 +157,18 @@ class RosFace(Node):
         return out
 
     # ------------------------------------------------------------ the one thread that talks to ROS
-    def _enqueue(self, kind: str, goal_id: str) -> None:
+    def _enqueue(self, kind: str, data) -> None:
         """From any thread: hand a future's news to the executor's thread."""
-        self._events.put((kind, goal_id))
+        self._events.put((kind, data))
         self._wake.trigger()
+
+    def _future_changed(self, goal_id: str, f) -> None:
+        """A future's update callback (a Zenoh thread): snapshot it now, as
+        later updates may change it before the executor's thread looks."""
+        if f.done():
+            self._enqueue("done", goal_id)
+        else:
+            self._enqueue("update", (goal_id, f.state, f.host, f.attempts, f.progress, f.progress_detail))
 
     def _pump(self) -> None:
         for _ in range(10_000):
@@ -172,7 +181,7 @@ class RosFace(Node):
         if self._status_dirty:
             self._publish_status()
 
-    def _handle(self, kind: str, data: str) -> None:
+    def _handle(self, kind: str, data) -> None:
         try:
             if kind == "goal":
                 self._on_goal(data)
@@ -199,12 +208,15 @@ class RosFace(Node):
             program = goal.get("program")
             args = goal.get("args", {})
             timeout = goal.get("timeout", self.params["goal_timeout"]) or None
+            policy = goal.get("policy", "")
             if not isinstance(program, str) or not program:
                 raise ValueError("goal needs \"program\": the name of a registered program")
             if not isinstance(args, dict):
                 raise ValueError("\"args\" must be a JSON object of keyword arguments")
             if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0):
                 raise ValueError(f"\"timeout\" must be a positive number of seconds, got {timeout!r}")
+            if not isinstance(policy, str):
+                raise ValueError(f"\"policy\" must be a placement policy's name, got {policy!r}")
         except ValueError as exc:
             self.bad_goals += 1
             self.get_logger().warning(f"bad goal refused: {exc}")
@@ -220,14 +232,14 @@ class RosFace(Node):
         g = self._goals[goal_id] = _Goal(goal_id, program, self.get_clock().now().to_msg())
         self._status_dirty = True
         try:
-            fut = self.team.options(timeout=timeout).submit(program, **args)
+            fut = self.team.options(timeout=timeout, policy=policy).submit(program, **args)
         except Exception as exc:  # unknown program, arguments that cannot be sent, a closed team
             self._finish(g, {"ok": False, "error": str(exc), "error_kind": _kind(exc), "host": "", "attempts": 0})
             return
         g.fut = fut
         g.status = GoalStatus.STATUS_EXECUTING
         self._feedback(g, "accepted", "", 0, None, "")
-        fut.add_update_callback(lambda f, gid=goal_id: self._enqueue("done" if f.done() else "update", gid))
+        fut.add_update_callback(lambda f, gid=goal_id: self._future_changed(gid, f))
 
     def _on_cancel(self, goal_id: str) -> None:
         g = self._goals.get(goal_id)
@@ -239,12 +251,12 @@ class RosFace(Node):
         if g.fut is not None:
             g.fut.cancel()  # withdraws the program from the team; the done callback reports it
 
-    def _on_update(self, goal_id: str) -> None:
+    def _on_update(self, snapshot: tuple) -> None:
+        goal_id, state, host, attempts, progress, detail = snapshot
         g = self._goals.get(goal_id)
         if g is None or g.fut is None or g.done_at is not None:
             return
-        f = g.fut
-        self._feedback(g, _FUTURE_STATES.get(f.state, f.state), f.host, f.attempts, f.progress, f.progress_detail)
+        self._feedback(g, _FUTURE_STATES.get(state, state), host, attempts, progress, detail)
 
     def _on_done(self, goal_id: str) -> None:
         g = self._goals.get(goal_id)
