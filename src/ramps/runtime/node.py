@@ -705,9 +705,16 @@ class NodeRuntime:
         if target is None:
             return
         fraction, detail = self._progress.get(pid, (None, ""))
-        self._put(keys.client(self.team, target[0]), encode(self.robot, ProgramUpdate(
-            request_id=target[1], state=state, host=host, attempt=attempt, fraction=fraction, detail=detail)),
-            block=True)
+        if self.session is None:
+            return
+        data = encode(self.robot, ProgramUpdate(request_id=target[1], state=state, host=host, attempt=attempt,
+                                                fraction=fraction, detail=detail))
+        try:  # advisory: dropped rather than let a stalled client stall this driver (outcomes block, see _put)
+            import zenoh
+
+            self.session.put(keys.client(self.team, target[0]), data, congestion_control=zenoh.CongestionControl.DROP)
+        except Exception as exc:
+            log.debug("node %s could not send a program update: %s", self.robot, exc)
 
     def _write_trace(self, what: str, program_id: str, other: str, attempt: int, detail: str, *,
                      at: float | None = None) -> None:
