@@ -61,6 +61,7 @@ from typing import Any
 import rclpy
 from action_msgs.msg import GoalInfo, GoalStatus, GoalStatusArray
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -150,8 +151,18 @@ class RosFace(Node):
     def _declare(self) -> dict[str, Any]:
         defaults = {"team": "lab", "robot": "", "multicast": True, "secure": False, "credentials": "",
                     "diagnostics_period": 1.0, "goal_timeout": 0.0, "connect_timeout": 10.0}
-        out = {k: self.declare_parameter(k, v).value for k, v in defaults.items()}
-        out["connect"] = list(self.declare_parameter("connect", Parameter.Type.STRING_ARRAY).value or [])
+        out: dict[str, Any] = {}
+        for k, v in [*defaults.items(), ("connect", Parameter.Type.STRING_ARRAY)]:
+            number = isinstance(v, float)  # seconds: 2 is as good as 2.0
+            try:
+                out[k] = self.declare_parameter(
+                    k, v, ParameterDescriptor(dynamic_typing=True) if number else ParameterDescriptor()).value
+                if number:
+                    out[k] = float(out[k])
+            except Exception as exc:  # rclpy's InvalidParameterTypeException, float("x"): say which and what
+                want = "a list of strings" if k == "connect" else "a number" if number else type(v).__name__
+                raise ValueError(f"ROS parameter {k!r} must be {want} ({type(exc).__name__}: {exc})") from None
+        out["connect"] = list(out["connect"] or [])
         if not out["diagnostics_period"] > 0:
             raise ValueError(f"diagnostics_period must be > 0 s, got {out['diagnostics_period']}")
         return out
