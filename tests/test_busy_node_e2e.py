@@ -149,3 +149,22 @@ def test_result_that_ends_during_a_stall_reaches_the_client(tmp_path):
         r = fut.result(timeout=RESULT_TIMEOUT)
         print(f"outcome reached the client {time.monotonic() - woke:.2f} s after the node woke")
         assert r["tag"] == "s" and r["robot"] == "r1"
+
+
+def test_program_submitted_while_the_node_is_stalled_runs_when_it_wakes(tmp_path):
+    """The application submits while its node is frozen and its link has
+    lapsed: the submission is held until the node is reachable again, then
+    runs. It used to be published into the void: the origin never heard of
+    it and the application waited for ever."""
+    with LocalTeam(1, tmp_path, cores=2) as t:
+        team = t.client("r1")
+        assert team.submit("where", x=1).result(timeout=RESULT_TIMEOUT)["x"] == 1
+        pid = t.nodes["r1"].pid
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            time.sleep(2.5)  # past the lease (1 s): the client's link to r1 is gone
+            fut = team.submit("where", x=2)
+            time.sleep(1.0)
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        assert fut.result(timeout=RESULT_TIMEOUT)["x"] == 2

@@ -148,6 +148,8 @@ class ProgramFuture(Future):
 #: a node stalled for a few seconds, frozen or starved of CPU, comes back
 #: after its stall plus ~1 s to reconnect, and keeps its programs: issue 14)
 ORIGIN_GONE_GRACE = 10.0
+#: seconds between two looks for the node while submissions are held
+HELD_RETRY = 0.05
 
 _ERRORS = {"program": ProgramFailed, "refused": ProgramRefused, "bad_arguments": BadArguments}
 
@@ -198,6 +200,8 @@ class Team:
         self._reports: dict[str, tuple[LoadReport, float]] = {}
         self._timers: list[tuple[float, int]] = []
         self._timer_cv = threading.Condition(self._lock)
+        #: submissions made while this client's node was unreachable: (request id, bytes)
+        self._held_submits: list[tuple[int, bytes]] = []
         self._closed = False
         self.secure = settings.secure
         self._connect = list(settings.connect)
@@ -351,13 +355,47 @@ class Team:
         fut.add_done_callback(lambda f, rid=rid: self._on_done(rid, f))
         msg = SubmitProgram(client=self.client_id, request_id=rid, program=program, args=args,
                             work=work or 0.0, local_only=local_only, policy=policy)
+        data = encode(self.client_id, msg)
+        with self._lock:  # the node is unreachable (stalled, its link being rebuilt): hold it, see _timeouts
+            held = bool(self._held_submits) or not self._node_reachable()
+            if held:
+                self._held_submits.append((rid, data))
+                self._timer_cv.notify()
+        if held:
+            return fut
         try:
-            self._pub.put(encode(self.client_id, msg))
+            self._pub.put(data)
         except Exception as exc:
             with self._lock:
                 self._futures.pop(rid, None)
             raise TransportError(f"could not send {program!r} to {self.robot}: {exc}") from exc
         return fut
+
+    def _node_reachable(self) -> bool:
+        """Whether this client's node subscribes to what it publishes right now
+        (False while the link is down: a put would go nowhere, and a
+        submission is sent only once)."""
+        try:
+            return bool(self._pub.matching_status.matching)
+        except Exception:  # cannot tell: send
+            return True
+
+    def _flush_held(self) -> None:
+        """With the lock held: send the held submissions if the node is back
+        (those withdrawn meanwhile are dropped)."""
+        if not self._node_reachable():
+            return
+        held, self._held_submits = self._held_submits, []
+        held = [(rid, data) for rid, data in held if rid in self._futures]
+        self._lock.release()
+        try:
+            for _, data in held:
+                try:
+                    self._pub.put(data)
+                except Exception:
+                    pass
+        finally:
+            self._lock.acquire()
 
     def _on_done(self, rid: int, fut: Future) -> None:
         with self._lock:
@@ -412,13 +450,16 @@ class Team:
     def _timeouts(self) -> None:
         with self._lock:
             while not self._closed:
+                if self._held_submits:
+                    self._flush_held()
+                retry = HELD_RETRY if self._held_submits else None
                 if not self._timers:
-                    self._timer_cv.wait(0.5)
+                    self._timer_cv.wait(retry or 0.5)
                     continue
                 when, rid = self._timers[0]
                 delay = when - time.monotonic()
                 if delay > 0:
-                    self._timer_cv.wait(delay)
+                    self._timer_cv.wait(min(delay, retry) if retry else delay)
                     continue
                 heapq.heappop(self._timers)
                 fut = self._futures.get(rid)
