@@ -435,14 +435,14 @@ def run_campaign(runs: int, seed: int = 0, *, policy: str = "ramps", robots: int
     interrupted = False
     for i, run_seed in enumerate(seeds):
         try:
-            for attempt in (1, 2):
+            for attempt in (1, 2, 3):
                 try:
                     results.append(run_campaign_once(run_seed, policy=policy, robots=robots, duration=duration,
                                                      lease_ms=lease_ms, discovery=discovery, keep_logs=keep_logs,
                                                      log=log, stress=stress))
                     break
-                except NoTeam as exc:  # the fresh testbed did not come up (a busy host): once more
-                    if attempt == 2:
+                except NoTeam as exc:  # the fresh testbed did not come up (a busy host): up to 3 tries
+                    if attempt == 3:
                         raise
                     msg = (f"run seed {run_seed}: the testbed did not come up ({str(exc).splitlines()[0]}); "
                            "starting it again")
