@@ -76,9 +76,11 @@ def test_top_on_a_secured_team_shows_a_join_a_crash_and_programs_moving_then_qui
         print(f"r3 greyed {time.monotonic() - killed_at:.2f} s after the SIGKILL was sent")
         gone = [e for e in model.events if e.kind == "gone" and e.robot == "r3"]
         assert gone and "program(s) were running there" in gone[0].text
-        watch_until(model, team, lambda: any(e.kind == "moved" for e in model.events), 30, "a program moving")
+        displaced = int(gone[0].text.split(", ")[-1].split()[0])  # "..., 2 program(s) were running there"
+        watch_until(model, team, lambda: sum(e.kind == "moved" for e in model.events) >= displaced, 30,
+                    f"the {displaced} programs of r3 moving")
         moved = [e for e in model.events if e.kind == "moved"]
-        assert all("r3 ->" in e.text for e in moved)
+        assert len(moved) == displaced and all("r3 ->" in e.text for e in moved)
         for f in futs:
             f.result(60)
         watch_until(model, team, lambda: any(e.kind == "finished" for e in model.events), 10, "a program finishing")

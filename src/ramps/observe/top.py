@@ -73,7 +73,11 @@ class TopModel:
         if self.started_at is None:
             self.started_at = now
         self.team = status.team or self.team
-        for st in status.robots:
+        # robots lost first: a program that left one and started on another in
+        # the same interval is then recognised as moved, whatever the names' order
+        order = sorted(status.robots, key=lambda st: st.alive)
+        live = []
+        for st in order:
             heard = now - st.report_age if st.report_age is not None else None
             v = self.robots.get(st.robot)
             if v is None:
@@ -99,9 +103,11 @@ class TopModel:
                     self._displaced.setdefault(key, []).extend((st.robot, now) for _ in starts)
                 v.running = {}
             if st.alive:
-                self._diff_blacklist(v, prev, st, now)
-                self._diff_running(v, prev, st, now)
+                live.append((v, prev, st))
             v.status = st
+        for v, prev, st in live:
+            self._diff_blacklist(v, prev, st, now)
+            self._diff_running(v, prev, st, now)
 
     def _diff_blacklist(self, v: RobotView, prev, st, now: float) -> None:
         after = set(st.blacklisted)
@@ -118,17 +124,17 @@ class TopModel:
         old = {k: list(ts) for k, ts in v.running.items()}
         finished = max(0, st.finished_total - (prev.finished_total if prev is not st else st.finished_total))
         new_running: dict[tuple[str, str], list[float]] = {}
+        ended = []
+        for key, ts in old.items():  # the oldest copies are the ones that ended
+            gone_n = len(ts) - have.get(key, 0)
+            if gone_n > 0:
+                ended.extend((key, t) for t in sorted(ts)[:gone_n])
         for key, n in have.items():
-            ts = old.get(key, [])
-            keep = ts[:n]
+            keep = sorted(old.get(key, []))[-n:]  # n >= 1 here
             for _ in range(n - len(keep)):
                 keep.append(now)
                 self._started(v.name, key, now)
             new_running[key] = keep
-        ended = []
-        for key, ts in old.items():
-            gone_n = len(ts) - have.get(key, 0)
-            ended.extend((key, t) for t in ts[len(ts) - gone_n:] if gone_n > 0)
         for key, t0 in sorted(ended, key=lambda e: e[1]):
             what = "finished" if finished > 0 else "stopped"
             finished -= 1

@@ -790,6 +790,10 @@ class NodeRuntime:
             report = msgspec.structs.replace(report, mem_free=last.mem_free, cpu_per_core=last.cpu_per_core,
                                              load_avg=last.load_avg, bad_messages=last.bad_messages,
                                              sees=last.sees)
+        # what it runs and whom it wrote off, as the periodic report says: without them
+        # `ramps status`, `ramps top` and ROS diagnostics saw both flap to empty
+        report = msgspec.structs.replace(report, running=self._running_list(),
+                                         blacklisted=self.node.view.blacklisted())
         try:
             self._load_pub.put(encode(self.robot, report))
         except Exception as exc:
