@@ -675,8 +675,9 @@ def demo(
         for e in ph.errors[:3]:
             err.print(f"[red]{ph.name}: {e}[/]", highlight=False, soft_wrap=True)
     if rep.report:
-        out.print(f"report of the ramps run: {rep.report} (open it in a browser; trace: {rep.trace}, redraw with "
-                  f"`ramps report {rep.trace}`)", highlight=False, soft_wrap=True)
+        out.print(f"report of the ramps run: {rep.report} (open it in a browser); the nodes' trace of the whole "
+                  f"session, warm-up and baselines included: {rep.trace} (`ramps report {rep.trace}`)",
+                  highlight=False, soft_wrap=True)
 
 
 # ====================================================================== testbed (emulated robots)
