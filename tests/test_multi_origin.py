@@ -116,3 +116,45 @@ def test_sweep_command_prints_and_saves_a_row_per_family(tmp_path) -> None:
     assert 1.0 <= row["median_ratio"] <= row["worst_ratio"]
     bad = CliRunner().invoke(app, ["sim", "sweep", "-f", "nope"])
     assert bad.exit_code != 0 and "unknown family" in bad.output
+
+
+# ---------------------------------------------------------------- work left
+def test_host_estimates_the_work_its_programs_have_left() -> None:
+    from ramps.core.messages import OffloadRequest
+    from ramps.core.events import Received
+    from ramps.core.node import Node
+
+    a = Node("a", cores=4, speed=1.0)
+    for i in range(6):
+        a.handle(Received(sender="o", msg=OffloadRequest(program_id=f"p{i}", attempt=1, origin="o", host="a",
+                                                         program="x", work=60.0)), 0.0)
+    # six programs on four cores: each gets 2/3 of a core, so 20 s did 13.3 units
+    rep = a.make_report(cpu_busy=4.0, runnable=6.0, ramps_avg=6.0, window=1.0)
+    assert rep.remaining == [60.0] * 6
+    a.tick(20.0)
+    rep = a.make_report(cpu_busy=4.0, runnable=6.0, ramps_avg=6.0, window=1.0)
+    assert rep.remaining == pytest.approx([60.0 - 20.0 * 4 / 6] * 6)
+
+
+def test_a_host_whose_programs_are_nearly_done_beats_an_idle_slow_robot() -> None:
+    # a: four programs with 10 units left each; s: one idle core at 0.9.
+    # Counting a's programs as new gives 62.5 s there, more than s's 55.6 s;
+    # with the work they have left, the new one finishes on a in 52.5 s
+    from ramps.core.cost import shared_finish_time
+    from ramps.core.loadview import LoadView
+    from ramps.core.policy import RampsPolicy
+
+    from corehelpers import choose, report
+
+    assert shared_finish_time(50.0, [10.0] * 4, 4, 1.0) == pytest.approx(10 / 0.8 + 40.0)
+    assert shared_finish_time(50.0, [50.0] * 4, 4, 1.0) == pytest.approx(50 / 0.8)
+    view = LoadView("o", cores=1, speed=1.0)
+    view.on_report(report("o", cores=1, runnable=10.0, cpu_busy=1.0), 0.5)
+    view.on_report(report("a", ramps_running=4, runnable=4.0, ramps_avg=4.0, cpu_busy=4.0, accepted_total=4,
+                          remaining=[10.0] * 4), 0.5)
+    view.on_report(report("s", cores=1, speed=0.9), 0.5)
+    assert choose(RampsPolicy(), view, work=50.0, now=0.5) == "a"
+    # the same view without the work left: the count-based estimate picks s
+    view.on_report(report("a", seq=2, ramps_running=4, runnable=4.0, ramps_avg=4.0, cpu_busy=4.0,
+                          accepted_total=4, remaining=[50.0] * 4), 0.5)
+    assert choose(RampsPolicy(), view, work=50.0, now=0.5) == "s"

@@ -111,6 +111,10 @@ REP = _body(report("r1"))
     (REP, "sees", -1),
     (REP, "cpu_per_core", [0.5] * (m.MAX_CORES + 1)),
     (REP, "cpu_per_core", [math.nan]),
+    (REP, "remaining", [1.0] * (m.MAX_LISTED + 1)),
+    (REP, "remaining", [math.nan]),
+    (REP, "remaining", [-1.0]),
+    (REP, "remaining", [math.inf]),
     (REP, "blacklisted", ["r2", "*"]),
 ], ids=lambda x: x if isinstance(x, str) else None)
 def test_field_limits_are_enforced_while_decoding(body: dict, field: str, value) -> None:

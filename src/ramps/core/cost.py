@@ -92,3 +92,21 @@ def compute_time(work: float, cores: int, speed: float, runnable: float) -> floa
 def comm_time(payload: int, result: int, net: NetworkEstimate) -> float:
     """Seconds to offload parameters and bring the result back."""
     return 3.0 * net.latency + (payload + result) / net.bandwidth
+
+
+def shared_finish_time(work: float, others: list[float], cores: float, speed: float, background: float = 0.0,
+                       weight: float = 1.0) -> float:
+    """Seconds until a new program of ``work`` units finishes on a robot
+    whose ramps programs have ``others`` units left each, under processor
+    sharing: every program runs at the same rate, which rises each time one
+    of them ends (``program_share``). With no others this is
+    ``work / (speed * program_share(cores, 1, background, weight))``; with
+    others of the new program's own size, the count-based estimate."""
+    left = sorted(x for x in others if x < work)
+    k = len(others) + 1
+    t = done = 0.0
+    for x in left:
+        t += (x - done) / (speed * program_share(cores, k, background, weight))
+        done = x
+        k -= 1
+    return t + (work - done) / (speed * program_share(cores, k, background, weight))

@@ -27,9 +27,10 @@ puts them in every report so origins can tell what a report includes.
 from __future__ import annotations
 
 from ramps.core.config import RampsConfig
-from ramps.core.cost import program_share
+from ramps.core.cost import program_share, shared_finish_time
 from ramps.core.events import Action, Note, ProgramFinished, ProgressReported, Send, StartProgram, StopProgram
 from ramps.core.messages import (
+    MAX_LISTED,
     MAX_PROGRESS_TEXT,
     CancelProgram,
     Heartbeat,
@@ -48,12 +49,17 @@ ORIGIN_GONE_AFTER = 30.0
 
 
 class _Job:
-    __slots__ = ("origin", "program", "started_at", "progress", "detail", "progress_new", "progress_sent_at")
+    __slots__ = ("origin", "program", "started_at", "progress", "detail", "progress_new", "progress_sent_at",
+                 "work", "done")
 
-    def __init__(self, origin: str, program: str, started_at: float) -> None:
+    def __init__(self, origin: str, program: str, started_at: float, work: float = 0.0) -> None:
         self.origin = origin
         self.program = program
         self.started_at = started_at
+        #: the origin's estimate of the work, and how much of it processor
+        #: sharing has done by ``Executor._advanced_at`` (see ``remaining``)
+        self.work = work
+        self.done = 0.0
         #: the latest progress the program reported, and whether the origin has it yet
         self.progress: float | None = None
         self.detail = ""
@@ -98,9 +104,28 @@ class Executor:
         self.cores = cores
         self.speed = speed
         self.program_weight = program_weight
+        self._advanced_at: float | None = None
 
     # ------------------------------------------------------------ inputs
+    def _advance(self, now: float) -> None:
+        """Credit every running program with the work processor sharing did
+        for it since the last call (the count and background of that time)."""
+        last, self._advanced_at = self._advanced_at, now
+        if last is None or now <= last or not self.running:
+            return
+        rate = self.speed * program_share(self.cores, len(self.running), self.background, self.program_weight)
+        step = rate * (now - last)
+        for job in self.running.values():
+            job.done += step
+
+    def remaining(self, now: float) -> list[float]:
+        """Work units each running program has left by the estimate above,
+        smallest first, at most MAX_LISTED (what load reports carry)."""
+        self._advance(now)
+        return sorted(max(0.0, job.work - job.done) for job in self.running.values())[:MAX_LISTED]
+
     def on_offload(self, req: OffloadRequest, now: float, out: list[Action], report_now=None) -> None:
+        self._advance(now)
         key = (req.program_id, req.attempt)
         if key in self.running or key in self._outbox:
             # a repeated request: say yes again, start nothing
@@ -133,7 +158,7 @@ class Executor:
                 report=report_now() if (report_now is not None and not permanent) else None)))
             return
         self.accepted_total += 1
-        self.running[key] = _Job(req.origin, req.program, now)
+        self.running[key] = _Job(req.origin, req.program, now, req.work)
         out.append(StartProgram(program_id=req.program_id, attempt=req.attempt, origin=req.origin,
                                 program=req.program, args=req.args, work=req.work))
         out.append(Send(to=req.origin, msg=OffloadAccepted(
@@ -147,10 +172,12 @@ class Executor:
         (``time_budget``): take it."""
         if req.time_budget is None:
             return False
-        share = program_share(self.cores, len(self.running) + 1.0, self.background, self.program_weight)
-        return req.work / (self.speed * share) <= req.time_budget * (1.0 + self.config.tie_tolerance)
+        others = [max(0.0, job.work - job.done) for job in self.running.values()]
+        t_here = shared_finish_time(req.work, others, self.cores, self.speed, self.background, self.program_weight)
+        return t_here <= req.time_budget * (1.0 + self.config.tie_tolerance)
 
     def on_finished(self, ev: ProgramFinished, now: float, out: list[Action]) -> None:
+        self._advance(now)
         key = (ev.program_id, ev.attempt)
         job = self.running.pop(key, None)
         if job is None:
@@ -166,6 +193,7 @@ class Executor:
             self._next_tick = now + self.config.result_resend
 
     def on_cancel(self, msg: CancelProgram, now: float, out: list[Action]) -> None:
+        self._advance(now)
         key = (msg.program_id, msg.attempt)
         job = self.running.get(key)
         if job is not None and job.origin == msg.origin:
@@ -244,6 +272,7 @@ class Executor:
         return self._next_tick
 
     def tick(self, now: float, out: list[Action]) -> None:
+        self._advance(now)
         if self._next_tick is None or now < self._next_tick:
             return
         if self._origins_lost:

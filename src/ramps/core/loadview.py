@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 
+from ramps.core.cost import program_share
 from ramps.core.messages import MAX_CORES, MAX_LOAD, MAX_SPEED, MAX_WEIGHT, MIN_SPEED, MIN_WEIGHT, LoadReport
 
 
@@ -192,6 +193,25 @@ class LoadView:
         if rep is None:
             return 0.0
         return max(0.0, rep.runnable - rep.ramps_avg)
+
+    def remaining_work(self, robot: str, now: float, programs: int, unknown: float) -> list[float]:
+        """Work units left in each of the ``programs`` ramps programs this view
+        counts on ``robot``: the host's last estimate (``LoadReport.remaining``)
+        aged by processor sharing since it arrived; programs the report does
+        not list yet count ``unknown`` units each, and when the view counts
+        fewer programs than the report lists, the smallest ended."""
+        rob = self._robots.get(robot)
+        rep = rob.report if rob else None
+        left = list(rep.remaining) if rep is not None else []
+        if left and rep is not None:
+            age = max(0.0, now - rob.received_at)
+            background = max(0.0, rep.runnable - rep.ramps_avg)
+            step = age * rep.speed * program_share(rep.cores, len(left), background, rep.program_weight)
+            left = [x - step for x in left]
+        left.sort()
+        if len(left) > programs:
+            left = left[len(left) - programs:]
+        return [max(0.0, x) for x in left] + [unknown] * (programs - len(left))
 
     def paper_load(self, robot: str) -> float:
         """Busy cores as the paper's load server sees them: the last report's

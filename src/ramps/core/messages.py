@@ -150,6 +150,10 @@ class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, ta
     #: the programs running here (at most MAX_LISTED), with their progress,
     #: for ``ramps status`` and the ROS face's diagnostics
     running: Annotated[list["RunningProgram"], Meta(max_length=MAX_LISTED)] = []
+    #: work units each running program has left by the host's estimate
+    #: (processor sharing since it started), smallest first: an origin's
+    #: T_there counts the programs that will end before a new one does
+    remaining: Annotated[list[Amount], Meta(max_length=MAX_LISTED)] = []
 
 
 class RunningProgram(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):

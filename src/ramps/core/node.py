@@ -111,6 +111,9 @@ class Node:
         self.executor = Executor(robot, config=self.config, registry=registry, incarnation=incarnation,
                                  cores=cores, speed=speed, program_weight=program_weight)
         self._report_seq = 0
+        #: the latest time the driver passed in (reports estimate the work
+        #: left in running programs as of then)
+        self._now = 0.0
         #: prompt reports: (accepted, finished) counts last published, the
         #: time of the last one, and when the next one is due
         self._prompt = self.policy.shares_load and self.config.prompt_reports
@@ -120,6 +123,7 @@ class Node:
 
     # ------------------------------------------------------------ driving
     def handle(self, event: Event, now: float) -> list[Action]:
+        self._now = now
         out: list[Action] = []
         self._dispatch(event, now, out)
         return self._prompt_report(self._loopback(out, now), now)
@@ -129,6 +133,7 @@ class Node:
         # this robot's origin before it checks for silent hosts, so a node
         # that was stalled (busy robot, GC pause, SIGSTOP) does not write off
         # its own programs (issue 14)
+        self._now = now
         out: list[Action] = []
         self.executor.tick(now, out)
         out = self._loopback(out, now)
@@ -249,7 +254,8 @@ class Node:
         return LoadReport(
             robot=self.robot, incarnation=self.incarnation, seq=self._report_seq, cores=self.cores,
             speed=self.speed, program_weight=self.program_weight, ramps_running=len(self.executor.running),
-            accepted_total=self.executor.accepted_total, finished_total=self.executor.finished_total, **measured,
+            accepted_total=self.executor.accepted_total, finished_total=self.executor.finished_total,
+            remaining=self.executor.remaining(self._now), **measured,
         )
 
     def statistics(self) -> NodeStatistics:

@@ -29,6 +29,7 @@ scheduler.
 
 from __future__ import annotations
 
+import heapq
 import math
 import random
 from typing import ClassVar
@@ -36,8 +37,12 @@ from typing import ClassVar
 import msgspec
 
 from ramps.core.config import RampsConfig
-from ramps.core.cost import NetworkEstimate, comm_time, program_share
+from ramps.core.cost import NetworkEstimate, comm_time, program_share, shared_finish_time
 from ramps.core.loadview import LoadView
+
+
+#: how many of the cheapest hosts by count get the finer estimate by work left
+REFINE = 16
 
 
 class PlacementRequest(msgspec.Struct, frozen=True, kw_only=True):
@@ -118,9 +123,17 @@ class RampsPolicy(Policy):
                 t = work / (speed * program_share(cores, ramps + 1.0, background, weight))
             if robot != me:
                 t += t_comm
-            rows.append((t, (runnable + 1.0) / cores, robot, runnable, background))
+            rows.append([t, (runnable + 1.0) / cores, robot, runnable, background, ramps, cores, speed, weight])
             if t < t_best:
                 t_best = t
+        # the count above treats every program already on a host as new; on
+        # the likeliest hosts, count instead the work they have left (those
+        # that end first speed the new one up): T_there under processor sharing
+        for row in heapq.nsmallest(REFINE, (r for r in rows if r[5] > 0), key=lambda r: r[0]):
+            left = view.remaining_work(row[2], now, round(row[5]), work)
+            t = shared_finish_time(work, left, row[6], row[7], row[4], row[8]) + (t_comm if row[2] != me else 0.0)
+            row[0] = min(row[0], t)
+        t_best = min(row[0] for row in rows)
         # costs within the tolerance are equal (eq. 1 cannot tell them apart);
         # then the least utilised robot wins, then the one whose load is more
         # ramps programs (they end; busy software does not), then this robot,

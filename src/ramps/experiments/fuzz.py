@@ -104,6 +104,7 @@ def random_report(rng: random.Random, robot: str | None = None) -> m.LoadReport:
         sees=rng.choice([None, _count(rng)]),
         running=[m.RunningProgram(rng.choice(PROGRAMS), rng.choice(PEERS), rng.choice([None, 0.0, rng.random(), 1.0]))
                  for _ in range(rng.choice([0, 0, 1, 3]))],
+        remaining=sorted(_amount(rng, 120.0) for _ in range(rng.choice([0, 1, 4, m.MAX_LISTED if extreme else 2]))),
     )
 
 
