@@ -116,6 +116,11 @@ def test_sweep_command_prints_and_saves_a_row_per_family(tmp_path) -> None:
     assert 1.0 <= row["median_ratio"] <= row["worst_ratio"]
     bad = CliRunner().invoke(app, ["sim", "sweep", "-f", "nope"])
     assert bad.exit_code != 0 and "unknown family" in bad.output
+    res = CliRunner().invoke(app, ["sim", "sweep", "-f", "idle-burst", "-n", "1", "--seeds", "1", "--json",
+                                   "--set", "prompt_reports=false"], catch_exceptions=False)
+    assert res.exit_code == 0 and json.loads(res.stdout)["settings"] == {"prompt_reports": False}
+    bad = CliRunner().invoke(app, ["sim", "sweep", "--set", "max_rejections=many"])
+    assert bad.exit_code != 0 and "max_rejections" in bad.output
 
 
 # ---------------------------------------------------------------- work left

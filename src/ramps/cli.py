@@ -164,6 +164,8 @@ def sim_sweep(
     seeds: int = typer.Option(3, "--seeds", min=1, help="simulation seeds per scenario"),
     policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
     seed: int = typer.Option(0, "--seed", help="generates the scenarios; the same seed gives the same sweep"),
+    settings: list[str] = typer.Option([], "--set", help="change a core setting in every scenario, e.g. "
+                                       "--set prompt_reports=false --set max_rejections=3 (see RampsConfig)"),
     as_json: bool = typer.Option(False, "--json", help="write the results as JSON to stdout instead of tables"),
     out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
 ) -> None:
@@ -185,13 +187,30 @@ def sim_sweep(
     if family not in FAMILIES:
         fail(f"unknown family {family!r}; choose multi-origin or one of "
              + ", ".join(f"{t}-{s}" for t in TEAMS for s in TIMINGS))
+    config = _config_with(settings) if settings else None
     total = scenarios * len(FAMILIES[family])
     with Progress(TextColumn(f"sweep {family} / {policy}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err, transient=True) as progress:
         task = progress.add_task("sweep", total=total)
-        rep = run_sweep(family, per_family=scenarios, seeds=seeds, seed=seed, policy=policy,
+        rep = run_sweep(family, per_family=scenarios, seeds=seeds, seed=seed, policy=policy, config=config,
                         progress=lambda done, total: progress.update(task, completed=done))
     _emit([rep], print_sweep, as_json=as_json, out_file=out_file)
+
+
+def _config_with(settings: list[str]):
+    """RampsConfig with NAME=VALUE changes, each checked against the field's type."""
+    from ramps.core.config import RampsConfig
+
+    changes: dict[str, object] = {}
+    for item in settings:
+        name, sep, value = item.partition("=")
+        if not sep or name not in RampsConfig.__struct_fields__:
+            fail(f"--set {item!r}: expected NAME=VALUE with NAME one of {', '.join(RampsConfig.__struct_fields__)}")
+        changes[name] = value
+    try:
+        return msgspec.convert(changes, RampsConfig, strict=False)
+    except (msgspec.ValidationError, ValueError) as exc:
+        fail(f"--set: {exc}")
 
 
 @sim_app.command("campaign")

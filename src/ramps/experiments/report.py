@@ -201,8 +201,9 @@ def print_campaign(rep, console: Console) -> None:
 def print_sweep(rep, console: Console) -> None:
     """One row per family of generated several-origins scenarios: makespan
     against the lower bound (and the omniscient oracle), beside round robin."""
-    table = Table(title=f"several origins at once: policy {rep.policy}, {rep.seeds_per_scenario} seed(s) per "
-                        f"scenario, seed {rep.seed}", title_justify="left")
+    changed = "".join(f", {k}={v}" for k, v in rep.settings.items())
+    table = Table(title=f"several origins at once: policy {rep.policy}{changed}, {rep.seeds_per_scenario} seed(s) "
+                        f"per scenario, seed {rep.seed}", title_justify="left")
     for name in ("family", "scenarios", "runs", "median", "p90", "worst", "<=2%", "<=5%", "vs oracle median",
                  "vs oracle worst", "round robin median", "round robin worst", "lost", "dup"):
         table.add_column(name, justify="left" if name == "family" else "right")

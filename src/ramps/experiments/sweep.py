@@ -34,6 +34,7 @@ from typing import Callable, Sequence
 
 import msgspec
 
+from ramps.core.config import RampsConfig
 from ramps.experiments.metrics import Machine, optimal_allocation
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario
@@ -94,6 +95,8 @@ class FamilyRow(msgspec.Struct, kw_only=True):
 class SweepReport(msgspec.Struct, kw_only=True):
     family: str
     policy: str
+    #: settings that differ from the defaults
+    settings: dict[str, object]
     seed: int
     seeds_per_scenario: int
     families: list[FamilyRow]
@@ -243,7 +246,10 @@ def _row(name: str, scs: Sequence[SweepScenario]) -> FamilyRow:
 
 
 def run_sweep(family: str = "multi-origin", *, per_family: int = 36, seeds: int = 3, seed: int = 0,
-              policy: str = "ramps", progress: Callable[[int, int], None] | None = None) -> SweepReport:
+              policy: str = "ramps", config: RampsConfig | None = None,
+              progress: Callable[[int, int], None] | None = None) -> SweepReport:
+    """``config`` replaces the default settings in every scenario (to measure
+    what one mechanism is worth, e.g. ``RampsConfig(prompt_reports=False)``)."""
     if family not in FAMILIES:
         raise ValueError(f"unknown family {family!r}; choose one of {', '.join(FAMILIES)}")
     import time as _wallclock
@@ -257,6 +263,8 @@ def run_sweep(family: str = "multi-origin", *, per_family: int = 36, seeds: int 
         group = []
         for i in range(per_family):
             sc = generate(team_kind, timing, i, seed)
+            if config is not None:
+                sc = msgspec.structs.replace(sc, config=config)
             group.append(run_scenario(sc, policy=policy, seeds=seeds, seed=seed + i))
             if progress:
                 progress(len(scenarios) + len(group), total)
@@ -264,5 +272,7 @@ def run_sweep(family: str = "multi-origin", *, per_family: int = 36, seeds: int 
         rows.append(_row(f"{team_kind}-{timing}", group))
     if len(kinds) > 1:
         rows.append(_row("all", scenarios))
-    return SweepReport(family=family, policy=policy, seed=seed, seeds_per_scenario=seeds, families=rows,
+    changed = {} if config is None else {k: getattr(config, k) for k in config.__struct_fields__
+                                         if getattr(config, k) != getattr(RampsConfig(), k)}
+    return SweepReport(family=family, policy=policy, settings=changed, seed=seed, seeds_per_scenario=seeds, families=rows,
                        scenarios=scenarios, wall_seconds=_wallclock.perf_counter() - started)
