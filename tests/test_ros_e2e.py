@@ -182,6 +182,57 @@ def test_rclpy_client_runs_programs_sees_feedback_and_cancels(team, user):
                     == GoalStatus.STATUS_CANCELED, "the long goal CANCELED on the status topic")
 
 
+def test_run_program_action_with_an_rclpy_action_client(team, user):
+    """The real ROS 2 action (ramps_interfaces/action/RunProgram, built by ramps ros --build-interfaces)."""
+    try:
+        from ramps_interfaces.action import RunProgram
+    except ImportError:
+        pytest.skip("ramps_interfaces is not built here: ramps ros --build-interfaces (make test does it)")
+    from rclpy.action import ActionClient
+
+    client = ActionClient(user.node, RunProgram, "/r1/ramps/run")
+    user.spin_until(lambda: client.server_is_ready(), "the RunProgram action server")
+    feedback: dict[str, list] = {}
+
+    def send(name: str, program: str, **args):
+        fut = client.send_goal_async(RunProgram.Goal(program=program, args_json=json.dumps(args)),
+                                     feedback_callback=lambda m: feedback.setdefault(name, []).append(m.feedback))
+        handle = user.spin_until(lambda: fut.result() if fut.done() else None, f"goal {name} accepted")
+        assert handle.accepted
+        return handle
+
+    handles = {f"a{i}": send(f"a{i}", "stepper", steps=3, dt=0.3) for i in range(3)}
+    results = {tag: h.get_result_async() for tag, h in handles.items()}
+    user.spin_until(lambda: all(r.done() for r in results.values()), "every action result")
+    for tag, r in results.items():
+        res = r.result()
+        assert res.status == GoalStatus.STATUS_SUCCEEDED, (tag, res)
+        assert res.result.ok and json.loads(res.result.value_json)["steps"] == 3, res.result
+        fb = feedback.get(tag, [])
+        assert any(f.state == "running" and f.host == res.result.host for f in fb), fb
+        assert any(0 < f.progress <= 1 for f in fb), [f.progress for f in fb]
+    # an unknown program: aborted, with the reason
+    bad = send("bad", "no_such_program").get_result_async()
+    user.spin_until(lambda: bad.done(), "the bad goal's result")
+    assert bad.result().status == GoalStatus.STATUS_ABORTED
+    assert bad.result().result.error_kind == "refused" and "no_such_program" in bad.result().result.error
+    # cancelling the goal withdraws its program: the worker running it goes
+    long = send("long", "sleepy", seconds=120, tag="actc")
+    mark = team.marks / "actc"
+    user.spin_until(lambda: mark.exists(), "the long goal to start")
+    robot, pid = mark.read_text().split()
+    pid = int(pid)
+    cancel = long.cancel_goal_async()
+    user.spin_until(lambda: cancel.done(), "the cancel answer")
+    assert len(cancel.result().goals_canceling) == 1
+    res = long.get_result_async()
+    user.spin_until(lambda: res.done(), "the cancelled goal's result")
+    assert res.result().status == GoalStatus.STATUS_CANCELED and res.result().result.error_kind == "cancelled"
+    user.spin_until(lambda: not psutil.pid_exists(pid) or psutil.Process(pid).status() == psutil.STATUS_ZOMBIE,
+                    f"the worker running the withdrawn program on {robot} to go")
+    client.destroy()
+
+
 def test_a_host_killed_mid_goal_loses_nothing_and_a_dead_origin_is_reported(team, user):
     """Last in this module: it kills robots of the shared team."""
     t = team

@@ -34,8 +34,22 @@ def register(app: typer.Typer) -> None:
         diagnostics_period: Optional[float] = typer.Option(None, "--diagnostics-period", min=0.05,
                                                            help="seconds between /diagnostics messages (default 1)"),
         namespace: Optional[str] = typer.Option(None, "--namespace", help="ROS namespace of the face (default: /<robot>)"),
+        build_interfaces: bool = typer.Option(False, "--build-interfaces", help="build the RunProgram action type "
+                                              "(ramps_interfaces) into this environment and exit; then ramps ros "
+                                              "also serves /ROBOT/ramps/run as a ROS 2 action (needs cmake and a "
+                                              "C/C++ compiler, ~30 s)"),
     ) -> None:
         from ramps.ros import missing
+
+        if build_interfaces:
+            from ramps.ros.build import BuildError, build
+
+            try:
+                build(log=lambda m: typer.echo(m, err=True))
+            except BuildError as exc:
+                typer.echo(f"ramps ros --build-interfaces: {exc}", err=True)
+                raise typer.Exit(2)
+            return
 
         why = missing()
         if why is not None:

@@ -8,16 +8,18 @@ re-placed, progress) become feedback, its outcome becomes the result, and
 cancelling the goal cancels the future, which withdraws the program from the
 team. The team's load reports are published as ``diagnostic_msgs``.
 
-Why topics and not a ROS action: an action needs its own interface type,
-built by ``rosidl`` into C type support. The ROS 2 wheels on PyPI carry no
-CMake package configurations and no C headers of ``rosidl_runtime_c``, so an
-interface package cannot be built from them, and no installed package
-defines a generic action (only ``test_msgs/Fibonacci``). So the action is
-spelled out on standard types every ROS tool shows: goals, cancels, feedback
-and results as JSON in ``std_msgs/String``, and the goal states on
-``action_msgs/GoalStatusArray`` with the standard codes. ``RunProgram.action``
-beside this module is the interface a built package would declare
-(docs/ros2.md).
+Two ways in, on standard types and on ramps' own action:
+
+- ``~/run``, the ROS 2 action ``ramps_interfaces/action/RunProgram``
+  (``interfaces/RunProgram.action``): goal = program and ``args_json``,
+  feedback = state, host, attempt, progress (-1 before any), result = ok,
+  ``value_json`` or error and error_kind, host, attempts; cancelling the goal
+  withdraws the program. The type is built into the environment by
+  ``ramps ros --build-interfaces`` (``ramps.ros.build``: rosidl from the
+  ROS wheels, cmake and a compiler); the action is served when it imports.
+- topics that need nothing built, for any ROS tool: goals, cancels,
+  feedback and results as JSON in ``std_msgs/String``, goal states on
+  ``action_msgs/GoalStatusArray`` with the standard codes.
 
 Names (relative to the node, ``/<robot>/ramps/...`` by default):
 
@@ -59,6 +61,8 @@ import uuid
 from typing import Any
 
 import rclpy
+import rclpy.executors
+import rclpy.task
 from action_msgs.msg import GoalInfo, GoalStatus, GoalStatusArray
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
@@ -67,6 +71,11 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 from unique_identifier_msgs.msg import UUID
+
+try:  # the RunProgram action, once built (ramps ros --build-interfaces)
+    from ramps_interfaces.action import RunProgram
+except ImportError:
+    RunProgram = None
 
 #: seconds a finished goal stays in the status array
 KEEP_FINISHED = 60.0
@@ -102,7 +111,7 @@ def _jsonable(value: Any) -> Any:
 
 
 class _Goal:
-    __slots__ = ("goal_id", "program", "uuid", "stamp", "status", "fut", "done_at")
+    __slots__ = ("goal_id", "program", "uuid", "stamp", "status", "fut", "done_at", "action")
 
     def __init__(self, goal_id: str, program: str, stamp) -> None:
         self.goal_id = goal_id
@@ -112,6 +121,8 @@ class _Goal:
         self.status = GoalStatus.STATUS_ACCEPTED
         self.fut = None
         self.done_at: float | None = None
+        #: (goal handle, rclpy future of the outcome) for a goal of the RunProgram action
+        self.action = None
 
 
 class RosFace(Node):
@@ -143,10 +154,19 @@ class RosFace(Node):
         self._wake = self.create_guard_condition(self._pump)
         self.create_timer(HOUSEKEEPING_PERIOD, self._pump)
         self.create_timer(p["diagnostics_period"], self._publish_diagnostics)
+        self.action_server = None
+        if RunProgram is not None:
+            from rclpy.action import ActionServer, CancelResponse
+
+            self._cancel_ok = CancelResponse.ACCEPT
+            self.action_server = ActionServer(self, RunProgram, "~/run", execute_callback=self._execute,
+                                              cancel_callback=self._cancel_action)
         self.get_logger().info(
             f"ramps ROS face of team {team.team!r} via robot {self.origin}: goals on "
             f"{self.resolve_topic_name('~/goal')}, results on {self.resolve_topic_name('~/result')}, "
-            f"load on /diagnostics every {p['diagnostics_period']:g} s")
+            f"load on /diagnostics every {p['diagnostics_period']:g} s"
+            + (f"; action ramps_interfaces/action/RunProgram on {self.resolve_topic_name('~/run')}"
+               if self.action_server else "; no RunProgram action (ramps ros --build-interfaces builds it)"))
 
     def _declare(self) -> dict[str, Any]:
         defaults = {"team": "lab", "robot": "", "multicast": True, "secure": False, "credentials": "",
@@ -240,17 +260,60 @@ class RosFace(Node):
         if goal_id in self._goals:
             self.get_logger().warning(f"goal {goal_id!r} was sent already; ignored")
             return
+        self._start(goal_id, program, args, timeout, policy)
+
+    def _start(self, goal_id: str, program: str, args: dict, timeout, policy: str, action=None) -> "_Goal":
         g = self._goals[goal_id] = _Goal(goal_id, program, self.get_clock().now().to_msg())
-        self._status_dirty = True
+        g.action = action
+        self._status_dirty = action is None
         try:
             fut = self.team.options(timeout=timeout, policy=policy).submit(program, **args)
         except Exception as exc:  # unknown program, arguments that cannot be sent, a closed team
             self._finish(g, {"ok": False, "error": str(exc), "error_kind": _kind(exc), "host": "", "attempts": 0})
-            return
+            return g
         g.fut = fut
         g.status = GoalStatus.STATUS_EXECUTING
         self._feedback(g, "accepted", "", 0, None, "")
         fut.add_update_callback(lambda f, gid=goal_id: self._future_changed(gid, f))
+        return g
+
+    # ------------------------------------------------------------ the RunProgram action
+    async def _execute(self, goal_handle):
+        """A RunProgram goal: submit, relay feedback, return the outcome."""
+        req = goal_handle.request
+        goal_id = "action-" + bytes(goal_handle.goal_id.uuid).hex()
+        done = rclpy.task.Future()
+        try:
+            args = json.loads(req.args_json or "{}")
+            if not isinstance(args, dict):
+                raise ValueError("args_json must be a JSON object of keyword arguments")
+            if not req.program:
+                raise ValueError("program is empty: name a registered program")
+            if not (req.timeout >= 0):
+                raise ValueError(f"timeout must be >= 0 seconds, got {req.timeout}")
+        except ValueError as exc:
+            self.bad_goals += 1
+            goal_handle.abort()
+            return RunProgram.Result(ok=False, error=f"bad goal: {exc}", error_kind="bad_goal")
+        self._start(goal_id, req.program, args, req.timeout or self.params["goal_timeout"] or None, "",
+                    action=(goal_handle, done))
+        out = await done
+        kind = out.get("error_kind", "")
+        if out["ok"]:
+            goal_handle.succeed()
+        elif kind == "cancelled" and goal_handle.is_cancel_requested:
+            goal_handle.canceled()
+        else:
+            goal_handle.abort()
+        return RunProgram.Result(ok=out["ok"], value_json=json.dumps(out.get("value"), default=_jsonable),
+                                 error=out.get("error", ""), error_kind=kind, host=out.get("host", ""),
+                                 attempts=out.get("attempts", 0))
+
+    def _cancel_action(self, goal_handle):
+        g = self._goals.get("action-" + bytes(goal_handle.goal_id.uuid).hex())
+        if g is not None and g.fut is not None and g.done_at is None:
+            g.fut.cancel()  # withdraws the program; its outcome ends the goal as canceled
+        return self._cancel_ok
 
     def _on_cancel(self, goal_id: str) -> None:
         g = self._goals.get(goal_id)
@@ -290,11 +353,19 @@ class RosFace(Node):
         kind = out.get("error_kind")
         g.status = (GoalStatus.STATUS_SUCCEEDED if out["ok"] else
                     GoalStatus.STATUS_CANCELED if kind == "cancelled" else GoalStatus.STATUS_ABORTED)
+        if g.action is not None:  # the action server reports it (result, status)
+            g.action[1].set_result(out)
+            return
         self._status_dirty = True
         self._result({"goal_id": g.goal_id, "program": g.program, **out})
 
     # ------------------------------------------------------------ publishing
     def _feedback(self, g: _Goal, state: str, host: str, attempt: int, progress, detail: str) -> None:
+        if g.action is not None:
+            g.action[0].publish_feedback(RunProgram.Feedback(
+                state=state, host=host, attempt=attempt, progress=-1.0 if progress is None else float(progress),
+                detail=detail))
+            return
         self.pub_feedback.publish(String(data=json.dumps({
             "goal_id": g.goal_id, "program": g.program, "state": state, "host": host, "attempt": attempt,
             "progress": progress, "detail": detail})))
@@ -312,6 +383,8 @@ class RosFace(Node):
         self._status_dirty = False
         arr = GoalStatusArray()
         for g in self._goals.values():
+            if g.action is not None:
+                continue  # the action server's own status topic has it
             arr.status_list.append(GoalStatus(goal_info=GoalInfo(goal_id=UUID(uuid=list(g.uuid)), stamp=g.stamp),
                                               status=g.status))
         self.pub_status.publish(arr)
