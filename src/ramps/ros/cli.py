@@ -9,7 +9,9 @@ from typing import Optional
 import typer
 
 ROS_HELP = ("Expose this robot's ramps team to ROS 2 (needs: pip install 'ramps-robotics\\[ros]').\n\n"
-            "Every registered program becomes runnable from ROS: send a goal as JSON on /ROBOT/ramps/goal "
+            "Every registered program becomes runnable from ROS as the action /ROBOT/ramps/run "
+            "(ramps_interfaces/action/RunProgram: build it once with --build-interfaces), or over topics: "
+            "send a goal as JSON on /ROBOT/ramps/goal "
             "(std_msgs/String, e.g. {\"goal_id\": \"g1\", \"program\": \"route_plan\", \"args\": {\"seed\": 3}}), "
             "read feedback (host, state, progress) on /ROBOT/ramps/feedback and the result on /ROBOT/ramps/result; "
             "cancel by sending the goal id on /ROBOT/ramps/cancel (the program is withdrawn from the team); goal "
