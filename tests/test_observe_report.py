@@ -105,6 +105,43 @@ def test_timeline_of_every_sequential_crash():
             assert a.start > crashed[a.host] or a.end <= crashed[a.host] + 1.0
 
 
+def test_report_of_a_testbed_run_matches_its_traces(tmp_path):
+    """tests/data/testbed-run: the traces of r1 and r2, both origins, from one run of `ramps testbed
+    campaign` (4 emulated robots; r4 stalled and dropped off while it ran programs of both; r1's own
+    driver stalled 1.6 s). Every write-off, re-placement and delivery in the timeline is where and
+    when the traces put it."""
+    paths = sorted((ROOT / "tests" / "data" / "testbed-run").glob("r*.trace.jsonl"))
+    lines = [json.loads(x) for p in paths for x in p.read_text().splitlines()]
+    t0 = min(x["wall"] for x in lines)
+    tl = build_timeline(*load_run(paths))
+    attempts = {(a.program_id, a.attempt): a for a in tl.attempts}
+    placed = [x for x in lines if x["what"] == "placed"]
+    assert len(attempts) == len(placed) and {a.origin for a in tl.attempts} == {"r1", "r2"}
+    for x in placed:
+        a = attempts[(x["program_id"], x["attempt"])]
+        assert (a.host, a.origin, a.start) == (x["other"], x["robot"], pytest.approx(x["wall"] - t0, abs=1e-6))
+    failed = [x for x in lines if x["what"] == "failed"]
+    assert failed
+    for x in failed:
+        a = attempts[(x["program_id"], x["attempt"])]
+        assert (a.outcome, a.host, a.detail) == ("failed", x["other"], x["detail"])
+        assert a.end == pytest.approx(x["wall"] - t0, abs=1e-6)
+        nxt = attempts[(x["program_id"], x["attempt"] + 1)]  # placed again, after the write-off
+        assert nxt.start >= a.end and nxt.host != a.host
+    delivered = [x for x in lines if x["what"] == "delivered"]
+    for x in delivered:
+        a = attempts[(x["program_id"], x["attempt"])]
+        assert (a.outcome, a.host) == ("delivered", x["other"])
+        assert a.end == pytest.approx(x["wall"] - t0, abs=1e-6)
+    expected = {r: sum(1 for x in delivered if x["other"] == r and not x["detail"]) for r in tl.robots}
+    assert tl.distribution == expected
+    moved = tl.replacements()
+    assert len(moved) == len(failed)
+    rep = make_report(paths)
+    assert [n for n, _, png in rep.figures if png.startswith(PNG)] == ["timeline", "load", "distribution"]
+    assert sum(1 for row in rep.table[1:] if row[1] == "re-placed") == len(failed)
+
+
 def test_bad_inputs_are_clear_errors(tmp_path):
     (tmp_path / "x.jsonl").write_text('{"t": 1}\n')
     with pytest.raises(ReportError, match="x.jsonl:1"):

@@ -72,13 +72,13 @@ def report(
         _fail(str(exc))
     html_path = out_file or Path(paths[0].name.split(".")[0] + ".html")
     write_html(rep, html_path)
+    pngs = write_pngs(rep, png) if png is not None else []  # every file first, then the talking
     _out.print(f"report: {html_path} ({len(rep.figures)} figures" + (
         f", {len(rep.table) - 1} events" if len(rep.table) > 1 else "") + ")")
     for line in rep.summary:
         _out.print(f"  {line[0]}: {line[1]}")
-    if png is not None:
-        for p in write_pngs(rep, png):
-            _out.print(f"  {p}")
+    for p in pngs:
+        _out.print(f"  {p}")
 
 
 def sim_paper_plot(directory: Path, experiment: str, *, policy: str, runs: int, seed: int,

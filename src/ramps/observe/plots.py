@@ -37,8 +37,10 @@ OUTCOME_COLOURS = {"delivered": "#2e7d32", "failed": "#c62828", "rejected": "#ef
 FAULT_COLOURS = {"crash": "#b71c1c", "network": "#e65100", "freeze": "#4a148c", "recover": "#1b5e20"}
 
 
-def _short(pid: str) -> str:
-    return pid.rsplit("-", 1)[-1] if "-" in pid else pid.split("#")[-1]
+def _short(pid: str, origins: int = 1) -> str:
+    """A bar's label: the program's number, with its origin when several robots submitted."""
+    n = pid.rsplit("-", 1)[-1] if "-" in pid else pid.split("#")[-1]
+    return f"{pid.split('#')[0]}:{n}" if origins > 1 and "#" in pid else n
 
 
 def gantt(tl: Timeline, *, title: str = "") -> Figure:
@@ -52,6 +54,7 @@ def gantt(tl: Timeline, *, title: str = "") -> Figure:
     fig, ax = plt.subplots(figsize=(12, height))
     end = max(tl.end, 1e-6)
     few = len(tl.attempts) <= 60
+    origins = len({a.origin for a in tl.attempts})
     for r, (y0, lanes) in bands.items():
         ax.axhspan(y0 - 0.45, y0 + lanes - 0.55, color="#f5f5f5" if tl.robots.index(r) % 2 else "#ffffff", zorder=0)
     for a in tl.attempts:
@@ -66,7 +69,7 @@ def gantt(tl: Timeline, *, title: str = "") -> Figure:
             ax.barh(yy, stop - run_from, left=run_from, height=0.7, color=colour, zorder=2,
                     hatch="//" if a.attempt > 1 else None, edgecolor="white" if a.attempt > 1 else None, linewidth=0)
         if few:
-            ax.text(max(a.start, run_from) + end * 0.003, yy, f"{_short(a.program_id)}"
+            ax.text(max(a.start, run_from) + end * 0.003, yy, f"{_short(a.program_id, origins)}"
                     + (f".{a.attempt}" if a.attempt > 1 else ""), va="center", fontsize=6, color="white"
                     if stop - run_from > end * 0.03 else "black", zorder=4)
         if a.outcome == "failed":

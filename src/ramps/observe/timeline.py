@@ -249,8 +249,11 @@ def _deliver(attempts: dict, pid: str, host: str, t: float, *, ok: bool) -> None
     """The program's delivery ends its winning attempt (the latest on
     ``host``) as delivered and every other open attempt as cancelled."""
     mine = [a for (p, _), a in attempts.items() if p == pid]
-    winner = max((a for a in mine if a.host == host and a.outcome in ("running", "delivered")),
-                 key=lambda a: a.attempt, default=None)
+    on_host = [a for a in mine if a.host == host]
+    # the live attempt there; else one written off while its host still published (a
+    # suspected host keeps its copy wanted, and that copy may be the one that delivers)
+    winner = max((a for a in on_host if a.outcome in ("running", "delivered")), key=lambda a: a.attempt,
+                 default=max(on_host, key=lambda a: a.attempt, default=None))
     for a in mine:
         if a is winner:
             a.end, a.outcome = t, "delivered" if ok else "error"
