@@ -240,14 +240,43 @@ def test_a_host_killed_mid_goal_loses_nothing_and_a_dead_origin_is_reported(team
     def running() -> dict[str, str]:
         return {f["goal_id"]: f["host"] for f in user.feedback if f["state"] == "running"}
 
+    try:  # the same through the RunProgram action, when it is built
+        from ramps_interfaces.action import RunProgram
+        from rclpy.action import ActionClient
+
+        client = ActionClient(user.node, RunProgram, "/r1/ramps/run")
+        user.spin_until(lambda: client.server_is_ready(), "the RunProgram action server")
+    except ImportError:
+        client = None
+    afeedback: dict[str, list] = {}
+
+    def send_action(name: str, **args):
+        fut = client.send_goal_async(RunProgram.Goal(program="stepper", args_json=json.dumps(args),
+                                                     policy="round_robin"),
+                                     feedback_callback=lambda m: afeedback.setdefault(name, []).append(m.feedback))
+        return user.spin_until(lambda: fut.result() if fut.done() else None, f"action goal {name} accepted")
+
     goals = ["k0", "k1", "k2"]
     for g in goals:  # round robin from r1: one goal on each robot
         user.send(g, "stepper", policy="round_robin", steps=8, dt=0.4)
+    actions = {f"a{i}": send_action(f"a{i}", steps=8, dt=0.4) for i in range(3)} if client else {}
     user.spin_until(lambda: set(goals) <= set(running()), "all three goals running")
+    user.spin_until(lambda: all(any(f.state == "running" for f in afeedback.get(a, [])) for a in actions),
+                    "all three action goals running")
     hosts = {g: h for g, h in running().items() if g in goals}
+    ahosts = {a: [f.host for f in afeedback[a] if f.state == "running"][0] for a in actions}
     victim = next(h for h in hosts.values() if h != "r1")
+    assert not actions or victim in ahosts.values(), (ahosts, victim)  # round robin: an action goal there too
     t.kill_node(victim)
-    user.spin_until(lambda: all(g in user.results for g in goals), "every goal's result")
+    aresults = {a: h.get_result_async() for a, h in actions.items()}
+    user.spin_until(lambda: all(g in user.results for g in goals) and all(r.done() for r in aresults.values()),
+                    "every goal's result")
+    for a, r in aresults.items():
+        res = r.result()
+        assert res.status == GoalStatus.STATUS_SUCCEEDED and res.result.host != victim, (a, res)
+        if ahosts[a] == victim:  # it moved: feedback said so
+            states = [f.state for f in afeedback[a]]
+            assert "host_failed" in states or "replaced" in states, states
     for g in goals:
         r = user.results[g]
         assert r["ok"] and r["host"] != victim, r
@@ -258,9 +287,16 @@ def test_a_host_killed_mid_goal_loses_nothing_and_a_dead_origin_is_reported(team
     # now the robot under the ROS face itself dies: its goals fail, clearly, and diagnostics say so
     user.send("orphan", "stepper", steps=100, dt=0.5)
     user.spin_until(lambda: any(f["state"] == "running" for f in user.of("orphan")), "the orphan running")
+    aorphan = send_action("aorphan", steps=100, dt=0.5).get_result_async() if client else None
     t.kill_node("r1")
     r = user.spin_until(lambda: user.results.get("orphan"), "the orphan's result")
     assert not r["ok"] and r["error_kind"] == "lost" and "robot r1, the origin" in r["error"], r
+    if aorphan is not None:
+        user.spin_until(lambda: aorphan.done(), "the action orphan's result")
+        res = aorphan.result()
+        assert res.status == GoalStatus.STATUS_ABORTED and res.result.error_kind == "lost", res
+        assert "robot r1, the origin" in res.result.error
+        client.destroy()
     user.spin_until(lambda: any(s.name == "ramps: ros face" and s.level == DiagnosticStatus.ERROR
                                 and "r1" in s.message for a in user.diagnostics[-2:] for s in a.status),
                     "the face's ERROR on /diagnostics")

@@ -295,7 +295,7 @@ class RosFace(Node):
             self.bad_goals += 1
             goal_handle.abort()
             return RunProgram.Result(ok=False, error=f"bad goal: {exc}", error_kind="bad_goal")
-        self._start(goal_id, req.program, args, req.timeout or self.params["goal_timeout"] or None, "",
+        self._start(goal_id, req.program, args, req.timeout or self.params["goal_timeout"] or None, req.policy,
                     action=(goal_handle, done))
         out = await done
         kind = out.get("error_kind", "")
