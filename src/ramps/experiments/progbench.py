@@ -135,7 +135,8 @@ def _ros_latency(lt, calls: int) -> dict | None:
                 rclpy.spin_once(node, timeout_sec=0.01)
             if gid in results:
                 out.append(results[gid] - t0)
-        return _summary(out) if out else {"skipped": "no result came back"}
+        topics = _summary(out) if out else {"skipped": "no result came back"}
+        return {"topics": topics, "action": _action_latency(node, calls)}
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
@@ -144,6 +145,31 @@ def _ros_latency(lt, calls: int) -> dict | None:
             face.wait(20)
         except subprocess.TimeoutExpired:
             face.kill()
+
+
+def _action_latency(node, calls: int) -> dict:
+    """send_goal -> result of the RunProgram action (echo), if it is built."""
+    try:
+        from ramps_interfaces.action import RunProgram
+    except ImportError:
+        return {"skipped": "ramps_interfaces not built (ramps ros --build-interfaces)"}
+    import rclpy
+    from rclpy.action import ActionClient
+
+    client = ActionClient(node, RunProgram, "/r1/ramps/run")
+    if not client.wait_for_server(timeout_sec=30):
+        return {"skipped": "no RunProgram action server"}
+    out = []
+    for i in range(calls):
+        t0 = time.perf_counter()
+        sent = client.send_goal_async(RunProgram.Goal(program="echo", args_json=json.dumps({"i": i})))
+        rclpy.spin_until_future_complete(node, sent, timeout_sec=60)
+        res = sent.result().get_result_async()
+        rclpy.spin_until_future_complete(node, res, timeout_sec=60)
+        if res.done() and res.result().result.ok:
+            out.append(time.perf_counter() - t0)
+    client.destroy()
+    return _summary(out) if out else {"skipped": "no result came back"}
 
 
 def _import_times(runs: int = 15) -> tuple[dict[str, float], dict[str, float]]:
@@ -217,10 +243,13 @@ def main(argv: list[str] | None = None) -> dict:
                 team.close()
             ros = _ros_latency(lt, a.calls)
             res["ros_echo"] = ros
-            if ros and "p50_ms" in ros:
-                print(f"ROS goal -> result (echo via ramps ros): p50 {ros['p50_ms']:.1f} ms, p95 {ros['p95_ms']:.1f} ms")
-            else:
-                print(f"ROS: {ros}")
+            for way in ("topics", "action"):
+                r = (ros or {}).get(way, ros)
+                if r and "p50_ms" in r:
+                    print(f"ROS {way}: goal -> result (echo via ramps ros): p50 {r['p50_ms']:.1f} ms, "
+                          f"p95 {r['p95_ms']:.1f} ms")
+                else:
+                    print(f"ROS {way}: {r}")
     res["import_ramps_cli"], res["import_ramps_cli_ros_hidden"] = _import_times()
     print(f"import ramps.cli: p50 {res['import_ramps_cli']['p50_ms']:.0f} ms with rclpy installed, "
           f"{res['import_ramps_cli_ros_hidden']['p50_ms']:.0f} ms with it hidden")
