@@ -129,7 +129,12 @@ class RampsPolicy(Policy):
         # the count above treats every program already on a host as new; on
         # the likeliest hosts, count instead the work they have left (those
         # that end first speed the new one up): T_there under processor sharing
-        for row in heapq.nsmallest(REFINE, (r for r in rows if r[5] > 0), key=lambda r: r[0]):
+        # (hosts that cost the same by count are drawn at random, so origins
+        # deciding at once look at different ones: the power of d choices)
+        busy = [r for r in rows if r[5] > 0]
+        if len(busy) > REFINE:
+            busy = heapq.nsmallest(REFINE, busy, key=lambda r: (r[0], rng.random()))
+        for row in busy:
             left = view.remaining_work(row[2], now, round(row[5]), work)
             t = shared_finish_time(work, left, row[6], row[7], row[4], row[8]) + (t_comm if row[2] != me else 0.0)
             row[0] = min(row[0], t)
