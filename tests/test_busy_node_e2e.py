@@ -136,21 +136,30 @@ def test_node_killed_alone_takes_its_workers_with_it(tmp_path):
 
 
 def test_what_ends_or_is_submitted_during_a_stall_reaches_its_place(tmp_path):
-    """The application's node is frozen past its lease, so Zenoh closes the
-    application's link to it. A program that ended meanwhile is delivered the
-    moment the node wakes, before the link is back: its outcome used to be
-    published into the void. A program submitted meanwhile used to go
-    nowhere too. Either way the application waited for ever; now the node
-    holds the outcome and the client the submission until the link is back."""
-    with LocalTeam(1, tmp_path, cores=2) as t:
+    """The application's node r1 is frozen past its lease, so Zenoh closes
+    its links. A program that ended meanwhile is delivered the moment r1
+    wakes, before the application's link is back: its outcome used to be
+    published into the void. Programs submitted meanwhile used to go nowhere
+    too (the application waited for ever), and the offload r1 sends to r2
+    right after waking went nowhere (a connect timeout, then a second copy).
+    Now the client holds the submissions, and r1 the outcome and the offload,
+    until the links are back."""
+    trace = tmp_path / "r1.trace"
+    t = LocalTeam(2, tmp_path, cores=2)
+    try:
+        t.start_node("r1", extra_env={"RAMPS_TRACE": str(trace)}, wait=False)
+        t.start_node("r2", wait=False)
+        t.wait_visible(["r1", "r2"])
         team = t.client("r1")
         ends = team.options(local_only=True).submit("sleepy", seconds=1.5, tag="s")
         wait_for(lambda: (t.marks / "s").exists(), 20, "the program to start")
         pid = t.nodes["r1"].pid
         os.kill(pid, signal.SIGSTOP)
         try:
-            time.sleep(2.5)  # the program ends 1.5 s in; the link lapses (lease 1 s)
-            later = team.submit("where", x=2)
+            time.sleep(0.1)  # these two reach r1's socket before its links lapse; r1 places them on waking
+            later = [team.options(policy="round_robin").submit("where", x=i) for i in range(2)]
+            time.sleep(2.4)  # the program ends 1.5 s in; the links lapse (lease 1 s)
+            later.append(team.submit("where", x=2))  # the client holds this one
             time.sleep(1.5)
         finally:
             os.kill(pid, signal.SIGCONT)
@@ -158,4 +167,10 @@ def test_what_ends_or_is_submitted_during_a_stall_reaches_its_place(tmp_path):
         r = ends.result(timeout=RESULT_TIMEOUT)
         print(f"outcome reached the client {time.monotonic() - woke:.2f} s after the node woke")
         assert r["tag"] == "s" and r["robot"] == "r1"
-        assert later.result(timeout=RESULT_TIMEOUT)["x"] == 2
+        res = [f.result(timeout=RESULT_TIMEOUT) for f in later]
+        assert sorted(x["x"] for x in res) == [0, 1, 2] and "r2" in {x["robot"] for x in res}, res
+        time.sleep(0.3)
+        bad = [e for e in trace_lines(trace) if e["what"] in ("failed", "suspected", "backoff") or e["attempt"] > 1]
+        assert not bad, bad
+    finally:
+        t.close()

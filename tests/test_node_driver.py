@@ -87,3 +87,40 @@ def test_far_from_a_stall_a_lost_teammate_is_lost_at_once(driver):
     rt._sleep_until = fake.t
     rt._on_liveliness("r2", False, rt._clock())
     assert rt._held_lost == {} and rt.node.view.is_lost("r2")
+
+
+class FakePub:
+    def __init__(self, matching: bool) -> None:
+        self.sent: list[bytes] = []
+        self.matching = matching
+
+    @property
+    def matching_status(self):
+        return self
+
+    def put(self, data: bytes) -> None:
+        self.sent.append(data)
+
+
+def test_an_outcome_waits_for_its_own_client_only_and_not_for_ever(driver):
+    """An outcome for a client that is not reachable (its link lapsed, or it
+    is gone) is held; outcomes for other clients are not held behind it; it
+    goes when its client is back, or after OUTCOME_HOLD regardless."""
+    rt, fake = driver
+    rt.session = object()  # only _pubs is used
+    gone, here = FakePub(matching=False), FakePub(matching=True)
+    rt._pubs = {"k/gone": gone, "k/here": here}
+    rt._send_outcome("k/gone", b"1")
+    rt._send_outcome("k/here", b"2")
+    rt._send_outcome("k/gone", b"3")
+    assert here.sent == [b"2"] and gone.sent == []
+    rt._flush_outcomes()
+    assert gone.sent == []
+    gone.matching = True  # the client's link is back
+    rt._flush_outcomes()
+    assert gone.sent == [b"1", b"3"] and rt._held_outcomes == []
+    gone.matching = False
+    rt._send_outcome("k/gone", b"4")
+    fake.t += rn.OUTCOME_HOLD + 0.1
+    rt._flush_outcomes()
+    assert gone.sent[-1] == b"4" and rt._held_outcomes == []  # sent regardless, in the end

@@ -148,8 +148,11 @@ class ProgramFuture(Future):
 #: a node stalled for a few seconds, frozen or starved of CPU, comes back
 #: after its stall plus ~1 s to reconnect, and keeps its programs: issue 14)
 ORIGIN_GONE_GRACE = 10.0
-#: seconds between two looks for the node while submissions are held
+#: seconds between two looks for the node while submissions wait for it
 HELD_RETRY = 0.05
+#: a submission the node has not acknowledged (no update, no outcome) is sent
+#: again after this many seconds; the node runs one program per request
+SUBMIT_RESEND = 1.0
 
 _ERRORS = {"program": ProgramFailed, "refused": ProgramRefused, "bad_arguments": BadArguments}
 
@@ -200,8 +203,8 @@ class Team:
         self._reports: dict[str, tuple[LoadReport, float]] = {}
         self._timers: list[tuple[float, int]] = []
         self._timer_cv = threading.Condition(self._lock)
-        #: submissions made while this client's node was unreachable: (request id, bytes)
-        self._held_submits: list[tuple[int, bytes]] = []
+        #: submissions the node has not acknowledged yet: request id -> (bytes, when to send again)
+        self._unacked: dict[int, tuple[bytes, float]] = {}
         self._closed = False
         self.secure = settings.secure
         self._connect = list(settings.connect)
@@ -356,12 +359,13 @@ class Team:
         msg = SubmitProgram(client=self.client_id, request_id=rid, program=program, args=args,
                             work=work or 0.0, local_only=local_only, policy=policy)
         data = encode(self.client_id, msg)
-        with self._lock:  # the node is unreachable (stalled, its link being rebuilt): hold it, see _timeouts
-            held = bool(self._held_submits) or not self._node_reachable()
-            if held:
-                self._held_submits.append((rid, data))
-                self._timer_cv.notify()
-        if held:
+        # until the node acknowledges it (an update or the outcome), _timeouts sends it again: a
+        # submission published while the node's link lapsed (a node stalled, starved of CPU) is lost
+        reachable = self._node_reachable()
+        with self._lock:
+            self._unacked[rid] = (data, time.monotonic() + (SUBMIT_RESEND if reachable else 0.0))
+            self._timer_cv.notify()
+        if not reachable:
             return fut
         try:
             self._pub.put(data)
@@ -380,26 +384,33 @@ class Team:
         except Exception:  # cannot tell: send
             return True
 
-    def _flush_held(self) -> None:
-        """With the lock held: send the held submissions if the node is back
-        (those withdrawn meanwhile are dropped)."""
-        if not self._node_reachable():
-            return
-        held, self._held_submits = self._held_submits, []
-        held = [(rid, data) for rid, data in held if rid in self._futures]
-        self._lock.release()
-        try:
-            for _, data in held:
+    def _resend_unacked(self) -> float | None:
+        """With the lock held: send again the submissions that are due, if
+        the node is reachable (withdrawn ones are forgotten). Returns the
+        seconds until the next is due."""
+        now = time.monotonic()
+        due = [(rid, data) for rid, (data, at) in self._unacked.items() if at <= now]
+        if due and self._node_reachable():
+            for rid, data in due:
+                if rid not in self._futures:
+                    self._unacked.pop(rid, None)
+                    continue
+                self._unacked[rid] = (data, now + SUBMIT_RESEND)
+                self._lock.release()
                 try:
                     self._pub.put(data)
                 except Exception:
                     pass
-        finally:
-            self._lock.acquire()
+                finally:
+                    self._lock.acquire()
+        if not self._unacked:
+            return None
+        return max(HELD_RETRY, min(at for _, at in self._unacked.values()) - time.monotonic())
 
     def _on_done(self, rid: int, fut: Future) -> None:
         with self._lock:
             self._futures.pop(rid, None)
+            self._unacked.pop(rid, None)
         if fut.cancelled() and not self._closed:
             try:
                 self._pub.put(encode(self.client_id, CancelSubmitted(client=self.client_id, request_id=rid)))
@@ -415,6 +426,7 @@ class Team:
         if isinstance(o, ProgramUpdate):
             with self._lock:
                 fut = self._futures.get(o.request_id)
+                self._unacked.pop(o.request_id, None)  # the node has it
             if fut is not None:
                 fut._updated(o)
             return
@@ -422,6 +434,7 @@ class Team:
             return
         with self._lock:
             fut = self._futures.pop(o.request_id, None)
+            self._unacked.pop(o.request_id, None)
         if fut is None or fut.done():
             return
         fut.host = o.host  # which robot ran it
@@ -450,9 +463,7 @@ class Team:
     def _timeouts(self) -> None:
         with self._lock:
             while not self._closed:
-                if self._held_submits:
-                    self._flush_held()
-                retry = HELD_RETRY if self._held_submits else None
+                retry = self._resend_unacked() if self._unacked else None
                 if not self._timers:
                     self._timer_cv.wait(retry or 0.5)
                     continue

@@ -86,6 +86,8 @@ STALL_MIN = 0.5
 STALL_GRACE = 3.0
 #: queued items handled before the timers fire (the rest after them)
 MAX_ITEMS_PER_ROUND = 10_000
+#: answered client requests remembered, so a resent submission is not run twice
+ANSWERED_KEPT = 65536
 #: seconds an outcome waits for its client to be reachable, and between two looks
 OUTCOME_HOLD = 30.0
 OUTCOME_RETRY = 0.05
@@ -116,6 +118,8 @@ class NodeRuntime:
         self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._clients: dict[str, tuple[str, int]] = {}
         self._requests: dict[tuple[str, int], str] = {}
+        #: requests already answered (the newest ANSWERED_KEPT), in answer order
+        self._answered: dict[tuple[str, int], None] = {}
         #: the newest progress of programs this node is origin of, until delivered
         self._progress: dict[str, tuple[float, str]] = {}
         self._seq = 0
@@ -143,8 +147,8 @@ class NodeRuntime:
         self._sleep_until = 0.0
         #: teammates whose liveliness went just after a stall: robot -> core time it counts as lost
         self._held_lost: dict[str, float] = {}
-        #: outcomes waiting for their client to be reachable: (key, bytes, monotonic deadline)
-        self._held_outcomes: list[tuple[str, bytes, float]] = []
+        #: messages waiting for their receiver to be reachable: (key, bytes, monotonic deadline, block)
+        self._held_outcomes: list[tuple[str, bytes, float, bool]] = []
         #: secured team: the newest revocation list, the robots it names, the CA that signs it
         self.revocations: revocation.RevocationList | None = None
         self._revoked: frozenset[str] = frozenset()
@@ -588,8 +592,8 @@ class NodeRuntime:
 
     def _client_submit(self, m: SubmitProgram, now: float) -> list:
         rkey = (m.client, m.request_id)
-        if rkey in self._requests:
-            return []  # a repeated request: one program per request
+        if rkey in self._requests or rkey in self._answered:
+            return []  # a repeated request (clients resend until acknowledged): one program per request
         self._seq += 1
         pid = f"{self.robot}#{self.incarnation % 100000}-{self._seq}"
         self._requests[rkey] = pid
@@ -621,6 +625,9 @@ class NodeRuntime:
             return []
         client, request_id = target
         self._requests.pop(target, None)
+        self._answered[target] = None  # a resend still in flight must not run it again
+        if len(self._answered) > ANSWERED_KEPT:
+            del self._answered[next(iter(self._answered))]
         self._progress.pop(pid, None)
         self._send_outcome(keys.client(self.team, client), encode(self.robot, ProgramOutcome(
             request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts)))
@@ -632,12 +639,15 @@ class NodeRuntime:
         client's link to it is being rebuilt: an outcome published then was
         lost, and the client waited for ever), it is held until one does, for
         OUTCOME_HOLD at most, then sent regardless."""
-        if self._held_outcomes or not self._client_reachable(key):
-            self._held_outcomes.append((key, data, time.monotonic() + OUTCOME_HOLD))
-            return
-        self._put(key, data, block=True)
+        self._send_or_hold(key, data, block=True, until=time.monotonic() + OUTCOME_HOLD)
 
-    def _client_reachable(self, key: str) -> bool:
+    def _send_or_hold(self, key: str, data: bytes, *, block: bool, until: float) -> None:
+        if any(k == key for k, _, _, _ in self._held_outcomes) or not self._reachable(key, block):
+            self._held_outcomes.append((key, data, until, block))
+            return
+        self._put(key, data, block=block)
+
+    def _reachable(self, key: str, block: bool) -> bool:
         if self.session is None:
             return True
         try:
@@ -645,19 +655,24 @@ class NodeRuntime:
             if pub is None:
                 import zenoh
 
-                pub = self._pubs[key] = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+                cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
+                pub = self._pubs[key] = self.session.declare_publisher(key, congestion_control=cc)
             return bool(pub.matching_status.matching)
         except Exception:  # cannot tell: send
             return True
 
     def _flush_outcomes(self) -> None:
+        """Send what was held, per key in order, once its receiver is
+        reachable or its time is up."""
         held, self._held_outcomes = self._held_outcomes, []
         now = time.monotonic()
-        for i, (key, data, until) in enumerate(held):
-            if now < until and not self._client_reachable(key):
-                self._held_outcomes = held[i:]  # in order: the rest waits too
-                return
-            self._put(key, data, block=True)
+        waiting: set[str] = set()
+        for key, data, until, block in held:
+            if key in waiting or (now < until and not self._reachable(key, block)):
+                waiting.add(key)
+                self._held_outcomes.append((key, data, until, block))
+            else:
+                self._put(key, data, block=block)
 
     # ================================================================ outputs
     def _apply(self, actions: list) -> None:
@@ -824,8 +839,8 @@ class NodeRuntime:
             if ap.state not in ("done", "failed"):
                 out.extend(node.handle(Cancel(program_id=pid), now))
         self._apply(node._loopback(out, now))
-        for key, data, _ in self._held_outcomes:  # leaving: the last chance to send them
-            self._put(key, data, block=True)
+        for key, data, _, block in self._held_outcomes:  # leaving: the last chance to send them
+            self._put(key, data, block=block)
         self._held_outcomes = []
         log.info("node %s leaving team %s: handed back %d program(s)", self.robot, self.team, handed)
         if self.bad_messages:
