@@ -48,8 +48,10 @@ from ramps.core.messages import (
     OffloadRejected,
     OffloadRequest,
     ProgramOutcome,
+    ProgramProgress,
     ProgramRef,
     ProgramResult,
+    ProgramUpdate,
     ResultAck,
     SubmitProgram,
     WireError,
@@ -104,6 +106,8 @@ SAMPLES: list[Message] = [
                   local_only=True),
     CancelSubmitted(client="o/app-1", request_id=5),
     ProgramOutcome(request_id=5, ok=False, error="boom", error_kind="program", host="r1", attempts=2),
+    ProgramProgress(program_id="o#1", attempt=2, host="r1", fraction=0.4, detail="row 12 of 30"),
+    ProgramUpdate(request_id=5, state="progress", host="r1", attempt=2, fraction=0.4, detail="row 12 of 30"),
 ]
 
 

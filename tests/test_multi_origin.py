@@ -163,3 +163,44 @@ def test_a_host_whose_programs_are_nearly_done_beats_an_idle_slow_robot() -> Non
     view.on_report(report("a", seq=2, ramps_running=4, runnable=4.0, ramps_avg=4.0, cpu_busy=4.0,
                           accepted_total=4, remaining=[50.0] * 4), 0.5)
     assert choose(RampsPolicy(), view, work=50.0, now=0.5) == "s"
+
+
+# ---------------------------------------------------------------- learned work
+def test_work_declared_4x_too_small_is_learned_within_20_percent_in_5_runs() -> None:
+    # three origins; route plans take 53 units but declare 13.25; each origin
+    # submits one every 30 s (each finishes before the next), r3 is busy
+    robots = [RobotSpec(name="r1"), RobotSpec(name="r2"), RobotSpec(name="r3", background=4)]
+    programs = [ProgramSpec(origin=o, count=6, work=53.0, work_estimate=13.25, spacing=60.0) for o in ("r1", "r2")]
+    sim = Simulator(Scenario(robots=robots, programs=programs), policy="ramps", seed=1)
+    res = sim.run()
+    assert (res.completed, res.lost, res.duplicated) == (12, 0, 0)
+    for origin in ("r1", "r2"):
+        learned = sim.robots[origin].node.statistics().learned_work
+        assert learned["route_plan"] == pytest.approx(53.0, rel=0.2)
+    # after the first run it already knows: each of the 6 runs it saw counts
+    assert len(sim.robots["r1"].node.origin._learned["route_plan"]) == 6
+
+
+def test_placements_use_the_learned_work() -> None:
+    # o has one core and one busy process; a is idle. For a declared 0.01
+    # units the link costs more than sharing o's core; once o learned that the
+    # program takes 10 units, it goes to a
+    from ramps.core.events import ProgramFinished, Submit
+    from ramps.core.messages import OffloadRequest
+    from ramps.testing import FakeTeam
+
+    team = FakeTeam({"o": (1, 1.0), "a": (4, 1.0)})
+    team.nodes["o"].executor.background = 1.0
+    team.publish()
+    team.handle("o", Submit(program_id="p1", program="plan", work=0.01))
+    team.deliver()
+    assert team.nodes["o"].origin.programs["p1"].host == "o"
+    team.now = 20.0
+    team.handle("o", ProgramFinished(program_id="p1", attempt=1, ok=True))
+    team.deliver()
+    assert team.nodes["o"].statistics().learned_work["plan"] == pytest.approx(10.0)  # 20 s at half a core
+    team.publish()
+    team.handle("o", Submit(program_id="p2", program="plan", work=0.01))
+    team.deliver()
+    [req] = team.sent(OffloadRequest, to="a")
+    assert req.program_id == "p2" and req.work == pytest.approx(10.0)

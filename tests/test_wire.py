@@ -66,7 +66,8 @@ def test_a_newer_version_with_an_unknown_body_is_still_a_version_error() -> None
 
 def test_an_old_load_report_without_the_newer_fields_still_decodes() -> None:
     full = _body(report("r1"))
-    for newer in ("bad_messages", "blacklisted", "cpu_per_core", "load_avg", "mem_free", "window", "sees"):
+    for newer in ("bad_messages", "blacklisted", "cpu_per_core", "load_avg", "mem_free", "window", "sees",
+                  "remaining"):
         full.pop(newer, None)
     env = decode(_raw(full, sender="r1"))
     assert env.msg.bad_messages == 0 and env.msg.blacklisted == [] and env.msg.sees is None
@@ -76,6 +77,7 @@ def test_an_old_load_report_without_the_newer_fields_still_decodes() -> None:
 ACK = _body(m.ResultAck(program_id="p", attempt=1, origin="o"))
 REQ = _body(m.OffloadRequest(program_id="p", attempt=1, origin="o", host="h", program="burn"))
 REP = _body(report("r1"))
+RES = _body(m.ProgramResult(program_id="p", attempt=1, host="h", ok=True))
 
 
 @pytest.mark.parametrize("body, field, value", [
@@ -111,6 +113,9 @@ REP = _body(report("r1"))
     (REP, "sees", -1),
     (REP, "cpu_per_core", [0.5] * (m.MAX_CORES + 1)),
     (REP, "cpu_per_core", [math.nan]),
+    (RES, "work_done", math.nan),
+    (RES, "work_done", -1.0),
+    (RES, "work_done", math.inf),
     (REP, "remaining", [1.0] * (m.MAX_LISTED + 1)),
     (REP, "remaining", [math.nan]),
     (REP, "remaining", [-1.0]),
@@ -331,6 +336,7 @@ def test_a_garbage_result_value_fails_the_future_instead_of_hanging_it() -> None
     fut: Future = Future()
     fut.program = "echo"  # type: ignore[attr-defined]
     team._futures = {7: fut}
+    team._unacked = {}
     team._on_outcome(_Sample(encode("r1", m.ProgramOutcome(request_id=7, ok=True, value=b"\xc1", host="r1"))))
     assert fut.done()
     with pytest.raises(Exception, match="could not be decoded"):

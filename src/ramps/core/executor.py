@@ -186,6 +186,7 @@ class Executor:
         result = ProgramResult(
             program_id=ev.program_id, attempt=ev.attempt, host=self.me, ok=ev.ok, value=ev.value,
             error=ev.error, result_size=ev.result_size, retryable=ev.retryable, finish_seq=self.finished_total,
+            work_done=job.done if ev.ok else None,
         )
         self._outbox[key] = (job.origin, result, now + self.config.result_resend, now + self.config.result_retention)
         out.append(Send(to=job.origin, msg=result))

@@ -232,6 +232,10 @@ class ProgramResult(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True,
     retryable: bool = False
     #: the host's finished_total after this program ended
     finish_seq: Count = 0
+    #: the work the program took by the host's estimate (its run time times
+    #: the share of a core processor sharing gave it, in work units), which
+    #: the origin learns from; None where the host did not estimate it
+    work_done: Amount | None = None
 
 
 class ResultAck(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="ack"):

@@ -78,6 +78,8 @@ class NodeStatistics(msgspec.Struct, frozen=True, kw_only=True):
     active_programs: int
     blacklisted: list[str]
     reports_received: int
+    #: program name -> work learned from completed runs (see Origin.work_estimate)
+    learned_work: dict[str, float] = {}
 
 
 class Node:
@@ -265,5 +267,5 @@ class Node:
             anomalies=o.anomalies, host_failures=o.host_failures, rejections=o.rejections,
             refused=e.refused, accepted_total=e.accepted_total, finished_total=e.finished_total,
             running=len(e.running), active_programs=o.active(), blacklisted=self.view.blacklisted(),
-            reports_received=self.view.reports_received,
+            reports_received=self.view.reports_received, learned_work=self.origin.learned_work(),
         )

@@ -39,6 +39,8 @@ from ramps.core.policy import Policy, PlacementRequest, make_policy
 from ramps.core.program import FINAL, AutonomousProgram, ProgramState, ProtocolError
 
 S = ProgramState
+#: how many of a program's latest runs its learned work is the median of
+LEARN_RUNS = 8
 
 
 class Origin:
@@ -68,6 +70,9 @@ class Origin:
         #: late result is settled (acknowledged, discarded), then forgotten
         self._finished: deque[tuple[float, str]] = deque()
         self._seq = 0
+        #: work each program took in its latest runs (hosts' estimates), by
+        #: program name: placements use their median instead of the declared work
+        self._learned: dict[str, deque[float]] = {}
         # statistics
         self.delivered = 0
         self.discarded = 0
@@ -265,7 +270,7 @@ class Origin:
         if host is None:
             policy = self._policies[sub.policy] if sub.policy else self.policy
             placement = policy.choose(
-                PlacementRequest(program_id=ap.program_id, work=sub.work,
+                PlacementRequest(program_id=ap.program_id, work=self.work_estimate(sub),
                                  payload_size=sub.payload_size, result_size=sub.result_size),
                 self.view, now, self.rng, net=self.net, config=self.config,
                 exclude=frozenset(ap.excluded),
@@ -287,7 +292,7 @@ class Origin:
         out.append(Note(what="placed", program_id=ap.program_id, robot=host, attempt=ap.attempt))
         out.append(Send(to=host, msg=OffloadRequest(
             program_id=ap.program_id, attempt=ap.attempt, origin=self.me, host=host,
-            program=sub.program, args=sub.args, payload_size=sub.payload_size, work=sub.work,
+            program=sub.program, args=sub.args, payload_size=sub.payload_size, work=self.work_estimate(sub),
             expected_runnable=expected, time_budget=budget, force=ap.rejections >= self.config.max_rejections,
         )))
         self._set_timer(ap, now + self.config.connect_timeout, "connect_timeout")
@@ -428,8 +433,21 @@ class Origin:
             return
         self._leave_host(ap, msg.host, msg.finish_seq, attempt=msg.attempt)
         ap.live.pop(msg.attempt, None)
+        if msg.ok and msg.work_done is not None:
+            runs = self._learned.setdefault(ap.submit.program, deque(maxlen=LEARN_RUNS))
+            runs.append(msg.work_done)
         self._deliver(ap, now, out, ok=msg.ok, value=msg.value, error=msg.error, host=msg.host,
                       kind="" if msg.ok else "program")
+
+    def work_estimate(self, sub: Submit) -> float:
+        """The work a program will take: the median of what its latest runs
+        took (robust to one odd host), or its declaration before any ran."""
+        runs = self._learned.get(sub.program)
+        return _median(runs) if runs else sub.work
+
+    def learned_work(self) -> dict[str, float]:
+        """Program name -> the work placements now assume (learned ones only)."""
+        return {name: _median(runs) for name, runs in self._learned.items() if runs}
 
     def _on_cancel(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
         self._deliver(ap, now, out, ok=False, error="cancelled by the application", host=ap.host or "",
@@ -459,3 +477,9 @@ class Origin:
 
     def active(self) -> int:
         return sum(1 for ap in self.programs.values() if ap.state not in FINAL)
+
+
+def _median(values) -> float:
+    ordered = sorted(values)
+    mid = len(ordered) // 2
+    return ordered[mid] if len(ordered) % 2 else 0.5 * (ordered[mid - 1] + ordered[mid])

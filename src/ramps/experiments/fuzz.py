@@ -32,6 +32,7 @@ exits 1 if any exception was counted.
 
 from __future__ import annotations
 
+import functools
 import math
 import random
 import sys
@@ -140,7 +141,8 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
         return m.ProgramResult(program_id=pid, attempt=attempt, host=host, ok=ok,
                                value=_enc.encode(rng.randint(0, 9)) if ok else b"",
                                error="" if ok else "boom", retryable=not ok and rng.random() < 0.5,
-                               finish_seq=_count(rng), result_size=_count(rng))
+                               finish_seq=_count(rng), result_size=_count(rng),
+                               work_done=rng.choice([None, 0.0, _amount(rng, 100.0), 1e300]) if ok else None)
     if kind == 6:
         return m.ResultAck(program_id=pid, attempt=attempt, origin=rng.choice(PEERS))
     if kind == 7:
@@ -399,8 +401,11 @@ def fuzz_decode(rng: random.Random, data: bytes, kind: str, tally: _Tally, out: 
     return env
 
 
+@functools.lru_cache(maxsize=1)
 def _signed_list() -> tuple[bytes, Any]:
-    """A revocation list signed by a throwaway team CA, and that CA's certificate."""
+    """A revocation list signed by a throwaway team CA, and that CA's
+    certificate: made once per process, since an ECDSA signature (and the
+    CA's key) differ every time, and the same seed must give the same run."""
     import tempfile
 
     from ramps.runtime import revocation, security
