@@ -19,10 +19,13 @@ which would hide ``/sys/fs/cgroup`` from the node, so it could not see its
 quota nor measure its load within its cgroup.
 
 Discovery: multicast scouting (``--multicast``) inside the bridge *and* an
-explicit ``--connect`` to a seed (r1; r1's seed is r2). Multicast alone
-finds everyone at start-up, but the explicit seed makes rejoining after a
-cut deterministic (the side holding a ``connect`` endpoint redials by
-itself, see ZENOH-NOTES) instead of depending on the scouting period.
+explicit ``--connect`` to a seed (r1, for every robot but r1). Multicast
+alone finds everyone at start-up, but the explicit seed makes rejoining after
+a cut deterministic (the side holding a ``connect`` endpoint redials by
+itself, see ZENOH-NOTES) instead of depending on the scouting period. r1
+dials nobody: everyone dials it. (r1 used to dial r2 as its seed; with r2
+dialing r1 too, stalls of both overlapping left them deaf to each other for
+good, zenoh#2806: the stressed campaign, seed 25000000.)
 ``discovery="multicast"`` or ``"connect"`` picks just one of the two.
 
 Faults (all undone by ``recover``):
@@ -296,9 +299,8 @@ class Testbed:
         rb = self.robots[robot]
         cmd = [self.python, "-m", "ramps.cli", "node", "--robot", robot, "--team", self.team,
                "--listen", f"tcp/{rb['ip']}:{PORT}"]
-        if self.discovery in ("both", "connect") and len(self.names) > 1:
-            seed = self.names[1] if robot == self.names[0] else self.names[0]
-            cmd += ["--connect", f"tcp/{self.robots[seed]['ip']}:{PORT}"]
+        if self.discovery in ("both", "connect") and robot != self.names[0]:
+            cmd += ["--connect", f"tcp/{self.robots[self.names[0]]['ip']}:{PORT}"]
         cmd += ["--multicast" if self.discovery in ("both", "multicast") else "--no-multicast"]
         for flag, value in (("--cores", self.cores), ("--speed", self.speed), ("--policy", self.policy),
                             ("--lease-ms", self.lease_ms)):
