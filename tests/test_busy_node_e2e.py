@@ -167,7 +167,9 @@ def test_what_ends_or_is_submitted_during_a_stall_reaches_its_place(tmp_path):
         print(f"outcome reached the client {time.monotonic() - woke:.2f} s after the node woke")
         assert r["tag"] == "s" and r["robot"] == "r1"
         res = [f.result(timeout=RESULT_TIMEOUT) for f in later]
-        assert sorted(x["x"] for x in res) == [0, 1, 2] and "r2" in {x["robot"] for x in res}, res
+        # (where they ran is not asserted: an offer r1 sends to r2 the moment it wakes may be lost
+        # while their link is rebuilt, and the program then runs elsewhere after a connect timeout)
+        assert sorted(x["x"] for x in res) == [0, 1, 2], res
         time.sleep(0.3)
         placed = [e for e in trace_lines(trace) if e["what"] == "placed" and e["attempt"] == 1]
         assert len(placed) == 4, placed  # each request placed once, resends or not
