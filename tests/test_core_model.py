@@ -43,6 +43,8 @@ from ramps.core.messages import (
     CancelProgram,
     CancelSubmitted,
     Heartbeat,
+    LinkProbe,
+    LinkProbeReply,
     Message,
     OffloadAccepted,
     OffloadRejected,
@@ -108,6 +110,8 @@ SAMPLES: list[Message] = [
     ProgramOutcome(request_id=5, ok=False, error="boom", error_kind="program", host="r1", attempts=2),
     ProgramProgress(program_id="o#1", attempt=2, host="r1", fraction=0.4, detail="row 12 of 30"),
     ProgramUpdate(request_id=5, state="progress", host="r1", attempt=2, fraction=0.4, detail="row 12 of 30"),
+    LinkProbe(sent_at=12.5, padding=b"\0" * 64),
+    LinkProbeReply(sent_at=12.5, size=64),
 ]
 
 

@@ -64,9 +64,11 @@ def test_happy_path_remote() -> None:
     stats = team.nodes["o"].statistics()
     assert (stats.placements, stats.delivered, stats.anomalies, stats.host_failures) == (1, 1, 0, 0)
     assert stats.active_programs == 0
-    assert team.nodes["o"].next_deadline() is None
+    # nothing left but the periodic link probe
+    assert team.nodes["o"].next_deadline() == team.nodes["o"]._probe_due
+    assert team.nodes["o"].origin.next_deadline() is None
     team.advance(9.0)
-    assert team.nodes["a"].next_deadline() is None  # nothing left to resend or report
+    assert team.nodes["a"].executor.next_deadline() is None  # nothing left to resend or report
 
 
 def test_local_placement_runs_through_the_same_protocol() -> None:
@@ -579,11 +581,11 @@ def test_executor_resends_unacknowledged_result_until_acknowledged() -> None:
     a.handle(Received(sender="o", msg=ResultAck(program_id="p", attempt=1, origin="o")), now)
     assert a.executor.unacked_results() == 0
     for _ in range(5):
-        d = a.next_deadline()
+        d = a.executor.next_deadline()
         if d is None:
             break
         assert not [x for x in a.tick(d) if isinstance(x, Send)]
-    assert a.next_deadline() is None
+    assert a.executor.next_deadline() is None
 
 
 def test_executor_ignores_an_ack_from_somebody_else() -> None:

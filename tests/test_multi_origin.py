@@ -5,6 +5,7 @@ behaviour, not of timing."""
 
 from __future__ import annotations
 
+import msgspec
 import pytest
 
 from ramps.core.config import RampsConfig
@@ -204,3 +205,39 @@ def test_placements_use_the_learned_work() -> None:
     team.deliver()
     [req] = team.sent(OffloadRequest, to="a")
     assert req.program_id == "p2" and req.work == pytest.approx(10.0)
+
+
+# ---------------------------------------------------------------- measured T_comm
+def _slow_link_team(probe_period: float) -> Scenario:
+    # r1 is swamped; r2 and r3 are idle twins, but r3 sits behind a
+    # 100 kB/s link: 5 MB of parameters take 50 s to reach it, 2 s to r2
+    return Scenario(
+        robots=[RobotSpec(name="r1", cores=1, background=4), RobotSpec(name="r2"),
+                RobotSpec(name="r3", bandwidth=1e5, latency=0.05)],
+        programs=[ProgramSpec(origin="r1", count=4, work=53.0, payload=5_000_000, spacing=1.0, at=20.0)],
+        config=RampsConfig(probe_period=probe_period),
+    )
+
+
+def test_links_are_measured_per_teammate() -> None:
+    # measured before the programs start (their 5 MB would queue the probes)
+    sim = Simulator(msgspec.structs.replace(_slow_link_team(5.0), until=24.0), policy="ramps", seed=1)
+    sim.run()
+    links = sim.robots["r1"].node.links
+    fast, slow = links.estimate("r2"), links.estimate("r3")
+    assert fast.latency == pytest.approx(0.005, rel=0.3) and slow.latency == pytest.approx(0.05, rel=0.3)
+    assert slow.bandwidth == pytest.approx(1e5, rel=0.3) and fast.bandwidth > 10 * slow.bandwidth
+
+
+def test_a_big_payload_avoids_the_teammate_behind_a_slow_link() -> None:
+    def offered(res, robot):
+        return sum(1 for e in res.trace if e.what == "placed" and e.other == robot)
+
+    measured = simulate(_slow_link_team(5.0), policy="ramps", seed=1, trace=True)
+    assumed = simulate(_slow_link_team(0.0), policy="ramps", seed=1, trace=True)
+    assert (measured.completed, measured.lost, measured.duplicated) == (4, 0, 0)
+    assert offered(measured, "r3") == 0 and measured.distribution["r2"] == 4
+    assert not [e for e in measured.trace if e.what == "failed"]  # no offer timed out behind the others
+    # believing every link equal, the origin sent 5 MB towards r3 (50 s away)
+    # and wrote those offers off when they were not accepted in time
+    assert offered(assumed, "r3") > 0 and [e for e in assumed.trace if e.what == "failed"]

@@ -78,6 +78,8 @@ ACK = _body(m.ResultAck(program_id="p", attempt=1, origin="o"))
 REQ = _body(m.OffloadRequest(program_id="p", attempt=1, origin="o", host="h", program="burn"))
 REP = _body(report("r1"))
 RES = _body(m.ProgramResult(program_id="p", attempt=1, host="h", ok=True))
+PRB = _body(m.LinkProbe(sent_at=1.0))
+PRR = _body(m.LinkProbeReply(sent_at=1.0))
 
 
 @pytest.mark.parametrize("body, field, value", [
@@ -113,6 +115,11 @@ RES = _body(m.ProgramResult(program_id="p", attempt=1, host="h", ok=True))
     (REP, "sees", -1),
     (REP, "cpu_per_core", [0.5] * (m.MAX_CORES + 1)),
     (REP, "cpu_per_core", [math.nan]),
+    (PRB, "padding", b"\0" * (m.MAX_PROBE_BYTES + 1)),
+    (PRB, "sent_at", math.nan),
+    (PRB, "sent_at", -1.0),
+    (PRR, "size", m.MAX_PROBE_BYTES + 1),
+    (PRR, "size", -1),
     (RES, "work_done", math.nan),
     (RES, "work_done", -1.0),
     (RES, "work_done", math.inf),

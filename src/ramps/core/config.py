@@ -58,6 +58,9 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: load only, see ``ramps.core.node``); at most one per interval
     prompt_reports: bool = True
     prompt_report_interval: float = 0.0
+    #: a node probes each teammate's link this often to measure T_comm
+    #: (``ramps.core.links``); 0 = assume the configured network estimate
+    probe_period: float = 5.0
 
     def __post_init__(self) -> None:
         for name in self.__struct_fields__:
@@ -82,4 +85,5 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             backoff_lost_max=10.0,
             hedge_suspects=False,
             prompt_reports=False,
+            probe_period=0.0,
         )

@@ -24,6 +24,7 @@ robot that runs it; a robot is both at once for its local programs):
     origin       --ResultAck-->       host
     origin       --CancelProgram-->   host     (program done elsewhere / moved)
     host         --ProgramProgress--> origin   (what the program reported, with heartbeats)
+    robot        --LinkProbe-->       teammate --LinkProbeReply--> robot  (T_comm: latency, bandwidth)
 
 and between an application (client) and its robot's node:
 
@@ -66,6 +67,8 @@ MAX_WEIGHT = 88761 / 1024
 MAX_PROGRESS_TEXT = 256
 #: most running programs a load report lists
 MAX_LISTED = 256
+#: most padding a link probe may carry (bandwidth probes use ramps.core.links.PADDED_BYTES)
+MAX_PROBE_BYTES = 64 * 1024
 
 
 class WireError(ValueError):
@@ -311,6 +314,21 @@ class ProgramUpdate(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True,
     detail: ProgressText = ""
 
 
+class LinkProbe(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="probe"):
+    """How long a message takes to a teammate and back (``ramps.core.links``);
+    ``sent_at`` is the sender's own clock, echoed, and ``padding`` bytes
+    (sometimes) measure the link's bandwidth."""
+
+    sent_at: Amount
+    padding: Annotated[bytes, Meta(max_length=MAX_PROBE_BYTES)] = b""
+
+
+class LinkProbeReply(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="probe_reply"):
+    sent_at: Amount
+    #: padding bytes the probe carried
+    size: Annotated[int, Meta(ge=0, le=MAX_PROBE_BYTES)] = 0
+
+
 Message = Union[
     LoadReport,
     OffloadRequest,
@@ -325,6 +343,8 @@ Message = Union[
     ProgramOutcome,
     ProgramProgress,
     ProgramUpdate,
+    LinkProbe,
+    LinkProbeReply,
 ]
 
 
@@ -399,4 +419,6 @@ def wire_size(msg: Message) -> int:
         return 120 + max(msg.result_size, len(msg.value))
     if isinstance(msg, Heartbeat):
         return 40 + 24 * len(msg.programs)
+    if isinstance(msg, LinkProbe):
+        return 40 + len(msg.padding)
     return 120

@@ -47,10 +47,13 @@ from ramps.core.events import (
     Submit,
 )
 from ramps.core.executor import Executor
+from ramps.core.links import Links
 from ramps.core.loadview import LoadView, report_problem
 from ramps.core.messages import (
     CancelProgram,
     Heartbeat,
+    LinkProbe,
+    LinkProbeReply,
     LoadReport,
     OffloadAccepted,
     OffloadRejected,
@@ -110,6 +113,11 @@ class Node:
         self.view = LoadView(robot, cores=cores, speed=speed, max_report_age=self.config.max_report_age,
                              program_weight=program_weight)
         self.origin = Origin(robot, self.view, self.policy, self.config, self.rng, net or NetworkEstimate())
+        #: T_comm per teammate, measured by link probes (``probe_period``)
+        self.links = Links(net or NetworkEstimate())
+        if self.config.probe_period > 0:
+            self.origin.links = self.links
+        self._probe_due: float | None = 0.0 if self.config.probe_period > 0 else None
         self.executor = Executor(robot, config=self.config, registry=registry, incarnation=incarnation,
                                  cores=cores, speed=speed, program_weight=program_weight)
         self._report_seq = 0
@@ -142,11 +150,16 @@ class Node:
         more: list[Action] = []
         self.origin.tick(now, more)
         out.extend(self._loopback(more, now))
+        if self._probe_due is not None and now >= self._probe_due:
+            for robot in self.view.candidates(now):
+                if robot != self.robot:
+                    out.append(Send(to=robot, msg=self.links.probe(robot, now)))
+            self._probe_due = now + self.config.probe_period
         return self._prompt_report(out, now)
 
     def next_deadline(self) -> float | None:
-        times = [t for t in (self.origin.next_deadline(), self.executor.next_deadline(), self._prompt_due)
-                 if t is not None]
+        times = [t for t in (self.origin.next_deadline(), self.executor.next_deadline(), self._prompt_due,
+                             self._probe_due) if t is not None]
         return min(times) if times else None
 
     def _prompt_report(self, out: list[Action], now: float) -> list[Action]:
@@ -227,6 +240,10 @@ class Node:
             self.executor.on_ack(msg)
         elif isinstance(msg, ProgramProgress):
             self.origin.on_progress(msg, now, out)
+        elif isinstance(msg, LinkProbe):
+            out.append(Send(to=sender, msg=LinkProbeReply(sent_at=msg.sent_at, size=len(msg.padding))))
+        elif isinstance(msg, LinkProbeReply):
+            self.links.on_reply(sender, msg, now)
         elif isinstance(msg, CancelProgram):
             self.executor.on_cancel(msg, now, out)
         else:

@@ -24,6 +24,7 @@ from collections import deque
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate
 from ramps.core.events import Action, Deliver, Note, Progress, Send, Submit
+from ramps.core.links import Links
 from ramps.core.loadview import LoadView
 from ramps.core.messages import (
     CancelProgram,
@@ -70,6 +71,8 @@ class Origin:
         #: late result is settled (acknowledged, discarded), then forgotten
         self._finished: deque[tuple[float, str]] = deque()
         self._seq = 0
+        #: measured latency and bandwidth per teammate (set by the node)
+        self.links: Links | None = None
         #: work each program took in its latest runs (hosts' estimates), by
         #: program name: placements use their median instead of the declared work
         self._learned: dict[str, deque[float]] = {}
@@ -273,7 +276,7 @@ class Origin:
                 PlacementRequest(program_id=ap.program_id, work=self.work_estimate(sub),
                                  payload_size=sub.payload_size, result_size=sub.result_size),
                 self.view, now, self.rng, net=self.net, config=self.config,
-                exclude=frozenset(ap.excluded),
+                exclude=frozenset(ap.excluded), links=self.links.estimate if self.links is not None else None,
             )
             host = placement.host
             if policy.negotiates:
@@ -295,7 +298,15 @@ class Origin:
             program=sub.program, args=sub.args, payload_size=sub.payload_size, work=self.work_estimate(sub),
             expected_runnable=expected, time_budget=budget, force=ap.rejections >= self.config.max_rejections,
         )))
-        self._set_timer(ap, now + self.config.connect_timeout, "connect_timeout")
+        # the host cannot accept before the parameters have crossed the link,
+        # behind those of this robot's other offers to it still on their way
+        transfer = 0.0
+        if host != self.me:
+            link = self.links.estimate(host) if self.links is not None else self.net
+            queued = sum(self.programs[pid].submit.payload_size for pid in self._by_host.get(host, ())
+                         if self.programs[pid].state is S.OFFERED and self.programs[pid].host == host)
+            transfer = queued / link.bandwidth
+        self._set_timer(ap, now + self.config.connect_timeout + transfer, "connect_timeout")
 
     def _on_accepted(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
         if isinstance(msg, OffloadAccepted):

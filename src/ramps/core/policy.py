@@ -32,7 +32,7 @@ from __future__ import annotations
 import heapq
 import math
 import random
-from typing import ClassVar
+from typing import Callable, ClassVar
 
 import msgspec
 
@@ -81,14 +81,17 @@ class Policy:
         net: NetworkEstimate,
         config: RampsConfig,
         exclude: frozenset[str] = frozenset(),
+        links: Callable[[str], NetworkEstimate] | None = None,
     ) -> Placement:
+        """``links(robot)`` is what a message to that robot costs, measured
+        (``ramps.core.links``); None: ``net`` for every robot."""
         raise NotImplementedError
 
 
 class PaperPolicy(Policy):
     name = "paper"
 
-    def choose(self, req, view, now, rng, *, net, config, exclude=frozenset()):
+    def choose(self, req, view, now, rng, *, net, config, exclude=frozenset(), links=None):
         # the prototype paid the same T_comm for every executor, local included,
         # and slowed its estimate in proportion to the robot's CPU utilisation
         work = req.work
@@ -109,10 +112,10 @@ class RampsPolicy(Policy):
     negotiates = True
     shares_load = True
 
-    def choose(self, req, view, now, rng, *, net, config, exclude=frozenset()):
+    def choose(self, req, view, now, rng, *, net, config, exclude=frozenset(), links=None):
         me = view.me
         work = req.work
-        t_comm = comm_time(req.payload_size, req.result_size, net)
+        t_comm_default = comm_time(req.payload_size, req.result_size, net)
         rows = []
         t_best = math.inf
         for robot, cores, speed, ramps, background, weight in view.scan(now, exclude):
@@ -121,9 +124,13 @@ class RampsPolicy(Policy):
                 t = work / (speed * min(1.0, cores / (runnable + 1.0)))
             else:  # the robot's own busy software outweighs the program
                 t = work / (speed * program_share(cores, ramps + 1.0, background, weight))
+            t_comm = 0.0
             if robot != me:
+                t_comm = t_comm_default if links is None else comm_time(req.payload_size, req.result_size,
+                                                                         links(robot))
                 t += t_comm
-            rows.append([t, (runnable + 1.0) / cores, robot, runnable, background, ramps, cores, speed, weight])
+            rows.append([t, (runnable + 1.0) / cores, robot, runnable, background, ramps, cores, speed, weight,
+                         t_comm])
             if t < t_best:
                 t_best = t
         # the count above treats every program already on a host as new; on
@@ -136,7 +143,7 @@ class RampsPolicy(Policy):
             busy = heapq.nsmallest(REFINE, busy, key=lambda r: (r[0], rng.random()))
         for row in busy:
             left = view.remaining_work(row[2], now, round(row[5]), work)
-            t = shared_finish_time(work, left, row[6], row[7], row[4], row[8]) + (t_comm if row[2] != me else 0.0)
+            t = shared_finish_time(work, left, row[6], row[7], row[4], row[8]) + row[9]
             row[0] = min(row[0], t)
         t_best = min(row[0] for row in rows)
         # costs within the tolerance are equal (eq. 1 cannot tell them apart);
@@ -155,7 +162,7 @@ class RampsPolicy(Policy):
         alternative = min((row[0] for row in rows if row[2] != pick[2]), default=None)
         budget = None
         if alternative is not None and math.isfinite(alternative):
-            budget = alternative - (t_comm if pick[2] != me else 0.0)
+            budget = alternative - pick[9]
         return Placement(host=pick[2], expected_runnable=pick[3], expected_time=pick[0], time_budget=budget)
 
 
@@ -165,7 +172,7 @@ class RoundRobinPolicy(Policy):
     def __init__(self) -> None:
         self._next = 0
 
-    def choose(self, req, view, now, rng, *, net, config, exclude=frozenset()):
+    def choose(self, req, view, now, rng, *, net, config, exclude=frozenset(), links=None):
         cands = [row[0] for row in view.scan(now, exclude)]
         ring = [view.me] + sorted(c for c in cands if c != view.me)
         host = ring[self._next % len(ring)]
@@ -176,7 +183,7 @@ class RoundRobinPolicy(Policy):
 class RandomPolicy(Policy):
     name = "random"
 
-    def choose(self, req, view, now, rng, *, net, config, exclude=frozenset()):
+    def choose(self, req, view, now, rng, *, net, config, exclude=frozenset(), links=None):
         cands = sorted(row[0] for row in view.scan(now, exclude))
         return Placement(host=rng.choice(cands))
 
@@ -184,7 +191,7 @@ class RandomPolicy(Policy):
 class LocalOnlyPolicy(Policy):
     name = "local_only"
 
-    def choose(self, req, view, now, rng, *, net, config, exclude=frozenset()):
+    def choose(self, req, view, now, rng, *, net, config, exclude=frozenset(), links=None):
         return Placement(host=view.me)
 
 

@@ -115,7 +115,7 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
     pid = pid or rng.choice(PROGRAM_IDS)
     attempt = rng.randint(0, 4) if attempt is None else attempt
     host = host or rng.choice(PEERS)
-    kind = rng.randrange(13)
+    kind = rng.randrange(15)
     if kind == 0:
         return random_report(rng)
     if kind == 1:
@@ -158,6 +158,10 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
         return m.ProgramProgress(program_id=pid, attempt=attempt, host=host,
                                  fraction=rng.choice([0.0, 1.0, rng.random()]),
                                  detail=rng.choice(["", "step 3", "d" * m.MAX_PROGRESS_TEXT]))
+    if kind == 13:
+        return m.LinkProbe(sent_at=_amount(rng, 1e6), padding=b"\0" * rng.choice([0, 16, m.MAX_PROBE_BYTES]))
+    if kind == 14:
+        return m.LinkProbeReply(sent_at=_amount(rng, 1e6), size=rng.choice([0, 16384, m.MAX_PROBE_BYTES]))
     if kind == 12:
         return m.ProgramUpdate(request_id=_count(rng), state=rng.choice(["placed", "running", "replaced", ""]),
                                host=rng.choice(["", *PEERS]), attempt=_count(rng),

@@ -303,9 +303,15 @@ class Simulator:
             return
         link = (src.spec.name, to)
         start = max(self.now, self._link_free.get(link, 0.0))
-        tx = wire_size(msg) / self.net.bandwidth
+        latency, bandwidth = self.net.latency, self.net.bandwidth
+        for end in (src.spec, dst.spec):  # a robot's own worse link counts
+            if end.latency is not None:
+                latency = max(latency, end.latency)
+            if end.bandwidth is not None:
+                bandwidth = min(bandwidth, end.bandwidth)
+        tx = wire_size(msg) / bandwidth
         self._link_free[link] = start + tx
-        self._at(start + tx + self.net.latency, self._arrive, (src, src.epoch, dst, dst.epoch, msg))
+        self._at(start + tx + latency, self._arrive, (src, src.epoch, dst, dst.epoch, msg))
 
     def _arrive(self, arg) -> None:
         src, se, dst, de, msg = arg

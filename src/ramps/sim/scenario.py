@@ -71,6 +71,10 @@ class RobotSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
     #: equal shares, the paper's world; a ramps node's default is 10, where
     #: a program gets about a tenth of what a busy process does)
     worker_nice: int = 0
+    #: this robot's own link, when it is worse than the team's network: one-way
+    #: latency (s) and bandwidth (bytes/s) of every message to or from it
+    latency: float | None = None
+    bandwidth: float | None = None
     #: expand this entry into ``count`` identical robots
     count: int | None = None
 
@@ -143,6 +147,10 @@ class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
                 raise ScenarioError(f"{p}.background", f"must be >= 0, got {r.background}")
             if not -20 <= r.worker_nice <= 19:
                 raise ScenarioError(f"{p}.worker_nice", f"must be -20..19 (a Linux niceness), got {r.worker_nice}")
+            if r.latency is not None and not r.latency >= 0:
+                raise ScenarioError(f"{p}.latency", f"must be >= 0, got {r.latency}")
+            if r.bandwidth is not None and not r.bandwidth > 0:
+                raise ScenarioError(f"{p}.bandwidth", f"must be > 0, got {r.bandwidth}")
             if r.count is not None:
                 if r.count < 1:
                     raise ScenarioError(f"{p}.count", f"must be >= 1, got {r.count}")
