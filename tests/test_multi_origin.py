@@ -241,3 +241,29 @@ def test_a_big_payload_avoids_the_teammate_behind_a_slow_link() -> None:
     # believing every link equal, the origin sent 5 MB towards r3 (50 s away)
     # and wrote those offers off when they were not accepted in time
     assert offered(assumed, "r3") > 0 and [e for e in assumed.trace if e.what == "failed"]
+
+
+# ---------------------------------------------------------------- memory
+def test_robots_without_the_memory_a_program_needs_are_not_candidates() -> None:
+    # two origins; r3 is the fastest robot but reports 1 GB free, and each
+    # program needs 1.5 GB
+    gb = 1 << 30
+    robots = [RobotSpec(name="r1", background=6, memory=8 * gb), RobotSpec(name="r2", background=6, memory=8 * gb),
+              RobotSpec(name="r3", speed=2.0, memory=gb), RobotSpec(name="r4", memory=4 * gb),
+              RobotSpec(name="r5", memory=8 * gb)]
+    programs = [ProgramSpec(origin=o, count=3, memory=3 * gb // 2, spacing=0.05) for o in ("r1", "r2")]
+    for seed in range(3):
+        res = simulate(Scenario(robots=robots, programs=programs), policy="ramps", seed=seed)
+        assert (res.completed, res.lost, res.duplicated) == (6, 0, 0)
+        assert res.distribution["r3"] == 0
+    # without the need stated, the fast robot is the first choice
+    plain = [ProgramSpec(origin=o, count=3, spacing=0.05) for o in ("r1", "r2")]
+    assert simulate(Scenario(robots=robots, programs=plain), policy="ramps", seed=0).distribution["r3"] > 0
+
+
+def test_program_decorator_takes_the_memory_a_run_needs() -> None:
+    from ramps.errors import ConfigError
+    from ramps.runtime.registry import program
+
+    with pytest.raises(ConfigError, match="memory"):
+        program("x", memory=-1)

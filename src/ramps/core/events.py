@@ -35,6 +35,9 @@ class Submit(_Rec, frozen=True, kw_only=True):
     local_only: bool = False
     #: placement policy for this program ("" = the node's own)
     policy: str = ""
+    #: bytes of memory the program needs: a robot reporting less free memory
+    #: (after the programs booked there) is not a candidate; 0 = no need stated
+    memory: int = 0
 
 
 class Cancel(_Rec, frozen=True, kw_only=True):

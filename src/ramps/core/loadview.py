@@ -213,6 +213,16 @@ class LoadView:
             left = left[len(left) - programs:]
         return [max(0.0, x) for x in left] + [unknown] * (programs - len(left))
 
+    def short_of_memory(self, memory: int) -> frozenset[str]:
+        """Robots whose last report shows less than ``memory`` bytes free once
+        the programs booked there since count ``memory`` each (robots that
+        report no figure are not judged)."""
+        if memory <= 0:
+            return frozenset()
+        return frozenset(name for name, rob in self._robots.items()
+                         if rob.report is not None and rob.report.mem_free > 0
+                         and rob.report.mem_free - rob.unseen_accept * memory < memory)
+
     def paper_load(self, robot: str) -> float:
         """Busy cores as the paper's load server sees them: the last report's
         CPU load (which saturates at 100%) plus bookings made since it came."""

@@ -124,6 +124,8 @@ class Node:
         #: the latest time the driver passed in (reports estimate the work
         #: left in running programs as of then)
         self._now = 0.0
+        #: free memory the driver last measured (reports of the instant repeat it)
+        self._mem_free = 0
         #: prompt reports: (accepted, finished) counts last published, the
         #: time of the last one, and when the next one is due
         self._prompt = self.policy.shares_load and self.config.prompt_reports
@@ -255,6 +257,7 @@ class Node:
                     mem_free: int = 0, cpu_per_core: list[float] | None = None, load_avg: float = 0.0) -> LoadReport:
         """This robot's load report, from the driver's measurements."""
         self._report_seq += 1
+        self._mem_free = mem_free
         return self._report(cpu_busy=cpu_busy, runnable=runnable, ramps_avg=ramps_avg, window=window,
                             mem_free=mem_free, cpu_per_core=cpu_per_core or [], load_avg=load_avg,
                             blacklisted=self.view.blacklisted())
@@ -265,7 +268,7 @@ class Node:
         running = len(self.executor.running)
         bg = self.executor.background
         return self._report(cpu_busy=min(float(self.cores), bg + running), runnable=bg + running,
-                            ramps_avg=float(running), window=0.0)
+                            ramps_avg=float(running), window=0.0, mem_free=self._mem_free)
 
     def _report(self, **measured) -> LoadReport:
         """A report of this robot: its identity and the executor's counters,

@@ -276,7 +276,8 @@ class Origin:
                 PlacementRequest(program_id=ap.program_id, work=self.work_estimate(sub),
                                  payload_size=sub.payload_size, result_size=sub.result_size),
                 self.view, now, self.rng, net=self.net, config=self.config,
-                exclude=frozenset(ap.excluded), links=self.links.estimate if self.links is not None else None,
+                exclude=frozenset(ap.excluded) | self.view.short_of_memory(sub.memory),
+                links=self.links.estimate if self.links is not None else None,
             )
             host = placement.host
             if policy.negotiates:

@@ -615,7 +615,7 @@ class NodeRuntime:
         return self.node.handle(Submit(
             program_id=pid, program=m.program, args=m.args, payload_size=len(m.args),
             work=m.work or spec.work, result_size=m.result_size or spec.result,
-            local_only=m.local_only or spec.local_only, policy=m.policy,
+            local_only=m.local_only or spec.local_only, policy=m.policy, memory=spec.memory,
         ), now)
 
     def _tell_client(self, pid: str, *, ok: bool, value: bytes = b"", error: str = "", kind: str = "",

@@ -49,6 +49,8 @@ class ProgramSpec:
     payload: int = 0
     result: int = 0
     local_only: bool = False
+    #: bytes of memory one run needs; robots reporting less free memory are skipped
+    memory: int = 0
     _fn: Callable[..., Any] | None = field(default=None, repr=False)
 
     def function(self) -> Callable[..., Any]:
@@ -160,8 +162,14 @@ default_registry = Registry(BUILTINS)
 
 
 def program(name: str | None = None, *, work: float = 1.0, payload: int = 0, result: int = 0,
-            local_only: bool = False) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """Register a function as a ramps program (in an installed module)."""
+            local_only: bool = False, memory: int = 0) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Register a function as a ramps program (in an installed module).
+
+    ``work`` is its declared cost in work units (origins learn the real one
+    from completed runs); ``memory`` the bytes one run needs: a robot that
+    reports less free memory is not offered it."""
+    if memory < 0:
+        raise ConfigError(f"program {name or '?'}: memory must be >= 0 bytes, got {memory}")
 
     def deco(fn: Callable[..., Any]) -> Callable[..., Any]:
         if fn.__module__ == "__main__":
@@ -170,7 +178,7 @@ def program(name: str | None = None, *, work: float = 1.0, payload: int = 0, res
                 "on every robot (code never travels, only arguments do)"
             )
         spec = ProgramSpec(name or fn.__name__, f"{fn.__module__}:{fn.__qualname__}", work=work,
-                           payload=payload, result=result, local_only=local_only, _fn=fn)
+                           payload=payload, result=result, local_only=local_only, memory=memory, _fn=fn)
         fn.__ramps_program__ = spec  # type: ignore[attr-defined]
         default_registry.add(spec)
         return fn

@@ -267,7 +267,8 @@ class Simulator:
         if r.frozen:
             return
         busy, runnable, ramps_avg = r.cpu.averages(self.now, pub.window)
-        report = r.node.make_report(cpu_busy=busy, runnable=runnable, ramps_avg=ramps_avg, window=pub.window)
+        report = r.node.make_report(cpu_busy=busy, runnable=runnable, ramps_avg=ramps_avg, window=pub.window,
+                                    mem_free=r.spec.memory)
         if r.spec.name in self.subscribers:
             self._handle(r, Received(sender=r.spec.name, msg=report))
         self._broadcast(r, report)
@@ -335,7 +336,7 @@ class Simulator:
         self._handle(origin, Submit(
             program_id=pid, program=entry.program, payload_size=entry.payload,
             work=entry.work_estimate if entry.work_estimate is not None else entry.work,
-            result_size=entry.result,
+            result_size=entry.result, memory=entry.memory,
         ))
 
     def _delivered(self, r: _Robot, d: Deliver) -> None:

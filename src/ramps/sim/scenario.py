@@ -75,6 +75,8 @@ class RobotSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
     #: latency (s) and bandwidth (bytes/s) of every message to or from it
     latency: float | None = None
     bandwidth: float | None = None
+    #: free memory this robot reports, bytes (0: it reports none)
+    memory: int = 0
     #: expand this entry into ``count`` identical robots
     count: int | None = None
 
@@ -90,6 +92,8 @@ class ProgramSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
     #: bytes of parameters sent when offloading, and of the result sent back
     payload: int = 1000
     result: int = 1000
+    #: bytes of memory one program needs (0: not stated)
+    memory: int = 0
     #: the robot that submits the programs
     origin: str
     #: submit time of the first program, and spacing between the next ones
@@ -151,6 +155,8 @@ class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
                 raise ScenarioError(f"{p}.latency", f"must be >= 0, got {r.latency}")
             if r.bandwidth is not None and not r.bandwidth > 0:
                 raise ScenarioError(f"{p}.bandwidth", f"must be > 0, got {r.bandwidth}")
+            if r.memory < 0:
+                raise ScenarioError(f"{p}.memory", f"must be >= 0, got {r.memory}")
             if r.count is not None:
                 if r.count < 1:
                     raise ScenarioError(f"{p}.count", f"must be >= 1, got {r.count}")
@@ -174,7 +180,7 @@ class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
                 raise ScenarioError(f"{path}.work", f"must be > 0, got {p.work}")
             if p.work_estimate is not None and not p.work_estimate > 0:
                 raise ScenarioError(f"{path}.work_estimate", f"must be > 0, got {p.work_estimate}")
-            for fld in ("payload", "result", "at", "spacing", "jitter"):
+            for fld in ("payload", "result", "at", "spacing", "jitter", "memory"):
                 if getattr(p, fld) < 0:
                     raise ScenarioError(f"{path}.{fld}", f"must be >= 0, got {getattr(p, fld)}")
         for i, f in enumerate(self.faults):
