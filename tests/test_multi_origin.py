@@ -267,3 +267,17 @@ def test_program_decorator_takes_the_memory_a_run_needs() -> None:
 
     with pytest.raises(ConfigError, match="memory"):
         program("x", memory=-1)
+
+
+def test_a_report_claiming_billions_of_programs_does_not_stall_placement() -> None:
+    # found by the fuzzer: the work-left estimate built a list per program
+    from ramps.core.loadview import LoadView
+    from ramps.core.policy import RampsPolicy
+
+    from corehelpers import choose, report
+
+    view = LoadView("o", cores=1, speed=1.0)
+    view.on_report(report("o", cores=1, runnable=10.0, cpu_busy=1.0), 0.5)
+    view.on_report(report("a", ramps_running=2**63 - 1, runnable=4.0, ramps_avg=4.0, cpu_busy=4.0), 0.5)
+    view.on_report(report("b"), 0.5)
+    assert choose(RampsPolicy(), view, work=50.0, now=0.5) == "b"

@@ -22,7 +22,7 @@ from __future__ import annotations
 import math
 
 from ramps.core.cost import program_share
-from ramps.core.messages import MAX_CORES, MAX_LOAD, MAX_SPEED, MAX_WEIGHT, MIN_SPEED, MIN_WEIGHT, LoadReport
+from ramps.core.messages import MAX_CORES, MAX_LISTED, MAX_LOAD, MAX_SPEED, MAX_WEIGHT, MIN_SPEED, MIN_WEIGHT, LoadReport
 
 
 def report_problem(report: LoadReport) -> str | None:
@@ -194,12 +194,15 @@ class LoadView:
             return 0.0
         return max(0.0, rep.runnable - rep.ramps_avg)
 
-    def remaining_work(self, robot: str, now: float, programs: int, unknown: float) -> list[float]:
+    def remaining_work(self, robot: str, now: float, programs: int, unknown: float) -> list[float] | None:
         """Work units left in each of the ``programs`` ramps programs this view
         counts on ``robot``: the host's last estimate (``LoadReport.remaining``)
         aged by processor sharing since it arrived; programs the report does
         not list yet count ``unknown`` units each, and when the view counts
-        fewer programs than the report lists, the smallest ended."""
+        fewer programs than the report lists, the smallest ended. None when
+        the view counts more than a report can list (``MAX_LISTED``)."""
+        if programs > MAX_LISTED:
+            return None  # more than a report lists: the count-based estimate stands
         rob = self._robots.get(robot)
         rep = rob.report if rob else None
         left = list(rep.remaining) if rep is not None else []

@@ -143,6 +143,8 @@ class RampsPolicy(Policy):
             busy = heapq.nsmallest(REFINE, busy, key=lambda r: (r[0], rng.random()))
         for row in busy:
             left = view.remaining_work(row[2], now, round(row[5]), work)
+            if left is None:
+                continue
             t = shared_finish_time(work, left, row[6], row[7], row[4], row[8]) + row[9]
             row[0] = min(row[0], t)
         t_best = min(row[0] for row in rows)
