@@ -54,12 +54,25 @@ CHILD_PREFIX = "p"
 
 def _is_node(pid: int) -> bool:
     """The node itself, or a process on its way to exec'ing it (a node that
-    recover() just started is in the state file only a moment later)."""
-    try:
-        argv = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
-    except OSError:
+    recover() just started is in the state file only a moment later), or the
+    node's worker fork server: it stays in the robot's cgroup so that each
+    worker it forks is born there and gets a cap of its own (moved with it,
+    they would all share one)."""
+    argv = _argv(pid)
+    if argv is None:
         return True  # gone: nothing to move
+    if b"--fork-server" in argv:  # the server, or a worker it forked (same argv): the worker's parent is the server
+        rest = proc_stat_fields(pid)
+        parent = _argv(int(rest[1])) if rest is not None else None
+        return not (parent and b"--fork-server" in parent)
     return b"ramps.cli" in argv or (argv[0] or b"").rsplit(b"/", 1)[-1] in (b"sh", b"nsenter")
+
+
+def _argv(pid: int) -> list[bytes] | None:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+    except OSError:
+        return None
 
 
 def shares(core: float, cores: int, busy: int) -> float:
