@@ -281,3 +281,23 @@ def test_a_report_claiming_billions_of_programs_does_not_stall_placement() -> No
     view.on_report(report("a", ramps_running=2**63 - 1, runnable=4.0, ramps_avg=4.0, cpu_busy=4.0), 0.5)
     view.on_report(report("b"), 0.5)
     assert choose(RampsPolicy(), view, work=50.0, now=0.5) == "b"
+
+
+def test_prompt_reports_are_rate_limited_but_the_robots_own_view_is_not() -> None:
+    from ramps.core.events import PublishReport, Received
+    from ramps.core.messages import OffloadRequest
+    from ramps.core.node import Node
+
+    a = Node("a", cores=4, speed=1.0, config=RampsConfig(prompt_report_interval=1.0))
+
+    def offer(pid: str, t: float):
+        return a.handle(Received(sender="o", msg=OffloadRequest(program_id=pid, attempt=1, origin="o", host="a",
+                                                                program="x", work=10.0)), t)
+
+    [first] = [x for x in offer("p1", 0.0) if isinstance(x, PublishReport)]
+    assert first.report.ramps_running == 1
+    assert not [x for x in offer("p2", 0.1) if isinstance(x, PublishReport)]
+    assert a.view.ramps_programs("a") == 2  # its own view knows at once
+    assert a.next_deadline() == 1.0
+    [later] = [x for x in a.tick(1.0) if isinstance(x, PublishReport)]
+    assert later.report.ramps_running == 2 and later.report.seq > first.report.seq

@@ -173,9 +173,9 @@ class Node:
         if counts == self._published:
             self._prompt_due = None
             return out
-        self.view.on_report(self.current_report(), now, fresh=True)
         due = self._prompted_at + self.config.prompt_report_interval
-        if now < due:
+        if now < due:  # this robot's own view is exact at once; the team hears at ``due``
+            self.view.on_report(self.current_report(), now, fresh=True)
             self._prompt_due = due
             return out
         self._published, self._prompted_at, self._prompt_due = counts, now, None
