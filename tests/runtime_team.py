@@ -430,3 +430,16 @@ class LocalTeam:
             out, err = p.communicate()
             raise AssertionError(f"ramps {' '.join(args)} did not finish in {timeout:g} s\n{out}\n{err}")
         return subprocess.CompletedProcess(p.args, p.returncode, out, err)
+
+
+def wait_for(pred, timeout: float, what: str, poll: float = 0.05):
+    """Poll ``pred`` until it returns something true (returned), or fail
+    saying ``what`` did not happen within ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = pred()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(poll)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import psutil
 import pytest
-from runtime_team import LocalTeam, assert_no_leftovers
+from runtime_team import LocalTeam, assert_no_leftovers, wait_for
 
 pytestmark = pytest.mark.slow
 
@@ -38,17 +38,6 @@ def trace_lines(path: Path) -> list[dict]:
     if not path.exists():
         return []
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-
-
-def wait_for(pred, timeout: float, what: str, poll: float = 0.05):
-    deadline = time.monotonic() + timeout
-    while True:
-        value = pred()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(poll)
 
 
 def _stall(t: LocalTeam, robot: str, seconds: float) -> None:

@@ -27,7 +27,7 @@ import msgspec
 import psutil
 import pytest
 from runtime_team import _STARTED as STARTED
-from runtime_team import LocalTeam, assert_no_leftovers, cgroup_support
+from runtime_team import LocalTeam, assert_no_leftovers, cgroup_support, wait_for
 
 import ramps
 from ramps.core.messages import ProgramOutcome, SubmitProgram, decode, encode
@@ -76,17 +76,6 @@ def assert_team_healthy(t: LocalTeam, clients: dict) -> None:
     for name, team in clients.items():
         r = team.submit("where", x=7).result(timeout=RESULT_TIMEOUT)
         assert r["x"] == 7 and r["robot"] in ("r1", "r2", "r3"), (name, r)
-
-
-def wait_for(pred, timeout: float, what: str, poll: float = 0.05):
-    deadline = time.monotonic() + timeout
-    while True:
-        value = pred()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(poll)
 
 
 def robot_processes(t: LocalTeam, robot: str) -> list[psutil.Process]:
