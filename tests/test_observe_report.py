@@ -70,15 +70,9 @@ def test_report_of_a_simulated_crash_matches_the_trace(tmp_path):
         assert nxt.outcome == "delivered" and nxt.end == rec["delivered_at"] and rec["host"] == nxt.host
     # the fault table agrees with the fault experiments' own reading of the trace
     fs = fault_summary(tl)[0]
-    class E(msgspec.Struct, array_like=True):
-        t: float
-        robot: str
-        what: str
-        program_id: str
-        other: str
-        attempt: int
-        detail: str
-    ref = _failure_record([E(*e) for e in trace], t_crash, "r5", "crash",
+    from ramps.sim.engine import TraceEntry
+
+    ref = _failure_record([TraceEntry(*e) for e in trace], t_crash, "r5", "crash",
                           {p["program_id"] for p in doc["programs"] if p["delivered_at"] and p["delivered_at"] < t_crash})
     assert fs["displaced"] == ref.displaced == len(on_r5)
     assert fs["detection"] == pytest.approx(ref.detection)
