@@ -19,6 +19,7 @@ from __future__ import annotations
 import heapq
 import math
 import random
+import statistics
 from collections import deque
 
 from ramps.core.config import RampsConfig
@@ -267,13 +268,14 @@ class Origin:
 
     def place(self, ap: AutonomousProgram, now: float, out: list[Action], *, host: str | None = None) -> None:
         sub = ap.submit
+        work = self.work_estimate(sub)
         expected = budget = None
         if host is None and sub.local_only:
             host = self.me
         if host is None:
             policy = self._policies[sub.policy] if sub.policy else self.policy
             placement = policy.choose(
-                PlacementRequest(program_id=ap.program_id, work=self.work_estimate(sub),
+                PlacementRequest(program_id=ap.program_id, work=work,
                                  payload_size=sub.payload_size, result_size=sub.result_size),
                 self.view, now, self.rng, net=self.net, config=self.config,
                 exclude=frozenset(ap.excluded) | self.view.short_of_memory(sub.memory),
@@ -296,7 +298,7 @@ class Origin:
         out.append(Note(what="placed", program_id=ap.program_id, robot=host, attempt=ap.attempt))
         out.append(Send(to=host, msg=OffloadRequest(
             program_id=ap.program_id, attempt=ap.attempt, origin=self.me, host=host,
-            program=sub.program, args=sub.args, payload_size=sub.payload_size, work=self.work_estimate(sub),
+            program=sub.program, args=sub.args, payload_size=sub.payload_size, work=work,
             expected_runnable=expected, time_budget=budget, force=ap.rejections >= self.config.max_rejections,
         )))
         # the host cannot accept before the parameters have crossed the link,
@@ -351,10 +353,7 @@ class Origin:
             # robots at this moment; wait a random moment (doubling) so their
             # prompt reports arrive before this program tries again
             wait = self.rng.uniform(0.0, self.config.contention_backoff * 2 ** (ap.rejections - 2))
-            ap.state = S.BACKOFF
-            out.append(Note(what="backoff", program_id=ap.program_id, attempt=ap.attempt,
-                            detail=f"{wait:.3f} after {ap.rejections} rejections"))
-            self._set_timer(ap, now + wait, "backoff_done")
+            self._wait(ap, now, out, wait, f"{wait:.3f} after {ap.rejections} rejections")
             return
         self.place(ap, now, out)
 
@@ -416,9 +415,13 @@ class Origin:
             self._deliver(ap, now, out, ok=False, host=ap.host or "", kind="failed",
                           error=f"gave up after {ap.failures} failed attempts")
             return
-        ap.state = S.BACKOFF
         wait = self.rng.uniform(0.0, self.config.backoff_lost_max if certain else self.config.backoff_max)
-        out.append(Note(what="backoff", program_id=ap.program_id, attempt=ap.attempt, detail=f"{wait:.3f}"))
+        self._wait(ap, now, out, wait, f"{wait:.3f}")
+
+    def _wait(self, ap: AutonomousProgram, now: float, out: list[Action], wait: float, detail: str) -> None:
+        """Back off for ``wait`` seconds, then place the program again."""
+        ap.state = S.BACKOFF
+        out.append(Note(what="backoff", program_id=ap.program_id, attempt=ap.attempt, detail=detail))
         self._set_timer(ap, now + wait, "backoff_done")
 
     def _on_result(self, ap: AutonomousProgram, now: float, out: list[Action], msg: ProgramResult, event) -> None:
@@ -455,11 +458,11 @@ class Origin:
         """The work a program will take: the median of what its latest runs
         took (robust to one odd host), or its declaration before any ran."""
         runs = self._learned.get(sub.program)
-        return _median(runs) if runs else sub.work
+        return statistics.median(runs) if runs else sub.work
 
     def learned_work(self) -> dict[str, float]:
         """Program name -> the work placements now assume (learned ones only)."""
-        return {name: _median(runs) for name, runs in self._learned.items() if runs}
+        return {name: statistics.median(runs) for name, runs in self._learned.items() if runs}
 
     def _on_cancel(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
         self._deliver(ap, now, out, ok=False, error="cancelled by the application", host=ap.host or "",
@@ -489,9 +492,3 @@ class Origin:
 
     def active(self) -> int:
         return sum(1 for ap in self.programs.values() if ap.state not in FINAL)
-
-
-def _median(values) -> float:
-    ordered = sorted(values)
-    mid = len(ordered) // 2
-    return ordered[mid] if len(ordered) % 2 else 0.5 * (ordered[mid - 1] + ordered[mid])
