@@ -124,3 +124,30 @@ def test_an_outcome_waits_for_its_own_client_only_and_not_for_ever(driver):
     fake.t += rn.OUTCOME_HOLD + 0.1
     rt._flush_outcomes()
     assert gone.sent[-1] == b"4" and rt._held_outcomes == []  # sent regardless, in the end
+
+
+def test_a_stall_that_may_have_closed_links_is_told_to_the_core_once(driver):
+    """A stall of half the Zenoh lease or more is told to the core as
+    ``Stalled`` (it waits for teammates' links before counting their
+    silence, ramps.core.relink); a shorter one is not. A teammate whose
+    liveliness went and came back after the stall is back for the core."""
+    rt, fake = driver
+    lease = rt.s.lease_ms / 1000.0
+    rt._clock()
+    rt._sleep_until = fake.t
+    fake.t += lease * 0.3  # a short stall (busy robot): links stay up
+    now = rt._clock()
+    assert rt.stalls == 1 and rt._stall_pending == 0.0
+    assert not rt.node.origin.relink.active(now)
+    rt._sleep_until = fake.t
+    fake.t += lease * 2  # frozen past the lease: teammates' links closed
+    now = rt._clock()
+    notes = [a.what for a in rt._stall_told(now)]
+    assert notes == ["relinking"] and rt._stall_pending == 0.0
+    assert rt.node.origin.relink.waiting("r2", now)
+    rt._on_liveliness("r2", False, now)  # held, see above
+    wait(rt, fake, 0.2)
+    acts = rt._on_liveliness("r2", True, rt._clock())
+    assert [a.robot for a in acts if a.what == "relinked"] == ["r2"]
+    assert not rt.node.origin.relink.waiting("r2", rt._clock())
+    assert rt.node.origin.relink.waiting("r3", rt._clock())

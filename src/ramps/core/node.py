@@ -64,6 +64,7 @@ from ramps.core.messages import (
 )
 from ramps.core.origin import Origin
 from ramps.core.policy import Policy, make_policy
+from ramps.core.relink import Stalled
 
 
 class NodeStatistics(msgspec.Struct, frozen=True, kw_only=True):
@@ -217,10 +218,20 @@ class Node:
                 self.origin.on_peer_lost(event.robot, now, out)
         elif isinstance(event, PeerAlive):
             self.origin.on_peer_alive(event.robot)
+            if self.origin.relink.heard(event.robot, now, certain=True):
+                self.origin.relinked(event.robot, now)
+                out.append(Note(what="relinked", robot=event.robot, detail="its link is back after this robot's stall"))
+        elif isinstance(event, Stalled):  # this robot's links may be down for a while (ramps.core.relink)
+            self.origin.relink.stalled(now)
+            out.append(Note(what="relinking", robot=self.robot, detail=f"stalled {event.seconds:.3f} s: teammates' "
+                            f"silence counts once their links are back (at most {self.origin.relink.timeout} s)"))
         else:
             raise TypeError(f"not a ramps event: {event!r}")
 
     def _receive(self, sender: str, msg, now: float, out: list[Action]) -> None:
+        if self.origin.relink.active(now) and self.origin.relink.heard(sender, now):
+            self.origin.relinked(sender, now)
+            out.append(Note(what="relinked", robot=sender, detail="heard again after this robot's stall"))
         if isinstance(msg, LoadReport):
             problem = report_problem(msg)
             if problem is not None:

@@ -39,6 +39,7 @@ from ramps.core.messages import (
 )
 from ramps.core.policy import Policy, PlacementRequest, make_policy
 from ramps.core.program import FINAL, AutonomousProgram, ProgramState, ProtocolError
+from ramps.core.relink import Relink
 
 S = ProgramState
 #: how many of a program's latest runs its learned work is the median of
@@ -77,6 +78,8 @@ class Origin:
         #: work each program took in its latest runs (hosts' estimates), by
         #: program name: placements use their median instead of the declared work
         self._learned: dict[str, deque[float]] = {}
+        #: after this robot's own stall, the hosts whose links are not back yet
+        self.relink = Relink(me)
         # statistics
         self.delivered = 0
         self.discarded = 0
@@ -204,12 +207,25 @@ class Origin:
                 continue
             ap.deadline = None
             kind = ap.timer
+            if self.relink.waiting(ap.host, now) and kind in ("heartbeat_timeout", "connect_timeout"):
+                self._set_timer(ap, self.relink.until, kind)  # its link is not back since this robot stalled
+                continue
             if kind == "heartbeat_timeout":
                 due = ap.last_heard + self.config.heartbeat_timeout
                 if due > now:  # heard from the host since the timer was set
                     self._set_timer(ap, due, kind)
                     continue
             self._step(ap, kind, now, out, None)
+
+    def relinked(self, host: str, now: float) -> None:
+        """``host``'s link is back after this robot's stall (``ramps.core.relink``):
+        its silence counts from now, for a heartbeat or a connect timeout."""
+        for pid in self._by_host.get(host, ()):
+            ap = self.programs[pid]
+            if ap.host == host and ap.state in (S.OFFERED, S.RUNNING) and ap.deadline is not None:
+                ap.last_heard = max(ap.last_heard, now)
+                if ap.timer == "connect_timeout":
+                    self._set_timer(ap, max(ap.deadline, now + self.config.connect_timeout), ap.timer)
 
     def _set_timer(self, ap: AutonomousProgram, when: float, kind: str) -> None:
         ap.deadline = when
@@ -278,7 +294,8 @@ class Origin:
                 PlacementRequest(program_id=ap.program_id, work=work,
                                  payload_size=sub.payload_size, result_size=sub.result_size),
                 self.view, now, self.rng, net=self.net, config=self.config,
-                exclude=frozenset(ap.excluded) | self.view.short_of_memory(sub.memory),
+                exclude=frozenset(ap.excluded) | self.view.short_of_memory(sub.memory)
+                | self.relink.excluded(self.view.robots(), now),
                 links=self.links.estimate if self.links is not None else None,
             )
             host = placement.host

@@ -63,6 +63,7 @@ from ramps.core.messages import (
 )
 from ramps.core.node import Node
 from ramps.core.policy import POLICIES
+from ramps.core.relink import RELINK_TIMEOUT, Stalled
 from ramps.errors import ConfigError, NotAdmitted, ProgramNotFound, TransportError
 from ramps.runtime import keys, revocation
 from ramps.runtime.measure import LoadSampler, cgroup_dirs, cgroup_quota, detect_cores, measure_speed
@@ -82,8 +83,13 @@ DROP_LOG_PERIOD = 1.0
 #: (frozen, starved of CPU, paused): see NodeRuntime._clock
 STALL_MIN = 0.5
 #: seconds after a stall during which a teammate's lost liveliness is held,
-#: in case it is only its lease on this stalled node that ran out
-STALL_GRACE = 3.0
+#: in case it is only its lease on this stalled node that ran out (the core
+#: does not count a teammate's silence for as long: ramps.core.relink)
+STALL_GRACE = RELINK_TIMEOUT
+#: a stall this long, as a fraction of the Zenoh lease, may have let
+#: teammates' leases on this node run out and their links close: the core is
+#: told (``Stalled``), so it waits for their links before counting silence
+RELINK_LEASE_FRACTION = 0.5
 #: queued items handled before the timers fire (the rest after them)
 MAX_ITEMS_PER_ROUND = 10_000
 #: answered client requests remembered, so a resent submission is not run twice
@@ -143,6 +149,9 @@ class NodeRuntime:
         self.stalled_s = 0.0
         self._stall_offset = 0.0
         self._stalled_at = 0.0
+        #: a stall long enough to close links, not yet told to the core (seconds)
+        self._stall_pending = 0.0
+        self._relink_after = settings.lease_ms / 1000.0 * RELINK_LEASE_FRACTION
         self._last_read = 0.0
         self._sleep_until = 0.0
         #: teammates whose liveliness went just after a stall: robot -> core time it counts as lost
@@ -370,6 +379,8 @@ class NodeRuntime:
             self.stalls += 1
             self.stalled_s += late
             self._stalled_at = t
+            if late >= self._relink_after:
+                self._stall_pending += late
             if self._trace is not None:
                 self._write_trace("stalled", "", "", 0, f"{late:.3f}", at=t)
             log.warning("node %s: driver stalled for %.1f s (frozen, starved of CPU or paused); "
@@ -377,6 +388,12 @@ class NodeRuntime:
         self._last_read = t
         self._sleep_until = 0.0
         return t - self._stall_offset
+
+    def _stall_told(self, now: float) -> list:
+        """Tell the core about a stall that may have closed links (see
+        ``ramps.core.relink``), before anything that arrived meanwhile."""
+        seconds, self._stall_pending = self._stall_pending, 0.0
+        return self.node.handle(Stalled(seconds=seconds), now)
 
     def _drive(self) -> None:
         node = self.node
@@ -403,6 +420,8 @@ class NodeRuntime:
             budget = MAX_ITEMS_PER_ROUND
             while item is not None:
                 now = clock()
+                if self._stall_pending:
+                    actions.extend(self._stall_told(now))
                 if item[0] == "stop":
                     self._apply(actions)
                     self._shutdown(item[1])
@@ -422,6 +441,8 @@ class NodeRuntime:
                 except queue.Empty:
                     item = None
             now = clock()
+            if self._stall_pending:
+                actions.extend(self._stall_told(now))
             if self._held_lost:
                 actions.extend(self._release_lost(now))
             if now >= next_pub:
@@ -448,7 +469,7 @@ class NodeRuntime:
         if alive and self._held_lost.pop(robot, None) is not None:
             if self._trace is not None:
                 self._write_trace("peer_back", "", robot, 0, "lost and back while this node recovered from a stall")
-            return []
+            return self._peer_event(robot, True, now)  # its link is back: the core counts its silence again
         return self._peer_event(robot, alive, now)
 
     def _peer_event(self, robot: str, alive: bool, now: float) -> list:
