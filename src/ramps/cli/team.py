@@ -6,7 +6,7 @@
     ramps team revoke r3 --connect tls/192.168.1.11:7447 --credentials ramps-team/admin
                                             # shut r3 out: a signed list the running team adopts
 
-Rules as in ``ramps.cli``: user mistakes end with a one-line message and exit
+Rules as in ``ramps.cli.common``: user mistakes end with a one-line message and exit
 code 2. The work is done by ``ramps.runtime.security``; this module parses and
 prints.
 """

@@ -4,9 +4,10 @@
     ramps top --connect tcp/192.168.1.12:7447   # live view of the team (Ctrl-C quits)
     ramps bench metrics                         # what --metrics costs an idle node
 
-Rules as in ``ramps.cli``: user mistakes end with a one-line message and exit
+Rules as in ``ramps.cli.common``: user mistakes end with a one-line message and exit
 code 2. The work is done by ``ramps.observe``; this module parses and prints.
-``register(app, bench_app)`` adds the commands to the main app.
+``register(app)`` adds report and top to the main app; ``ramps.cli.bench`` adds
+bench metrics.
 """
 
 from __future__ import annotations
@@ -194,10 +195,9 @@ def top(
         _err.print(reason)
 
 
-def register(app: typer.Typer, bench_app: typer.Typer) -> None:
+def register(app: typer.Typer) -> None:
     app.command("report")(report)
     app.command("top")(top)
-    bench_app.command("metrics")(bench_metrics)
 
 
-__all__ = ["register"]
+__all__ = ["bench_metrics", "register"]

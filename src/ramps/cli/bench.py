@@ -1,0 +1,141 @@
+"""``ramps bench``: benchmarks that print figures and save them as JSON.
+
+    ramps bench sim          # the paper sweep and a 1000-robot scenario, timed
+    ramps bench dispatch     # submit-to-result latency and throughput on a loopback team
+    ramps bench fuzz         # hostile input at the decoders and the core
+    ramps bench flood        # a real node under a flood of malformed messages
+    ramps bench metrics      # what --metrics costs (ramps.cli.observe)
+
+This module parses and prints (rules in ``ramps.cli.common``).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from ramps.cli.common import emit, err, fail, out
+from ramps.cli.observe import bench_metrics
+
+bench_app = typer.Typer(help="Benchmarks that print figures and save them as JSON.", no_args_is_help=True)
+bench_app.command("metrics")(bench_metrics)
+
+
+@bench_app.command("sim")
+def bench_sim(
+    runs: int = typer.Option(3, "--runs", "-n", min=1, help="runs per configuration in the sweep"),
+    robots: int = typer.Option(1000, "--robots", min=1, help="robots in the large scenario"),
+    programs: int = typer.Option(10_000, "--programs", min=1, help="programs in the large scenario"),
+    origins: int = typer.Option(10, "--origins", min=1, help="robots that submit programs in the large scenario"),
+    out_file: Path = typer.Option(Path("bench-results/sim.json"), "--out", "-o", help="where to save the JSON"),
+) -> None:
+    """Time the full paper sweep and a large-team scenario."""
+    from ramps.experiments.bench import bench_large, bench_sweep, machine
+
+    if origins > robots:
+        fail("--origins cannot exceed --robots")
+    err.print(f"sweep: unloaded + loaded, {runs} run(s) each, 3 simulations per run ...")
+    sweep = bench_sweep(runs)
+    out.print(f"paper sweep (unloaded + loaded, {runs} runs each): {sweep['wall_seconds']:.2f} s "
+              f"({sweep['unloaded']['simulations'] + sweep['loaded']['simulations']} simulations)")
+    err.print(f"large team: {robots} robots, {programs} programs from {origins} origins ...")
+    large = bench_large(robots, programs, origins)
+    out.print(f"large team ({robots} robots, {programs} programs): {large['wall_seconds']:.2f} s wall, "
+              f"{large['events']} events ({large['events_per_s']:.0f}/s), completed {large['completed']}, "
+              f"lost {large['lost']}, duplicated {large['duplicated']}, virtual makespan "
+              f"{large['makespan_virtual_s']:.1f} s")
+    result = {"benchmark": "sim", "machine": machine(), "sweep": sweep, "large": large}
+    out_file.parent.mkdir(parents=True, exist_ok=True)
+    out_file.write_text(json.dumps(result, indent=2) + "\n")
+    out.print(f"saved {out_file}")
+
+
+@bench_app.command("dispatch")
+def bench_dispatch_cmd(
+    nodes: int = typer.Option(3, "--nodes", min=1, help="real node processes on loopback"),
+    calls: int = typer.Option(1000, "--calls", min=10, help="sequential calls timed for latency"),
+    burst: int = typer.Option(5000, "--burst", min=10, help="calls for the throughput figure"),
+    window: int = typer.Option(256, "--window", min=1, help="calls in flight at most during the burst"),
+    out_file: Path = typer.Option(Path("bench-results/dispatch.json"), "--out", "-o", help="where to save the JSON"),
+) -> None:
+    """Latency from submit to result of a no-op program on a real loopback team, and throughput."""
+    from ramps.experiments.dispatch import bench_dispatch
+
+    err.print(f"starting {nodes} nodes on loopback; {calls} sequential calls, then {burst} with {window} in flight ...")
+    res = bench_dispatch(nodes=nodes, calls=calls, burst=burst, window=window)
+    out.print(f"dispatch latency (submit -> result, {res['calls']} no-op calls): p50 {res['p50_ms']:.2f} ms, "
+              f"p90 {res['p90_ms']:.2f} ms, p99 {res['p99_ms']:.2f} ms, max {res['max_ms']:.1f} ms; "
+              f"ran on {res['latency_hosts']}")
+    out.print(f"offloaded to another robot ({res['remote_calls']} calls): p50 {res['remote_p50_ms']:.2f} ms, "
+              f"p99 {res['remote_p99_ms']:.2f} ms")
+    out.print(f"throughput from one origin: {res['throughput_per_s']:.0f} programs/s "
+              f"({res['completed']}/{res['burst']} completed; ran on {res['burst_hosts']})")
+    out_file.parent.mkdir(parents=True, exist_ok=True)
+    out_file.write_text(json.dumps(res, indent=2) + "\n")
+    out.print(f"saved {out_file}")
+
+
+@bench_app.command("fuzz")
+def bench_fuzz_cmd(
+    inputs: int = typer.Option(100_000, "--inputs", "-n", min=1, help="generated inputs in all"),
+    seed: int = typer.Option(0, "--seed", help="seed of the input generator (same seed, same inputs)"),
+    as_json: bool = typer.Option(False, "--json", help="print the figures as JSON"),
+    out_file: Path = typer.Option(Path("bench-results/fuzz.json"), "--out", "-o", help="where to save the JSON"),
+) -> None:
+    """Garbage, mutated and hostile messages at the wire decoder, the argument decoder and the core (exit 1 on any unhandled exception)."""
+    from ramps.experiments.fuzz import run_fuzz
+
+    err.print(f"fuzzing with {inputs} inputs, seed {seed} ...")
+    res = run_fuzz(inputs=inputs, seed=seed, progress=lambda n: err.print(f"  {n} inputs", highlight=False))
+
+    def show(r, console) -> None:
+        console.print(f"fuzz: {r['inputs']} inputs in {r['seconds']:.2f} s ({r['inputs_per_s']:.0f}/s), "
+                      f"seed {r['seed']}: {r['decoder_inputs']} at the wire decoder ({r['decoded']} decoded, "
+                      f"{r['wire_errors']} refused), {r['args_inputs']} at the argument decoder, "
+                      f"{r['core_events']} core events (+{r['core_from_decoder']} decoded messages) on "
+                      f"{r['core_nodes']} nodes, {r['programs_delivered']} programs delivered; "
+                      f"unhandled exceptions: {r['exceptions']}", highlight=False)
+        for x in r["exception_samples"]:
+            console.print(f"  {x['target']} ({x['kind']}): {x['error']}", highlight=False)
+
+    emit([res], show, as_json=as_json, out_file=out_file)
+    if res["exceptions"]:
+        raise typer.Exit(1)
+
+
+@bench_app.command("flood")
+def bench_flood_cmd(
+    messages: int = typer.Option(10_000, "--messages", "-n", min=1, help="malformed messages to send"),
+    seconds: float = typer.Option(10.0, "--seconds", min=0.1, help="over how long"),
+    programs: int = typer.Option(40, "--programs", min=1, help="legitimate programs run during the flood"),
+    seed: int = typer.Option(0, "--seed", help="seed of the malformed messages"),
+    as_json: bool = typer.Option(False, "--json", help="print the figures as JSON"),
+    out_file: Path = typer.Option(Path("bench-results/flood.json"), "--out", "-o", help="where to save the JSON"),
+) -> None:
+    """Flood a real node with malformed and oversized messages while it runs programs: drops counted, memory, programs completed."""
+    from ramps.experiments.flood import bench_flood
+
+    err.print(f"starting 2 nodes on loopback; flooding r1 with {messages} messages over {seconds:g} s ...")
+    res = bench_flood(messages=messages, seconds=seconds, programs=programs, seed=seed)
+
+    def show(r, console) -> None:
+        mb = 1 << 20
+        console.print(f"flood: sent {r['messages_sent']} malformed messages ({r['big_messages']} of 1-9 MB, "
+                      f"{r['bytes_sent'] / mb:.0f} MB) in {r['flood_seconds']:.1f} s ({r['send_rate_per_s']:.0f}/s); "
+                      f"dropped and counted by r1: {r['dropped_counted']['r1']} of {r['expected_at_target']}, "
+                      f"by r2 (load key only): {r['dropped_counted']['r2']} of {r['expected_at_others']}",
+                      highlight=False)
+        console.print(f"programs: {r['programs_ok']}/{r['programs']} completed correctly "
+                      f"({r['programs_failed']} failed, {r['programs_wrong']} wrong) on {r['program_hosts']}; "
+                      f"r1 resident memory {r['rss_before_mb']['r1']:.1f} MB before, peak {r['rss_peak_mb']:.1f} MB, "
+                      f"{r['rss_after_mb']['r1']:.1f} MB after (growth {r['rss_growth_mb']['r1']:+.1f} MB); "
+                      f"alive: {r['alive']}", highlight=False)
+        for f in r["failures"]:
+            console.print(f"  {f}", highlight=False)
+
+    emit([res], show, as_json=as_json, out_file=out_file)
+    if res["programs_ok"] != res["programs"] or not all(res["alive"].values()):
+        raise typer.Exit(1)
+

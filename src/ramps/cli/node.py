@@ -1,0 +1,244 @@
+"""``ramps node``, ``ramps submit``, ``ramps status``: the real team.
+
+    ramps node --robot r1                      # this robot's node until Ctrl-C
+    ramps submit route_plan --arg seed=3       # run a program on the team, print its result
+    ramps status                               # the team's robots, load and programs
+
+This module parses and prints (rules in ``ramps.cli.common``); the node is
+``ramps.runtime.node``, the client ``ramps.runtime.client``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Optional
+
+import msgspec
+import typer
+
+from ramps.cli.common import (
+    ConnectOption,
+    CredentialsOption,
+    FindTeamOption,
+    PolicyOption,
+    SecureOption,
+    TeamOption,
+    check_policy,
+    err,
+    fail,
+    node_settings,
+    out,
+)
+
+
+def node(
+    robot: Optional[str] = typer.Option(None, "--robot", "-r", help="this robot's name (default: host name; env RAMPS_ROBOT)"),
+    team: TeamOption = None,
+    listen: Optional[list[str]] = typer.Option(None, "--listen", "-l", help="Zenoh endpoint to listen on (repeatable; default tcp/0.0.0.0:0)"),
+    connect: ConnectOption = None,
+    multicast: Optional[bool] = typer.Option(None, "--multicast/--no-multicast", help="find teammates by UDP multicast (default on)"),
+    cores: Optional[int] = typer.Option(None, "--cores", min=1, help="cores offered to programs (default: detected)"),
+    speed: Optional[float] = typer.Option(None, "--speed", help="work units per second per core (default: measured)"),
+    policy: PolicyOption = None,
+    program: Optional[list[str]] = typer.Option(None, "--program", help="extra program as package.module:function (repeatable)"),
+    command: Optional[list[str]] = typer.Option(None, "--command", help="an executable as a program, NAME=PATH (repeatable; env RAMPS_COMMANDS): "
+                                                "arguments as a JSON object on stdin, result as JSON on stdout, failure = non-zero exit "
+                                                "(stderr tail returned), progress = 'RAMPS_PROGRESS 0.4' lines on stderr, killed with its "
+                                                "process group when withdrawn or after 600 s ([commands.NAME] timeout in --config)"),
+    config_file: Optional[Path] = typer.Option(None, "--config", help="TOML config file (env RAMPS_CONFIG)"),
+    lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh session lease: how fast a frozen or cut-off peer is noticed"),
+    trace: Optional[Path] = typer.Option(None, "--trace", help="write every placement, failure and delivery decision to this file (JSON lines)"),
+    secure: SecureOption = False,
+    credentials: CredentialsOption = None,
+    metrics: Optional[str] = typer.Option(None, "--metrics", help="serve Prometheus metrics on ADDR:PORT, e.g. "
+                                          "127.0.0.1:9464 or 0.0.0.0:9464 for a Prometheus elsewhere (default off; "
+                                          "env RAMPS_METRICS)"),
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="log every blacklisting and failure"),
+) -> None:
+    """Run this robot's ramps node until Ctrl-C: load publisher, load server, program executor.
+
+    On shutdown (Ctrl-C, SIGTERM) running programs are handed back to their origins, which
+    place them elsewhere at once.
+    """
+    import logging
+
+    from rich.logging import RichHandler
+
+    from ramps.errors import RampsError
+    from ramps.runtime.node import NodeRuntime
+
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s",
+                        handlers=[RichHandler(console=err, show_path=False)])
+    if policy is not None:
+        check_policy(policy)
+    commands = None
+    if command:
+        from ramps.errors import ConfigError
+        from ramps.runtime.settings import parse_commands
+
+        try:
+            commands = {k: msgspec.to_builtins(v) for k, v in parse_commands(command).items()}
+        except (ConfigError, ValueError) as exc:
+            fail(str(exc))
+    s = node_settings(robot=robot, commands=commands, team=team, listen=listen or None, connect=connect or None, multicast=multicast,
+                  cores=cores, speed=speed, policy=policy, programs=program or None, config_file=config_file,
+                  lease_ms=lease_ms, trace=str(trace) if trace else None, secure=secure or None,
+                  credentials=str(credentials) if credentials else None, metrics=metrics)
+    import signal
+    import threading
+
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        rt = NodeRuntime(s).start()
+    except RampsError as exc:
+        fail(str(exc))
+    err.print(f"[bold]ramps node {rt.robot}[/] joined team [bold]{rt.team}[/]: {rt.cores} cores, speed {rt.speed:g}, "
+              f"policy {s.policy}, load measured on the {rt.load_scope}; listening on {', '.join(s.listen_endpoints())}"
+              + (f"; connecting to {', '.join(s.connect)}" if s.connect else "")
+              + ("; multicast discovery on" if s.multicast else "")
+              + ("; secured: TLS with team certificates" if s.secure else "")
+              + (f"; metrics on http://{rt.metrics.address[0]}:{rt.metrics.address[1]}/metrics" if rt.metrics else ""),
+              highlight=False, soft_wrap=True)
+    err.print(f"programs: {', '.join(sorted(rt.registry.names()))}. Ctrl-C to leave the team.", highlight=False,
+              soft_wrap=True)
+    try:
+        while not stop.wait(0.5) and not rt.wait(0):
+            pass
+    finally:
+        err.print(f"ramps node {rt.robot}: leaving the team, handing running programs back ...")
+        rt.stop()
+    if rt.revoked_self:
+        fail(f"robot {rt.robot} was revoked by team {rt.team} (revocation list {rt.revocations.seq}): it left the team")
+
+
+def _parse_arg(text: str) -> tuple[str, object]:
+    key, sep, raw = text.partition("=")
+    if not sep or not key.isidentifier():
+        fail(f"--arg must look like name=value, got {text!r}")
+    try:
+        return key, json.loads(raw)
+    except json.JSONDecodeError:
+        return key, raw
+
+
+def _connect_team(team, robot, connect, multicast, timeout, config_file=None, secure=None, credentials=None):
+    from ramps.errors import RampsError
+    from ramps.runtime.client import Team
+
+    s = node_settings(team=team, connect=connect or None, multicast=multicast, config_file=config_file,
+                  default_robot=False, secure=secure or None, credentials=str(credentials) if credentials else None)
+    try:
+        return Team(s, robot=robot, timeout=timeout)
+    except RampsError as exc:
+        fail(str(exc))
+
+
+def submit(
+    program: str = typer.Argument(..., help="registered program name, e.g. route_plan, burn, echo"),
+    arg: Optional[list[str]] = typer.Option(None, "--arg", "-a", help="argument name=value (JSON values: 3, 2.5, true, [1,2]); repeatable"),
+    team: TeamOption = None,
+    robot: Optional[str] = typer.Option(None, "--robot", "-r", help="node that is the origin (default: this host's, or any)"),
+    connect: ConnectOption = None,
+    multicast: FindTeamOption = None,
+    count: int = typer.Option(1, "--count", "-n", min=1, help="submit the same call this many times"),
+    timeout: Optional[float] = typer.Option(None, "--timeout", help="give up (and withdraw the program) after this many seconds"),
+    as_json: bool = typer.Option(False, "--json", help="print results as JSON lines"),
+    progress: bool = typer.Option(False, "--progress", help="print each program's placement, host and progress "
+                                  "on stderr as it changes"),
+    secure: SecureOption = False,
+    credentials: CredentialsOption = None,
+) -> None:
+    """Run a program on the team and print its result."""
+    import time as _time
+
+    from ramps.errors import RampsError
+
+    args = dict(_parse_arg(a) for a in arg or [])
+    t = _connect_team(team, robot, connect, multicast, 5.0, secure=secure, credentials=credentials)
+    try:
+        started = _time.perf_counter()
+        try:
+            futs = [t.options(timeout=timeout).submit(program, **args) for _ in range(count)]
+            if progress:
+                for i, f in enumerate(futs):
+                    f.add_update_callback(lambda f, i=i: None if f.done() else err.print(
+                        f"[{i + 1}/{count}] {f.program}: {f.state} on {f.host or '?'}"
+                        + ("" if f.progress is None else f" {100 * f.progress:.0f}% {f.progress_detail}"),
+                        highlight=False, soft_wrap=True))
+        except RampsError as exc:
+            fail(str(exc))
+        code = 0
+        for f in futs:
+            try:
+                value = f.result()
+                line = {"ok": True, "value": value}
+            except (RampsError, TimeoutError) as exc:
+                code = 1
+                line = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+            if as_json:
+                sys.stdout.write(json.dumps(line, default=str) + "\n")
+            elif line["ok"]:
+                out.print(line["value"])
+            else:
+                err.print(f"[red]{line['error']}[/]", highlight=False, soft_wrap=True)
+        if not as_json:
+            err.print(f"{count} program(s) in {_time.perf_counter() - started:.2f} s via {t.robot}")
+    finally:
+        t.close()
+    raise typer.Exit(code)
+
+
+
+def status(
+    team: TeamOption = None,
+    connect: ConnectOption = None,
+    multicast: FindTeamOption = None,
+    wait: float = typer.Option(2.5, "--wait", help="seconds to listen for load reports"),
+    secure: SecureOption = False,
+    credentials: CredentialsOption = None,
+    as_json: bool = typer.Option(False, "--json", help="print the team view as JSON"),
+) -> None:
+    """Show the team: robots, their load, running programs, blacklisted peers.
+
+    Each row is what that robot last published. "sees" is how many teammates
+    the robot itself could place a program on (fresh report, not written
+    off): a robot that sees fewer than the rest is cut off from part of the
+    team, even when this command sees everyone."""
+    import time as _time
+
+    from rich.table import Table
+
+    t = _connect_team(team, None, connect, multicast, 5.0, secure=secure, credentials=credentials)
+    try:
+        _time.sleep(wait)
+        st = t.status()
+    finally:
+        t.close()
+    if as_json:
+        sys.stdout.write(msgspec.json.encode(st).decode() + "\n")
+        return
+    table = Table(title=f"team {st.team}", title_justify="left")
+    for name in ("robot", "alive", "cores", "speed", "cpu busy", "per core %", "run queue", "load avg", "mem free",
+                 "programs", "done", "dropped msgs", "sees", "blacklists", "report age"):
+        table.add_column(name, justify="left" if name in ("robot", "blacklists", "per core %") else "right")
+    for r in st.robots:
+        table.add_row(r.robot, "yes" if r.alive else "[red]no[/]", str(r.cores), f"{r.speed:g}", f"{r.cpu_busy:.2f}",
+                      " ".join(f"{100 * c:.0f}" for c in r.cpu_per_core[:16]), f"{r.runnable:.1f}",
+                      f"{r.load_avg:.2f}", f"{r.mem_free / 2**30:.1f} GiB", str(r.ramps_running),
+                      str(r.finished_total), str(r.bad_messages), "-" if r.sees is None else str(r.sees),
+                      ", ".join(r.blacklisted),
+                      "-" if r.report_age is None else f"{r.report_age:.1f} s")
+    out.print(table)
+    running = [(r.robot, p) for r in st.robots for p in r.running]
+    if running:
+        progs = Table(title="running programs", title_justify="left")
+        for name in ("host", "program", "origin", "progress"):
+            progs.add_column(name, justify="right" if name == "progress" else "left")
+        for host, p in running:
+            progs.add_row(host, p.program, p.origin, "-" if p.progress is None else f"{100 * p.progress:.0f}%")
+        out.print(progs)
+

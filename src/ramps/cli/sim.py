@@ -1,0 +1,202 @@
+"""``ramps sim``: teams and workloads in virtual time.
+
+    ramps sim paper                  # the paper's Tables 3-4 (and --experiment faults: Tables 5-10)
+    ramps sim sweep                  # several origins at once, against the best achievable
+    ramps sim campaign               # random faults, invariants checked after every run
+    ramps sim run examples/warehouse.yaml   # your own team and workload
+
+The work is done by ``ramps.experiments`` and ``ramps.sim``; this module
+parses and prints (rules in ``ramps.cli.common``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import msgspec
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from ramps.cli.common import POLICY_HELP, check_policy, emit, err, fail
+
+sim_app = typer.Typer(help="Simulate teams and workloads in virtual time (seconds for hours of robot time).",
+                      no_args_is_help=True)
+
+
+@sim_app.command("paper")
+def sim_paper(
+    experiment: str = typer.Option("all", "--experiment", "-e",
+                                   help="unloaded (Table 3, Figs 3-4), loaded (Table 4, Figs 5-6), "
+                                        "faults (Tables 5-10), or all (unloaded and loaded)"),
+    mode: str = typer.Option("all", "--mode", help="faults: sequential, simultaneous or all"),
+    kind: str = typer.Option("all", "--kind", help="faults: crash, network, mixed or all"),
+    policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
+    runs: int = typer.Option(3, "--runs", "-n", min=1, help="runs per configuration (the paper used 3)"),
+    seed: int = typer.Option(0, "--seed", help="base seed; the same seed gives the same results"),
+    as_json: bool = typer.Option(False, "--json", help="write the results as JSON to stdout instead of tables"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="draw the paper's figures (ours beside the paper's "
+                                        "values) as PNGs into this directory; runs configurations in parallel"),
+) -> None:
+    """Regenerate the paper's load-distribution experiments in the simulator.
+
+    Each configuration runs the chosen policy, round robin and a single robot
+    on the same simulated team and seed, and prints the distribution per
+    robot, makespan, speedup, ratio to round robin and the paper's
+    classification (optimal / near optimal / non optimal).
+    """
+    from ramps.experiments.paper import EXPERIMENTS, configurations, run_experiment
+    from ramps.experiments.report import print_experiment
+
+    check_policy(policy)
+    if plot is not None:
+        from ramps.cli.observe import sim_paper_plot
+
+        sim_paper_plot(plot, experiment, policy=policy, runs=runs, seed=seed, out_file=out_file)
+        return
+    if experiment == "faults":
+        _sim_faults(mode, kind, policy=policy, runs=runs, seed=seed, as_json=as_json, out_file=out_file)
+        return
+    wanted = list(EXPERIMENTS) if experiment == "all" else [experiment]
+    if any(e not in EXPERIMENTS for e in wanted):
+        fail(f"unknown experiment {experiment!r}; choose unloaded, loaded or all")
+    reports = []
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err, transient=True) as progress:
+        for e in wanted:
+            task = progress.add_task(f"{e} / {policy}", total=len(configurations(e)))
+            reports.append(run_experiment(e, policy=policy, runs=runs, seed=seed,
+                                          progress=lambda done, total, t=task: progress.update(t, completed=done)))
+    emit(reports, print_experiment, as_json=as_json, out_file=out_file)
+
+
+def _sim_faults(mode: str, kind: str, *, policy: str, runs: int, seed: int, as_json: bool,
+                out_file: Optional[Path]) -> None:
+    from ramps.experiments.faults import KINDS, run_fault_experiment
+    from ramps.experiments.report import print_fault_report
+
+    modes = ["sequential", "simultaneous"] if mode == "all" else [mode]
+    kinds = list(KINDS) if kind == "all" else [kind]
+    if any(m not in ("sequential", "simultaneous") for m in modes):
+        fail(f"unknown mode {mode!r}; choose sequential, simultaneous or all")
+    if any(k not in KINDS for k in kinds):
+        fail(f"unknown kind {kind!r}; choose crash, network, mixed or all")
+    reports = [run_fault_experiment(m, k, policy=policy, runs=runs, seed=seed) for m in modes for k in kinds]
+    emit(reports, print_fault_report, as_json=as_json, out_file=out_file)
+    if any(r.summary["lost"] or r.summary["duplicated"] for r in reports):
+        raise typer.Exit(1)
+
+
+@sim_app.command("sweep")
+def sim_sweep(
+    family: str = typer.Option("multi-origin", "--family", "-f",
+                               help="multi-origin (all six below), or one of idle-burst, idle-staggered, "
+                                    "loaded-burst, loaded-staggered, mixed-burst, mixed-staggered"),
+    scenarios: int = typer.Option(36, "--scenarios", "-n", min=1, help="generated scenarios per family"),
+    seeds: int = typer.Option(3, "--seeds", min=1, help="simulation seeds per scenario"),
+    policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
+    seed: int = typer.Option(0, "--seed", help="generates the scenarios; the same seed gives the same sweep"),
+    settings: list[str] = typer.Option([], "--set", help="change a core setting in every scenario, e.g. "
+                                       "--set prompt_reports=false --set max_rejections=3 (see RampsConfig)"),
+    as_json: bool = typer.Option(False, "--json", help="write the results as JSON to stdout instead of tables"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
+) -> None:
+    """Several origins at once: generated teams of 3-20 robots where 2 to all
+    of them submit programs in one burst or staggered over 10 s, each run
+    compared with the best achievable under the same model.
+
+    A family is a kind of team (idle and identical, some robots running busy
+    processes, or mixed cores and speeds) and a timing. Each scenario runs
+    the chosen policy and round robin on the same seeds. The table shows the
+    median makespan divided by a lower bound no schedule can beat, and by an
+    omniscient central scheduler; the default sweep (216 scenarios x 3
+    seeds) takes a few minutes.
+    """
+    from ramps.experiments.report import print_sweep
+    from ramps.experiments.sweep import FAMILIES, TEAMS, TIMINGS, run_sweep
+
+    check_policy(policy)
+    if family not in FAMILIES:
+        fail(f"unknown family {family!r}; choose multi-origin or one of "
+             + ", ".join(f"{t}-{s}" for t in TEAMS for s in TIMINGS))
+    config = _config_with(settings) if settings else None
+    total = scenarios * len(FAMILIES[family])
+    with Progress(TextColumn(f"sweep {family} / {policy}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err, transient=True) as progress:
+        task = progress.add_task("sweep", total=total)
+        rep = run_sweep(family, per_family=scenarios, seeds=seeds, seed=seed, policy=policy, config=config,
+                        progress=lambda done, total: progress.update(task, completed=done))
+    emit([rep], print_sweep, as_json=as_json, out_file=out_file)
+
+
+def _config_with(settings: list[str]):
+    """RampsConfig with NAME=VALUE changes, each checked against the field's type."""
+    from ramps.core.config import RampsConfig
+
+    changes: dict[str, object] = {}
+    for item in settings:
+        name, sep, value = item.partition("=")
+        if not sep or name not in RampsConfig.__struct_fields__:
+            fail(f"--set {item!r}: expected NAME=VALUE with NAME one of {', '.join(RampsConfig.__struct_fields__)}")
+        changes[name] = value
+    try:
+        return msgspec.convert(changes, RampsConfig, strict=False)
+    except (msgspec.ValidationError, ValueError) as exc:
+        fail(f"--set: {exc}")
+
+
+@sim_app.command("campaign")
+def sim_campaign(
+    runs: int = typer.Option(1000, "--runs", "-n", min=1, help="random runs"),
+    seed: int = typer.Option(0, "--seed", help="the same seed replays the same runs"),
+    policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
+    as_json: bool = typer.Option(False, "--json", help="write the summary as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
+) -> None:
+    """Random crashes, cuts, freezes and recoveries of non-origin robots; check the invariants.
+
+    After every run: each program of a surviving origin completed exactly once, and a robot that
+    recovered is used again. Exit code 1 if any run broke them (its scenario is in the JSON).
+    """
+    from ramps.experiments.campaign import run_campaign
+    from ramps.experiments.report import print_campaign
+
+    check_policy(policy)
+    with Progress(TextColumn("campaign"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=err,
+                  transient=True) as progress:
+        task = progress.add_task("campaign", total=runs)
+        rep = run_campaign(runs, seed, policy, progress=lambda done, total: progress.update(task, completed=done))
+    emit([rep], print_campaign, as_json=as_json, out_file=out_file)
+    if rep.failed_runs:
+        raise typer.Exit(1)
+
+
+@sim_app.command("run")
+def sim_run(
+    scenario: Path = typer.Argument(..., help="scenario file (YAML or TOML); see examples/ and examples/README.md"),
+    policy: Optional[str] = typer.Option(None, "--policy", "-p", help=POLICY_HELP + " (default: the file's)"),
+    seed: Optional[int] = typer.Option(None, "--seed", help="override the file's seed"),
+    as_json: bool = typer.Option(False, "--json", help="write the full result as JSON to stdout"),
+    trace: bool = typer.Option(False, "--trace", help="include every decision (placements, failures) in the JSON"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
+) -> None:
+    """Simulate your own team and workload described in a scenario file."""
+    from ramps.experiments.report import print_sim_result
+    from ramps.sim.engine import simulate
+    from ramps.sim.scenario_file import ScenarioFileError, load_scenario
+
+    if policy is not None:
+        check_policy(policy)
+    try:
+        sc = load_scenario(scenario)
+    except ScenarioFileError as exc:
+        fail(str(exc))
+    if not as_json:
+        err.print(f"simulating {scenario} ({len(sc.team())} robots, "
+                  f"{sum(p.count for p in sc.programs)} programs) ...")
+    res = simulate(sc, policy=policy, seed=seed, trace=trace)
+    emit([res], print_sim_result, as_json=as_json, out_file=out_file)
+    if res.lost or res.duplicated:
+        raise typer.Exit(1)
+

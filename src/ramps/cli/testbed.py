@@ -1,0 +1,364 @@
+"""``ramps testbed``: emulated robots on this Linux host (root).
+
+    ramps testbed up -n 5            # five robots: a network namespace and a cpu cgroup each
+    ramps testbed status
+    ramps testbed crash r3           # also cut, freeze, recover, lossy (one table: FAULTS)
+    ramps testbed experiment faults  # the paper's Tables 5-10 on real processes
+    ramps testbed down
+
+The work is done by ``ramps.testbed``; this module parses and prints (rules
+in ``ramps.cli.common``).
+"""
+
+from __future__ import annotations
+
+import inspect
+import json
+import sys
+from pathlib import Path
+from typing import Annotated, Any, Callable, NamedTuple, Optional
+
+import msgspec
+import typer
+
+from ramps.cli.common import (
+    POLICY_HELP,
+    DiscoveryOption,
+    LeaseOption,
+    PolicyOption,
+    check_discovery,
+    check_policy,
+    emit,
+    err,
+    fail,
+    out,
+    save_json,
+)
+
+
+testbed_app = typer.Typer(help="Emulated robots on this Linux host (root): one network namespace and cpu cgroup "
+                          "per robot, with fault injection.", no_args_is_help=True)
+TB_HELP = "testbed id (default: the only one up)"
+
+
+def _tb_attach(tb):
+    from ramps.testbed import Testbed, TestbedError
+
+    try:
+        return Testbed.attach(tb)
+    except (PermissionError, TestbedError) as exc:
+        fail(str(exc))
+
+
+@testbed_app.command("up")
+def testbed_up(
+    robots: int = typer.Option(5, "--robots", "-n", min=1, max=250, help="number of robots r1..rN"),
+    quota: Optional[float] = typer.Option(None, "--quota", help="host cores per robot (default: host cores / robots)"),
+    cores: Optional[int] = typer.Option(None, "--cores", min=1, help="cores each node offers (default: quota rounded)"),
+    loaded: Optional[list[str]] = typer.Option(None, "--loaded", help="robot with background load, ROBOT or ROBOT=N busy processes (repeatable; N default 4)"),
+    team: Optional[str] = typer.Option(None, "--team", "-t", help="team name (default: tb-<id>)"),
+    lease_ms: LeaseOption = None,
+    policy: PolicyOption = None,
+    program: Optional[list[str]] = typer.Option(None, "--program", help="extra program as package.module:function (repeatable)"),
+    discovery: DiscoveryOption = "both",
+    caps: bool = typer.Option(True, "--caps/--no-caps", help="cap every program (and busy process) at its processor-sharing share of the robot (cgroup v1)"),
+) -> None:
+    """Start a testbed and leave it running; prints the robots and how to connect."""
+    from ramps.errors import RampsError
+    from ramps.testbed import Testbed
+
+    if policy is not None:
+        check_policy(policy)
+    check_discovery(discovery)
+    load: dict[str, int] = {}
+    for item in loaded or []:
+        name, _, n = item.partition("=")
+        if n and not n.isdigit():
+            fail(f"--loaded must look like r5 or r5=4, got {item!r}")
+        load[name] = int(n) if n else 4
+    try:
+        tb = Testbed(robots, team=team, quota=quota, cores=cores, loaded=load, lease_ms=lease_ms, policy=policy,
+                     programs=program or None, discovery=discovery, caps=caps)
+        err.print(f"starting {robots} robots ...")
+        tb.up()
+        tb.detach()
+    except (PermissionError, ValueError, RampsError) as exc:
+        fail(str(exc))
+    st = tb.status()
+    out.print(f"testbed [bold]{tb.tb}[/]: team [bold]{tb.team}[/], bridge {st['bridge']} ({st['subnet']}), "
+              f"{tb.quota:g} host cores per robot (cgroup {tb.mode})", highlight=False)
+    for r in st["robots"]:
+        out.print(f"  {r['robot']:6s} {r['ip']:15s} namespace {r['namespace']:16s} pid {r['pid']}"
+                  + (f"  load {r['load']}" if r["load"] else ""), highlight=False)
+    out.print(f"connect: ramps status --team {tb.team} --no-multicast "
+              + " ".join(f"-c {e}" for e in tb.endpoints()), highlight=False, soft_wrap=True)
+    out.print(f"python:  ramps.connect(team={tb.team!r}, robot='r1', multicast=False, connect={tb.endpoints()!r})",
+              highlight=False, soft_wrap=True)
+    out.print("faults:  ramps testbed crash|cut|freeze|recover ROBOT; stop: ramps testbed down", highlight=False)
+
+
+@testbed_app.command("status")
+def testbed_status(
+    tb: Optional[str] = typer.Option(None, "--tb", help=TB_HELP),
+    as_json: bool = typer.Option(False, "--json", help="write the status as JSON to stdout"),
+    no_team: bool = typer.Option(False, "--no-team", help="skip the team view (no client session)"),
+) -> None:
+    """Namespaces, links and processes per robot, and the team as a client sees it."""
+    from rich.table import Table
+
+    bed = _tb_attach(tb)
+    st = bed.status(team_view=not no_team)
+    if as_json:
+        sys.stdout.write(json.dumps(st, indent=1) + "\n")
+        return
+    view = {r["robot"]: r for r in st.get("team_view", [])}
+    table = Table(title=f"testbed {st['tb']}: team {st['team']}, {st['subnet']}, {st['quota']:g} host cores/robot",
+                  title_justify="left")
+    for col in ("robot", "ip", "namespace", "link", "node", "load", "faults", "team: alive", "cores", "busy", "sees"):
+        table.add_column(col)
+    for r in st["robots"]:
+        v = view.get(r["robot"])
+        table.add_row(r["robot"], r["ip"], r["namespace"] or "missing", r["link"], f"{r['process']} ({r['pid']})",
+                      f"{r['load_running']}/{r['load']}", ",".join(r["faults"]) or "-",
+                      ("no" if "team_view" in st else "-") if v is None else ("yes" if v["alive"] else "no"),
+                      str(v.get("cores", "-")) if v else "-", f"{v['cpu_busy']:.2f}" if v and "cpu_busy" in v else "-",
+                      "-" if not v or v.get("sees") is None else str(v["sees"]))
+    out.print(table)
+    if "team_view_error" in st:
+        err.print(f"team view: {st['team_view_error']}", highlight=False, soft_wrap=True)
+
+
+class Fault(NamedTuple):
+    """One ``ramps testbed FAULT ROBOT`` command: the ``Testbed`` method of
+    that name is called with the robot (and ``extra``'s arguments, in order),
+    and ``done(robot, result, bed, *args)`` is the line printed after it."""
+
+    help: str
+    done: Callable[..., str]
+    extra: tuple[inspect.Parameter, ...] = ()
+
+
+RobotArgument = Annotated[str, typer.Argument(help="robot, e.g. r3")]
+TestbedOption = Annotated[Optional[str], typer.Option("--tb", help=TB_HELP)]
+LOSS = inspect.Parameter("loss", inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation=Annotated[
+    float, typer.Argument(min=0.0, max=1.0, help="drop probability of each packet, 0-1 (0 ends it)")])
+
+# The fault commands, generated below in this order.
+FAULTS: dict[str, Fault] = {
+    "crash": Fault("SIGKILL a robot's node, workers and load.", lambda robot, res, bed: f"{robot}: crashed (SIGKILL)"),
+    "cut": Fault("Take a robot's network link down (it keeps computing).",
+                 lambda robot, res, bed: f"{robot}: cut off (link down)"),
+    "freeze": Fault("SIGSTOP every process of a robot.", lambda robot, res, bed: f"{robot}: frozen (SIGSTOP)"),
+    "recover": Fault("Undo a robot's faults: link up, SIGCONT, restart a crashed node; waits until it is alive.",
+                     lambda robot, res, bed: f"{robot}: recovered ({', '.join(res) or 'nothing to undo'}); "
+                                             f"alive in team {bed.team}"),
+    "lossy": Fault("Make a robot's link lossy (a poor WiFi link): each packet in and out is dropped with this "
+                   "probability.",
+                   lambda robot, res, bed, loss: f"{robot}: {loss:.0%} packet loss" if loss else f"{robot}: loss removed",
+                   (LOSS,)),
+}
+
+
+def _tb_fault(kind: str, robot: str, tb: Optional[str], *args: Any) -> None:
+    from ramps.errors import RampsError
+    from ramps.testbed.net import NetError
+
+    bed = _tb_attach(tb)
+    try:
+        res = getattr(bed, kind)(robot, *args)
+    except (RampsError, NetError, ValueError) as exc:
+        fail(str(exc))
+    out.print(FAULTS[kind].done(robot, res, bed, *args), highlight=False)
+
+
+def _fault_command(kind: str, fault: Fault) -> Callable[..., None]:
+    def command(robot: str, tb: Optional[str] = None, **extra: Any) -> None:
+        _tb_fault(kind, robot, tb, *(extra[p.name] for p in fault.extra))
+
+    kw = inspect.Parameter.POSITIONAL_OR_KEYWORD
+    command.__signature__ = inspect.Signature(  # type: ignore[attr-defined]  # what typer reads
+        [inspect.Parameter("robot", kw, annotation=RobotArgument), *fault.extra,
+         inspect.Parameter("tb", kw, default=None, annotation=TestbedOption)])
+    command.__name__ = command.__qualname__ = f"testbed_{kind}"
+    command.__doc__ = fault.help
+    return command
+
+
+for _kind, _fault in FAULTS.items():
+    testbed_app.command(_kind)(_fault_command(_kind, _fault))
+
+
+experiment_app = typer.Typer(help="The paper's experiments on real processes (each run starts its own testbed).",
+                             no_args_is_help=True)
+testbed_app.add_typer(experiment_app, name="experiment")
+
+
+@experiment_app.command("faults")
+def testbed_experiment_faults(
+    mode: str = typer.Option("sequential", "--mode", "-m", help="sequential, simultaneous or all"),
+    kind: str = typer.Option("crash", "--kind", "-k", help="crash, network, mixed or all"),
+    runs: int = typer.Option(1, "--runs", min=1, help="runs of every plan"),
+    gap: float = typer.Option(20.0, "--gap", min=4.0, help="seconds from the submit to the first failure and between failures (paper: 20)"),
+    work: Optional[float] = typer.Option(None, "--work", help="work units per program (default 0.9 * gap: still running at the last snapshot)"),
+    policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
+    lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh lease of every node, ms (default: the node's)"),
+    keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="copy every node's log and decision trace here"),
+    discovery: DiscoveryOption = "both",
+    as_json: bool = typer.Option(False, "--json", help="write the results as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
+) -> None:
+    """The paper's failure experiments (Tables 5-10) on the testbed: 15 programs from r1 on five
+    robots, then failures of r5, r4, r3, r2 (crash = SIGKILL, network = link down), with the same
+    plans, tables and per-failure figures as `ramps sim paper --experiment faults`."""
+    from functools import partial
+
+    from ramps.errors import RampsError
+    from ramps.experiments.faults import KINDS, plans, run_fault_experiment
+    from ramps.experiments.report import print_fault_report
+    from ramps.testbed.experiments import run_plan
+
+    check_policy(policy)
+    modes = ["sequential", "simultaneous"] if mode == "all" else [mode]
+    kinds = list(KINDS) if kind == "all" else [kind]
+    if any(m not in ("sequential", "simultaneous") for m in modes):
+        fail(f"unknown mode {mode!r}; choose sequential, simultaneous or all")
+    if any(k not in KINDS for k in kinds):
+        fail(f"unknown kind {kind!r}; choose crash, network, mixed or all")
+    total = sum(len(plans(m, k, first=gap, gap=gap)) for m in modes for k in kinds) * runs
+    err.print(f"{total} testbed run(s); each takes {gap * 5:g}+ s plus the time the survivors need to finish")
+    check_discovery(discovery)
+    runner = partial(run_plan, work=work, lease_ms=lease_ms, keep_logs=keep_logs, discovery=discovery,
+                     log=lambda m: err.print(m, highlight=False))
+    reports = []
+    try:
+        for m in modes:
+            for k in kinds:
+                reports.append(run_fault_experiment(m, k, policy=policy, runs=runs, runner=runner, first=gap, gap=gap,
+                                                    world="testbed"))
+                if out_file is not None and len(modes) * len(kinds) > 1:  # a long run keeps what it has finished
+                    save_json(msgspec.json.encode({"experiments": reports, "partial": True}), out_file)
+    except (PermissionError, RampsError) as exc:
+        fail(str(exc))
+    except KeyboardInterrupt:
+        if not reports:
+            raise typer.Exit(130)
+        err.print(f"interrupted: the {len(reports)} finished experiment(s) follow")
+        emit(reports, print_fault_report, as_json=as_json, out_file=out_file)
+        raise typer.Exit(130)
+    emit(reports, print_fault_report, as_json=as_json, out_file=out_file)
+    if any(r.summary["lost"] or r.summary["duplicated"] for r in reports):
+        raise typer.Exit(1)
+
+
+@testbed_app.command("fidelity")
+def testbed_fidelity(
+    caps: bool = typer.Option(True, "--caps/--no-caps", help="per-program CPU caps (the default; --no-caps to see why)"),
+    cores: int = typer.Option(4, "--cores", min=1, max=64, help="emulated cores of the robot"),
+    quota: float = typer.Option(0.8, "--quota", min=0.05, help="host cores of the robot"),
+    work: float = typer.Option(2.0, "--work", min=0.1, help="work units per program"),
+    as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
+) -> None:
+    """How closely a testbed robot follows processor sharing: k programs next to b busy
+    processes, completion times and the robot's CPU against the model (about 3 minutes)."""
+    from ramps.errors import RampsError
+    from ramps.testbed.fidelity import run_fidelity
+
+    def show(rep, console) -> None:
+        from rich.table import Table
+
+        t = Table(title=f"testbed robot of {rep.cores} cores on {rep.quota:g} host cores, "
+                        f"per-program caps {'on' if rep.caps else 'off'}, {rep.work:g} units each")
+        for col in ("programs", "busy", "model s", "measured s", "range s", "error", "robot CPU", "model CPU",
+                    "unit CPU s", "corrected error"):
+            t.add_column(col, justify="right")
+        for c in rep.cases:
+            t.add_row(str(c.programs), str(c.busy), f"{c.model:.1f}", f"{c.mean:.1f}", f"{c.first:.1f}-{c.last:.1f}",
+                      f"{c.error:+.0%}", f"{c.cpu:.2f}", f"{c.cpu_model:.2f}", f"{c.unit_cpu:.2f}",
+                      f"{c.corrected_error:+.0%}")
+        console.print(t)
+        console.print(f"mean |error|: completion {rep.mean_abs_error:.0%}, robot CPU {rep.mean_abs_cpu_error:.0%}, "
+                      f"completion corrected for the host's speed {rep.mean_abs_corrected_error:.0%}; a work unit "
+                      f"cost {rep.unit_cpu_s[0]:.2f} then {rep.unit_cpu_s[1]:.2f} CPU s in this process",
+                      highlight=False)
+
+    err.print(f"fidelity of one testbed robot, caps {'on' if caps else 'off'} ...")
+    try:
+        rep = run_fidelity(caps=caps, cores=cores, quota=quota, work=work,
+                           log=lambda m: err.print(m, highlight=False))
+    except (PermissionError, RampsError, RuntimeError) as exc:
+        fail(str(exc))
+    emit([rep], show, as_json=as_json, out_file=out_file)
+
+
+@testbed_app.command("campaign")
+def testbed_campaign(
+    runs: int = typer.Option(20, "--runs", min=1, help="number of runs (each starts its own testbed)"),
+    seed: int = typer.Option(0, "--seed", help="seed of the first run; run i uses seed*1000000+i"),
+    robots: int = typer.Option(4, "--robots", min=2, max=8, help="robots per run (r1 is the origin)"),
+    duration: float = typer.Option(20.0, "--duration", min=5.0, help="seconds of workload and faults per run"),
+    policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
+    lease_ms: LeaseOption = None,
+    discovery: DiscoveryOption = "both",
+    keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="keep the node logs and traces of failed runs here"),
+    only_seed: Optional[int] = typer.Option(None, "--only-seed", help="re-run just this run seed (as printed by a failed run)"),
+    stress: bool = typer.Option(True, "--stress/--no-stress", help="also stall nodes alone (0.5-5 s, the origin too), kill nodes alone, and put CPU pressure on robots; then check nothing was restarted without cause or left running (--no-stress: crashes, cuts and freezes only, as before 2026-11-23)"),
+    as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
+) -> None:
+    """Random crashes, cuts, freezes and recoveries of non-origin robots during a workload, on real
+    processes; after every run: every program completed exactly once, recovered robots rejoined.
+    With --stress (default) also node-only stalls and crashes and CPU pressure, and the checks that no
+    program was restarted without cause and nothing was left running."""
+    from ramps.errors import RampsError
+    from ramps.experiments.report import print_campaign
+    from ramps.testbed.experiments import run_campaign
+
+    check_policy(policy)
+    check_discovery(discovery)
+
+    def progress(done, total, run):
+        mark = "ok" if run.ok else (f"FAILED lost {run.lost} dup {run.duplicated} not rejoined {run.not_rejoined}"
+                                    + (f" unexplained restarts {run.unexplained}" if run.unexplained else "")
+                                    + (f" left running {run.left_running}" if run.left_running else "")
+                                    + (f" orphans {run.orphans}" if run.orphans else ""))
+        err.print(f"run {done}/{total} (seed {run.seed}): {run.programs} programs, "
+                  f"{sum(1 for f in run.faults if f[2] != 'recover')} faults, {run.seconds:.0f} s: {mark}",
+                  highlight=False)
+
+    try:
+        rep = run_campaign(runs, seed, policy=policy, robots=robots, duration=duration, lease_ms=lease_ms,
+                           discovery=discovery, keep_logs=keep_logs, only_seed=only_seed, progress=progress,
+                           stress=stress)
+    except (PermissionError, RampsError) as exc:
+        fail(str(exc))
+    if rep.interrupted:
+        err.print(f"interrupted: the {rep.runs} run(s) that finished follow")
+    emit([rep], print_campaign, as_json=as_json, out_file=out_file)
+    if stress:
+        err.print(f"stress checks: {rep.unexplained_restarts} unexplained restart(s), {rep.left_running} robot(s) "
+                  f"left running programs, {rep.orphans} orphaned process(es) of nodes killed alone", highlight=False)
+    if rep.interrupted:
+        raise typer.Exit(130)
+    if rep.lost or rep.duplicated or rep.not_rejoined or rep.unexplained_restarts or rep.left_running or rep.orphans:
+        raise typer.Exit(1)
+
+
+@testbed_app.command("down")
+def testbed_down(tb: Optional[str] = typer.Option(None, "--tb", help=TB_HELP),
+                 all_: bool = typer.Option(False, "--all", help="remove every testbed and every leftover "
+                                           "(ramps-* namespaces, rb-* links, testbed cgroups)")) -> None:
+    """Stop a testbed and remove everything it made."""
+    from ramps.testbed import down_all
+
+    if all_:
+        try:
+            gone = down_all()
+        except PermissionError as exc:
+            fail(str(exc))
+        out.print("removed: " + (", ".join(gone) if gone else "nothing was left"), highlight=False, soft_wrap=True)
+        return
+    bed = _tb_attach(tb)
+    bed.down()
+    out.print(f"testbed {bed.tb} is down")
+
