@@ -250,19 +250,64 @@ def testbed_experiment_faults(
         raise typer.Exit(1)
 
 
+@experiment_app.command("sweep")
+def testbed_experiment_sweep(
+    experiment: str = typer.Option("all", "--experiment", "-e", help="unloaded (the paper's Table 3), loaded (Table 4), multi-origin (several robots submit at once) or all"),
+    full: bool = typer.Option(False, "--full", help="13 configurations instead of 6 (about twice as long)"),
+    quota: float = typer.Option(0.2, "--quota", min=0.05, max=4.0, help="host cores of each robot (5 robots of 0.2 take one of this host's cores)"),
+    cores: int = typer.Option(4, "--cores", min=1, max=16, help="emulated cores of each robot"),
+    work: float = typer.Option(0.3, "--work", min=0.05, max=10.0, help="work units of each program (0.3: about 9 s alone on an emulated core of 0.05 host cores)"),
+    seeds: int = typer.Option(3, "--seeds", min=1, max=20, help="simulator runs per configuration (the median is compared)"),
+    as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
+) -> None:
+    """The paper's unloaded and loaded sweeps (Tables 3-4) and several-origins bursts on real node
+    processes, each beside the simulator's makespan and distribution for the same configuration:
+    the simulator's fidelity per configuration (ratio = testbed / simulator; corrected = with the
+    simulator scaled by what a work unit cost the host during the run). About 4 minutes."""
+    from ramps.errors import RampsError
+    from ramps.testbed.sweeps import DEFAULT_CONFIGS, EXPERIMENTS, FULL_CONFIGS, format_report, run_testbed_sweep
+
+    if experiment not in EXPERIMENTS + ("all",):
+        fail(f"unknown experiment {experiment!r}; choose {', '.join(EXPERIMENTS)} or all")
+    configs = [c for c in (FULL_CONFIGS if full else DEFAULT_CONFIGS) if experiment in ("all", c[0])]
+    err.print(f"{len(configs)} configuration(s) on the testbed and in the simulator ...")
+    try:
+        rep = run_testbed_sweep(configs, cores=cores, quota=quota, work=work, seeds=seeds,
+                                log=lambda m: err.print(m, highlight=False))
+    except (PermissionError, RampsError, RuntimeError, ValueError) as exc:
+        fail(str(exc))
+    emit([rep], lambda r, console: console.print(format_report(r), highlight=False), as_json=as_json,
+         out_file=out_file)
+    if any(c.failed for c in rep.cases):
+        raise typer.Exit(1)
+
+
 @testbed_app.command("fidelity")
 def testbed_fidelity(
     caps: bool = typer.Option(True, "--caps/--no-caps", help="per-program CPU caps (the default; --no-caps to see why)"),
     cores: int = typer.Option(4, "--cores", min=1, max=64, help="emulated cores of the robot"),
     quota: float = typer.Option(0.8, "--quota", min=0.05, help="host cores of the robot"),
     work: float = typer.Option(2.0, "--work", min=0.1, help="work units per program"),
+    case: Optional[list[str]] = typer.Option(None, "--case", help="PROGRAMS,BUSY: run only these cases (repeatable), e.g. --case 15,0 --case 4,0 (default: 8 cases from 1 to 8 programs, 0 or 2 busy)"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
 ) -> None:
     """How closely a testbed robot follows processor sharing: k programs next to b busy
-    processes, completion times and the robot's CPU against the model (about 3 minutes)."""
+    processes, completion times and the robot's CPU against the model, and the CPU the robot
+    spent outside its programs (node, fork server) (about 3 minutes)."""
     from ramps.errors import RampsError
     from ramps.testbed.fidelity import run_fidelity
+
+    cases: list[tuple[int, int]] = []
+    for c in case or []:
+        try:
+            k, b = (int(x) for x in c.split(","))
+        except ValueError:
+            fail(f"--case {c!r}: expected PROGRAMS,BUSY, two whole numbers, e.g. 15,0")
+        if not (1 <= k <= 200 and 0 <= b <= 64):
+            fail(f"--case {c!r}: programs must be 1-200 and busy processes 0-64")
+        cases.append((k, b))
 
     def show(rep, console) -> None:
         from rich.table import Table
@@ -270,12 +315,13 @@ def testbed_fidelity(
         t = Table(title=f"testbed robot of {rep.cores} cores on {rep.quota:g} host cores, "
                         f"per-program caps {'on' if rep.caps else 'off'}, {rep.work:g} units each")
         for col in ("programs", "busy", "model s", "measured s", "range s", "error", "robot CPU", "model CPU",
-                    "unit CPU s", "corrected error"):
+                    "unit CPU s", "corrected error", "corrected last", "CPU s outside programs"):
             t.add_column(col, justify="right")
         for c in rep.cases:
             t.add_row(str(c.programs), str(c.busy), f"{c.model:.1f}", f"{c.mean:.1f}", f"{c.first:.1f}-{c.last:.1f}",
                       f"{c.error:+.0%}", f"{c.cpu:.2f}", f"{c.cpu_model:.2f}", f"{c.unit_cpu:.2f}",
-                      f"{c.corrected_error:+.0%}")
+                      f"{c.corrected_error:+.0%}", f"{c.corrected_last_error:+.0%}",
+                      f"{c.overhead_cpu_s:.1f} of {c.robot_cpu_s:.1f}")
         console.print(t)
         console.print(f"mean |error|: completion {rep.mean_abs_error:.0%}, robot CPU {rep.mean_abs_cpu_error:.0%}, "
                       f"completion corrected for the host's speed {rep.mean_abs_corrected_error:.0%}; a work unit "
@@ -284,7 +330,7 @@ def testbed_fidelity(
 
     err.print(f"fidelity of one testbed robot, caps {'on' if caps else 'off'} ...")
     try:
-        rep = run_fidelity(caps=caps, cores=cores, quota=quota, work=work,
+        rep = run_fidelity(caps=caps, cores=cores, quota=quota, work=work, cases=cases or None,
                            log=lambda m: err.print(m, highlight=False))
     except (PermissionError, RampsError, RuntimeError) as exc:
         fail(str(exc))

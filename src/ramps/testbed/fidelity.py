@@ -31,8 +31,8 @@ from __future__ import annotations
 
 import statistics
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import msgspec
 
@@ -58,6 +58,17 @@ class FidelityCase(msgspec.Struct, kw_only=True):
     #: the error against the model scaled by it over the calibration's
     unit_cpu: float
     corrected_error: float
+    #: CPU seconds the robot's cgroup used during the case, by whom: the
+    #: programs' workers, the busy load, and the rest (the node process, its
+    #: worker fork server, the shells around them): ``overhead_cpu_s``
+    robot_cpu_s: float = 0.0
+    program_cpu_s: float = 0.0
+    load_cpu_s: float = 0.0
+    overhead_cpu_s: float = 0.0
+    #: the overhead split by process kind (node, fork_server, other)
+    overhead_by: dict[str, float] = {}
+    #: the last program's completion (the makespan) against the model scaled by ``unit_cpu``
+    corrected_last_error: float = 0.0
 
 
 class FidelityReport(msgspec.Struct, kw_only=True):
@@ -106,21 +117,25 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
         for k, b in cases or CASES:
             tb.add_load("r1", b)
             time.sleep(1.5 if b else 0.2)  # the load is adopted, capped and seen by the node
-            before = _worker_cpu(tb)
+            before = robot_cpu(tb)
             t0, u0 = time.monotonic(), cgroup_usage(cpu_dir, acct_dir)
             futures = [team.options(work=work).submit("burn", units=work) for _ in range(k)]
             took: list[float] = []
             for f in futures:
-                f.add_done_callback(lambda _f: took.append(time.monotonic() - t0))
+                f.add_done_callback(lambda _f, took=took, t0=t0: took.append(time.monotonic() - t0))
             seen = dict(before)  # workers come and go (extra ones exit 2 s after they fall idle): sample
             deadline = time.monotonic() + 600.0
             while not all(f.done() for f in futures) and time.monotonic() < deadline:
-                seen.update(_worker_cpu(tb))
+                merge_cpu(seen, robot_cpu(tb))
                 time.sleep(0.1)
             done, pending = wait_futures(futures, timeout=1.0)
-            cpu = (cgroup_usage(cpu_dir, acct_dir) - u0) / max(time.monotonic() - t0, 1e-3)
-            seen.update(_worker_cpu(tb))
-            spent = sum(seen[p] - before.get(p, 0.0) for p in seen)
+            used = cgroup_usage(cpu_dir, acct_dir) - u0
+            cpu = used / max(time.monotonic() - t0, 1e-3)
+            merge_cpu(seen, robot_cpu(tb))
+            by: dict[str, float] = {}
+            for p, (kind, secs) in seen.items():
+                by[kind] = by.get(kind, 0.0) + secs - before.get(p, (kind, 0.0))[1]
+            spent = by.get("worker", 0.0)
             unit = spent / (k * work)
             bad = [f for f in done if f.exception() is not None]
             if pending or bad:
@@ -135,11 +150,18 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
             case = FidelityCase(programs=k, busy=b, model=round(m, 2), mean=round(mean, 2), first=round(min(took), 2),
                                 last=round(max(took), 2), error=round((mean - m) / m, 3), cpu=round(cpu, 3),
                                 cpu_model=round(cpu_m, 3), unit_cpu=round(unit, 3),
-                                corrected_error=round((mean - mc) / mc, 3))
+                                corrected_error=round((mean - mc) / mc, 3),
+                                corrected_last_error=round((max(took) - mc) / mc, 3), robot_cpu_s=round(used, 2),
+                                program_cpu_s=round(spent, 2), load_cpu_s=round(by.get("load", 0.0), 2),
+                                overhead_cpu_s=round(used - spent - by.get("load", 0.0), 2),
+                                overhead_by={kk: round(v, 2) for kk, v in sorted(by.items())
+                                             if kk not in ("worker", "load")})
             log(f"  {k} programs + {b} busy: model {m:.1f} s, measured {mean:.1f} s "
                 f"({min(took):.1f}-{max(took):.1f}), error {case.error:+.0%}; "
                 f"robot CPU {cpu:.2f} host cores, model {cpu_m:.2f}; a unit cost {unit:.2f} CPU s "
-                f"(calibration {calib:.2f}), corrected error {case.corrected_error:+.0%}")
+                f"(calibration {calib:.2f}), corrected error {case.corrected_error:+.0%} "
+                f"(last {case.corrected_last_error:+.0%}); robot {used:.1f} CPU s, "
+                f"programs {spent:.1f}, outside them {case.overhead_cpu_s:.1f} {case.overhead_by}")
             out.append(case)
             if b:
                 tb.remove_load("r1")
@@ -152,26 +174,50 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
                           unit_cpu_s=(unit0, unit1))
 
 
-def _worker_cpu(tb, robot: str = "r1") -> dict[int, float]:
-    """CPU seconds so far of every worker process of the robot (its cgroup's
-    processes but the node, its shell and the busy load)."""
+def _kind(pid: int, argv: bytes, load: set[int]) -> str:
+    """What a process of a robot's cgroup is: ``worker`` (runs programs),
+    ``fork_server`` (forks workers), ``node``, ``load`` or ``other``."""
+    if pid in load:
+        return "load"
+    if b"--fork-server" in argv:  # the server and the workers it forks share its argv: tell them by the parent
+        f = proc_stat_fields(pid)
+        try:
+            parent = Path(f"/proc/{f[1]}/cmdline").read_bytes() if f else b""
+        except OSError:
+            parent = b""
+        return "worker" if b"--fork-server" in parent else "fork_server"
+    if b"ramps.runtime.worker" in argv:
+        return "worker"
+    if b"ramps.cli" in argv and b"node" in argv:
+        return "node"
+    return "other"
+
+
+def merge_cpu(seen: dict[int, tuple[str, float]], new: dict[int, tuple[str, float]]) -> None:
+    """``seen.update(new)``, but a process keeps the kind it was first given:
+    a worker that is exiting (a zombie) has an empty command line."""
+    for pid, (kind, secs) in new.items():
+        seen[pid] = (seen[pid][0] if pid in seen else kind, secs)
+
+
+def robot_cpu(tb, robot: str = "r1") -> dict[int, tuple[str, float]]:
+    """CPU seconds so far (utime + stime) of every process in the robot's
+    cgroup tree, with its kind (``_kind``)."""
     import os
 
     from ramps.testbed.bed import _cgroup_pids
 
     rb = tb.robots[robot]
-    skip = {rb["pid"], *(p for p, _ in rb["load_pids"])}
+    load = {p for p, _ in rb["load_pids"]}
     tick = os.sysconf("SC_CLK_TCK")
     out = {}
     for pid in _cgroup_pids(rb["cgroup"][:1]):
-        if pid in skip:
-            continue
         try:
             cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
         except OSError:
             continue
         f = proc_stat_fields(pid)
-        if f is None or b"ramps.runtime.worker" not in cmd:
+        if f is None:
             continue
-        out[pid] = (int(f[11]) + int(f[12])) / tick  # utime + stime
+        out[pid] = (_kind(pid, cmd, load), (int(f[11]) + int(f[12])) / tick)
     return out

@@ -1,0 +1,243 @@
+"""The paper's sweeps and several-origins bursts on real processes, beside the simulator.
+
+How this works: a configuration is a team (``robots`` emulated robots of
+``cores`` cores on ``quota`` host cores each, the last ``loaded`` of them
+running ``stress`` busy processes, as the paper's Table 4) and a burst of
+identical ``burn`` programs of ``work`` units from ``origins`` robots (r1,
+r2, ...; one origin is the paper's Tables 3-4, several is issue 10's
+several-origins burst), each origin submitting its programs 0.05 s apart.
+``run_testbed_sweep`` runs every configuration on a testbed of real
+``ramps node`` processes (one testbed per team size; busy processes are
+added and removed between configurations) and the same configuration in the
+simulator (``ramps.sim``: same cores, the speed the testbed measured, the
+node's report period, the workers' niceness against the busy load), and
+prints both makespans and distributions side by side. The simulator's
+fidelity for that configuration is ``ratio`` = testbed / simulator.
+
+The testbed's makespan also carries the host's noise: on this shared 2-core
+VM a work unit's CPU cost moves by 10-40% from minute to minute, and other
+processes take CPU from the robots. So each configuration also reads the CPU
+seconds the programs' workers used on every robot, gives a unit's cost
+during the run (``unit_cpu``) against the cost when the speed was measured
+(``calibration``), and ``corrected_ratio`` compares the testbed with the
+simulator scaled by it: what is left is the emulation's and the runtime's.
+
+Run ``ramps testbed experiment sweep`` (root; ``--help``): a small
+representative subset by default (about 4 minutes), ``--full`` for more.
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import time
+from collections.abc import Callable, Sequence
+
+import msgspec
+
+from ramps.core.config import RampsConfig
+from ramps.sim.engine import simulate
+from ramps.sim.scenario import ProgramSpec, PublisherSpec, RobotSpec, Scenario
+
+EXPERIMENTS = ("unloaded", "loaded", "multi-origin")
+#: (experiment, robots, programs per origin, loaded robots, origins)
+DEFAULT_CONFIGS: list[tuple[str, int, int, int, int]] = [
+    ("unloaded", 3, 10, 0, 1),
+    ("multi-origin", 3, 6, 0, 2),   # issue 10's example: r1 and r2 each submit 6 on 3 idle robots
+    ("unloaded", 5, 15, 0, 1),
+    ("loaded", 5, 15, 1, 1),
+    ("loaded", 5, 15, 2, 1),
+    ("multi-origin", 5, 5, 0, 3),
+]
+FULL_CONFIGS: list[tuple[str, int, int, int, int]] = DEFAULT_CONFIGS + [
+    ("unloaded", 2, 5, 0, 1),
+    ("unloaded", 4, 20, 0, 1),
+    ("unloaded", 5, 30, 0, 1),
+    ("loaded", 5, 10, 3, 1),
+    ("loaded", 5, 20, 4, 1),
+    ("multi-origin", 5, 4, 1, 5),
+    ("multi-origin", 4, 6, 1, 2),
+]
+SPACING = 0.05
+
+
+class SweepCase(msgspec.Struct, kw_only=True):
+    experiment: str
+    robots: int
+    programs: int
+    loaded: int
+    origins: int
+    #: testbed: seconds from the first submission to the last result, and programs per robot (r1 first)
+    makespan: float
+    distribution: list[int]
+    #: simulator, same configuration: median makespan over seeds, and each seed's distribution
+    sim_makespan: float
+    sim_distributions: list[list[int]]
+    ratio: float
+    #: CPU seconds of a work unit in the workers during the run, and when the speed was measured
+    unit_cpu: float
+    calibration: float
+    corrected_ratio: float
+    completed: int
+    failed: int
+    #: the host's 1-minute load average at the end (2 cores; the robots need ``quota * robots``)
+    host_load: float
+
+
+class TestbedSweepReport(msgspec.Struct, kw_only=True):
+    __test__ = False
+    cores: int
+    quota: float
+    speed: float
+    work: float
+    seeds: int
+    cases: list[SweepCase]
+    mean_abs_ratio_error: float
+    mean_abs_corrected_error: float
+    wall_seconds: float = 0.0
+
+
+def sim_scenario(robots: int, programs: int, loaded: int, origins: int, *, cores: int, speed: float, work: float,
+                 stress: int = 8, worker_nice: int = 10, period: float = 1.0, seed: int = 0) -> Scenario:
+    """The simulator's version of one testbed configuration (robot names as the testbed's)."""
+    team = [RobotSpec(name=f"r{i}", cores=cores, speed=speed, background=stress if i > robots - loaded else 0,
+                      worker_nice=worker_nice) for i in range(1, robots + 1)]
+    progs = [ProgramSpec(program="burn", count=programs, work=work, payload=200, result=200, origin=f"r{o}",
+                         spacing=SPACING, jitter=0.0) for o in range(1, origins + 1)]
+    return Scenario(name=f"testbed-{robots}r-{origins}x{programs}p-{loaded}l", seed=seed, robots=team,
+                    programs=progs, publisher=PublisherSpec(period=period, window=1.0), config=RampsConfig())
+
+
+def simulate_config(robots: int, programs: int, loaded: int, origins: int, *, cores: int, speed: float,
+                    work: float, seeds: int = 3, policy: str = "ramps") -> tuple[float, list[list[int]]]:
+    names = [f"r{i}" for i in range(1, robots + 1)]
+    spans, dists = [], []
+    for s in range(seeds):
+        res = simulate(sim_scenario(robots, programs, loaded, origins, cores=cores, speed=speed, work=work,
+                                    seed=1000 + s), policy=policy)
+        if res.lost or res.completed != programs * origins:
+            raise RuntimeError(f"the simulator lost programs in {res.scenario} seed {res.seed}")
+        spans.append(res.makespan)
+        dists.append([res.distribution.get(n, 0) for n in names])
+    return statistics.median(spans), dists
+
+
+def _workers_cpu(tb, seen: dict[str, dict[int, tuple[str, float]]]) -> None:
+    """Add every robot's processes' CPU seconds so far to ``seen`` (robot -> pid -> (kind, seconds))."""
+    from ramps.testbed.fidelity import merge_cpu, robot_cpu
+
+    for r in tb.names:
+        merge_cpu(seen.setdefault(r, {}), robot_cpu(tb, r))
+
+
+def _run_on_testbed(tb, clients: dict, programs: int, origins: int, work: float, timeout: float
+                    ) -> tuple[float, list[int], int, int, float]:
+    """One burst on a running testbed: makespan, distribution, completed, failed, workers' CPU seconds."""
+    before: dict[str, dict[int, tuple[str, float]]] = {}
+    _workers_cpu(tb, before)
+    seen = {r: dict(v) for r, v in before.items()}
+    futures = []
+    t0 = time.monotonic()
+    for i in range(programs):  # the origins submit at the same moments, each its own program in turn
+        for o in range(1, origins + 1):
+            futures.append(clients[f"r{o}"].options(work=work).submit("burn", units=work))
+        time.sleep(max(0.0, t0 + (i + 1) * SPACING - time.monotonic()))
+    ends: list[float] = []
+    for f in futures:
+        f.add_done_callback(lambda _f: ends.append(time.monotonic()))
+    deadline = time.monotonic() + timeout
+    while not all(f.done() for f in futures) and time.monotonic() < deadline:
+        _workers_cpu(tb, seen)
+        time.sleep(0.2)
+    _workers_cpu(tb, seen)
+    ok = [f for f in futures if f.done() and f.exception() is None]
+    for f in futures:
+        if not f.done():
+            f.cancel()
+    dist = [sum(1 for f in ok if f.host == r) for r in tb.names]
+    makespan = (max(ends) - t0) if ends else float("nan")
+    spent = sum(secs - before.get(r, {}).get(pid, (kind, 0.0))[1]
+                for r, procs in seen.items() for pid, (kind, secs) in procs.items() if kind == "worker")
+    return makespan, dist, len(ok), len(futures) - len(ok), spent
+
+
+def _wait_idle(obs, timeout: float = 30.0) -> None:
+    """Until no robot reports a program running (the previous configuration's stragglers)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if not any(row.get("running") for row in obs.view()):
+            return
+        time.sleep(0.5)
+
+
+def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None = None, *, cores: int = 4,
+                      quota: float = 0.2, work: float = 0.3, seeds: int = 3, stress: int = 8,
+                      timeout: float = 300.0, log: Callable[[str], None] | None = None) -> TestbedSweepReport:
+    """Every configuration on real processes and in the simulator (module docstring)."""
+    from ramps.testbed import Testbed
+    from ramps.testbed.bed import Observer
+    from ramps.testbed.experiments import SETTLE, identical_speed
+
+    log = log or (lambda _m: None)
+    configs = list(configs or DEFAULT_CONFIGS)
+    for exp, n, k, loaded, origins in configs:
+        if exp not in EXPERIMENTS or not (1 <= origins <= n) or not (0 <= loaded < n) or k < 1:
+            raise ValueError(f"bad configuration {(exp, n, k, loaded, origins)}: experiment one of "
+                             f"{', '.join(EXPERIMENTS)}, 1 <= origins <= robots, 0 <= loaded < robots, programs >= 1")
+    started = time.monotonic()
+    speed = identical_speed(1, cores, quota)
+    calibration = quota / (cores * speed)  # CPU seconds of a unit when the speed was measured
+    log(f"one emulated core runs {speed:.4f} units/s ({calibration:.2f} CPU s a unit); {len(configs)} configurations")
+    out: list[SweepCase] = []
+    for size in sorted({c[1] for c in configs}):
+        group = [c for c in configs if c[1] == size]
+        with Testbed(size, cores=cores, quota=quota, speed=speed) as tb, Observer(tb) as obs:
+            clients = {f"r{o}": tb.client(f"r{o}", timeout=30.0) for o in range(1, max(c[4] for c in group) + 1)}
+            try:
+                for exp, n, k, loaded, origins in group:
+                    for i in range(n - loaded + 1, n + 1):
+                        tb.add_load(f"r{i}", stress)
+                    time.sleep(SETTLE)  # the load is adopted, capped and reported
+                    sim, sim_dists = simulate_config(n, k, loaded, origins, cores=cores, speed=speed, work=work,
+                                                     seeds=seeds)
+                    span, dist, done, failed, spent = _run_on_testbed(tb, clients, k, origins, work, timeout)
+                    unit = spent / max(done * work, 1e-9) if done else calibration
+                    corrected = sim * unit / calibration
+                    case = SweepCase(experiment=exp, robots=n, programs=k, loaded=loaded, origins=origins,
+                                     makespan=round(span, 2), distribution=dist, sim_makespan=round(sim, 2),
+                                     sim_distributions=sim_dists, ratio=round(span / sim, 3),
+                                     unit_cpu=round(unit, 3), calibration=round(calibration, 3),
+                                     corrected_ratio=round(span / corrected, 3), completed=done, failed=failed,
+                                     host_load=round(os.getloadavg()[0], 2))
+                    log(f"  {exp:12s} {n} robots, {origins} x {k} programs, {loaded} loaded: testbed {span:.1f} s "
+                        f"{dist}, simulator {sim:.1f} s {sim_dists[0]}: ratio {case.ratio:.2f}, corrected "
+                        f"{case.corrected_ratio:.2f} (a unit cost {unit:.2f} CPU s, calibration {calibration:.2f}; "
+                        f"host load {case.host_load})")
+                    out.append(case)
+                    for i in range(n - loaded + 1, n + 1):
+                        tb.remove_load(f"r{i}")
+                    _wait_idle(obs)
+            finally:
+                for c in clients.values():
+                    c.close()
+    good = [c for c in out if c.completed]
+    return TestbedSweepReport(
+        cores=cores, quota=quota, speed=speed, work=work, seeds=seeds, cases=out,
+        mean_abs_ratio_error=round(statistics.fmean(abs(c.ratio - 1) for c in good), 3) if good else 0.0,
+        mean_abs_corrected_error=round(statistics.fmean(abs(c.corrected_ratio - 1) for c in good), 3) if good else 0.0,
+        wall_seconds=round(time.monotonic() - started, 1))
+
+
+def format_report(rep: TestbedSweepReport) -> str:
+    lines = [(f"robots of {rep.cores} cores on {rep.quota:g} host cores, programs of {rep.work:g} units "
+              f"({rep.work / rep.speed:.1f} s alone on an emulated core), simulator median of {rep.seeds} seeds"),
+             (f"{'experiment':12s} {'robots':>6s} {'origins x programs':>18s} {'loaded':>6s} {'testbed s':>9s} "
+              f"{'simulator s':>11s} {'ratio':>6s} {'corrected':>9s}  testbed / simulator distribution")]
+    for c in rep.cases:
+        lines.append(f"{c.experiment:12s} {c.robots:6d} {f'{c.origins} x {c.programs}':>18s} {c.loaded:6d} "
+                     f"{c.makespan:9.1f} {c.sim_makespan:11.1f} {c.ratio:6.2f} {c.corrected_ratio:9.2f}  "
+                     f"{'-'.join(map(str, c.distribution))} / {'-'.join(map(str, c.sim_distributions[0]))}"
+                     + (f"  ({c.failed} failed)" if c.failed else ""))
+    lines.append(f"mean |ratio - 1|: {rep.mean_abs_ratio_error:.1%}, corrected for the host's speed "
+                 f"{rep.mean_abs_corrected_error:.1%}; {rep.wall_seconds:.0f} s")
+    return "\n".join(lines)
