@@ -151,3 +151,60 @@ def test_a_stall_that_may_have_closed_links_is_told_to_the_core_once(driver):
     assert [a.robot for a in acts if a.what == "relinked"] == ["r2"]
     assert not rt.node.origin.relink.waiting("r2", rt._clock())
     assert rt.node.origin.relink.waiting("r3", rt._clock())
+
+
+class FakeSession:
+    """What the driver's client answers use of a Zenoh session."""
+
+    def __init__(self) -> None:
+        self.pubs: dict[str, FakePub] = {}
+        self.updates: list[tuple[str, bytes]] = []
+
+    def declare_publisher(self, key: str, **_) -> FakePub:
+        return self.pubs.setdefault(key, FakePub(matching=True))
+
+    def put(self, key: str, data: bytes, **_) -> None:
+        self.updates.append((key, data))
+
+
+def test_a_request_asked_again_is_answered_again_and_never_run_twice(driver, monkeypatch):
+    """A client asks about its pending requests again once its link to the
+    node is back after a lapse (an outcome sent meanwhile may have gone
+    nowhere, whatever Zenoh's matching said): a running request gets an
+    update, an answered one its outcome again, one whose outcome is no longer
+    kept an outcome saying so; none runs twice."""
+    from ramps.core.events import Note
+    from ramps.core.messages import ProgramOutcome, ProgramUpdate, SubmitProgram, decode
+    from ramps.runtime import keys
+
+    rt, fake = driver
+    rt.session = FakeSession()
+    rt.incarnation = 7
+    monkeypatch.setattr(rn, "OUTCOMES_KEPT_BYTES", 500)
+    sub = [SubmitProgram(client="app", request_id=i, program="echo", args=encode_args(x=1))
+           for i in (1, 2)]
+    first = rt._client_submit(sub[0], rt._clock())
+    assert sum(isinstance(a, Note) and a.what == "placed" for a in first) == 1
+    again = rt._client_submit(sub[0], rt._clock())
+    assert not any(isinstance(a, Note) and a.what == "placed" for a in again)
+    [(key, data)] = rt.session.updates
+    assert key == keys.client(rt.team, "app") and isinstance(decode(data).msg, ProgramUpdate)
+    [pid] = list(rt._clients)
+    rt._tell_client(pid, ok=True, value=b"v" * 100, host="r1", attempts=1)
+    pub = rt.session.pubs[keys.client(rt.team, "app")]
+    assert len(pub.sent) == 1
+    rt._client_submit(sub[0], rt._clock())  # the outcome went nowhere: asked again
+    assert pub.sent[1] == pub.sent[0] and decode(pub.sent[1]).msg.value == b"v" * 100
+    rt._client_submit(sub[1], rt._clock())
+    [pid2] = list(rt._clients)
+    rt._tell_client(pid2, ok=True, value=b"w" * 300, host="r1", attempts=1)  # over the bytes kept: 1 goes
+    rt._client_submit(sub[0], rt._clock())
+    lost = decode(pub.sent[-1]).msg
+    assert isinstance(lost, ProgramOutcome) and not lost.ok and "no longer keeps" in lost.error
+    assert rt._kept_bytes == len(pub.sent[2])  # only request 2's outcome is kept
+
+
+def encode_args(**kw) -> bytes:
+    import msgspec
+
+    return msgspec.msgpack.encode(kw)

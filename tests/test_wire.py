@@ -344,6 +344,7 @@ def test_a_garbage_result_value_fails_the_future_instead_of_hanging_it() -> None
     fut.program = "echo"  # type: ignore[attr-defined]
     team._futures = {7: fut}
     team._unacked = {}
+    team._sent = {}
     team._on_outcome(_Sample(encode("r1", m.ProgramOutcome(request_id=7, ok=True, value=b"\xc1", host="r1"))))
     assert fut.done()
     with pytest.raises(Exception, match="could not be decoded"):

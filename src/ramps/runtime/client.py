@@ -205,6 +205,10 @@ class Team:
         self._timer_cv = threading.Condition(self._lock)
         #: submissions the node has not acknowledged yet: request id -> (bytes, when to send again)
         self._unacked: dict[int, tuple[bytes, float]] = {}
+        #: every pending submission as sent, to ask again once the node's link is back after a lapse
+        self._sent: dict[int, bytes] = {}
+        #: the node's liveliness went (its link lapsed) and has not come back yet
+        self._node_lapsed = False
         self._closed = False
         self.secure = settings.secure
         self._connect = list(settings.connect)
@@ -242,8 +246,22 @@ class Team:
         with self._lock:
             if sample.kind == zenoh.SampleKind.PUT:
                 self._alive.add(robot)
+                if robot == getattr(self, "robot", None) and self._node_lapsed:
+                    # the link to our node is back: an outcome it sent meanwhile went nowhere
+                    # (Zenoh may even report a match through another peer); ask about every
+                    # pending program again: the node answers where each stands, or resends
+                    # the outcome, and never runs a request twice (a node that restarted
+                    # meanwhile runs it anew: its programs died with the old one)
+                    self._node_lapsed = False
+                    now = time.monotonic()
+                    for rid in self._futures:
+                        if rid in self._sent:
+                            self._unacked[rid] = (self._sent[rid], now)
+                    self._timer_cv.notify()
             else:
                 self._alive.discard(robot)
+                if robot == getattr(self, "robot", None):
+                    self._node_lapsed = True
                 if robot == getattr(self, "robot", None) and self._futures and not self._closed:
                     # our node, the origin of every pending program, is gone: unless it
                     # is back soon (a lease that flapped), nobody will ever answer them
@@ -364,6 +382,7 @@ class Team:
         reachable = self._node_reachable()
         with self._lock:
             self._unacked[rid] = (data, time.monotonic() + (SUBMIT_RESEND if reachable else 0.0))
+            self._sent[rid] = data
             self._timer_cv.notify()
         if not reachable:
             return fut
@@ -372,6 +391,8 @@ class Team:
         except Exception as exc:
             with self._lock:
                 self._futures.pop(rid, None)
+                self._unacked.pop(rid, None)
+                self._sent.pop(rid, None)
             raise TransportError(f"could not send {program!r} to {self.robot}: {exc}") from exc
         return fut
 
@@ -411,6 +432,7 @@ class Team:
         with self._lock:
             self._futures.pop(rid, None)
             self._unacked.pop(rid, None)
+            self._sent.pop(rid, None)
         if fut.cancelled() and not self._closed:
             try:
                 self._pub.put(encode(self.client_id, CancelSubmitted(client=self.client_id, request_id=rid)))
@@ -435,6 +457,7 @@ class Team:
         with self._lock:
             fut = self._futures.pop(o.request_id, None)
             self._unacked.pop(o.request_id, None)
+            self._sent.pop(o.request_id, None)
         if fut is None or fut.done():
             return
         fut.host = o.host  # which robot ran it

@@ -28,6 +28,7 @@ import queue
 import random
 import threading
 import time
+from collections import deque
 from typing import Any, Callable
 
 import msgspec
@@ -63,7 +64,9 @@ from ramps.core.messages import (
 )
 from ramps.core.node import Node
 from ramps.core.policy import POLICIES
+from ramps.core.program import ProgramState
 from ramps.core.relink import RELINK_TIMEOUT, Stalled
+from ramps.core.speed import REMEASURE_PERIOD, SpeedMeasured
 from ramps.errors import ConfigError, NotAdmitted, ProgramNotFound, TransportError
 from ramps.runtime import keys, revocation
 from ramps.runtime.measure import LoadSampler, cgroup_dirs, cgroup_quota, detect_cores, measure_speed
@@ -94,6 +97,9 @@ RELINK_LEASE_FRACTION = 0.5
 MAX_ITEMS_PER_ROUND = 10_000
 #: answered client requests remembered, so a resent submission is not run twice
 ANSWERED_KEPT = 65536
+#: bytes of recent outcomes kept, so one a client asks for again (its link
+#: lapsed while it was sent: it went nowhere) is sent again
+OUTCOMES_KEPT_BYTES = 16 * 1024 * 1024
 #: seconds an outcome waits for its client to be reachable, and between two looks
 OUTCOME_HOLD = 30.0
 OUTCOME_RETRY = 0.05
@@ -124,8 +130,11 @@ class NodeRuntime:
         self._q: queue.SimpleQueue = queue.SimpleQueue()
         self._clients: dict[str, tuple[str, int]] = {}
         self._requests: dict[tuple[str, int], str] = {}
-        #: requests already answered (the newest ANSWERED_KEPT), in answer order
-        self._answered: dict[tuple[str, int], None] = {}
+        #: requests already answered (the newest ANSWERED_KEPT), in answer order, with
+        #: their outcome as sent while it is among the newest OUTCOMES_KEPT_BYTES
+        self._answered: dict[tuple[str, int], bytes | None] = {}
+        self._kept_outcomes: deque[tuple[str, int]] = deque()
+        self._kept_bytes = 0
         #: the newest progress of programs this node is origin of, until delivered
         self._progress: dict[str, tuple[float, str]] = {}
         self._seq = 0
@@ -149,6 +158,7 @@ class NodeRuntime:
         self.stalled_s = 0.0
         self._stall_offset = 0.0
         self._stalled_at = 0.0
+        self._remeasure_at: float | None = None
         #: a stall long enough to close links, not yet told to the core (seconds)
         self._stall_pending = 0.0
         self._relink_after = settings.lease_ms / 1000.0 * RELINK_LEASE_FRACTION
@@ -186,6 +196,10 @@ class NodeRuntime:
             scope = "cgroup" if quota is not None else "host"
         self.cores = s.cores or detect_cores()
         self.speed = s.speed or measure_speed(quota=quota, cores=self.cores)
+        # a speed measured at boot is measured again while no program runs
+        # (robots booting together measure each other's start-up; ramps.core.speed)
+        self._quota = quota
+        self._remeasure_at = None if s.speed else time.monotonic() + REMEASURE_PERIOD
         self.incarnation = int.from_bytes(os.urandom(6), "big")
         return_freed_memory()
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=s.core,
@@ -595,7 +609,7 @@ class NodeRuntime:
             if self.metrics is not None:
                 self.metrics.on_finished(item[1])
             return node.handle(item[1], now)
-        if kind == "progress":
+        if kind in ("progress", "speed"):
             return node.handle(item[1], now)
         if kind == "live":
             robot, alive = item[1], item[2]
@@ -614,7 +628,9 @@ class NodeRuntime:
     def _client_submit(self, m: SubmitProgram, now: float) -> list:
         rkey = (m.client, m.request_id)
         if rkey in self._requests or rkey in self._answered:
-            return []  # a repeated request (clients resend until acknowledged): one program per request
+            # a repeated request (clients resend until acknowledged, and ask again after
+            # their link to this node lapsed): one program per request; answer where it stands
+            return self._answer_again(rkey)
         self._seq += 1
         pid = f"{self.robot}#{self.incarnation % 100000}-{self._seq}"
         self._requests[rkey] = pid
@@ -646,12 +662,46 @@ class NodeRuntime:
             return []
         client, request_id = target
         self._requests.pop(target, None)
-        self._answered[target] = None  # a resend still in flight must not run it again
-        if len(self._answered) > ANSWERED_KEPT:
-            del self._answered[next(iter(self._answered))]
         self._progress.pop(pid, None)
-        self._send_outcome(keys.client(self.team, client), encode(self.robot, ProgramOutcome(
-            request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts)))
+        data = encode(self.robot, ProgramOutcome(
+            request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts))
+        self._answered[target] = data  # a resend still in flight must not run it again
+        self._kept_outcomes.append(target)
+        self._kept_bytes += len(data)
+        while self._kept_outcomes and (self._kept_bytes > OUTCOMES_KEPT_BYTES
+                                       or len(self._kept_outcomes) > ANSWERED_KEPT):
+            old_key = self._kept_outcomes.popleft()
+            old = self._answered.get(old_key)
+            if old is not None:
+                self._kept_bytes -= len(old)
+                self._answered[old_key] = None
+        if len(self._answered) > ANSWERED_KEPT:
+            old = self._answered.pop(next(iter(self._answered)))
+            self._kept_bytes -= len(old) if old is not None else 0
+        self._send_outcome(keys.client(self.team, client), data)
+        return []
+
+    def _answer_again(self, rkey: tuple[str, int]) -> list:
+        """A client asked again about a request: its program's state if it
+        runs (an update acknowledges the request), its outcome again if this
+        node still keeps it (the first may have gone nowhere: the client's
+        link lapsed while this node was stalled, and Zenoh may still report a
+        match through another peer), else an outcome saying it is lost."""
+        pid = self._requests.get(rkey)
+        if pid is not None:
+            ap = self.node.origin.programs.get(pid)
+            if ap is None:
+                self._update_client(pid, "placed", "", 0)
+            else:
+                self._update_client(pid, "running" if ap.state is ProgramState.RUNNING else "placed",
+                                    ap.host or "", ap.attempt)
+            return []
+        data = self._answered.get(rkey)
+        if data is None:
+            data = encode(self.robot, ProgramOutcome(
+                request_id=rkey[1], ok=False, error_kind="", host=self.robot, attempts=0,
+                error=f"node {self.robot} answered this request long ago and no longer keeps its outcome"))
+        self._send_outcome(keys.client(self.team, rkey[0]), data)
         return []
 
     def _send_outcome(self, key: str, data: bytes) -> None:
@@ -788,7 +838,21 @@ class NodeRuntime:
         except Exception as exc:
             log.warning("node %s could not publish on %s: %s", self.robot, key, exc)
 
+    def _remeasure(self) -> None:
+        """Measure this robot's speed again, off the driver's thread (briefly:
+        0.05 s of CPU); the core keeps the figure if it is faster."""
+        try:
+            speed = measure_speed(0.05, quota=self._quota, cores=self.cores)
+        except Exception:  # never worth a node
+            log.exception("node %s: measuring its speed again failed", self.robot)
+            return
+        self._q.put(("speed", SpeedMeasured(speed=speed)))
+
     def _publish(self, now: float) -> None:
+        due = self._remeasure_at
+        if due is not None and time.monotonic() >= due and not self.pool.busy() and not self.pool.queued():
+            self._remeasure_at = time.monotonic() + REMEASURE_PERIOD
+            threading.Thread(target=self._remeasure, name=f"ramps-speed-{self.robot}", daemon=True).start()
         busy, runnable, ramps_avg = self.sampler.averages()
         per_core, load1, mem_free = self.sampler.extras()
         self.node.executor.background = max(0.0, runnable - ramps_avg)
