@@ -45,6 +45,7 @@ from ramps.core.messages import (
     Heartbeat,
     LinkProbe,
     LinkProbeReply,
+    ProgramCheckpoint,
     Message,
     OffloadAccepted,
     OffloadRejected,
@@ -112,6 +113,7 @@ SAMPLES: list[Message] = [
     ProgramUpdate(request_id=5, state="progress", host="r1", attempt=2, fraction=0.4, detail="row 12 of 30"),
     LinkProbe(sent_at=12.5, padding=b"\0" * 64),
     LinkProbeReply(sent_at=12.5, size=64),
+    ProgramCheckpoint(program_id="o#1", attempt=2, host="r1", state=b"\x82\xa1i\x0c", fraction=0.4),
 ]
 
 

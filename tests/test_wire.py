@@ -390,3 +390,17 @@ def test_a_load_report_lists_at_most_max_listed_running_programs() -> None:
     assert "$.msg.running" in text
     for bad in (m.RunningProgram("p", "o", 1.5), m.RunningProgram("p", "*"), m.RunningProgram("", "o")):
         _refused(encode("r1", msgspec.structs.replace(rep, running=[bad])))
+
+
+def test_a_checkpoint_is_at_most_max_checkpoint_bytes() -> None:
+    """A program's saved state travels host -> origin (ProgramCheckpoint) and
+    origin -> new host (OffloadRequest.resume), each within the same limit."""
+    cp = m.ProgramCheckpoint(program_id="p", attempt=1, host="h", state=b"s" * m.MAX_CHECKPOINT_BYTES, fraction=0.5)
+    assert decode(encode("h", cp)).msg == cp
+    assert "$.msg.state" in _refused(encode("h", msgspec.structs.replace(cp, state=cp.state + b"s")))
+    assert "$.msg.fraction" in _refused(encode("h", msgspec.structs.replace(cp, fraction=1.5)))
+    req = m.OffloadRequest(program_id="p", attempt=2, origin="o", host="h", program="burn", resume=cp.state,
+                           resume_fraction=0.5)
+    assert decode(encode("o", req)).msg == req
+    assert "$.msg.resume" in _refused(encode("o", msgspec.structs.replace(req, resume=cp.state + b"s")))
+    assert "$.msg.resume_fraction" in _refused(encode("o", msgspec.structs.replace(req, resume_fraction=-0.1)))

@@ -61,6 +61,20 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: a node probes each teammate's link this often to measure T_comm
     #: (``ramps.core.links``); 0 = assume the configured network estimate
     probe_period: float = 5.0
+    #: relocation after placement (policies that relocate, see
+    #: ``Origin._relocate``): every ``relocate_period`` seconds an origin
+    #: re-evaluates eq. (1) for its running programs with what it now knows,
+    #: and moves one when its remaining time where it runs exceeds the time to
+    #: finish elsewhere (restart, or resume from its last checkpoint, plus
+    #: T_comm of parameters and checkpoint) by ``relocate_gain`` (relative)
+    #: AND ``relocate_min_gain`` seconds; at most ``relocate_max_moves`` moves
+    #: per program, none within ``relocate_settle`` seconds of an acceptance
+    relocate: bool = True
+    relocate_period: float = 1.0
+    relocate_gain: float = 0.2
+    relocate_min_gain: float = 5.0
+    relocate_max_moves: int = 2
+    relocate_settle: float = 5.0
 
     def __post_init__(self) -> None:
         for name in self.__struct_fields__:
@@ -72,6 +86,8 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
                 f"heartbeat_timeout ({self.heartbeat_timeout}) must exceed "
                 f"heartbeat_period ({self.heartbeat_period})"
             )
+        if self.relocate and self.relocate_period <= 0:
+            raise ValueError("relocate_period must be > 0 when relocate is on")
 
     @classmethod
     def paper(cls) -> "RampsConfig":
@@ -86,4 +102,5 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             hedge_suspects=False,
             prompt_reports=False,
             probe_period=0.0,
+            relocate=False,
         )

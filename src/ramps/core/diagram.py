@@ -38,6 +38,9 @@ HANDLER_TARGETS: dict[str, tuple[tuple[ProgramState | None, str], ...]] = {
     "on_result": ((S.DONE, "ok"), (S.FAILED, "program error"), (S.BACKOFF, "worker lost")),
     "on_cancel": ((S.FAILED, "cancelled"),),
     "place": ((S.OFFERED, ""),),
+    "relocate": ((S.MOVING, "eq. (1) gain over the thresholds"),),
+    "on_moved": ((S.RUNNING, "old copy cancelled"),),
+    "on_move_failed": ((S.RUNNING, "old copy kept"), (S.BACKOFF, "old copy lost meanwhile")),
     "ignore": ((None, "ignored"),),
 }
 

@@ -68,6 +68,16 @@ class ProgressReported(_Rec, frozen=True, kw_only=True):
     detail: str = ""
 
 
+class CheckpointSaved(_Rec, frozen=True, kw_only=True):
+    """A program the executor runs saved its state (driver -> core)."""
+
+    program_id: str
+    attempt: int
+    state: bytes
+    #: the program's progress when it saved, if it reported any
+    fraction: float | None = None
+
+
 class PeerLost(_Rec, frozen=True, kw_only=True):
     """The transport says a teammate is gone (Zenoh liveliness DELETE)."""
 
@@ -87,7 +97,7 @@ class Received(_Rec, frozen=True, kw_only=True):
     msg: Message
 
 
-Event = Submit | Cancel | ProgramFinished | ProgressReported | PeerLost | PeerAlive | Received
+Event = Submit | Cancel | ProgramFinished | ProgressReported | CheckpointSaved | PeerLost | PeerAlive | Received
 
 
 # ---------------------------------------------------------------- actions out
@@ -105,6 +115,10 @@ class StartProgram(_Rec, frozen=True, kw_only=True):
     program: str
     args: bytes
     work: float
+    #: the checkpoint to resume from (``ramps.resume()``), None = fresh start
+    resume: bytes | None = None
+    #: how far the program was at that checkpoint (0..1)
+    resume_fraction: float = 0.0
 
 
 class StopProgram(_Rec, frozen=True, kw_only=True):
@@ -126,6 +140,9 @@ class Deliver(_Rec, frozen=True, kw_only=True):
     error_kind: str = ""
     host: str = ""
     attempts: int = 0
+    #: relocations after placement, and the progress the last attempt resumed from
+    moves: int = 0
+    resumed_from: float | None = None
 
 
 class Progress(_Rec, frozen=True, kw_only=True):
@@ -148,7 +165,8 @@ class PublishReport(_Rec, frozen=True, kw_only=True):
 class Note(_Rec, frozen=True, kw_only=True):
     """Something the core decided, for traces and logs. ``what`` is one of:
     placed, accepted, rejected, blacklisted, unblacklisted, failed, backoff,
-    discarded, anomaly, isolated, suspected."""
+    discarded, anomaly, isolated, suspected, moving, moved, move_aborted,
+    checkpoint."""
 
     what: str
     program_id: str = ""
@@ -160,6 +178,6 @@ class Note(_Rec, frozen=True, kw_only=True):
 Action = Send | StartProgram | StopProgram | Deliver | Progress | PublishReport | Note
 
 __all__ = [
-    "Submit", "Cancel", "ProgramFinished", "ProgressReported", "PeerLost", "PeerAlive", "Received", "Event",
+    "Submit", "Cancel", "ProgramFinished", "ProgressReported", "CheckpointSaved", "PeerLost", "PeerAlive", "Received", "Event",
     "Send", "StartProgram", "StopProgram", "Deliver", "Progress", "PublishReport", "Note", "Action", "ProgramResult",
 ]

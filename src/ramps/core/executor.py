@@ -28,7 +28,8 @@ from __future__ import annotations
 
 from ramps.core.config import RampsConfig
 from ramps.core.cost import program_share, shared_finish_time
-from ramps.core.events import Action, Note, ProgramFinished, ProgressReported, Send, StartProgram, StopProgram
+from ramps.core.events import (Action, CheckpointSaved, Note, ProgramFinished, ProgressReported, Send, StartProgram,
+                               StopProgram)
 from ramps.core.messages import (
     MAX_LISTED,
     MAX_PROGRESS_TEXT,
@@ -37,6 +38,7 @@ from ramps.core.messages import (
     OffloadAccepted,
     OffloadRejected,
     OffloadRequest,
+    ProgramCheckpoint,
     ProgramProgress,
     ProgramRef,
     ProgramResult,
@@ -160,7 +162,8 @@ class Executor:
         self.accepted_total += 1
         self.running[key] = _Job(req.origin, req.program, now, req.work)
         out.append(StartProgram(program_id=req.program_id, attempt=req.attempt, origin=req.origin,
-                                program=req.program, args=req.args, work=req.work))
+                                program=req.program, args=req.args, work=req.work, resume=req.resume,
+                                resume_fraction=req.resume_fraction))
         out.append(Send(to=req.origin, msg=OffloadAccepted(
             program_id=req.program_id, attempt=req.attempt, host=self.me, accept_seq=self.accepted_total)))
         if self._next_tick is None:
@@ -220,6 +223,16 @@ class Executor:
             self._send_one_progress(ev.program_id, ev.attempt, job, now, out)
         elif self._next_tick is None:
             self._next_tick = now + self.config.heartbeat_period
+
+    def on_checkpoint(self, ev: CheckpointSaved, now: float, out: list[Action]) -> None:
+        """A running program saved its state: send it to its origin (which
+        keeps the latest, for a restart after a move or a failure)."""
+        job = self.running.get((ev.program_id, ev.attempt))
+        if job is None:
+            return  # ended or withdrawn meanwhile
+        fraction = ev.fraction if ev.fraction is not None and 0.0 <= ev.fraction <= 1.0 else None
+        out.append(Send(to=job.origin, msg=ProgramCheckpoint(
+            program_id=ev.program_id, attempt=ev.attempt, host=self.me, state=ev.state, fraction=fraction)))
 
     def on_ack(self, msg: ResultAck) -> None:
         entry = self._outbox.get((msg.program_id, msg.attempt))

@@ -24,6 +24,7 @@ robot that runs it; a robot is both at once for its local programs):
     origin       --ResultAck-->       host
     origin       --CancelProgram-->   host     (program done elsewhere / moved)
     host         --ProgramProgress--> origin   (what the program reported, with heartbeats)
+    host         --ProgramCheckpoint--> origin (the program's latest saved state, for a restart)
     robot        --LinkProbe-->       teammate --LinkProbeReply--> robot  (T_comm: latency, bandwidth)
 
 and between an application (client) and its robot's node:
@@ -67,6 +68,8 @@ MAX_WEIGHT = 88761 / 1024
 MAX_PROGRESS_TEXT = 256
 #: most running programs a load report lists
 MAX_LISTED = 256
+#: largest state a program may checkpoint (``ramps.checkpoint``), bytes
+MAX_CHECKPOINT_BYTES = 256 * 1024
 #: most padding a link probe may carry (bandwidth probes use ramps.core.links.PADDED_BYTES)
 MAX_PROBE_BYTES = 64 * 1024
 
@@ -107,6 +110,8 @@ Speed = Annotated[float, Meta(ge=MIN_SPEED, le=MAX_SPEED)]
 #: how far a program is, 0..1
 Fraction = Annotated[float, Meta(ge=0.0, le=1.0)]
 ProgressText = Annotated[str, Meta(max_length=MAX_PROGRESS_TEXT)]
+#: a program's saved state (``ramps.checkpoint``)
+CheckpointState = Annotated[bytes, Meta(max_length=MAX_CHECKPOINT_BYTES)]
 
 
 class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="load"):
@@ -189,6 +194,11 @@ class OffloadRequest(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True
     time_budget: Amount | None = None
     #: set after too many rejections: the host must take it
     force: bool = False
+    #: the program's last checkpoint (a move or a restart after a failure):
+    #: the program reads it with ``ramps.resume()``; None = a fresh start
+    resume: CheckpointState | None = None
+    #: how far the program was when it saved ``resume`` (``work`` is what is left)
+    resume_fraction: Fraction = 0.0
 
 
 class OffloadAccepted(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="accept"):
@@ -285,6 +295,11 @@ class ProgramOutcome(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True
     error_kind: Word = ""
     host: OptRobotName = ""
     attempts: Count = 0
+    #: times the program was relocated while running (moves after placement)
+    moves: Count = 0
+    #: the progress of the checkpoint its last attempt resumed from (None:
+    #: it ran from the start)
+    resumed_from: Fraction | None = None
 
 
 class ProgramProgress(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="progress"):
@@ -296,6 +311,19 @@ class ProgramProgress(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=Tru
     host: RobotName
     fraction: Fraction
     detail: ProgressText = ""
+
+
+class ProgramCheckpoint(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="checkpoint"):
+    """A running program saved its state (host -> origin): the origin keeps
+    the latest and sends it with the program when it moves or restarts
+    after a failure, so the program resumes instead of starting over."""
+
+    program_id: Name
+    attempt: Count
+    host: RobotName
+    state: CheckpointState
+    #: the program's progress when it saved, None if it never reported any
+    fraction: Fraction | None = None
 
 
 class ProgramUpdate(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="update"):
@@ -345,6 +373,7 @@ Message = Union[
     ProgramUpdate,
     LinkProbe,
     LinkProbeReply,
+    ProgramCheckpoint,
 ]
 
 
@@ -414,7 +443,9 @@ def wire_size(msg: Message) -> int:
     payload and result sizes stand in for the bytes a real robot would send.
     """
     if isinstance(msg, OffloadRequest):
-        return 120 + max(msg.payload_size, len(msg.args))
+        return 120 + max(msg.payload_size, len(msg.args)) + len(msg.resume or b"")
+    if isinstance(msg, ProgramCheckpoint):
+        return 120 + len(msg.state)
     if isinstance(msg, ProgramResult):
         return 120 + max(msg.result_size, len(msg.value))
     if isinstance(msg, Heartbeat):

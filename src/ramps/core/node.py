@@ -35,6 +35,7 @@ from ramps.core.cost import NetworkEstimate
 from ramps.core.events import (
     Action,
     Cancel,
+    CheckpointSaved,
     Event,
     Note,
     PeerAlive,
@@ -58,6 +59,7 @@ from ramps.core.messages import (
     OffloadAccepted,
     OffloadRejected,
     OffloadRequest,
+    ProgramCheckpoint,
     ProgramProgress,
     ProgramResult,
     ResultAck,
@@ -84,6 +86,10 @@ class NodeStatistics(msgspec.Struct, frozen=True, kw_only=True):
     reports_received: int
     #: program name -> work learned from completed runs (see Origin.work_estimate)
     learned_work: dict[str, float] = {}
+    #: relocations after placement started, and those abandoned (the new
+    #: host refused or failed; the old copy ran on)
+    moves: int = 0
+    moves_aborted: int = 0
 
 
 class Node:
@@ -211,6 +217,8 @@ class Node:
             self.executor.on_finished(event, now, out)
         elif isinstance(event, ProgressReported):
             self.executor.on_progress(event, now, out)
+        elif isinstance(event, CheckpointSaved):
+            self.executor.on_checkpoint(event, now, out)
         elif isinstance(event, Cancel):
             self.origin.cancel(event.program_id, now, out)
         elif isinstance(event, PeerLost):
@@ -253,6 +261,8 @@ class Node:
             self.executor.on_ack(msg)
         elif isinstance(msg, ProgramProgress):
             self.origin.on_progress(msg, now, out)
+        elif isinstance(msg, ProgramCheckpoint):
+            self.origin.on_checkpoint(msg, now, out)
         elif isinstance(msg, LinkProbe):
             out.append(Send(to=sender, msg=LinkProbeReply(sent_at=msg.sent_at, size=len(msg.padding))))
         elif isinstance(msg, LinkProbeReply):
@@ -299,4 +309,5 @@ class Node:
             refused=e.refused, accepted_total=e.accepted_total, finished_total=e.finished_total,
             running=len(e.running), active_programs=o.active(), blacklisted=self.view.blacklisted(),
             reports_received=self.view.reports_received, learned_work=self.origin.learned_work(),
+            moves=o.moves, moves_aborted=o.moves_aborted,
         )

@@ -8,6 +8,21 @@ actions into the list they are given. Results are delivered exactly once:
 a program keeps the set of attempts whose results it still wants (``live``);
 anything else is acknowledged, so the host stops resending, and discarded.
 
+Relocation after placement (``_relocation_check``, policies that relocate):
+every ``relocate_period`` the origin re-evaluates the paper's eq. (1) for its
+running programs with what it knows now (fresh reports with the hosts'
+work-left estimates, learned work, measured links). Its estimate of how far
+a program is comes from the program's own progress when it reports any, and
+from processor sharing at its host's reported load otherwise. A program
+moves when its remaining time where it runs exceeds the time to finish on
+the best other robot (from scratch, or from its last checkpoint, plus T_comm
+of parameters and checkpoint) by ``relocate_gain`` and ``relocate_min_gain``
+together; at most ``relocate_max_moves`` times, never within
+``relocate_settle`` of an acceptance, at most one program off a host per
+check. A move keeps the old copy running until the new host accepts
+(``MOVING``): a result from either copy is delivered and the other stopped;
+a refusal or failure of the new host leaves the old copy running.
+
 Rules: no clock (``now`` comes in), no I/O, randomness from the injected
 ``rng``. Remote misbehaviour (a message about a program we never had, an
 illegal transition caused by a peer) is counted in ``anomalies`` and never
@@ -22,8 +37,10 @@ import random
 import statistics
 from collections import deque
 
+import msgspec
+
 from ramps.core.config import RampsConfig
-from ramps.core.cost import NetworkEstimate
+from ramps.core.cost import NetworkEstimate, program_share, shared_finish_time
 from ramps.core.events import Action, Deliver, Note, Progress, Send, Submit
 from ramps.core.links import Links
 from ramps.core.loadview import LoadView
@@ -33,17 +50,21 @@ from ramps.core.messages import (
     OffloadAccepted,
     OffloadRejected,
     OffloadRequest,
+    ProgramCheckpoint,
     ProgramProgress,
     ProgramResult,
     ResultAck,
 )
-from ramps.core.policy import Policy, PlacementRequest, make_policy
+from ramps.core.policy import Placement, Policy, PlacementRequest, make_policy
 from ramps.core.program import FINAL, AutonomousProgram, ProgramState, ProtocolError
 from ramps.core.relink import Relink
 
 S = ProgramState
 #: how many of a program's latest runs its learned work is the median of
 LEARN_RUNS = 8
+#: most running programs one relocation check prices against the team (the
+#: longest remaining first), so a check stays cheap with thousands running
+RELOCATE_BATCH = 8
 
 
 class Origin:
@@ -78,6 +99,15 @@ class Origin:
         #: work each program took in its latest runs (hosts' estimates), by
         #: program name: placements use their median instead of the declared work
         self._learned: dict[str, deque[float]] = {}
+        #: after this robot's own stall, the hosts whose links are not back yet
+        self.relink = Relink(me)
+        #: when the next relocation check is due (None: nothing running to move)
+        self._relocate_due: float | None = None
+        #: relocation checks price moves with a generator of their own, so
+        #: turning relocation on leaves every placement's draws unchanged
+        self._reloc_rng = random.Random(f"{me}/relocate")
+        self.moves = 0
+        self.moves_aborted = 0
         #: after this robot's own stall, the hosts whose links are not back yet
         self.relink = Relink(me)
         # statistics
@@ -122,8 +152,36 @@ class Origin:
         ap = self.programs.get(msg.program_id)
         if ap is None or ap.state in FINAL or ap.live.get(msg.attempt) != msg.host:
             return
+        if msg.attempt == ap.attempt:
+            self._progress_at(ap, msg.fraction, now)
         out.append(Progress(program_id=msg.program_id, host=msg.host, attempt=msg.attempt,
                             fraction=msg.fraction, detail=msg.detail))
+
+    def on_checkpoint(self, msg: ProgramCheckpoint, now: float, out: list[Action]) -> None:
+        """A live copy saved its state: keep the latest (a restart after a
+        move or a failure resumes from it). Stale ones are dropped."""
+        ap = self.programs.get(msg.program_id)
+        if ap is None or ap.state in FINAL or ap.live.get(msg.attempt) != msg.host:
+            return
+        fraction = msg.fraction
+        if fraction is not None and ap.checkpoint is not None and fraction < ap.checkpoint_fraction:
+            return  # an older copy, behind the state we already hold
+        if fraction is None:  # the program says nothing of how far it is: assume the work is all ahead
+            fraction = (ap.resumed_from or 0.0) if msg.attempt == ap.attempt else 0.0
+        ap.checkpoint = msg.state
+        ap.checkpoint_fraction = fraction
+        if msg.attempt == ap.attempt:
+            self._progress_at(ap, fraction, now)
+        out.append(Note(what="checkpoint", program_id=ap.program_id, robot=msg.host, attempt=msg.attempt,
+                        detail=f"{len(msg.state)} bytes at {fraction:.3f}"))
+
+    def _progress_at(self, ap: AutonomousProgram, fraction: float, now: float) -> None:
+        """The current attempt says it is ``fraction`` of the whole program
+        through: set the origin's estimate of the work it has done."""
+        base = ap.resumed_from or 0.0
+        if base < 1.0:
+            ap.done = min(ap.work, max(0.0, (fraction - base) / (1.0 - base) * ap.work))
+            ap.done_at = now
 
     def on_heartbeat(self, msg: Heartbeat, now: float, out: list[Action]) -> None:
         for ref in msg.programs:
@@ -133,7 +191,13 @@ class Origin:
         self.view.set_lost(robot, True)
         for pid in list(self._by_host.get(robot, ())):
             ap = self.programs[pid]
-            if ap.host == robot and ap.state in (S.OFFERED, S.RUNNING):
+            old = ap.moving_from
+            if ap.state is S.MOVING and old is not None and old[1] == robot:
+                # the copy a move is taking over from is gone: the move goes on
+                self._drop_old_copy(ap)
+                out.append(Note(what="failed", program_id=pid, robot=robot, attempt=old[0],
+                                detail="host_lost while moving away"))
+            if ap.host == robot and ap.state in (S.OFFERED, S.RUNNING, S.MOVING):
                 self._step(ap, "host_lost", now, out, None)
         if self.view.isolated(now, self.config.isolation_timeout):
             self._revive_written_off(now, out)
@@ -173,6 +237,10 @@ class Origin:
                 break
             heapq.heappop(self._timers)  # stale entry
         first = self._timers[0][0] if self._timers else None
+        if self._relocate_due is not None and len(self.programs) <= len(self._finished):
+            self._relocate_due = None  # every program has ended: nothing to move
+        if self._relocate_due is not None and (first is None or self._relocate_due < first):
+            first = self._relocate_due
         check = self._isolation_check()
         if check is not None and (first is None or check < first):
             return check
@@ -216,6 +284,10 @@ class Origin:
                     self._set_timer(ap, due, kind)
                     continue
             self._step(ap, kind, now, out, None)
+        if self._relocate_due is not None and now >= self._relocate_due:
+            self._relocate_due = None
+            if self._relocation_check(now, out):
+                self._relocate_due = now + self.config.relocate_period
 
     def relinked(self, host: str, now: float) -> None:
         """``host``'s link is back after this robot's stall (``ramps.core.relink``):
@@ -256,7 +328,9 @@ class Origin:
                                 detail="stale result from an attempt no longer wanted"))
         elif event in ("accepted", "heartbeat"):
             if ap.live.get(attempt) == host and ap.state not in FINAL:
-                return  # an attempt kept alive while the origin was cut off
+                if ap.moving_from is not None and ap.moving_from[0] == attempt:
+                    ap.moving_from[2] = now  # the copy a move takes over from still runs
+                return  # an attempt kept alive while the origin was cut off, or moving away
             # the host runs a copy nobody wants: stop it
             out.append(Send(to=host, msg=CancelProgram(program_id=pid, attempt=attempt, origin=self.me)))
         # a rejection of an old attempt needs nothing
@@ -282,17 +356,23 @@ class Origin:
     def _place(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
         self.place(ap, now, out)
 
-    def place(self, ap: AutonomousProgram, now: float, out: list[Action], *, host: str | None = None) -> None:
+    def place(self, ap: AutonomousProgram, now: float, out: list[Action], *, host: str | None = None,
+              placement: Placement | None = None) -> None:
         sub = ap.submit
         work = self.work_estimate(sub)
+        resume = ap.checkpoint
+        fraction = ap.checkpoint_fraction if resume is not None else 0.0
+        work *= 1.0 - fraction  # what is left from the checkpoint
         expected = budget = None
+        if placement is not None:  # a relocation priced it already
+            host, expected, budget = placement.host, placement.expected_runnable, placement.time_budget
         if host is None and sub.local_only:
             host = self.me
         if host is None:
             policy = self._policies[sub.policy] if sub.policy else self.policy
             placement = policy.choose(
                 PlacementRequest(program_id=ap.program_id, work=work,
-                                 payload_size=sub.payload_size, result_size=sub.result_size),
+                                 payload_size=sub.payload_size + len(resume or b""), result_size=sub.result_size),
                 self.view, now, self.rng, net=self.net, config=self.config,
                 exclude=frozenset(ap.excluded) | self.view.short_of_memory(sub.memory)
                 | self.relink.excluded(self.view.robots(), now),
@@ -304,11 +384,14 @@ class Origin:
                 budget = placement.time_budget
         if ap.host is not None and ap.host not in ap.live.values():
             self._by_host.get(ap.host, set()).discard(ap.program_id)
-        ap.attempt += 1
+        ap.made += 1
+        ap.attempt = ap.made
         ap.host = host
         ap.live[ap.attempt] = host
         ap.state = S.OFFERED
         ap.last_heard = now
+        ap.work, ap.done, ap.done_at = work, 0.0, now
+        ap.resumed_from = fraction if resume is not None else None
         self._by_host.setdefault(host, set()).add(ap.program_id)
         self.view.book(host, ap.program_id, ap.attempt)
         self.placements += 1
@@ -317,6 +400,7 @@ class Origin:
             program_id=ap.program_id, attempt=ap.attempt, origin=self.me, host=host,
             program=sub.program, args=sub.args, payload_size=sub.payload_size, work=work,
             expected_runnable=expected, time_budget=budget, force=ap.rejections >= self.config.max_rejections,
+            resume=resume, resume_fraction=fraction,
         )))
         # the host cannot accept before the parameters have crossed the link,
         # behind those of this robot's other offers to it still on their way
@@ -335,8 +419,11 @@ class Origin:
         ap.last_heard = now
         ap.rejections = 0
         ap.excluded.clear()
+        ap.accepted_at = ap.done_at = now
         out.append(Note(what="accepted", program_id=ap.program_id, robot=ap.host, attempt=ap.attempt))
         self._set_timer(ap, now + self.config.heartbeat_timeout, "heartbeat_timeout")
+        if self._relocate_due is None and self._relocating():
+            self._relocate_due = now + self.config.relocate_period
 
     def _on_heartbeat(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
         ap.last_heard = now
@@ -453,6 +540,12 @@ class Origin:
             ap.failures += 1
             out.append(Note(what="failed", program_id=ap.program_id, robot=msg.host, attempt=msg.attempt,
                             detail=f"worker lost: {msg.error}"))
+            if ap.state is S.MOVING:
+                if msg.attempt == ap.attempt:  # the new copy died: the old one runs on
+                    self._abandon_move(ap, now, out, f"worker lost on {msg.host}")
+                elif ap.moving_from is not None and ap.moving_from[0] == msg.attempt:
+                    ap.moving_from = None  # the old copy died: the move goes on
+                return
             if ap.live:
                 return  # another live attempt may still deliver
             ap.deadline = None
@@ -485,6 +578,152 @@ class Origin:
         self._deliver(ap, now, out, ok=False, error="cancelled by the application", host=ap.host or "",
                       kind="cancelled")
 
+    # ================================================================ relocation
+    def _relocating(self) -> bool:
+        return self.config.relocate and any(p.relocates for p in self._policies.values())
+
+    def _relocation_check(self, now: float, out: list[Action]) -> bool:
+        """Re-evaluate eq. (1) for the running programs (see the module
+        docstring). Returns whether any program may still move later."""
+        rows = {row[0]: row for row in self.view.scan(now, frozenset())}
+        cfg = self.config
+        keep = False
+        priced: list[tuple[float, AutonomousProgram]] = []
+        for ap in self.programs.values():
+            if ap.state is not S.RUNNING and ap.state is not S.MOVING:
+                continue
+            policy = self._policies[ap.submit.policy] if ap.submit.policy else self.policy
+            if not policy.relocates or ap.submit.local_only or ap.moves >= cfg.relocate_max_moves:
+                continue
+            keep = True
+            row = rows.get(ap.host or "")
+            if row is None:
+                continue  # its host is suspect or gone quiet: failure detection's business
+            _, cores, speed, ramps, background, weight = row
+            ap.done = min(ap.work, ap.done + max(0.0, now - ap.done_at)
+                          * speed * program_share(cores, max(1.0, ramps), background, weight))
+            ap.done_at = now
+            if ap.state is not S.RUNNING or len(ap.live) != 1 or now - ap.accepted_at < cfg.relocate_settle:
+                continue
+            age = self.view.report_age(ap.host, now)
+            if ap.host != self.me and (age is None or now - age < ap.accepted_at):
+                continue  # no report of its host since it started there
+            left = max(0.0, ap.work - ap.done)
+            others = self.view.remaining_work(ap.host, now, round(ramps), ap.work) or []
+            if others:  # one of them is this program: the one closest to its estimate
+                others.pop(min(range(len(others)), key=lambda i: abs(others[i] - left)))
+            t_here = shared_finish_time(left, others, cores, speed, background, weight)
+            if t_here > cfg.relocate_min_gain:
+                priced.append((t_here, ap))
+        priced.sort(key=lambda x: -x[0])
+        moved_off: set[str] = set()
+        for t_here, ap in priced[:RELOCATE_BATCH]:
+            if ap.host in moved_off:
+                continue  # one at a time off a host: the next check sees it lighter
+            placement = self._price_move(ap, t_here, now)
+            if placement is not None:
+                moved_off.add(ap.host or "")
+                self._step(ap, "relocate", now, out, placement)
+        return keep
+
+    def _price_move(self, ap: AutonomousProgram, t_here: float, now: float) -> Placement | None:
+        """Where ``ap`` would finish sooner by the relocation thresholds, or None."""
+        sub = ap.submit
+        work = self.work_estimate(sub) * (1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0))
+        policy = self._policies[sub.policy] if sub.policy else self.policy
+        placement = policy.choose(
+            PlacementRequest(program_id=ap.program_id, work=work,
+                             payload_size=sub.payload_size + len(ap.checkpoint or b""), result_size=sub.result_size),
+            self.view, now, self._reloc_rng, net=self.net, config=self.config,
+            exclude=frozenset({ap.host or ""}) | self.view.short_of_memory(sub.memory),
+            links=self.links.estimate if self.links is not None else None,
+        )
+        t_there = placement.expected_time
+        if placement.host == ap.host or t_there is None:
+            return None
+        cfg = self.config
+        if t_here <= t_there * (1.0 + cfg.relocate_gain) or t_here - t_there <= cfg.relocate_min_gain:
+            return None
+        # the new host takes it if it finishes there within what staying costs
+        # (less the thresholds), whatever the origin's view missed
+        budget = t_here / (1.0 + cfg.relocate_gain)
+        if placement.time_budget is not None:
+            budget = min(budget, placement.time_budget)
+        return msgspec.structs.replace(placement, time_budget=budget)
+
+    def _relocate(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Placement, event) -> None:
+        """Offer the program to its new host; the old copy runs on meanwhile."""
+        old = [ap.attempt, ap.host, ap.last_heard, ap.done, ap.done_at, ap.work, ap.resumed_from, ap.accepted_at]
+        ap.moves += 1
+        self.moves += 1
+        ap.moving_from = old
+        out.append(Note(what="moving", program_id=ap.program_id, robot=msg.host, attempt=ap.attempt,
+                        detail=f"from {ap.host}: expected {msg.expected_time:.1f} s there"))
+        self.place(ap, now, out, placement=msg)
+        ap.state = S.MOVING
+
+    def _on_moved(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
+        """The new host took the program: stop the old copy."""
+        self._drop_old_copy(ap, out)
+        self._on_accepted(ap, now, out, msg, event)
+        out.append(Note(what="moved", program_id=ap.program_id, robot=ap.host, attempt=ap.attempt,
+                        detail="" if ap.resumed_from is None else f"resumed from {ap.resumed_from:.3f}"))
+
+    def _drop_old_copy(self, ap: AutonomousProgram, out: list[Action] | None = None) -> None:
+        """The copy a move takes over from is no longer wanted (``out``: tell
+        its host to stop it) or is gone with its host (``out`` None)."""
+        old, ap.moving_from = ap.moving_from, None
+        if old is None or ap.live.get(old[0]) != old[1]:
+            return
+        attempt, host = old[0], old[1]
+        ap.live.pop(attempt, None)
+        self._leave_host(ap, host, None, attempt=attempt)
+        if out is not None:
+            out.append(Send(to=host, msg=CancelProgram(program_id=ap.program_id, attempt=attempt, origin=self.me)))
+        if host not in ap.live.values():
+            self._by_host.get(host, set()).discard(ap.program_id)
+
+    def _on_move_failed(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
+        host = ap.host
+        if event == "rejected":
+            self.rejections += 1
+            if msg.report is not None and self.view.on_report(msg.report, now, fresh=True):
+                out.append(Note(what="unblacklisted", robot=msg.report.robot))
+            if msg.permanent:
+                ap.moves = self.config.relocate_max_moves  # that host never will; nor try others
+            why = f"{host} refused: {msg.reason}"
+        else:
+            self.host_failures += 1
+            if event == "connect_timeout":
+                out.append(Send(to=host, msg=CancelProgram(program_id=ap.program_id, attempt=ap.attempt,
+                                                           origin=self.me)))
+            if self.view.blacklist(host):
+                out.append(Note(what="blacklisted", robot=host, program_id=ap.program_id, detail=event))
+            why = f"{host}: {event}"
+        self._abandon_move(ap, now, out, why)
+
+    def _abandon_move(self, ap: AutonomousProgram, now: float, out: list[Action], why: str) -> None:
+        """The new copy will not run: go back to the old one, or, if that is
+        gone too, place the program again after a short back-off."""
+        self.moves_aborted += 1
+        host, attempt = ap.host, ap.attempt
+        self._leave_host(ap, host, None)
+        ap.live.pop(attempt, None)
+        if host not in ap.live.values():
+            self._by_host.get(host or "", set()).discard(ap.program_id)
+        old, ap.moving_from = ap.moving_from, None
+        out.append(Note(what="move_aborted", program_id=ap.program_id, robot=host or "", attempt=attempt,
+                        detail=why))
+        ap.deadline = None
+        if old is not None and ap.live.get(old[0]) == old[1]:
+            (ap.attempt, ap.host, ap.last_heard, ap.done, ap.done_at, ap.work, ap.resumed_from,
+             ap.accepted_at) = old
+            ap.state = S.RUNNING
+            self._set_timer(ap, max(now, ap.last_heard + self.config.heartbeat_timeout), "heartbeat_timeout")
+            return
+        ap.failures += 1
+        self._backoff(ap, now, out, certain=True)
+
     # ================================================================ helpers
     def _deliver(self, ap: AutonomousProgram, now: float, out: list[Action], *, ok: bool,
                  value: bytes = b"", error: str = "", host: str = "", kind: str = "") -> None:
@@ -498,8 +737,9 @@ class Origin:
         ap.deadline = None
         self._finished.append((now, ap.program_id))
         self.delivered += 1
+        ap.moving_from = None
         out.append(Deliver(program_id=ap.program_id, ok=ok, value=value, error=error, error_kind=kind, host=host,
-                           attempts=ap.attempt))
+                           attempts=ap.made, moves=ap.moves, resumed_from=ap.resumed_from))
 
     def _leave_host(self, ap: AutonomousProgram, host: str | None, finish_seq: int | None,
                     *, attempt: int | None = None) -> None:

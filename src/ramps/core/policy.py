@@ -70,6 +70,9 @@ class Policy:
     #: whether hosts publish prompt reports when their programs change
     #: (``RampsConfig.prompt_reports``); the paper's prototype did not
     shares_load: ClassVar[bool] = False
+    #: whether an origin re-evaluates eq. (1) for its running programs and
+    #: moves them (``RampsConfig.relocate``); the paper's prototype did not
+    relocates: ClassVar[bool] = False
 
     def choose(
         self,
@@ -111,6 +114,7 @@ class RampsPolicy(Policy):
     name = "ramps"
     negotiates = True
     shares_load = True
+    relocates = True
 
     def choose(self, req, view, now, rng, *, net, config, exclude=frozenset(), links=None):
         me = view.me

@@ -29,7 +29,20 @@ anomaly and drops it; for local misuse it raises.
     running    result            on_result          done | failed | backoff
     running    accepted          ignore             running  (duplicate)
     backoff    backoff_done      place              offered
+    running    relocate          relocate           moving   (eq. 1 says move)
+    moving     accepted          on_moved           running  (old copy cancelled)
+    moving     heartbeat         on_moved           running  (acceptance lost/reordered)
+    moving     rejected          on_move_failed     running  (old copy kept)
+    moving     connect_timeout   on_move_failed     running | backoff (old copy lost meanwhile)
+    moving     host_lost         on_move_failed     running | backoff
+    moving     result            on_result          done | failed | running
     any live   cancel            on_cancel          failed
+
+Relocation (``MOVING``): the program runs on its old host while a new attempt
+is offered to the new one; both attempts are live, so whichever result comes
+first is delivered and the other copy cancelled. Once the new host accepts,
+the old copy is cancelled; if the new host turns it away or fails, the old
+copy simply keeps running.
 """
 
 from __future__ import annotations
@@ -43,6 +56,7 @@ class ProgramState(StrEnum):
     OFFERED = "offered"
     RUNNING = "running"
     BACKOFF = "backoff"
+    MOVING = "moving"
     DONE = "done"
     FAILED = "failed"
 
@@ -74,6 +88,16 @@ TRANSITIONS: dict[ProgramState, dict[str, str]] = {
         "host_lost": "on_host_failed",
         "result": "on_result",
         "accepted": "ignore",
+        "relocate": "relocate",
+        "cancel": "on_cancel",
+    },
+    S.MOVING: {
+        "accepted": "on_moved",
+        "heartbeat": "on_moved",
+        "rejected": "on_move_failed",
+        "connect_timeout": "on_move_failed",
+        "host_lost": "on_move_failed",
+        "result": "on_result",
         "cancel": "on_cancel",
     },
     S.BACKOFF: {
@@ -93,6 +117,8 @@ class AutonomousProgram:
     __slots__ = (
         "program_id", "submit", "state", "attempt", "host", "live", "deadline", "timer",
         "last_heard", "rejections", "excluded", "submitted_at", "failures", "written_off",
+        "made", "moves", "moving_from", "accepted_at", "done", "done_at", "work", "checkpoint",
+        "checkpoint_fraction", "resumed_from",
     )
 
     def __init__(self, submit: Submit, now: float) -> None:
@@ -115,6 +141,25 @@ class AutonomousProgram:
         self.failures = 0
         #: attempts written off because their host went silent: (attempt, host, when)
         self.written_off: list[tuple[int, str, float]] = []
+        #: attempts made so far (``attempt`` may point back to an older one
+        #: when a move is abandoned)
+        self.made = 0
+        #: relocations started, and the copy still running while one is under
+        #: way: [attempt, host, last heard of it]
+        self.moves = 0
+        self.moving_from: list | None = None
+        #: when the current attempt was accepted (no move before it settles)
+        self.accepted_at = now
+        #: work units the current attempt has done by the origin's estimate,
+        #: as of ``done_at``, and the work it was placed with
+        self.done = 0.0
+        self.done_at = now
+        self.work = submit.work
+        #: the latest state the program saved, how far it was then, and the
+        #: fraction the current attempt resumed from (None: from the start)
+        self.checkpoint: bytes | None = None
+        self.checkpoint_fraction = 0.0
+        self.resumed_from: float | None = None
 
     def handler_for(self, event: str) -> str:
         try:

@@ -115,7 +115,7 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
     pid = pid or rng.choice(PROGRAM_IDS)
     attempt = rng.randint(0, 4) if attempt is None else attempt
     host = host or rng.choice(PEERS)
-    kind = rng.randrange(15)
+    kind = rng.randrange(16)
     if kind == 0:
         return random_report(rng)
     if kind == 1:
@@ -124,7 +124,9 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
                                 payload_size=_count(rng), work=_amount(rng, 60.0),
                                 expected_runnable=None if rng.random() < 0.5 else _amount(rng),
                                 time_budget=None if rng.random() < 0.5 else _amount(rng, 120.0),
-                                force=rng.random() < 0.3)
+                                force=rng.random() < 0.3,
+                                resume=rng.choice([None, b"", rng.randbytes(8), b"\0" * m.MAX_CHECKPOINT_BYTES]),
+                                resume_fraction=rng.choice([0.0, 1.0, rng.random()]))
     if kind == 2:
         return m.OffloadAccepted(program_id=pid, attempt=attempt, host=host, accept_seq=_count(rng))
     if kind == 3:
@@ -158,6 +160,10 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
         return m.ProgramProgress(program_id=pid, attempt=attempt, host=host,
                                  fraction=rng.choice([0.0, 1.0, rng.random()]),
                                  detail=rng.choice(["", "step 3", "d" * m.MAX_PROGRESS_TEXT]))
+    if kind == 15:
+        return m.ProgramCheckpoint(program_id=pid, attempt=attempt, host=host,
+                                   state=rng.choice([b"", rng.randbytes(16), b"\0" * m.MAX_CHECKPOINT_BYTES]),
+                                   fraction=rng.choice([None, 0.0, 1.0, rng.random()]))
     if kind == 13:
         return m.LinkProbe(sent_at=_amount(rng, 1e6), padding=b"\0" * rng.choice([0, 16, m.MAX_PROBE_BYTES]))
     if kind == 14:
@@ -168,7 +174,8 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
                                fraction=rng.choice([None, 0.0, 1.0, rng.random()]), detail=rng.choice(["", "x"]))
     return m.ProgramOutcome(request_id=_count(rng), ok=rng.random() < 0.5, value=b"\x01", error="e",
                             error_kind=rng.choice(["", "program", "refused"]), host=rng.choice(["", *PEERS]),
-                            attempts=_count(rng))
+                            attempts=_count(rng), moves=_count(rng),
+                            resumed_from=rng.choice([None, 0.0, rng.random()]))
 
 
 # ====================================================================== garbage and mutations

@@ -85,6 +85,12 @@ class CPU:
         self._mark()
         return found
 
+    def set_background(self, background: int, now: float) -> None:
+        """The robot's own software now runs ``background`` busy processes."""
+        self.advance(now)
+        self.background = background
+        self._mark()
+
     def set_frozen(self, frozen: bool, now: float) -> None:
         self.advance(now)
         self.frozen = frozen

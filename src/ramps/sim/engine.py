@@ -11,7 +11,11 @@ placement or recovery logic lives here.
 
 Faults: ``crash`` removes the robot and all its state (a new incarnation
 starts on ``recover``); ``network`` isolates it while it keeps computing;
-``freeze`` stops it entirely (SIGSTOP) with its state kept. Messages in
+``freeze`` stops it entirely (SIGSTOP) with its state kept; ``load`` changes
+how many busy processes the robot's own software runs (load that changes
+after placement). Programs with ``checkpoint_every`` save their state that
+often while they run (``CheckpointSaved``); a restart that carries it
+resumes with only the work left. Messages in
 flight across a link that goes down are lost. With liveliness on, teammates
 learn of a crash after ``network.crash_detect`` and of a cut or freeze after
 ``network.lease``, as Zenoh reports them.
@@ -32,8 +36,8 @@ from typing import Any, Callable
 import msgspec
 
 from ramps.core.cost import NetworkEstimate, nice_weight
-from ramps.core.events import (Deliver, Note, PeerAlive, PeerLost, ProgramFinished, PublishReport, Received, Send,
-                               StartProgram, StopProgram, Submit)
+from ramps.core.events import (CheckpointSaved, Deliver, Note, PeerAlive, PeerLost, ProgramFinished, PublishReport,
+                               Received, Send, StartProgram, StopProgram, Submit)
 from ramps.core.messages import wire_size
 from ramps.core.node import Node, NodeStatistics
 from ramps.sim.cpu import CPU
@@ -50,6 +54,9 @@ class ProgramRecord(msgspec.Struct, kw_only=True):
     attempts: int = 0
     error: str = ""
     deliveries: int = 0
+    #: relocations after placement, and the progress the last attempt resumed from
+    moves: int = 0
+    resumed_from: float | None = None
 
 
 class TraceEntry(msgspec.Struct, frozen=True, array_like=True):
@@ -128,6 +135,8 @@ class Simulator:
         self.records: dict[str, ProgramRecord] = {}
         self._true_work: dict[str, float] = {}
         self._result_size: dict[str, int] = {}
+        #: programs that checkpoint: seconds between checkpoints, bytes of each
+        self._checkpoint: dict[str, tuple[float, int]] = {}
         self.subscribers = sorted({p.origin for p in self.sc.programs})
         self._pending = 0
         self.events = 0
@@ -202,8 +211,14 @@ class Simulator:
                 self._send(r, a.to, a.msg)
             elif isinstance(a, StartProgram):
                 work = self._true_work.get(a.program_id, a.work)
+                if a.resume is not None:
+                    work *= 1.0 - a.resume_fraction
                 r.cpu.add((a.program_id, a.attempt), work, self.now)
                 self._cpu_changed(r)
+                every = self._checkpoint.get(a.program_id)
+                if every is not None:
+                    self._at(self.now + every[0], self._save_checkpoint,
+                             (r, r.incarnation, a.program_id, a.attempt, work, a.resume_fraction if a.resume else 0.0))
             elif isinstance(a, StopProgram):
                 if r.cpu.remove((a.program_id, a.attempt), self.now):
                     self._cpu_changed(r)
@@ -256,6 +271,20 @@ class Simulator:
         for pid, attempt in finished:
             self._handle(r, ProgramFinished(program_id=pid, attempt=attempt, ok=True,
                                             value=b"", result_size=self._result_size.get(pid, 0)))
+
+    def _save_checkpoint(self, arg) -> None:
+        """A running program saves its state (``ramps.checkpoint``)."""
+        r, inc, pid, attempt, work, base = arg
+        if inc != r.incarnation or not r.alive or (pid, attempt) not in r.cpu.jobs:
+            return
+        every, size = self._checkpoint[pid]
+        self._at(self.now + every, self._save_checkpoint, arg)
+        if r.frozen:
+            return
+        r.cpu.advance(self.now)
+        left = max(0.0, r.cpu.jobs[(pid, attempt)])
+        fraction = min(1.0, base + (1.0 - base) * (1.0 - left / work)) if work > 0 else base
+        self._handle(r, CheckpointSaved(program_id=pid, attempt=attempt, state=bytes(size), fraction=fraction))
 
     # ================================================================ load publisher
     def _publish(self, arg) -> None:
@@ -333,6 +362,8 @@ class Simulator:
             return
         self._true_work[pid] = entry.work
         self._result_size[pid] = entry.result
+        if entry.checkpoint_every > 0:
+            self._checkpoint[pid] = (entry.checkpoint_every, entry.checkpoint_size)
         self._handle(origin, Submit(
             program_id=pid, program=entry.program, payload_size=entry.payload,
             work=entry.work_estimate if entry.work_estimate is not None else entry.work,
@@ -346,6 +377,7 @@ class Simulator:
             return
         rec.delivered_at = self.now
         rec.host, rec.ok, rec.attempts, rec.error = d.host, d.ok, d.attempts, d.error
+        rec.moves, rec.resumed_from = d.moves, d.resumed_from
         self._pending -= 1
         self._last_delivery = max(self._last_delivery, self.now)
 
@@ -369,6 +401,11 @@ class Simulator:
             r.epoch += 1
             r.cpu.set_frozen(True, self.now)
             self._liveliness(r, lost=True, delay=self.net.lease)
+        elif f.kind == "load":
+            if r.alive and r.cpu is not None and f.background is not None:
+                r.cpu.set_background(f.background, self.now)
+                r.node.executor.background = float(f.background)
+                self._cpu_changed(r)
         elif f.kind == "recover":
             if not r.alive:
                 self._boot(r, self.now)

@@ -20,7 +20,7 @@ import msgspec
 from ramps.core.config import RampsConfig
 
 POLICIES = ("ramps", "paper", "round_robin", "random", "local_only")
-FAULT_KINDS = ("crash", "network", "freeze", "recover")
+FAULT_KINDS = ("crash", "network", "freeze", "recover", "load")
 
 
 class ScenarioError(ValueError):
@@ -101,12 +101,23 @@ class ProgramSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
     spacing: float = 0.0
     #: spacing is jittered by uniform(-jitter, +jitter) seconds
     jitter: float = 0.0
+    #: a running program saves its state every this many seconds (0: never),
+    #: so a move or a restart after a failure resumes from there
+    #: (``ramps.checkpoint``); each checkpoint is ``checkpoint_size`` bytes
+    checkpoint_every: float = 0.0
+    checkpoint_size: int = 0
 
 
 class FaultSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """Something that happens to a robot at ``at``: a fault, a recovery, or
+    (``load``) its own software changing how many CPU-bound processes it
+    runs to ``background`` (e.g. a heavy job starting after placement)."""
+
     at: float
     robot: str
-    kind: Literal["crash", "network", "freeze", "recover"]
+    kind: Literal["crash", "network", "freeze", "recover", "load"]
+    #: ``load`` only: the robot's busy processes from then on
+    background: int | None = None
 
 
 class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -180,7 +191,8 @@ class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
                 raise ScenarioError(f"{path}.work", f"must be > 0, got {p.work}")
             if p.work_estimate is not None and not p.work_estimate > 0:
                 raise ScenarioError(f"{path}.work_estimate", f"must be > 0, got {p.work_estimate}")
-            for fld in ("payload", "result", "at", "spacing", "jitter", "memory"):
+            for fld in ("payload", "result", "at", "spacing", "jitter", "memory", "checkpoint_every",
+                        "checkpoint_size"):
                 if getattr(p, fld) < 0:
                     raise ScenarioError(f"{path}.{fld}", f"must be >= 0, got {getattr(p, fld)}")
         for i, f in enumerate(self.faults):
@@ -188,6 +200,11 @@ class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
                 raise ScenarioError(f"$.faults[{i}].robot", f"unknown robot {f.robot!r}")
             if f.at < 0:
                 raise ScenarioError(f"$.faults[{i}].at", f"must be >= 0, got {f.at}")
+            if f.kind == "load" and (f.background is None or f.background < 0):
+                raise ScenarioError(f"$.faults[{i}].background",
+                                    f"a load change needs background >= 0 (busy processes), got {f.background}")
+            if f.kind != "load" and f.background is not None:
+                raise ScenarioError(f"$.faults[{i}].background", f"only a 'load' change sets background, not {f.kind!r}")
         if self.policy not in POLICIES:
             raise ScenarioError("$.policy", f"unknown policy {self.policy!r}; choose one of {', '.join(POLICIES)}")
         n = self.network

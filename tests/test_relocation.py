@@ -1,0 +1,231 @@
+"""Relocation after placement, in the pure core: a program moves when its
+host becomes loaded, and exactly one result reaches the application through
+every race a move can meet (the old copy finishing first, either host
+failing, the new host refusing). Driven by the real core in ``FakeTeam``."""
+
+from __future__ import annotations
+
+import pytest
+
+from ramps.core.config import RampsConfig
+from ramps.core.events import CheckpointSaved, Deliver, StartProgram
+from ramps.core.messages import (
+    CancelProgram,
+    OffloadAccepted,
+    OffloadRequest,
+    ProgramCheckpoint,
+    decode,
+    encode,
+)
+from ramps.core.program import ProgramState
+from corehelpers import Team, submit
+
+
+def loaded_host_team(policy: str = "ramps", **cfg) -> tuple[Team, str, str]:
+    """Origin ``o`` is swamped, so ``p`` runs on ``a`` or ``b``; then that
+    host's own software starts 8 busy processes (at t=1) and it says so.
+    Returns the team, the first host and the other one."""
+    team = Team({"o": (1, 1.0), "a": (4, 1.0), "b": (4, 1.0)}, policy=policy,
+                config=RampsConfig(**cfg) if cfg else None)
+    team.nodes["o"].executor.background = 10.0
+    team.publish()
+    submit(team, "p", work=60.0)
+    team.deliver()
+    first = team.program("p").host
+    assert first in ("a", "b") and team.program("p").state is ProgramState.RUNNING
+    team.advance(1.0)
+    team.nodes[first].executor.background = 8.0
+    team.publish()
+    return team, first, "b" if first == "a" else "a"
+
+
+def offers(team: Team, to: str) -> list[OffloadRequest]:
+    return team.sent(OffloadRequest, to=to)
+
+
+def test_a_program_leaves_a_host_that_became_loaded():
+    team, first, other = loaded_host_team()
+    team.advance(4.0)
+    assert not offers(team, other), "no move before relocate_settle"
+    for t in range(5, 8):
+        team.advance(float(t))
+        team.publish()
+    ap = team.program("p")
+    assert ap.host == other and ap.state is ProgramState.RUNNING and ap.moves == 1
+    # the old copy was stopped once the new host had taken it
+    cancels = [m for m in team.sent(CancelProgram, to=first) if m.attempt == 1]
+    assert cancels and not team.nodes[first].executor.running
+    team.finish(other, "p", ap.attempt, ok=True, value=b"done")
+    (d,) = team.delivered("p")
+    assert d.ok and d.host == other and d.moves == 1 and d.attempts == 2 and d.resumed_from is None
+
+
+def test_the_paper_policy_never_moves():
+    team, first, other = loaded_host_team(policy="paper")
+    for t in range(2, 20):
+        team.advance(float(t))
+        team.publish()
+    assert team.program("p").host == first and team.program("p").moves == 0
+
+
+def test_relocation_can_be_switched_off():
+    team, first, other = loaded_host_team(relocate=False)
+    for t in range(2, 20):
+        team.advance(float(t))
+        team.publish()
+    assert team.program("p").host == first and not team.notes("moving")
+
+
+def test_no_move_when_the_gain_is_below_the_thresholds():
+    # 8 busy processes on 4 cores: 60 units take 135 s there, 60 s elsewhere;
+    # an absolute threshold of 100 s keeps the program where it is
+    team, first, other = loaded_host_team(relocate_min_gain=100.0)
+    for t in range(2, 20):
+        team.advance(float(t))
+        team.publish()
+    assert team.program("p").host == first and not team.notes("moving")
+
+
+def move_under_way(**cfg) -> tuple[Team, str, str]:
+    """Up to the moment the new host's acceptance is held back on its link."""
+    team, first, other = loaded_host_team(**cfg)
+    held = lambda s, to, m: isinstance(m, OffloadAccepted) and s == other  # noqa: E731
+    for t in range(2, 10):
+        team.advance(float(t), hold=held)
+        team.publish()
+        if team.program("p").state is ProgramState.MOVING:
+            team.deliver(hold=held)
+            break
+    ap = team.program("p")
+    assert ap.state is ProgramState.MOVING and ap.host == other and set(ap.live.values()) == {first, other}
+    return team, first, other
+
+
+def test_a_move_racing_a_result_delivers_the_first_and_stops_the_other_copy():
+    team, first, other = move_under_way()
+    team.finish(first, "p", 1, ok=True, value=b"old")  # the old copy ends before the new host answered
+    (d,) = team.delivered("p")
+    assert d.ok and d.value == b"old" and d.host == first
+    assert any(m.attempt == 2 for m in team.sent(CancelProgram, to=other))
+    team.release()  # the held acceptance arrives late: the copy is stopped, nothing more delivered
+    team.advance(30.0)
+    assert len(team.delivered("p")) == 1 and not team.nodes[other].executor.running
+
+
+def test_the_new_copy_finishing_first_wins_too():
+    team, first, other = move_under_way()
+    team.finish(other, "p", 2, ok=True, value=b"new")
+    team.release()
+    team.advance(30.0)
+    (d,) = team.delivered("p")
+    assert d.value == b"new" and d.host == other and not team.nodes[first].executor.running
+
+
+def test_old_host_failing_during_a_move_leaves_the_move_to_finish_it():
+    team, first, other = move_under_way()
+    team.cut.add(first)
+    from ramps.core.events import PeerLost
+    team.handle("o", PeerLost(robot=first))
+    assert team.program("p").live == {2: other}
+    team.release()
+    assert team.program("p").state is ProgramState.RUNNING
+    team.finish(other, "p", 2, ok=True, value=b"new")
+    team.advance(30.0)
+    assert [d.value for d in team.delivered("p")] == [b"new"]
+
+
+def test_new_host_failing_during_a_move_keeps_the_old_copy():
+    team, first, other = move_under_way()
+    team.held.clear()
+    team.cut.add(other)  # the new host vanishes: its acceptance never comes
+    team.advance(team.now + 2.5)
+    ap = team.program("p")
+    assert ap.state is ProgramState.RUNNING and ap.host == first and ap.attempt == 1 and ap.live == {1: first}
+    assert team.notes("move_aborted")
+    team.advance(team.now + 5.0)  # heartbeats of the old copy keep it alive
+    assert team.program("p").state is ProgramState.RUNNING
+    team.finish(first, "p", 1, ok=True, value=b"old")
+    (d,) = team.delivered("p")
+    assert d.value == b"old" and d.attempts == 2
+
+
+def test_a_move_the_new_host_refuses_keeps_the_old_copy():
+    team, first, other = loaded_host_team()
+    # the other host got busy too, but the origin has not heard yet: it offers,
+    # and the host's admission turns the program away with its true load
+    team.nodes[other].executor.background = 12.0
+    for t in range(2, 10):
+        team.advance(float(t))
+        team.publish(first, "o")
+        if team.notes("move_aborted"):
+            break
+    ap = team.program("p")
+    assert team.notes("move_aborted") and "refused" in team.notes("move_aborted")[0].detail
+    assert ap.host == first and ap.state is ProgramState.RUNNING and ap.live == {1: first}
+    team.finish(first, "p", 1, ok=True)
+    assert len(team.delivered("p")) == 1
+
+
+def test_moves_per_program_are_bounded():
+    team, first, other = loaded_host_team(relocate_max_moves=1, relocate_settle=1.0)
+    for t in range(2, 6):
+        team.advance(float(t))
+        team.publish()
+    assert team.program("p").host == other
+    team.nodes[other].executor.background = 8.0  # now the new host is loaded too, and the first is free
+    team.nodes[first].executor.background = 0.0
+    for t in range(6, 30):
+        team.advance(float(t))
+        team.publish()
+    assert team.program("p").host == other and team.program("p").moves == 1
+
+
+def test_a_checkpoint_travels_with_the_move_and_with_a_restart_after_a_failure():
+    team, first, other = loaded_host_team()
+    team.handle(first, CheckpointSaved(program_id="p", attempt=1, state=b"state-40", fraction=0.4))
+    team.deliver()
+    (cp,) = team.sent(ProgramCheckpoint, to="o")
+    assert cp.state == b"state-40" and cp.fraction == 0.4
+    for t in range(2, 8):
+        team.advance(float(t))
+        team.publish()
+    ap = team.program("p")
+    assert ap.host == other
+    (req,) = [m for m in offers(team, other) if m.attempt == 2]
+    assert req.resume == b"state-40" and req.resume_fraction == 0.4 and req.work == pytest.approx(36.0)
+    (start,) = [a for a in team.actions(StartProgram, other) if a.attempt == 2]
+    assert start.resume == b"state-40"
+    # the new host checkpoints further, then fails: the restart resumes from there
+    team.handle(other, CheckpointSaved(program_id="p", attempt=2, state=b"state-70", fraction=0.7))
+    team.deliver()
+    team.cut.add(other)
+    from ramps.core.events import PeerLost
+    team.handle("o", PeerLost(robot=other))
+    team.advance(team.now + 1.0)
+    ap = team.program("p")
+    assert ap.attempt == 3
+    req = [m for m in team.sent(OffloadRequest) if m.attempt == 3][0]
+    assert req.resume == b"state-70" and req.resume_fraction == 0.7
+    team.deliver()
+    team.finish(ap.host, "p", 3, ok=True)
+    (d,) = team.delivered("p")
+    assert d.resumed_from == 0.7
+
+
+def test_a_stale_copys_checkpoint_is_ignored():
+    team, first, other = loaded_host_team()
+    team.handle("o", __import__("ramps.core.events", fromlist=["Received"]).Received(
+        sender="b", msg=ProgramCheckpoint(program_id="p", attempt=7, host="b", state=b"x", fraction=0.9)))
+    assert team.program("p").checkpoint is None
+
+
+def test_checkpoints_cross_the_wire_within_their_limit():
+    msg = ProgramCheckpoint(program_id="p", attempt=1, host="a", state=b"s" * 1000, fraction=0.5)
+    assert decode(encode("a", msg)).msg == msg
+    from ramps.core.messages import MAX_CHECKPOINT_BYTES, WireError
+    with pytest.raises(WireError, match="out of bounds"):
+        decode(encode("a", ProgramCheckpoint(program_id="p", attempt=1, host="a",
+                                              state=b"s" * (MAX_CHECKPOINT_BYTES + 1))))
+    with pytest.raises(WireError):
+        decode(encode("a", OffloadRequest(program_id="p", attempt=1, origin="o", host="a", program="x",
+                                          resume=b"s" * (MAX_CHECKPOINT_BYTES + 1))))
