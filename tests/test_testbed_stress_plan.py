@@ -1,6 +1,7 @@
 """The stressed campaign's plans (``ramps.testbed.experiments.stress_plan``):
-seeded, every fault of a robot undone before the run ends, the origin only
-ever stalled briefly (pure, no testbed needed)."""
+seeded, every fault of a robot undone before the run ends, an origin only
+ever stalled briefly or crashed and recovered soon (pure, no testbed needed);
+and the application's answer to an origin crash (``_wait_resubmitting``)."""
 
 from __future__ import annotations
 
@@ -21,8 +22,9 @@ def test_same_seed_same_plan_and_the_classic_plan_is_unchanged():
 
 
 @pytest.mark.parametrize("origins", [1, 2])
-def test_every_fault_is_undone_and_the_origins_only_stall_briefly(origins):
+def test_every_fault_is_undone_and_the_origins_only_stall_briefly_or_crash(origins):
     kinds: Counter = Counter()
+    origin_kinds: Counter = Counter()
     for seed in range(300):
         plan = stress_plan(random.Random(seed), NAMES, 20.0, origins=origins)
         open_faults: dict[str, str] = {}
@@ -37,11 +39,55 @@ def test_every_fault_is_undone_and_the_origins_only_stall_briefly(origins):
                 assert robot not in open_faults, (seed, plan)  # one fault of a robot at a time
                 open_faults[robot] = base
                 if robot in NAMES[:origins]:
-                    assert base == "stall", (seed, plan)
+                    assert base in ("stall", "crash", "node_crash"), (seed, plan)
+                    origin_kinds[base] += 1
         assert not open_faults, (seed, plan)
         for origin in NAMES[:origins]:
-            stalls = [a for a, r, k in plan if r == origin]
-            if stalls:
-                assert stalls[1] - stalls[0] <= 2.0 + 0.01
+            faults = [(a, k) for a, r, k in plan if r == origin]
+            if faults:
+                (began, kind), (back, _) = faults
+                assert back - began <= (2.0 if kind == "stall" else 4.0) + 0.01, (seed, plan)
     for k in ("crash", "cut", "freeze", "stall", "node_crash", "pressure"):
         assert kinds[k] > 10, kinds
+    for k in ("stall", "crash", "node_crash"):  # origins crash too, robot or node alone
+        assert origin_kinds[k] > 10 * origins, origin_kinds
+
+
+class FakeTeam:
+    """A Team whose node crashed once: the first submission of each program
+    fails with ProgramLost, a later one completes."""
+
+    robot = "r2"
+
+    def __init__(self, lose: int) -> None:
+        self.lose = lose
+        self.submitted = 0
+
+    def options(self, **_):
+        return self
+
+    def submit(self, program: str, units: float):
+        from concurrent.futures import Future
+
+        from ramps.errors import ProgramLost
+
+        self.submitted += 1
+        f: Future = Future()
+        if self.submitted <= self.lose:
+            f.set_exception(ProgramLost("r2, the origin of this program, left the team or died"))
+        else:
+            f.set_result({"units": units})
+        return f
+
+
+def test_the_application_submits_again_what_its_crashed_origin_lost():
+    from ramps.testbed.experiments import RESUBMITS, _wait_resubmitting
+
+    team = FakeTeam(lose=3)
+    futures = [(0.1 * i, team.submit("burn", 0.1 * i), 0) for i in range(3)]  # all three lost
+    final, again = _wait_resubmitting(futures, [team], log=lambda _m: None, timeout=5.0)
+    assert again == 3 and [f.result()["units"] for _, f, _ in final] == [0.0, 0.1, 0.2]
+    # a program lost more than RESUBMITS times is given up (the run then counts it lost)
+    team = FakeTeam(lose=100)
+    final, again = _wait_resubmitting([(0.1, team.submit("burn", 0.1), 0)], [team], log=lambda _m: None)
+    assert again == RESUBMITS and final[0][1].exception() is not None

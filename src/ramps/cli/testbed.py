@@ -348,14 +348,14 @@ def testbed_campaign(
     discovery: DiscoveryOption = "both",
     keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="keep the node logs and traces of failed runs here"),
     only_seed: Optional[int] = typer.Option(None, "--only-seed", help="re-run just this run seed (as printed by a failed run)"),
-    stress: bool = typer.Option(True, "--stress/--no-stress", help="also stall nodes alone (0.5-5 s, the origin too), kill nodes alone, and put CPU pressure on robots; then check nothing was restarted without cause or left running (--no-stress: crashes, cuts and freezes only, as before 2026-11-23)"),
+    stress: bool = typer.Option(True, "--stress/--no-stress", help="also stall nodes alone (0.5-5 s, the origin too), kill nodes alone, crash origins (robot or node; the application submits lost programs again), and put CPU pressure on robots; then check nothing was restarted without cause or left running (--no-stress: crashes, cuts and freezes only, as before 2026-11-23)"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
 ) -> None:
     """Random crashes, cuts, freezes and recoveries of non-origin robots during a workload, on real
     processes; after every run: every program completed exactly once, recovered robots rejoined.
-    With --stress (default) also node-only stalls and crashes and CPU pressure, and the checks that no
-    program was restarted without cause and nothing was left running."""
+    With --stress (default) also node-only stalls and crashes, origin stalls and crashes, and CPU
+    pressure, and the checks that no program was restarted without cause and nothing was left running."""
     from ramps.errors import RampsError
     from ramps.experiments.report import print_campaign
     from ramps.testbed.experiments import run_campaign
@@ -368,6 +368,8 @@ def testbed_campaign(
                                     + (f" unexplained restarts {run.unexplained}" if run.unexplained else "")
                                     + (f" left running {run.left_running}" if run.left_running else "")
                                     + (f" orphans {run.orphans}" if run.orphans else ""))
+        if run.resubmitted:
+            mark += f" ({run.resubmitted} submitted again after their origin crashed)"
         err.print(f"run {done}/{total} (seed {run.seed}): {run.programs} programs, "
                   f"{sum(1 for f in run.faults if f[2] != 'recover')} faults, {run.seconds:.0f} s: {mark}",
                   highlight=False)
@@ -383,7 +385,8 @@ def testbed_campaign(
     emit([rep], print_campaign, as_json=as_json, out_file=out_file)
     if stress:
         err.print(f"stress checks: {rep.unexplained_restarts} unexplained restart(s), {rep.left_running} robot(s) "
-                  f"left running programs, {rep.orphans} orphaned process(es) of nodes killed alone", highlight=False)
+                  f"left running programs, {rep.orphans} orphaned process(es) of nodes killed alone; "
+                  f"{rep.resubmitted} program(s) submitted again after their origin crashed", highlight=False)
     if rep.interrupted:
         raise typer.Exit(130)
     if rep.lost or rep.duplicated or rep.not_rejoined or rep.unexplained_restarts or rep.left_running or rep.orphans:

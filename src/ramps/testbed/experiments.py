@@ -26,11 +26,22 @@ invariants: every program completed exactly once and every robot that was
 recovered is back in the team (alive, publishing, not on the origin's
 blacklist, and running programs again). With ``stress`` it also injects
 what a busy or half-dead robot does (``stress_plan``, ``ramps.testbed.stress``:
-node-only stalls, node-only crashes, CPU pressure, origin stalls) and checks
+node-only stalls, node-only crashes, CPU pressure, origin stalls and origin
+crashes) and checks
 that nothing was restarted without cause (every write-off or hedge at the
 origin falls inside an injected fault of that host, never a stall of the
 origin itself) and nothing was left running (every robot idle, no orphaned
 worker; a node killed alone leaves no process behind 1 s later).
+
+An origin that crashes (its robot, or its node alone) takes its autonomous
+programs with it; what the application does then is what the Team API
+documents: a program whose origin is back within ``ORIGIN_GONE_GRACE``
+(10 s) is asked for again by the client and run by the new node, one that
+is not fails with ``ProgramLost`` and the application submits it again
+(here: to the same robot's node, once it is back). Either way each program
+must complete once for the application; the copies still running for the
+dead origin elsewhere are stopped or their results dropped by their hosts
+(checked: nothing left running after the run).
 
 Work sizing: the programs must still run at the last snapshot (as in the
 paper). ``work`` defaults to ``0.9 * gap`` units: with 0.4 host cores per
@@ -52,7 +63,7 @@ from typing import Callable
 import msgspec
 
 from ramps.experiments.campaign import CampaignReport
-from ramps.errors import NoTeam
+from ramps.errors import NoTeam, ProgramLost
 from ramps.experiments.faults import ROBOTS, FaultPlan, FaultRun, _failure_record
 from ramps.testbed import stress as stresses
 from ramps.experiments.metrics import classify_counts
@@ -218,6 +229,8 @@ class CampaignRun(msgspec.Struct, kw_only=True):
     left_running: list[str] = []
     #: processes of a node killed alone still running 1 s later (its workers must die with it)
     orphans: int = 0
+    #: programs the application submitted again because their origin crashed (ProgramLost)
+    resubmitted: int = 0
 
 
 class TestbedCampaignReport(CampaignReport, kw_only=True):
@@ -230,6 +243,7 @@ class TestbedCampaignReport(CampaignReport, kw_only=True):
     unexplained_restarts: int = 0
     left_running: int = 0
     orphans: int = 0
+    resubmitted: int = 0
 
 
 def campaign_plan(rng: random.Random, robots: list[str], duration: float) -> list[tuple[float, str, str]]:
@@ -253,6 +267,11 @@ def campaign_plan(rng: random.Random, robots: list[str], duration: float) -> lis
 STRESSES = ["crash", "cut", "freeze", "stall", "node_crash", "pressure", "pressure"]
 #: seconds after a robot's recovery during which a write-off of it is still explained by its fault
 EXPLAINED_AFTER = 5.0
+#: what may happen to an origin (the robot whose node its application submits to), and how often
+ORIGIN_FAULTS = ["stall", "stall", "node_crash", "crash"]
+ORIGIN_FAULT_P = 0.5
+#: times an application submits a program again after its origin crashed (ProgramLost)
+RESUBMITS = 3
 
 
 def stress_plan(rng: random.Random, robots: list[str], duration: float,
@@ -263,7 +282,9 @@ def stress_plan(rng: random.Random, robots: list[str], duration: float,
     then ``recover``), and host CPU pressure (``pressure:N``: N busy processes
     appear, ``unload``: they vanish) of robots that are not origins; each
     origin (the first ``origins`` robots) may stall for 0.5-2 s, and must
-    then restart none of its programs."""
+    then restart none of its programs, or crash (``crash``: the robot;
+    ``node_crash``: its node alone) while its programs run elsewhere, and be
+    recovered 1-4 s later."""
     faults: list[tuple[float, str, str]] = []
     for robot in robots[origins:]:
         t = rng.uniform(0.5, duration * 0.3)
@@ -285,9 +306,11 @@ def stress_plan(rng: random.Random, robots: list[str], duration: float,
                 faults.append((round(min(t, duration * 0.9), 2), robot, "recover"))
             t += rng.uniform(0.5, duration * 0.2)
     for origin in robots[:origins]:
-        if rng.random() < 0.4:
+        if rng.random() < ORIGIN_FAULT_P:
             t = rng.uniform(1.0, duration * 0.7)
-            faults += [(round(t, 2), origin, "stall"), (round(t + rng.uniform(0.5, 2.0), 2), origin, "recover")]
+            kind = rng.choice(ORIGIN_FAULTS)
+            back = t + (rng.uniform(0.5, 2.0) if kind == "stall" else rng.uniform(1.0, 4.0))
+            faults += [(round(t, 2), origin, kind), (round(back, 2), origin, "recover")]
     return sorted(faults)
 
 
@@ -331,7 +354,7 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
     futures = []
     not_rejoined: list[str] = []
     completed = dup = 0
-    orphans = 0
+    orphans = resubmitted = 0
     left_running: list[str] = []
     spans: dict[str, list[tuple[float, float]]] = {}  # robot -> (fault began, recovered + EXPLAINED_AFTER)
     began: dict[str, float] = {}
@@ -348,7 +371,8 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
             time.sleep(max(0.0, t0 + at - time.monotonic()))
             if what == "submit":
                 u = units[int(kind)]
-                futures.append((u, teams[int(kind) % len(teams)].options(work=u).submit("burn", units=u)))
+                app = int(kind) % len(teams)
+                futures.append((u, teams[app].options(work=u).submit("burn", units=u), app))
             elif kind == "recover":
                 tb.recover(robot, wait=False)
                 if robot in began:
@@ -371,8 +395,9 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
                 _inject(tb, robot, kind)
             if what == "fault":
                 log(f"  t={time.monotonic() - t0:5.1f} s  {kind} {robot}")
-        done, pending = wait_futures([f for _, f in futures], timeout=600.0)
-        for u, f in futures:
+        futures, resubmitted = _wait_resubmitting(futures, teams, log)
+        done, pending = wait_futures([f for _, f, _ in futures], timeout=0)
+        for u, f, _ in futures:
             if f in done and f.exception() is None and f.result().get("iterations") == round(u * 16_000_000):
                 completed += 1
             elif f in done and f.exception() is not None:
@@ -421,7 +446,31 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
     lost = n_programs - completed
     return CampaignRun(seed=seed, robots=robots, programs=n_programs, faults=faults, completed=completed, lost=lost,
                        duplicated=dup, not_rejoined=not_rejoined, ok=ok, seconds=round(time.monotonic() - started, 1),
-                       error=error, unexplained=unexplained, left_running=left_running, orphans=orphans)
+                       error=error, unexplained=unexplained, left_running=left_running, orphans=orphans,
+                       resubmitted=resubmitted)
+
+
+def _wait_resubmitting(futures: list, teams: list, log, timeout: float = 600.0) -> tuple[list, int]:
+    """Wait for every program; one that failed with ``ProgramLost`` (its
+    origin crashed and was not back within the client's grace) is submitted
+    again by its application, as the Team API says to, up to RESUBMITS
+    times. Returns the final (units, future, application) list and how many
+    were submitted again."""
+    deadline = time.monotonic() + timeout
+    entries = [[u, f, app, 0] for u, f, app in futures]
+    resubmitted = 0
+    while True:
+        wait_futures([e[1] for e in entries], timeout=max(0.0, deadline - time.monotonic()))
+        lost = [e for e in entries if e[1].done() and not e[1].cancelled()
+                and isinstance(e[1].exception(), ProgramLost) and e[3] < RESUBMITS]
+        if not lost or time.monotonic() >= deadline:
+            break
+        for e in lost:
+            u, team = e[0], teams[e[2]]
+            log(f"  program lost with its origin {team.robot} ({e[1].exception()}); submitted again")
+            e[1], e[3] = team.options(work=u).submit("burn", units=u), e[3] + 1
+            resubmitted += 1
+    return [(u, f, app) for u, f, app, _ in entries], resubmitted
 
 
 def run_campaign(runs: int, seed: int = 0, *, policy: str = "ramps", robots: int = 4, duration: float = 20.0,
@@ -460,4 +509,5 @@ def run_campaign(runs: int, seed: int = 0, *, policy: str = "ramps", robots: int
         duplicated=sum(r.duplicated for r in results), not_rejoined=sum(len(r.not_rejoined) for r in results),
         failed_runs=[r for r in results if not r.ok], all_runs=results, wall_seconds=time.perf_counter() - started,
         unexplained_restarts=sum(len(r.unexplained) for r in results),
-        left_running=sum(len(r.left_running) for r in results), orphans=sum(r.orphans for r in results))
+        left_running=sum(len(r.left_running) for r in results), orphans=sum(r.orphans for r in results),
+        resubmitted=sum(r.resubmitted for r in results))
