@@ -8,12 +8,14 @@ from __future__ import annotations
 import pytest
 
 from ramps.core.config import RampsConfig
-from ramps.core.events import CheckpointSaved, Deliver, StartProgram
+from ramps.core.events import CheckpointSaved, PeerLost, Received, StartProgram
 from ramps.core.messages import (
     CancelProgram,
     OffloadAccepted,
     OffloadRequest,
+    MAX_CHECKPOINT_BYTES,
     ProgramCheckpoint,
+    WireError,
     decode,
     encode,
 )
@@ -124,7 +126,6 @@ def test_the_new_copy_finishing_first_wins_too():
 def test_old_host_failing_during_a_move_leaves_the_move_to_finish_it():
     team, first, other = move_under_way()
     team.cut.add(first)
-    from ramps.core.events import PeerLost
     team.handle("o", PeerLost(robot=first))
     assert team.program("p").live == {2: other}
     team.release()
@@ -199,7 +200,6 @@ def test_a_checkpoint_travels_with_the_move_and_with_a_restart_after_a_failure()
     team.handle(other, CheckpointSaved(program_id="p", attempt=2, state=b"state-70", fraction=0.7))
     team.deliver()
     team.cut.add(other)
-    from ramps.core.events import PeerLost
     team.handle("o", PeerLost(robot=other))
     team.advance(team.now + 1.0)
     ap = team.program("p")
@@ -214,15 +214,13 @@ def test_a_checkpoint_travels_with_the_move_and_with_a_restart_after_a_failure()
 
 def test_a_stale_copys_checkpoint_is_ignored():
     team, first, other = loaded_host_team()
-    team.handle("o", __import__("ramps.core.events", fromlist=["Received"]).Received(
-        sender="b", msg=ProgramCheckpoint(program_id="p", attempt=7, host="b", state=b"x", fraction=0.9)))
+    team.handle("o", Received(sender="b", msg=ProgramCheckpoint(program_id="p", attempt=7, host="b", state=b"x", fraction=0.9)))
     assert team.program("p").checkpoint is None
 
 
 def test_checkpoints_cross_the_wire_within_their_limit():
     msg = ProgramCheckpoint(program_id="p", attempt=1, host="a", state=b"s" * 1000, fraction=0.5)
     assert decode(encode("a", msg)).msg == msg
-    from ramps.core.messages import MAX_CHECKPOINT_BYTES, WireError
     with pytest.raises(WireError, match="out of bounds"):
         decode(encode("a", ProgramCheckpoint(program_id="p", attempt=1, host="a",
                                               state=b"s" * (MAX_CHECKPOINT_BYTES + 1))))

@@ -3,6 +3,7 @@
     ramps sim paper                  # the paper's Tables 3-4 (and --experiment faults: Tables 5-10)
     ramps sim sweep                  # several origins at once, against the best achievable
     ramps sim campaign               # random faults, invariants checked after every run
+    ramps sim relocation             # a robot gets busy after placement: relocation on/off vs hindsight
     ramps sim run examples/warehouse.yaml   # your own team and workload
 
 The work is done by ``ramps.experiments`` and ``ramps.sim``; this module
@@ -151,6 +152,10 @@ def sim_campaign(
     runs: int = typer.Option(1000, "--runs", "-n", min=1, help="random runs"),
     seed: int = typer.Option(0, "--seed", help="the same seed replays the same runs"),
     policy: str = typer.Option("ramps", "--policy", "-p", help=POLICY_HELP),
+    load_changes: bool = typer.Option(False, "--load-changes",
+                                      help="robots also start and stop busy processes of their own while programs "
+                                           "run, and some programs checkpoint: relocation moves and resumes them "
+                                           "in the middle of the faults"),
     as_json: bool = typer.Option(False, "--json", help="write the summary as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
 ) -> None:
@@ -166,10 +171,44 @@ def sim_campaign(
     with Progress(TextColumn("campaign"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=err,
                   transient=True) as progress:
         task = progress.add_task("campaign", total=runs)
-        rep = run_campaign(runs, seed, policy, progress=lambda done, total: progress.update(task, completed=done))
+        rep = run_campaign(runs, seed, policy, progress=lambda done, total: progress.update(task, completed=done),
+                           load_changes=load_changes)
     emit([rep], print_campaign, as_json=as_json, out_file=out_file)
     if rep.failed_runs:
         raise typer.Exit(1)
+
+
+@sim_app.command("relocation")
+def sim_relocation(
+    robots: int = typer.Option(3, "--robots", min=2, max=8, help="identical robots in the team"),
+    cores: int = typer.Option(4, "--cores", min=1, help="cores per robot"),
+    programs: int = typer.Option(8, "--programs", min=1, max=40, help="programs r1 submits at once"),
+    work: float = typer.Option(60.0, "--work", min=1.0, help="work units per program (seconds on an idle core)"),
+    loaded: str = typer.Option("r1", "--loaded", help="the robot whose own software gets busy"),
+    busy: int = typer.Option(8, "--busy", min=0, help="busy processes it starts"),
+    load_at: float = typer.Option(10.0, "--at", min=0.0, help="seconds after the submission"),
+    checkpoint_every: float = typer.Option(2.0, "--checkpoint-every", min=0.1,
+                                           help="seconds between checkpoints in the checkpointing variant"),
+    seeds: int = typer.Option(5, "--seeds", min=1, help="simulation seeds"),
+    seed: int = typer.Option(0, "--seed", help="first seed"),
+    as_json: bool = typer.Option(False, "--json", help="write the results as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
+) -> None:
+    """Load that changes after placement: one robot's own software starts busy processes while it runs programs.
+
+    Runs relocation off, relocation on (restart elsewhere from the parameters), relocation with programs that
+    checkpoint (resume elsewhere), and round robin on the same seeds, and prints each makespan against the
+    hindsight optimum: the best static distribution for someone who knew the load would come.
+    """
+    from ramps.experiments.relocation import run_relocation
+    from ramps.experiments.report import print_relocation
+
+    try:
+        rep = run_relocation(robots=robots, cores=cores, programs=programs, work=work, loaded=loaded, busy=busy,
+                             load_at=load_at, checkpoint_every=checkpoint_every, seeds=seeds, seed=seed)
+    except ValueError as exc:
+        fail(str(exc))
+    emit([rep], print_relocation, as_json=as_json, out_file=out_file)
 
 
 @sim_app.command("run")

@@ -48,6 +48,7 @@ copy simply keeps running.
 from __future__ import annotations
 
 from enum import StrEnum
+from typing import Any
 
 from ramps.core.events import Submit
 
@@ -147,7 +148,7 @@ class AutonomousProgram:
         #: relocations started, and the copy still running while one is under
         #: way: [attempt, host, last heard of it]
         self.moves = 0
-        self.moving_from: list | None = None
+        self.moving_from: list[Any] | None = None
         #: when the current attempt was accepted (no move before it settles)
         self.accepted_at = now
         #: work units the current attempt has done by the origin's estimate,

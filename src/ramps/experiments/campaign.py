@@ -3,8 +3,11 @@
 How this works: each run draws a team (3-8 robots of 1-4 cores, some with
 background load), one or two origins submitting 5-40 programs, message loss,
 and 1-8 random crashes, network cuts, freezes and recoveries of robots that
-are not origins, at random times during the workload. After every run it
-checks the invariants:
+are not origins, at random times during the workload. With
+``load_changes``, robots (origins too) also start or stop busy processes of
+their own while programs run, and some workloads checkpoint, so programs are
+relocated (``RampsConfig.relocate``) and resumed in the middle of the faults.
+After every run it checks the invariants:
 
 * every program of a surviving origin completed, exactly once (no result
   lost, none duplicated);
@@ -37,6 +40,10 @@ class CampaignRun(msgspec.Struct, kw_only=True):
     not_rejoined: list[str]
     ok: bool
     scenario: Scenario | None = None  # kept for failing runs only
+    #: relocations started / abandoned, programs delivered from a resumed attempt
+    moves: int = 0
+    moves_aborted: int = 0
+    resumed: int = 0
 
 
 class CampaignReport(msgspec.Struct, kw_only=True):
@@ -54,9 +61,13 @@ class CampaignReport(msgspec.Struct, kw_only=True):
     failed_runs: list[CampaignRun]
     wall_seconds: float
     world: str = "simulator"
+    load_changes: bool = False
+    moves: int = 0
+    moves_aborted: int = 0
+    resumed: int = 0
 
 
-def random_scenario(rng: random.Random, seed: int, policy: str) -> Scenario:
+def random_scenario(rng: random.Random, seed: int, policy: str, load_changes: bool = False) -> Scenario:
     n = rng.randint(3, 8)
     robots = [RobotSpec(name=f"r{i}", cores=rng.randint(1, 4), speed=rng.choice([0.5, 1.0, 1.5]),
                         background=rng.choice([0, 0, 0, 2, 8])) for i in range(1, n + 1)]
@@ -74,20 +85,29 @@ def random_scenario(rng: random.Random, seed: int, policy: str) -> Scenario:
             if rng.random() < 0.7:
                 faults.append(FaultSpec(at=t, robot=robot, kind="recover"))
                 t += rng.uniform(0.5, 30.0)
+    if load_changes:  # drawn last: the runs without them stay what they were
+        programs = [msgspec.structs.replace(p, checkpoint_every=rng.choice([0.0, 0.0, 1.0, 3.0]))
+                    for p in programs]
+        for robot in rng.sample([r.name for r in robots], rng.randint(1, min(3, n))):
+            t = rng.uniform(0.0, 20.0)
+            faults.append(FaultSpec(at=t, robot=robot, kind="load", background=rng.choice([4, 8, 12])))
+            if rng.random() < 0.5:
+                faults.append(FaultSpec(at=t + rng.uniform(1.0, 30.0), robot=robot, kind="load", background=0))
     return Scenario(name=f"campaign-{seed}", seed=seed, policy=policy, robots=robots, programs=programs,
                     faults=faults, network=NetworkSpec(loss=rng.choice([0.0, 0.0, 0.01, 0.05])), until=1e6)
 
 
-def run_one(seed: int, policy: str = "ramps") -> CampaignRun:
+def run_one(seed: int, policy: str = "ramps", load_changes: bool = False) -> CampaignRun:
     rng = random.Random(seed)
-    sc = random_scenario(rng, seed, policy)
+    sc = random_scenario(rng, seed, policy, load_changes)
     sim = Simulator(sc)
     res = sim.run()
     # a robot whose last fault was a recovery, long enough before the end to
     # have published again, must be usable again at every surviving origin
     last: dict[str, FaultSpec] = {}
     for f in sorted(sc.faults, key=lambda f: f.at):
-        last[f.robot] = f
+        if f.kind != "load":  # a load change is no fault
+            last[f.robot] = f
     origins = {p.origin for p in sc.programs}
     not_rejoined = []
     for robot, f in last.items():
@@ -100,14 +120,18 @@ def run_one(seed: int, policy: str = "ramps") -> CampaignRun:
     ok = res.lost == 0 and res.duplicated == 0 and not not_rejoined
     return CampaignRun(seed=seed, robots=len(sc.robots), programs=sum(p.count for p in sc.programs),
                        faults=len(sc.faults), completed=res.completed, lost=res.lost, duplicated=res.duplicated,
-                       not_rejoined=not_rejoined, ok=ok, scenario=None if ok else sc)
+                       not_rejoined=not_rejoined, ok=ok, scenario=None if ok else sc,
+                       moves=sum(s.moves for s in res.statistics),
+                       moves_aborted=sum(s.moves_aborted for s in res.statistics),
+                       resumed=sum(1 for p in res.programs if p.resumed_from is not None and p.deliveries))
 
 
-def run_campaign(runs: int, seed: int = 0, policy: str = "ramps", progress=None) -> CampaignReport:
+def run_campaign(runs: int, seed: int = 0, policy: str = "ramps", progress=None,
+                 load_changes: bool = False) -> CampaignReport:
     started = time.perf_counter()
     results = []
     for i in range(runs):
-        results.append(run_one(seed * 1_000_000 + i, policy))
+        results.append(run_one(seed * 1_000_000 + i, policy, load_changes))
         if progress:
             progress(i + 1, runs)
     return CampaignReport(
@@ -115,5 +139,7 @@ def run_campaign(runs: int, seed: int = 0, policy: str = "ramps", progress=None)
         faults=sum(r.faults for r in results), completed=sum(r.completed for r in results),
         lost=sum(r.lost for r in results), duplicated=sum(r.duplicated for r in results),
         not_rejoined=sum(len(r.not_rejoined) for r in results), failed_runs=[r for r in results if not r.ok],
-        wall_seconds=time.perf_counter() - started,
+        wall_seconds=time.perf_counter() - started, load_changes=load_changes,
+        moves=sum(r.moves for r in results), moves_aborted=sum(r.moves_aborted for r in results),
+        resumed=sum(r.resumed for r in results),
     )

@@ -193,9 +193,29 @@ def print_campaign(rep, console: Console) -> None:
     table.add_row(str(rep.runs), str(rep.programs), str(rep.faults), str(rep.completed), str(rep.lost),
                   str(rep.duplicated), str(rep.not_rejoined), str(len(rep.failed_runs)), f"{rep.wall_seconds:.1f} s")
     console.print(table)
+    if getattr(rep, "load_changes", False) or getattr(rep, "moves", 0):
+        console.print(f"relocation: {rep.moves} moves started, {rep.moves_aborted} abandoned (the old copy ran on), "
+                      f"{rep.resumed} programs delivered from a resumed checkpoint")
     for r in rep.failed_runs[:10]:
         console.print(f"[red]run seed {r.seed}: lost {r.lost}, duplicated {r.duplicated}, not rejoined "
                       f"{r.not_rejoined}[/] (its scenario is in the --json output)")
+
+
+def print_relocation(rep, console: Console) -> None:
+    """Makespans with and without relocation against the hindsight optimum."""
+    console.print(f"{rep.robots} robots of {rep.cores} cores, {rep.programs} programs of {rep.work:g} units from r1; "
+                  f"{rep.loaded} starts {rep.busy} busy processes at {rep.load_at:g} s. Hindsight optimum "
+                  f"{rep.hindsight_optimum:.1f} s (static split {'-'.join(map(str, rep.optimum_distribution))})")
+    table = Table(title="relocation after placement", title_justify="left")
+    for name in ("seed", "variant", "makespan", "vs hindsight", "moves", "abandoned", "resumed", "distribution",
+                 "lost", "dup"):
+        table.add_column(name, justify="left" if name in ("variant", "distribution") else "right")
+    for r in rep.runs:
+        table.add_row(str(r.seed), r.variant, f"{r.makespan:.1f} s", f"{r.ratio:.3f}", str(r.moves),
+                      str(r.moves_aborted), str(r.resumed), "-".join(str(v) for v in r.distribution.values()),
+                      str(r.lost), str(r.duplicated))
+    console.print(table)
+    console.print("median vs hindsight: " + ", ".join(f"{k} {v:.3f}" for k, v in rep.median_ratio.items()))
 
 
 def print_sweep(rep, console: Console) -> None:
