@@ -232,6 +232,21 @@ def test_cli_submit_and_status(team3):
         assert r["sees"] == 2, r  # each robot's own view holds both teammates
     assert "sees" in team3.cli("status", "--team", team3.team, *eps, "--no-multicast", "--wait", "1").stdout
 
+    # each robot lists the links it measured to both teammates (probes every 5 s), and r1 the work it
+    # learned of the program it placed (issue 10)
+    def measured():
+        st = team3.cli("status", "--team", team3.team, *eps, "--no-multicast", "--json", "--wait", "1.5")
+        rows = {r["robot"]: r for r in json.loads(st.stdout)["robots"]} if st.returncode == 0 else {}
+        full = len(rows) == 3 and all({link[0] for link in r["links"]} == set(rows) - {name}
+                                      for name, r in rows.items())
+        return rows if full else None
+
+    robots = wait_for(measured, 30, "every robot's status listing its links to both teammates")
+    assert all(link[1] is not None and 0 <= link[1] < 1.0 for r in robots.values() for link in r["links"])
+    assert "where" in {w[0] for w in robots["r1"]["learned"]}, robots["r1"]
+    table = team3.cli("status", "--team", team3.team, *eps, "--no-multicast", "--wait", "1.5").stdout
+    assert "links each robot measured" in table and "work learned" in table
+
 
 # ---------------------------------------------------------------- nothing pickled
 FORBIDDEN = {"pickle", "_pickle", "cPickle", "cloudpickle", "dill", "marshal", "shelve", "copyreg",

@@ -202,7 +202,8 @@ def status(
     credentials: CredentialsOption = None,
     as_json: bool = typer.Option(False, "--json", help="print the team view as JSON"),
 ) -> None:
-    """Show the team: robots, their load, running programs, blacklisted peers.
+    """Show the team: robots, their load, running programs, blacklisted peers, the links
+    each robot measured to its teammates and the work it learned of its programs.
 
     Each row is what that robot last published. "sees" is how many teammates
     the robot itself could place a program on (fresh report, not written
@@ -233,6 +234,24 @@ def status(
                       ", ".join(r.blacklisted),
                       "-" if r.report_age is None else f"{r.report_age:.1f} s")
     out.print(table)
+    links = [(r.robot, link) for r in st.robots for link in r.links]
+    if links:  # T_comm as each robot measured it (ramps.core.links): the cost model prices transfers with these
+        lt = Table(title="links each robot measured (its placements use them)", title_justify="left")
+        for name in ("robot", "to", "latency", "bandwidth"):
+            lt.add_column(name, justify="left" if name in ("robot", "to") else "right")
+        for robot, link in links:
+            lt.add_row(robot, link.robot, "-" if link.latency is None else f"{1000 * link.latency:.1f} ms",
+                       "-" if link.bandwidth is None else f"{link.bandwidth / 1e6:.2f} MB/s")
+        out.print(lt)
+    learned = [(r.robot, w) for r in st.robots for w in r.learned]
+    if learned:
+        wt = Table(title="work learned from completed runs (placements use it instead of the declared work)",
+                   title_justify="left")
+        for name in ("origin", "program", "work units"):
+            wt.add_column(name, justify="right" if name == "work units" else "left")
+        for robot, w in learned:
+            wt.add_row(robot, w.program, f"{w.work:.3g}")
+        out.print(wt)
     running = [(r.robot, p) for r in st.robots for p in r.running]
     if running:
         progs = Table(title="running programs", title_justify="left")

@@ -162,6 +162,26 @@ class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, ta
     #: (processor sharing since it started), smallest first: an origin's
     #: T_there counts the programs that will end before a new one does
     remaining: Annotated[list[Amount], Meta(max_length=MAX_LISTED)] = []
+    #: what this robot measured of its links to teammates (``ramps.core.links``)
+    #: and learned of its programs' work (at most MAX_LISTED each), for ``ramps status``
+    links: Annotated[list["LinkSeen"], Meta(max_length=MAX_LISTED)] = []
+    learned: Annotated[list["LearnedWork"], Meta(max_length=MAX_LISTED)] = []
+
+
+class LinkSeen(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
+    """A link to a teammate as a load report lists it: [teammate, one-way
+    latency in s, bandwidth in bytes/s], None where not measured yet."""
+
+    robot: RobotName
+    latency: Amount | None = None
+    bandwidth: Amount | None = None
+
+
+class LearnedWork(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
+    """A program's work as its origin learned it from completed runs: [program, work units]."""
+
+    program: Name
+    work: Amount
 
 
 class RunningProgram(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):

@@ -44,6 +44,8 @@ import msgspec
 
 from ramps.core.messages import (
     CancelSubmitted,
+    LearnedWork,
+    LinkSeen,
     LoadReport,
     ProgramOutcome,
     ProgramUpdate,
@@ -90,6 +92,10 @@ class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
     sees: int | None = None
     #: programs running there: [program, origin robot, progress 0..1 or None]
     running: list[RunningProgram] = []
+    #: the robot's measured links to teammates [teammate, latency s, bandwidth B/s],
+    #: and the work it learned of the programs it placed [program, work units]
+    links: list[LinkSeen] = []
+    learned: list[LearnedWork] = []
 
 
 class TeamStatus(msgspec.Struct, frozen=True, kw_only=True):
@@ -526,7 +532,8 @@ class Team:
                                 finished_total=rep.finished_total, blacklisted=list(rep.blacklisted),
                                 cpu_per_core=list(rep.cpu_per_core), load_avg=rep.load_avg,
                                 mem_free=rep.mem_free, bad_messages=rep.bad_messages, report_age=now - at,
-                                sees=rep.sees, running=list(rep.running))
+                                sees=rep.sees, running=list(rep.running), links=list(rep.links),
+                                learned=list(rep.learned))
                 rows.append(RobotStatus(**base))
         return TeamStatus(team=self.team, robots=rows)
 

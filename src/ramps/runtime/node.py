@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import queue
 import random
@@ -52,6 +53,8 @@ from ramps.core.events import (
 )
 from ramps.core.messages import (
     CancelSubmitted,
+    LearnedWork,
+    LinkSeen,
     LoadReport,
     ProgramOutcome,
     MAX_LISTED,
@@ -66,6 +69,7 @@ from ramps.core.node import Node
 from ramps.core.policy import POLICIES
 from ramps.core.program import ProgramState
 from ramps.core.relink import RELINK_TIMEOUT, Stalled
+from ramps.core.speed import REMEASURE_PERIOD, SpeedMeasured
 from ramps.errors import ConfigError, NotAdmitted, ProgramNotFound, TransportError
 from ramps.runtime import keys, revocation
 from ramps.runtime.measure import LoadSampler, cgroup_dirs, cgroup_quota, detect_cores, measure_speed
@@ -157,6 +161,7 @@ class NodeRuntime:
         self.stalled_s = 0.0
         self._stall_offset = 0.0
         self._stalled_at = 0.0
+        self._remeasure_at: float | None = None
         #: a stall long enough to close links, not yet told to the core (seconds)
         self._stall_pending = 0.0
         self._relink_after = settings.lease_ms / 1000.0 * RELINK_LEASE_FRACTION
@@ -194,6 +199,10 @@ class NodeRuntime:
             scope = "cgroup" if quota is not None else "host"
         self.cores = s.cores or detect_cores()
         self.speed = s.speed or measure_speed(quota=quota, cores=self.cores)
+        # a speed measured at boot is measured again while no program runs
+        # (robots booting together measure each other's start-up; ramps.core.speed)
+        self._quota = quota
+        self._remeasure_at = None if s.speed else time.monotonic() + REMEASURE_PERIOD
         self.incarnation = int.from_bytes(os.urandom(6), "big")
         return_freed_memory()
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=s.core,
@@ -603,7 +612,7 @@ class NodeRuntime:
             if self.metrics is not None:
                 self.metrics.on_finished(item[1])
             return node.handle(item[1], now)
-        if kind == "progress":
+        if kind in ("progress", "speed"):
             return node.handle(item[1], now)
         if kind == "live":
             robot, alive = item[1], item[2]
@@ -832,7 +841,21 @@ class NodeRuntime:
         except Exception as exc:
             log.warning("node %s could not publish on %s: %s", self.robot, key, exc)
 
+    def _remeasure(self) -> None:
+        """Measure this robot's speed again, off the driver's thread (briefly:
+        0.05 s of CPU); the core keeps the figure if it is faster."""
+        try:
+            speed = measure_speed(0.05, quota=self._quota, cores=self.cores)
+        except Exception:  # never worth a node
+            log.exception("node %s: measuring its speed again failed", self.robot)
+            return
+        self._q.put(("speed", SpeedMeasured(speed=speed)))
+
     def _publish(self, now: float) -> None:
+        due = self._remeasure_at
+        if due is not None and time.monotonic() >= due and not self.pool.busy() and not self.pool.queued():
+            self._remeasure_at = time.monotonic() + REMEASURE_PERIOD
+            threading.Thread(target=self._remeasure, name=f"ramps-speed-{self.robot}", daemon=True).start()
         busy, runnable, ramps_avg = self.sampler.averages()
         per_core, load1, mem_free = self.sampler.extras()
         self.node.executor.background = max(0.0, runnable - ramps_avg)
@@ -846,7 +869,7 @@ class NodeRuntime:
             self._log_view_change(self._sees, sees)
             self._sees = sees
         report = msgspec.structs.replace(report, bad_messages=self.bad_messages + self.overflow,  # `ramps status`
-                                         sees=len(sees), running=self._running_list())
+                                         sees=len(sees), running=self._running_list(), **self._learned())
         self._last_report = report
         if self.metrics is not None:
             st = self.node.statistics()
@@ -869,7 +892,7 @@ class NodeRuntime:
         if last is not None:
             report = msgspec.structs.replace(report, mem_free=last.mem_free, cpu_per_core=last.cpu_per_core,
                                              load_avg=last.load_avg, bad_messages=last.bad_messages,
-                                             sees=last.sees)
+                                             sees=last.sees, links=last.links, learned=last.learned)
         # what it runs and whom it wrote off, as the periodic report says: without them
         # `ramps status`, `ramps top` and ROS diagnostics saw both flap to empty
         report = msgspec.structs.replace(report, running=self._running_list(),
@@ -878,6 +901,17 @@ class NodeRuntime:
             self._load_pub.put(encode(self.robot, report))
         except Exception as exc:
             log.warning("node %s could not publish its load: %s", self.robot, exc)
+
+    def _learned(self) -> dict[str, list]:
+        """What this node measured of its links and learned of its programs'
+        work, for its load report (``ramps status``)."""
+        def ok(x: float | None) -> float | None:  # within the schema, or the whole report would be refused
+            return x if x is not None and math.isfinite(x) and x >= 0 else None
+
+        links = sorted(self.node.links.measured().items())[:MAX_LISTED]
+        work = sorted(self.node.origin.learned_work().items())[:MAX_LISTED]
+        return dict(links=[LinkSeen(r, ok(e.latency), ok(e.bandwidth)) for r, e in links],
+                    learned=[LearnedWork(p, w) for p, w in work if ok(w) is not None])
 
     def _running_list(self) -> list[RunningProgram]:
         """The programs this robot runs, with their progress (``ramps status``)."""
