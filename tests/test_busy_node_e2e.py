@@ -169,3 +169,35 @@ def test_what_ends_or_is_submitted_during_a_stall_reaches_its_place(tmp_path):
         assert len(placed) == 4, placed  # each request placed once, resends or not
     finally:
         t.close()
+
+
+def test_a_program_whose_origin_crashed_and_came_back_completes_once(tmp_path):
+    """The application's node r1 is killed (with its workers) while its two
+    programs run, one on r1 and one on r2, and restarted 2 s later (within
+    the client's grace): the client asks the new r1 about both, which runs
+    them anew; each completes once for the application (the dead origin's
+    copy on r2 sends its result to the new r1, which does not know it and
+    drops it)."""
+    trace = tmp_path / "r1.trace"
+    t = LocalTeam(2, tmp_path, cores=2)
+    try:
+        t.start_node("r1", extra_env={"RAMPS_TRACE": str(trace)}, wait=False)
+        t.start_node("r2", wait=False)
+        t.wait_visible(["r1", "r2"])
+        team = t.client("r1")
+        futs = [team.options(policy="round_robin").submit("sleepy", seconds=3.0, tag=f"c{i}") for i in range(2)]
+        wait_for(lambda: all((t.marks / f"c{i}").exists() for i in range(2)), 60, "both programs to start")
+        for i in range(2):
+            (t.marks / f"c{i}").unlink()
+        t.kill_node("r1")
+        time.sleep(2.0)
+        t.start_node("r1", extra_env={"RAMPS_TRACE": str(trace)}, extra_args=["--connect", t.nodes["r2"].endpoint],
+                     wait=False)
+        res = [f.result(timeout=RESULT_TIMEOUT) for f in futs]
+        assert sorted(r["tag"] for r in res) == ["c0", "c1"]
+        assert all((t.marks / f"c{i}").exists() for i in range(2))  # run again, by the new r1
+        entries = trace_lines(trace)
+        delivered = [e for e in entries if e["what"] == "delivered"]
+        assert len(delivered) == 2 and len({e["program_id"] for e in delivered}) == 2, delivered
+    finally:
+        t.close()
