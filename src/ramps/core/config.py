@@ -46,6 +46,15 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: as cut off and runs displaced programs locally, still wanting the
     #: remote copies it wrote off just before (see Origin._revive_written_off)
     isolation_timeout: float = 5.0
+    #: robots' speeds are corrected (``ramps.core.speed``, policies that
+    #: share load only): a node's own by a faster re-measurement while idle,
+    #: a host's at its origins by comparing its results with the same
+    #: program's runs on other robots, once the median of its last figures is
+    #: off by more than ``speed_deadband`` and within ``speed_max_correction``
+    #: times either way; False keeps every robot's boot measurement
+    speed_learning: bool = True
+    speed_deadband: float = 0.05
+    speed_max_correction: float = 2.0
     #: a program that lost this many hosts or workers ends with an error
     max_attempts: int = 50
     #: a host whose heartbeats (or acceptance) stop while its load reports
@@ -88,6 +97,8 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             )
         if self.relocate and self.relocate_period <= 0:
             raise ValueError("relocate_period must be > 0 when relocate is on")
+        if self.speed_max_correction < 1:
+            raise ValueError(f"speed_max_correction must be >= 1, got {self.speed_max_correction}")
 
     @classmethod
     def paper(cls) -> "RampsConfig":

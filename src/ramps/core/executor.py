@@ -120,6 +120,12 @@ class Executor:
         for job in self.running.values():
             job.done += step
 
+    def set_speed(self, speed: float, now: float) -> None:
+        """This robot's speed changed (``ramps.core.speed``): running
+        programs were credited at the old one until ``now``."""
+        self._advance(now)
+        self.speed = speed
+
     def remaining(self, now: float) -> list[float]:
         """Work units each running program has left by the estimate above,
         smallest first, at most MAX_LISTED (what load reports carry)."""

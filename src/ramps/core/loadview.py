@@ -82,6 +82,9 @@ class LoadView:
         self.last_remote_report: float | None = None
         self.reports_received = 0
         self.bad_reports = 0
+        #: robot -> how much faster than it reports it runs programs (set by
+        #: ``Node`` from ``HostSpeeds``; absent = 1)
+        self.speed_factor: dict[str, float] = {}
 
     # ------------------------------------------------------------ reports
     def on_report(self, report: LoadReport, now: float, *, fresh: bool = False) -> bool:
@@ -209,7 +212,8 @@ class LoadView:
         if left and rep is not None:
             age = max(0.0, now - rob.received_at)
             background = max(0.0, rep.runnable - rep.ramps_avg)
-            step = age * rep.speed * program_share(rep.cores, len(left), background, rep.program_weight)
+            speed = self.speed_of(robot, rep.speed)
+            step = age * speed * program_share(rep.cores, len(left), background, rep.program_weight)
             left = [x - step for x in left]
         left.sort()
         if len(left) > programs:
@@ -237,7 +241,12 @@ class LoadView:
         rep = self._robots[robot].report if robot in self._robots else None
         if rep is None:
             return (self.cores, self.speed) if robot == self.me else (1, 1.0)
-        return rep.cores, rep.speed
+        return rep.cores, self.speed_of(robot, rep.speed)
+
+    def speed_of(self, robot: str, reported: float) -> float:
+        """A robot's speed as placement uses it: what it reports, times the
+        factor its results showed (``ramps.core.speed.HostSpeeds``)."""
+        return reported * self.speed_factor.get(robot, 1.0)
 
     # ------------------------------------------------------------ blacklist / liveness
     def blacklist(self, robot: str) -> bool:
@@ -295,9 +304,9 @@ class LoadView:
                 if rep is not None and rep.runnable > rep.ramps_avg:
                     background = rep.runnable - rep.ramps_avg
             if rep is None:  # only this robot gets here without a report
-                cores, speed, weight = self.cores, self.speed, self.program_weight
+                cores, speed, weight = self.cores, self.speed_of(name, self.speed), self.program_weight
             else:
-                cores, speed, weight = rep.cores, rep.speed, rep.program_weight
+                cores, speed, weight = rep.cores, self.speed_of(name, rep.speed), rep.program_weight
             out.append((name, cores, speed, ramps, background, weight))
         if exclude:
             kept = [e for e in out if e[0] not in exclude]

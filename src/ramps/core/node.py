@@ -66,7 +66,9 @@ from ramps.core.messages import (
 )
 from ramps.core.origin import Origin
 from ramps.core.policy import Policy, make_policy
+from ramps.core.program import FINAL
 from ramps.core.relink import Stalled
+from ramps.core.speed import HostSpeeds, SpeedEstimate, SpeedMeasured
 
 
 class NodeStatistics(msgspec.Struct, frozen=True, kw_only=True):
@@ -127,6 +129,12 @@ class Node:
         self._probe_due: float | None = 0.0 if self.config.probe_period > 0 else None
         self.executor = Executor(robot, config=self.config, registry=registry, incarnation=incarnation,
                                  cores=cores, speed=speed, program_weight=program_weight)
+        #: this robot's speed (re-measured) and its teammates' as their results
+        #: show (policies that share load only; ``ramps.core.speed``)
+        self.own_speed = SpeedEstimate(speed, self.config) if self.policy.shares_load else None
+        self.host_speeds = HostSpeeds(self.config) if self.policy.shares_load else None
+        if self.host_speeds is not None:
+            self.view.speed_factor = self.host_speeds.factor
         self._report_seq = 0
         #: the latest time the driver passed in (reports estimate the work
         #: left in running programs as of then)
@@ -221,6 +229,12 @@ class Node:
             self.executor.on_checkpoint(event, now, out)
         elif isinstance(event, Cancel):
             self.origin.cancel(event.program_id, now, out)
+        elif isinstance(event, SpeedMeasured):
+            if self.own_speed is not None and self.own_speed.measured(event.speed):
+                out.append(Note(what="speed", robot=self.robot,
+                                detail=f"{self.speed:.4g} -> {event.speed:.4g}: measured again while idle"))
+                self.executor.set_speed(event.speed, now)
+                self.speed = self.view.speed = event.speed
         elif isinstance(event, PeerLost):
             if event.robot != self.robot:
                 self.origin.on_peer_lost(event.robot, now, out)
@@ -256,6 +270,8 @@ class Node:
         elif isinstance(msg, Heartbeat):
             self.origin.on_heartbeat(msg, now, out)
         elif isinstance(msg, ProgramResult):
+            if self.host_speeds is not None:
+                self._compare_speed(msg, out)
             self.origin.on_result(msg, now, out)
         elif isinstance(msg, ResultAck):
             self.executor.on_ack(msg)
@@ -282,6 +298,21 @@ class Node:
         return self._report(cpu_busy=cpu_busy, runnable=runnable, ramps_avg=ramps_avg, window=window,
                             mem_free=mem_free, cpu_per_core=cpu_per_core or [], load_avg=load_avg,
                             blacklisted=self.view.blacklisted())
+
+    def _compare_speed(self, msg: ProgramResult, out: list[Action]) -> None:
+        """The first wanted result of a whole run (not resumed, not moved):
+        how fast its host really was, next to the same program elsewhere."""
+        ap = self.origin.programs.get(msg.program_id)
+        if (ap is None or ap.state in FINAL or ap.live.get(msg.attempt) != msg.host or not msg.ok
+                or msg.work_done is None):
+            return
+        assert self.host_speeds is not None
+        before = self.host_speeds.factor.get(msg.host, 1.0)
+        if self.host_speeds.on_result(ap.submit.program, msg.host, msg.work_done):
+            out.append(Note(what="speed", program_id=msg.program_id, robot=msg.host, attempt=msg.attempt,
+                            detail=f"runs at {self.host_speeds.factor[msg.host]:.3g} of the speed it reports "
+                                   f"(was {before:.3g}): {ap.submit.program} took {msg.work_done:.4g} units "
+                                   f"there, less or more elsewhere"))
 
     def current_report(self) -> LoadReport:
         """A report of this instant (sent with a 'busy' rejection); it keeps

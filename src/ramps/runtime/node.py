@@ -37,6 +37,7 @@ import msgspec
 from ramps.core.cost import nice_weight
 from ramps.core.events import (
     Cancel,
+    CheckpointSaved,
     Deliver,
     Note,
     PeerAlive,
@@ -203,7 +204,7 @@ class NodeRuntime:
                          rng=random.Random(self.incarnation), incarnation=self.incarnation,
                          registry=self.registry.names(), program_weight=nice_weight(s.worker_nice))
         self.pool = WorkerPool(self.cores, self.registry.targets(), self._finished, nice=s.worker_nice,
-                               on_progress=self._progress_reported)
+                               on_progress=self._progress_reported, on_checkpoint=self._checkpoint_saved)
         self.pool.start()
         self.sampler = LoadSampler(lambda: self.pool.busy() + self.pool.queued(), window=s.window,
                                    scope=scope, cgroup=cg if scope == "cgroup" else None,
@@ -366,6 +367,10 @@ class NodeRuntime:
     def _finished(self, key, ok: bool, value: bytes, error: str, retryable: bool) -> None:
         self._q.put(("finished", ProgramFinished(program_id=key[0], attempt=key[1], ok=ok, value=value, error=error,
                                                  result_size=len(value), retryable=retryable)))
+
+    def _checkpoint_saved(self, key, state: bytes, fraction: float | None) -> None:
+        self._q.put(("progress", CheckpointSaved(program_id=key[0], attempt=key[1], state=state,
+                                                 fraction=fraction if isinstance(fraction, float) else None)))
 
     def _progress_reported(self, key, fraction: float, detail: str) -> None:
         self._q.put(("progress", ProgressReported(program_id=key[0], attempt=key[1], fraction=fraction,
@@ -653,7 +658,7 @@ class NodeRuntime:
         ), now)
 
     def _tell_client(self, pid: str, *, ok: bool, value: bytes = b"", error: str = "", kind: str = "",
-                     host: str = "", attempts: int = 0) -> list:
+                     host: str = "", attempts: int = 0, moves: int = 0, resumed_from: float | None = None) -> list:
         target = self._clients.pop(pid, None)
         if target is None:
             return []
@@ -661,7 +666,8 @@ class NodeRuntime:
         self._requests.pop(target, None)
         self._progress.pop(pid, None)
         data = encode(self.robot, ProgramOutcome(
-            request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts))
+            request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts,
+            moves=moves, resumed_from=resumed_from))
         self._answered[target] = data  # a resend still in flight must not run it again
         self._kept_outcomes.append(target)
         self._kept_bytes += len(data)
@@ -754,7 +760,7 @@ class NodeRuntime:
                     self._write_trace("tx", getattr(a.msg, "program_id", ""), a.to, getattr(a.msg, "attempt", 0),
                                       type(a.msg).__name__)
             elif isinstance(a, StartProgram):
-                self.pool.run((a.program_id, a.attempt), a.program, a.args)
+                self.pool.run((a.program_id, a.attempt), a.program, a.args, a.resume)
             elif isinstance(a, StopProgram):
                 self.pool.cancel((a.program_id, a.attempt))
             elif isinstance(a, Deliver):
@@ -764,7 +770,7 @@ class NodeRuntime:
                 if self._trace is not None:  # first, so a caller holding the result finds it traced
                     self._write_trace("delivered", a.program_id, a.host, a.attempts, a.error_kind)
                 self._tell_client(a.program_id, ok=a.ok, value=a.value, error=a.error, kind=kind, host=a.host,
-                                  attempts=a.attempts)
+                                  attempts=a.attempts, moves=a.moves, resumed_from=a.resumed_from)
             elif isinstance(a, PublishReport):
                 self._publish_prompt(a.report)
             elif isinstance(a, Progress):

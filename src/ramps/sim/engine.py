@@ -40,6 +40,7 @@ from ramps.core.events import (CheckpointSaved, Deliver, Note, PeerAlive, PeerLo
                                Received, Send, StartProgram, StopProgram, Submit)
 from ramps.core.messages import wire_size
 from ramps.core.node import Node, NodeStatistics
+from ramps.core.speed import REMEASURE_PERIOD, SpeedMeasured
 from ramps.sim.cpu import CPU
 from ramps.sim.scenario import FaultSpec, RobotSpec, Scenario
 
@@ -96,7 +97,7 @@ class SimResult(msgspec.Struct, kw_only=True):
 
 class _Robot:
     __slots__ = ("spec", "node", "cpu", "alive", "net_up", "frozen", "incarnation", "epoch",
-                 "wake_at", "wake_token", "done_token", "pub_phase")
+                 "wake_at", "wake_token", "done_token", "pub_phase", "remeasure_at")
 
     def __init__(self, spec: RobotSpec) -> None:
         self.spec = spec
@@ -112,6 +113,8 @@ class _Robot:
         self.wake_token = 0
         self.done_token = 0
         self.pub_phase = 0.0
+        #: when its node measures its speed again (``ramps.core.speed``)
+        self.remeasure_at = 0.0
 
     @property
     def reachable(self) -> bool:
@@ -194,12 +197,13 @@ class Simulator:
         weight = nice_weight(spec.worker_nice)
         r.cpu = CPU(spec.cores, spec.speed, spec.background, now, weight=weight)
         r.node = Node(
-            spec.name, cores=spec.cores, speed=spec.speed, policy=self.policy, config=self.sc.config,
+            spec.name, cores=spec.cores, speed=spec.measured_speed or spec.speed, policy=self.policy, config=self.sc.config,
             rng=random.Random(self.rng.getrandbits(64)), incarnation=r.incarnation,
             net=NetworkEstimate(latency=self.net.latency, bandwidth=self.net.bandwidth), program_weight=weight,
         )
         r.node.executor.background = float(spec.background)
         r.wake_at = math.inf
+        r.remeasure_at = now + REMEASURE_PERIOD
         r.pub_phase = self.rng.uniform(0.0, self.sc.publisher.period)
         self._at(now + r.pub_phase, self._publish, (r, r.incarnation))
 
@@ -296,6 +300,11 @@ class Simulator:
         if r.frozen:
             return
         busy, runnable, ramps_avg = r.cpu.averages(self.now, pub.window)
+        if r.spec.measured_speed is not None and self.now >= r.remeasure_at and not r.cpu.jobs:
+            # a robot that mis-measured at boot measures again while idle, as a
+            # node does (ramps.runtime.node); idle, it measures its true speed
+            r.remeasure_at = self.now + REMEASURE_PERIOD
+            self._handle(r, SpeedMeasured(speed=r.spec.speed))
         report = r.node.make_report(cpu_busy=busy, runnable=runnable, ramps_avg=ramps_avg, window=pub.window,
                                     mem_free=r.spec.memory)
         if r.spec.name in self.subscribers:

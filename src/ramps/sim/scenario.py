@@ -65,6 +65,9 @@ class RobotSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
     name: str
     cores: int = 4
     speed: float = 1.0
+    #: the speed the robot's node measured at boot, when it is wrong (robots
+    #: booting together on a busy machine); default: ``speed``
+    measured_speed: float | None = None
     #: CPU-bound processes that are not ramps programs (e.g. ``stress``)
     background: int = 0
     #: niceness of the robot's ramps programs against that background (0:
@@ -158,6 +161,8 @@ class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
                 raise ScenarioError(f"{p}.cores", f"must be >= 1, got {r.cores}")
             if not r.speed > 0:
                 raise ScenarioError(f"{p}.speed", f"must be > 0, got {r.speed}")
+            if r.measured_speed is not None and not r.measured_speed > 0:
+                raise ScenarioError(f"{p}.measured_speed", f"must be > 0, got {r.measured_speed}")
             if r.background < 0:
                 raise ScenarioError(f"{p}.background", f"must be >= 0, got {r.background}")
             if not -20 <= r.worker_nice <= 19:

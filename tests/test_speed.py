@@ -1,0 +1,182 @@
+"""Robots' speeds re-measured while idle and corrected from results of the
+same program on other robots (ramps.core.speed), in the core and the simulator."""
+
+from __future__ import annotations
+
+import random
+from collections import Counter
+
+import msgspec
+import pytest
+
+from ramps.core.config import RampsConfig
+from ramps.core.events import Note, Received, Submit
+from ramps.core.messages import ProgramResult
+from ramps.core.node import Node
+from ramps.core.speed import HostSpeeds, SpeedEstimate, SpeedMeasured
+from ramps.sim.engine import simulate
+from ramps.sim.scenario_file import scenario_from_dict
+from ramps.testing import FakeTeam
+
+CFG = RampsConfig()
+
+
+def test_only_a_faster_re_measurement_counts():
+    est = SpeedEstimate(0.7, CFG)
+    assert not est.measured(0.6)  # interference only ever slows a measurement
+    assert not est.measured(float("nan"))
+    assert est.measured(1.0) and est.value == 1.0
+    assert not est.measured(0.9) and est.value == 1.0
+
+
+def test_a_host_slower_than_it_says_on_the_same_program_gets_a_factor():
+    speeds = HostSpeeds(CFG)
+    assert not speeds.on_result("plan", "a", 53.0)  # nothing to compare with yet
+    assert not speeds.on_result("plan", "b", 53.0)  # the same as a: nothing to correct
+    # h believes itself 1.5x faster than it is: it counts 1.5x the work
+    assert speeds.on_result("plan", "h", 79.5)
+    assert speeds.factor["h"] == pytest.approx(53.0 / 79.5)
+    # its corrected runs now agree with the others': no change
+    assert not speeds.on_result("plan", "h", 79.5)
+    # a host faster than it says, on another program
+    speeds.on_result("map", "a", 10.0)
+    assert speeds.on_result("map", "f", 5.0)
+    assert speeds.factor["f"] == pytest.approx(CFG.speed_max_correction)
+
+
+def test_a_program_bigger_than_declared_everywhere_is_not_a_slow_team():
+    speeds = HostSpeeds(CFG)
+    for host in "abcab":
+        assert not speeds.on_result("plan", host, 4 * 13.25)
+    assert speeds.factor == {}
+
+
+def test_one_odd_result_does_not_move_a_factor_and_nonsense_is_ignored():
+    speeds = HostSpeeds(CFG)
+    speeds.on_result("plan", "a", 53.0)
+    for _ in range(4):
+        speeds.on_result("plan", "h", 53.0)
+    assert not speeds.on_result("plan", "h", 5.0)  # the median of h's last five holds
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        assert not speeds.on_result("plan", "h", bad)
+    assert speeds.factor.get("h", 1.0) == 1.0
+
+
+def test_speed_learning_off_keeps_every_measurement():
+    off = msgspec.structs.replace(CFG, speed_learning=False)
+    assert not SpeedEstimate(0.7, off).measured(1.0)
+    speeds = HostSpeeds(off)
+    speeds.on_result("plan", "a", 53.0)
+    assert not speeds.on_result("plan", "h", 106.0)
+
+
+def test_config_rejects_a_bound_below_one():
+    with pytest.raises(ValueError, match="speed_max_correction"):
+        RampsConfig(speed_max_correction=0.5)
+
+
+def _result(node: Node, host: str, pid: str, work_done: float) -> list:
+    """``node`` placed ``pid`` on ``host`` (accepted), which ends it counting ``work_done``."""
+    return node.handle(Received(sender=host, msg=ProgramResult(program_id=pid, attempt=1, host=host, ok=True,
+                                                                value=b"", work_done=work_done)), 10.0)
+
+
+def test_an_origin_places_by_the_speed_results_showed(monkeypatch):
+    team = FakeTeam({"o": (1, 1.0), "a": (4, 1.0), "h": (4, 1.5)})
+    team.nodes["o"].executor.background = 10.0
+    team.publish()
+    o = team.nodes["o"]
+    assert o.view.capacity("h") == (4, 1.5)
+    # two programs ran: one on a, one on h, both 53 units of real work
+    for pid, host, done in (("p1", "a", 53.0), ("p2", "h", 79.5)):
+        team.handle("o", Submit(program_id=pid, program="route_plan", work=53.0))
+        ap = o.origin.programs[pid]
+        ap.live[ap.attempt] = host  # as if placed there and accepted
+        out = _result(o, host, pid, done)
+    assert any(isinstance(a, Note) and a.what == "speed" and a.robot == "h" for a in out)
+    assert o.view.capacity("h") == (4, pytest.approx(1.0))
+
+
+def test_a_node_re_measured_while_idle_takes_the_faster_figure():
+    node = Node("h", cores=4, speed=0.7, policy="ramps", config=CFG, rng=random.Random(1))
+    out = node.handle(SpeedMeasured(speed=1.0), 30.0)
+    assert any(isinstance(a, Note) and a.what == "speed" for a in out)
+    assert node.speed == node.view.speed == node.executor.speed == 1.0
+    assert node.make_report(cpu_busy=0, runnable=0, ramps_avg=0, window=1).speed == 1.0
+
+
+def test_the_papers_policy_keeps_its_measured_speed():
+    node = Node("h", cores=4, speed=0.7, policy="paper", config=CFG, rng=random.Random(1))
+    node.handle(SpeedMeasured(speed=3.0), 200.0)
+    assert node.speed == 0.7 and node.host_speeds is None
+
+
+def _team(measured: dict[str, float], *, origins: dict[str, int], learning: bool, faults=()) -> dict:
+    """Five identical robots of 4 cores; some measured their speed wrong at
+    boot. Four waves of programs 100 s apart from each origin."""
+    robots = [{"name": f"r{i}", "cores": 4, "speed": 1.0,
+               **({"measured_speed": measured[f"r{i}"]} if f"r{i}" in measured else {})} for i in range(1, 6)]
+    programs = [{"program": "route_plan", "count": n, "work": 53, "origin": o, "at": 100.0 * w, "spacing": 0.05}
+                for w in range(4) for o, n in origins.items()]
+    return {"name": "speeds", "seed": 1, "policy": "ramps", "robots": robots, "programs": programs,
+            "faults": list(faults), "config": {"speed_learning": learning}}
+
+
+def _waves(result) -> list[Counter]:
+    waves: dict[int, Counter] = {}
+    for p in result.programs:
+        waves.setdefault(int(p.submitted_at // 100), Counter())[p.host] += 1
+    return [waves[w] for w in sorted(waves)]
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_robots_that_measured_themselves_slow_get_their_share_after_re_measuring(seed):
+    """The issue's case: two of five identical robots measured 0.7 of the
+    others at boot, and 15 programs went 5-5-5 onto the other three."""
+    data = _team({"r1": 0.7, "r2": 0.7}, origins={"r1": 15}, learning=True)
+    before = simulate(scenario_from_dict(_team({"r1": 0.7, "r2": 0.7}, origins={"r1": 15}, learning=False)),
+                      seed=seed)
+    after = simulate(scenario_from_dict(data), seed=seed)
+    assert [max(w.values()) for w in _waves(before)] == [5, 5, 5, 5]
+    assert before.makespan > 366
+    # from the first re-measurement (30 s after boot) on, every program gets a whole core
+    assert all(max(w.values()) <= 4 for w in _waves(after)[1:])
+    assert after.makespan < 300 + 53 * 1.02
+    assert after.lost == after.duplicated == 0
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_robot_that_measured_itself_fast_is_corrected_by_its_results(seed):
+    """r3 believes itself 1.5x faster than its four identical teammates:
+    it takes five programs of twenty where four each is the optimum, until
+    its results, next to the same program's elsewhere, show its real speed."""
+    over = {"r3": 1.5}
+    before = simulate(scenario_from_dict(_team(over, origins={"r1": 20}, learning=False)), seed=seed)
+    after = simulate(scenario_from_dict(_team(over, origins={"r1": 20}, learning=True)), seed=seed)
+    assert all(w["r3"] == 5 for w in _waves(before))
+    assert [dict(w) for w in _waves(after)[1:]] == [{f"r{i}": 4 for i in range(1, 6)}] * 3
+    assert after.makespan < 300 + 53 * 1.02 < before.makespan
+    assert after.lost == after.duplicated == 0
+
+
+def test_robots_all_wrong_together_are_left_alone():
+    """Three of five believe themselves 1.5x faster and every run goes to
+    them: nothing to compare with, so nothing changes (and nothing breaks)."""
+    over = {"r3": 1.5, "r4": 1.5, "r5": 1.5}
+    result = simulate(scenario_from_dict(_team(over, origins={"r1": 15}, learning=True)), seed=1)
+    assert all(max(w.values()) == 5 for w in _waves(result))
+    assert result.lost == result.duplicated == 0
+
+
+def test_several_origins_and_a_crash_with_mis_measured_robots():
+    """Two origins submitting at once, r5 crashing in the second wave and
+    coming back: nothing lost or run twice, and the last wave still gets a
+    core per program."""
+    data = _team({"r2": 0.7, "r4": 1.5}, origins={"r1": 10, "r2": 10}, learning=True,
+                 faults=[{"at": 120.0, "robot": "r5", "kind": "crash"},
+                         {"at": 150.0, "robot": "r5", "kind": "recover"}])
+    for seed in (1, 2, 3):
+        result = simulate(scenario_from_dict(data), seed=seed)
+        assert result.lost == result.duplicated == 0 and result.completed == 80
+        assert all(max(w.values()) <= 4 for w in _waves(result)[2:])
+        assert result.makespan < 300 + 53 * 1.05
