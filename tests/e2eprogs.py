@@ -60,3 +60,18 @@ def stamp(seconds: float = 1.0) -> list:
     started = time.monotonic()
     time.sleep(seconds)
     return [started, time.monotonic()]
+
+
+def resumable(steps: int = 10, dt: float = 0.25) -> dict:
+    """Count to ``steps``, one step per ``dt`` seconds, saving the count
+    after each step (``ramps.checkpoint``); resumed, it goes on from the
+    saved count. Returns the step it started from and the robot."""
+    import ramps
+
+    state = ramps.resume() or {"i": 0}
+    first = state["i"]
+    for i in range(first, steps):
+        time.sleep(dt)
+        ramps.progress((i + 1) / steps)
+        ramps.checkpoint({"i": i + 1})
+    return {"robot": _me(), "first": first}

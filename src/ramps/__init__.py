@@ -36,3 +36,29 @@ def progress(fraction: float, detail: str = "") -> bool:
     from ramps.runtime.worker import report_progress
 
     return report_progress(fraction, detail)
+
+
+def checkpoint(state) -> bool:
+    """From inside a running program: save its state, so that if it is moved
+    to another robot or restarted after a failure it resumes from here
+    (``ramps.resume()``) instead of starting over.
+
+    ``state`` is bytes or anything msgspec can encode (dicts, lists, numbers,
+    strings, Structs), at most 256 KiB encoded (``ValueError`` beyond, and
+    ``TypeError`` for what cannot be encoded, also outside a worker). Report
+    ``ramps.progress`` before it, so the origin knows how much work is left.
+    Returns whether it was sent: at most five a second are, and outside a
+    ramps worker none is. See ``ramps.runtime.worker.save_checkpoint``."""
+    from ramps.runtime.worker import save_checkpoint
+
+    return save_checkpoint(state)
+
+
+def resume():
+    """From inside a running program: the state it saved with
+    ``ramps.checkpoint`` in an earlier attempt (decoded: bytes come back as
+    bytes, other values as their plain msgpack form, e.g. a dict), or None on
+    a fresh start (and outside a ramps worker)."""
+    from ramps.runtime.worker import resume_state
+
+    return resume_state()

@@ -111,7 +111,10 @@ class ProgramFuture(Future):
     then "done" or "failed"; ``host``: the robot it was last offered to (the
     one that ran it, once done); ``attempts``: placements so far;
     ``progress``: the newest fraction (0..1) the program reported, or None;
-    ``progress_detail``: the text that came with it. Updates are advisory
+    ``progress_detail``: the text that came with it; once done, ``moves``:
+    how often it was relocated while running, and ``resumed_from``: the
+    progress of the checkpoint its last attempt resumed from (None: it ran
+    from the start, see ``ramps.checkpoint``). Updates are advisory
     (they may be lost or arrive late); the result is not."""
 
     def __init__(self, program: str = "") -> None:
@@ -122,6 +125,8 @@ class ProgramFuture(Future):
         self.attempts = 0
         self.progress: float | None = None
         self.progress_detail = ""
+        self.moves = 0
+        self.resumed_from: float | None = None
         self._update_callbacks: list = []
 
     def add_update_callback(self, fn) -> None:
@@ -468,6 +473,7 @@ class Team:
             return
         fut.host = o.host  # which robot ran it
         fut.attempts = o.attempts
+        fut.moves, fut.resumed_from = o.moves, o.resumed_from
         fut.state = "done" if o.ok else "failed"
         try:
             if o.ok:

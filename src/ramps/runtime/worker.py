@@ -7,11 +7,14 @@ pointed at stderr, so a program's ``print`` cannot corrupt the protocol). A
 frame is a 4-byte big-endian length and a msgpack body:
 
     first frame in:   {"targets": {name: "module:function", ...}, "nice": n}
-    each job in:      [program, args_bytes]
+    each job in:      [program, args_bytes] or [program, args_bytes, resume_bytes]
     each reply out:   [ok, value_bytes, error_text]
     progress out:     {"progress": fraction, "detail": text}  (any number
                       before the reply; from ``ramps.progress`` or an
                       executable's ``RAMPS_PROGRESS`` stderr lines)
+    checkpoint out:   {"checkpoint": state_bytes, "fraction": f | None}
+                      (``ramps.checkpoint``; ``resume_bytes`` is the latest
+                      one of an earlier attempt, ``ramps.resume()`` decodes it)
 
 Nothing is pickled. The worker runs one program at a time and exits when
 stdin closes.
@@ -65,7 +68,7 @@ def report_progress(fraction: float, detail: str = "") -> bool:
     caller; anywhere else (a program called directly, in a test) it does
     nothing. Returns whether it was sent. Cheap enough to call in a loop:
     calls closer together than PROGRESS_MIN_INTERVAL are dropped, except 1.0."""
-    global _progress_sent
+    global _progress_sent, _progress_last
     out = _progress_out
     if out is None:
         return False
@@ -81,9 +84,62 @@ def report_progress(fraction: float, detail: str = "") -> bool:
         if now - _progress_sent < PROGRESS_MIN_INTERVAL and f < 1.0:
             return False
         _progress_sent = now
+        _progress_last = f
         out.write(frame(_enc.encode({"progress": f, "detail": str(detail)[:PROGRESS_TEXT]})))
         out.flush()
     return True
+
+
+#: at most one checkpoint per this many seconds (a program may call it in a loop)
+CHECKPOINT_MIN_INTERVAL = 0.2
+_checkpoint_sent = -float("inf")
+#: the newest progress the running program reported (sent with its checkpoints)
+_progress_last: float | None = None
+#: the running program's resume state (msgpack), None on a fresh start
+_resume: bytes | None = None
+
+
+def encode_checkpoint(state: Any) -> bytes:
+    """A program's state as a checkpoint travels: msgpack, at most
+    MAX_CHECKPOINT_BYTES (``bytes`` stay bytes, anything else msgspec can
+    encode comes back as its plain msgpack form)."""
+    from ramps.core.messages import MAX_CHECKPOINT_BYTES
+
+    try:
+        data = _enc.encode(state)
+    except (TypeError, msgspec.EncodeError) as exc:
+        raise TypeError(f"a checkpoint is bytes or a value msgspec can encode (dict, list, str, numbers, "
+                        f"Structs...), not {type(state).__name__}: {exc}") from None
+    if len(data) > MAX_CHECKPOINT_BYTES:
+        raise ValueError(f"checkpoint of {len(data)} bytes exceeds the limit of {MAX_CHECKPOINT_BYTES} bytes "
+                         f"(save less state, or a path to it)")
+    return data
+
+
+def save_checkpoint(state: Any) -> bool:
+    """Save the running program's state (see ``ramps.checkpoint``). Returns
+    whether it was sent: outside a worker, and within
+    CHECKPOINT_MIN_INTERVAL of the last one, it is not (checked all the same)."""
+    global _checkpoint_sent
+    data = encode_checkpoint(state)
+    out = _progress_out
+    if out is None:
+        return False
+    now = time.monotonic()
+    with _progress_lock:
+        if now - _checkpoint_sent < CHECKPOINT_MIN_INTERVAL:
+            return False
+        _checkpoint_sent = now
+        out.write(frame(_enc.encode({"checkpoint": data, "fraction": _progress_last})))
+        out.flush()
+    return True
+
+
+def resume_state() -> Any:
+    """The state the running program saved in an earlier attempt (moved or
+    restarted after a failure), decoded; None on a fresh start."""
+    data = _resume
+    return None if data is None else _dec.decode(data)
 
 
 def run(inp: BinaryIO, out: BinaryIO) -> None:
@@ -105,9 +161,12 @@ def run(inp: BinaryIO, out: BinaryIO) -> None:
         body = read_frame(inp)
         if body is None:
             return
-        program, args = _dec.decode(body)
+        job = _dec.decode(body)
+        program, args = job[0], job[1]
         with this._progress_lock:
             this._progress_out, this._progress_sent = out, 0.0
+            this._checkpoint_sent, this._progress_last = -float("inf"), None
+            this._resume = job[2] if len(job) > 2 else None
         try:
             fn = fns.get(program)
             if fn is None:
@@ -127,7 +186,7 @@ def run(inp: BinaryIO, out: BinaryIO) -> None:
             tb = traceback.format_exception(type(exc), exc, exc.__traceback__)
             reply = [False, b"", "".join(tb[-6:])[-3000:]]
         with this._progress_lock:
-            this._progress_out = None
+            this._progress_out = this._resume = None
             out.write(frame(_enc.encode(reply)))
             out.flush()
 

@@ -54,6 +54,8 @@ Key = tuple[str, int]
 Finished = Callable[[Key, bool, bytes, str, bool], None]
 #: on_progress(key, fraction, detail): a running program reported progress
 Progress = Callable[[Key, float, str], None]
+#: on_checkpoint(key, state_bytes, fraction): a running program saved its state
+Checkpoint = Callable[[Key, bytes, "float | None"], None]
 
 #: seconds a program waits, with no worker finishing or starting meanwhile, before the pool starts another
 GROW_AFTER = 0.1
@@ -142,7 +144,7 @@ class _Worker:
 class WorkerPool:
     def __init__(self, size: int, targets: dict[str, str], on_finished: Finished, *,
                  env: dict[str, str] | None = None, nice: int = 0, max_size: int | None = None,
-                 on_progress: Progress | None = None) -> None:
+                 on_progress: Progress | None = None, on_checkpoint: Checkpoint | None = None) -> None:
         if size < 1:
             raise ValueError("a worker pool needs at least one worker")
         self.size = size
@@ -150,6 +152,7 @@ class WorkerPool:
         self.targets = dict(targets)
         self.on_finished = on_finished
         self.on_progress = on_progress
+        self.on_checkpoint = on_checkpoint
         self.env = env
         self.nice = nice
         self._lock = threading.Lock()
@@ -278,11 +281,12 @@ class WorkerPool:
             pass
 
     # ------------------------------------------------------------ jobs
-    def run(self, key: Key, program: str, args: bytes) -> None:
+    def run(self, key: Key, program: str, args: bytes, resume: bytes | None = None) -> None:
+        """Run ``program`` (resuming from the checkpoint ``resume``, if any)."""
         with self._lock:
             if self._stopping:
                 return
-            self._queue.append((key, program, args, time.monotonic()))
+            self._queue.append((key, program, args, time.monotonic(), resume))
             self._dispatch_locked()
             waiting = bool(self._queue)
         if waiting:
@@ -290,8 +294,8 @@ class WorkerPool:
 
     def cancel(self, key: Key) -> None:
         with self._lock:
-            for i, (k, _, _, _) in enumerate(self._queue):
-                if k == key:
+            for i, queued in enumerate(self._queue):
+                if queued[0] == key:
                     del self._queue[i]
                     return
             for w in self._workers:
@@ -327,10 +331,10 @@ class WorkerPool:
                     return
                 idle.append(self._workers[-1])
             w = idle.pop(0)
-            key, program, args, _ = self._queue.popleft()
+            key, program, args, _, resume = self._queue.popleft()
             w.job, w.cancelled = key, False
             try:
-                w.proc.stdin.write(frame(_enc.encode([program, args])))
+                w.proc.stdin.write(frame(_enc.encode([program, args] if resume is None else [program, args, resume])))
             except (BrokenPipeError, OSError):
                 pass  # the monitor sees the dead worker and reports the job
 
@@ -366,6 +370,7 @@ class WorkerPool:
             events = self._sel.select(wait)
             finished: list[tuple[Key, bool, bytes, str, bool]] = []
             progress: list[tuple[Key, float, str]] = []
+            checkpoints: list[tuple[Key, bytes, float | None]] = []
             with self._lock:
                 if self._stopping:
                     return
@@ -386,6 +391,10 @@ class WorkerPool:
                                 break
                             body, w.buf = bytes(w.buf[4:4 + n]), w.buf[4 + n:]
                             reply = _dec.decode(body)
+                            if isinstance(reply, dict) and "checkpoint" in reply:  # its saved state
+                                if w.job is not None and not w.cancelled and isinstance(reply["checkpoint"], bytes):
+                                    checkpoints.append((w.job, reply["checkpoint"], reply.get("fraction")))
+                                continue
                             if isinstance(reply, dict):  # progress of the running program, not its end
                                 if w.job is not None and not w.cancelled:
                                     progress.append((w.job, reply.get("progress", 0.0), reply.get("detail", "")))
@@ -416,5 +425,8 @@ class WorkerPool:
             if self.on_progress is not None:
                 for p in progress:
                     self.on_progress(*p)
+            if self.on_checkpoint is not None:
+                for c in checkpoints:
+                    self.on_checkpoint(*c)
             for item in finished:
                 self.on_finished(*item)

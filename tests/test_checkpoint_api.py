@@ -1,0 +1,56 @@
+"""The checkpoint API of programs: ``ramps.checkpoint(state)`` inside a
+worker reaches the pool (and from there the host's core), ``ramps.resume()``
+gives a restarted program its saved state; bad state is a clear error."""
+
+from __future__ import annotations
+
+import os
+import threading
+from pathlib import Path
+
+import msgspec
+import pytest
+
+import ramps
+from ramps.core.messages import MAX_CHECKPOINT_BYTES
+from ramps.runtime.workers import WorkerPool
+
+TESTS = str(Path(__file__).parent)
+
+
+def test_outside_a_worker_checkpoint_checks_and_does_nothing_and_resume_is_none():
+    assert ramps.checkpoint({"i": 3}) is False
+    assert ramps.checkpoint(b"raw") is False
+    assert ramps.resume() is None
+    with pytest.raises(ValueError, match=f"exceeds the limit of {MAX_CHECKPOINT_BYTES} bytes"):
+        ramps.checkpoint(b"x" * MAX_CHECKPOINT_BYTES)
+    with pytest.raises(TypeError, match="a checkpoint is bytes or a value msgspec can encode"):
+        ramps.checkpoint(object())
+
+
+@pytest.mark.slow
+def test_a_worker_sends_checkpoints_and_a_restart_resumes_from_one():
+    done: dict = {}
+    saved: list = []
+    ev = threading.Event()
+
+    def finished(key, ok, value, error, retryable):
+        done[key] = msgspec.msgpack.decode(value) if ok else error
+        ev.set()
+
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([TESTS, os.environ.get("PYTHONPATH", "")]))
+    pool = WorkerPool(1, {"resumable": "e2eprogs:resumable"}, finished, env=env,
+                      on_checkpoint=lambda key, state, fraction: saved.append((key, state, fraction)))
+    pool.start()
+    try:
+        pool.run(("p", 1), "resumable", msgspec.msgpack.encode({"steps": 3, "dt": 0.25}))
+        assert ev.wait(30), "no result"
+        assert done[("p", 1)]["first"] == 0
+        assert [msgspec.msgpack.decode(s) for _, s, _ in saved] == [{"i": 1}, {"i": 2}, {"i": 3}]
+        assert [f for _, _, f in saved] == pytest.approx([1 / 3, 2 / 3, 1.0])
+        ev.clear()
+        pool.run(("p", 2), "resumable", msgspec.msgpack.encode({"steps": 3, "dt": 0.05}), saved[1][1])
+        assert ev.wait(30), "no result"
+        assert done[("p", 2)]["first"] == 2
+    finally:
+        pool.stop()
