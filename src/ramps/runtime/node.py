@@ -70,6 +70,7 @@ from ramps.core.node import Node
 from ramps.core.policy import POLICIES
 from ramps.core.program import ProgramState
 from ramps.core.relink import RELINK_TIMEOUT, Stalled
+from ramps.core.speed import REMEASURE_PERIOD, SpeedMeasured
 from ramps.errors import ConfigError, NotAdmitted, ProgramNotFound, TransportError
 from ramps.runtime import keys, revocation
 from ramps.runtime.measure import LoadSampler, cgroup_dirs, cgroup_quota, detect_cores, measure_speed
@@ -161,6 +162,7 @@ class NodeRuntime:
         self.stalled_s = 0.0
         self._stall_offset = 0.0
         self._stalled_at = 0.0
+        self._remeasure_at: float | None = None
         #: a stall long enough to close links, not yet told to the core (seconds)
         self._stall_pending = 0.0
         self._relink_after = settings.lease_ms / 1000.0 * RELINK_LEASE_FRACTION
@@ -198,6 +200,10 @@ class NodeRuntime:
             scope = "cgroup" if quota is not None else "host"
         self.cores = s.cores or detect_cores()
         self.speed = s.speed or measure_speed(quota=quota, cores=self.cores)
+        # a speed measured at boot is measured again while no program runs
+        # (robots booting together measure each other's start-up; ramps.core.speed)
+        self._quota = quota
+        self._remeasure_at = None if s.speed else time.monotonic() + REMEASURE_PERIOD
         self.incarnation = int.from_bytes(os.urandom(6), "big")
         return_freed_memory()
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=s.core,
@@ -611,7 +617,7 @@ class NodeRuntime:
             if self.metrics is not None:
                 self.metrics.on_finished(item[1])
             return node.handle(item[1], now)
-        if kind == "progress":
+        if kind in ("progress", "speed"):
             return node.handle(item[1], now)
         if kind == "live":
             robot, alive = item[1], item[2]
@@ -841,7 +847,21 @@ class NodeRuntime:
         except Exception as exc:
             log.warning("node %s could not publish on %s: %s", self.robot, key, exc)
 
+    def _remeasure(self) -> None:
+        """Measure this robot's speed again, off the driver's thread (briefly:
+        0.05 s of CPU); the core keeps the figure if it is faster."""
+        try:
+            speed = measure_speed(0.05, quota=self._quota, cores=self.cores)
+        except Exception:  # never worth a node
+            log.exception("node %s: measuring its speed again failed", self.robot)
+            return
+        self._q.put(("speed", SpeedMeasured(speed=speed)))
+
     def _publish(self, now: float) -> None:
+        due = self._remeasure_at
+        if due is not None and time.monotonic() >= due and not self.pool.busy() and not self.pool.queued():
+            self._remeasure_at = time.monotonic() + REMEASURE_PERIOD
+            threading.Thread(target=self._remeasure, name=f"ramps-speed-{self.robot}", daemon=True).start()
         busy, runnable, ramps_avg = self.sampler.averages()
         per_core, load1, mem_free = self.sampler.extras()
         self.node.executor.background = max(0.0, runnable - ramps_avg)
