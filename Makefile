@@ -2,17 +2,19 @@
 #   make demo   -> the main job (bootstraps .venv on first use)
 #   make test   -> the whole test suite (bootstraps .venv on first use, with the
 #                  ROS 2 extra so the ROS face is tested too)
+# and the fast loop while you work:
+#   make check  -> ruff + mypy + the tests not marked slow (about a minute on 2 cores)
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench clean
+.PHONY: demo test check lint types bench clean
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[test,ros]'
+	$(BIN)/python -m pip install -q -e '.[test,check,ros]'
 	-$(BIN)/ramps ros --build-interfaces  # the RunProgram action type: needs cmake and a C/C++ compiler (~30 s); without them its test skips
 	@touch $(STAMP)
 
@@ -22,9 +24,18 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
+check: lint types $(STAMP)
+	$(BIN)/python -m pytest -q -m "not slow"
+
+lint: $(STAMP)
+	$(BIN)/ruff check src tests examples
+
+types: $(STAMP)
+	$(BIN)/mypy
+
 bench: $(STAMP)
 	$(BIN)/ramps bench sim
 	$(BIN)/ramps bench dispatch
 
 clean:
-	rm -rf $(VENV) build dist .pytest_cache .hypothesis
+	rm -rf $(VENV) build dist .pytest_cache .hypothesis .mypy_cache .ruff_cache

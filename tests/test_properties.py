@@ -29,6 +29,7 @@ from ramps.core.events import (
     Progress,
     PublishReport,
     Cancel,
+    CheckpointSaved,
     Deliver,
     Note,
     PeerAlive,
@@ -82,6 +83,7 @@ def scenarios(draw, *, faults: bool) -> Scenario:
         work=st.integers(1, 60).map(float),
         spacing=_tenths(0, 20),
         at=_tenths(0, 50),
+        checkpoint_every=st.sampled_from([0.0, 0.0, 1.0, 5.0]),
     ), min_size=1, max_size=3))
     fault_list: list[FaultSpec] = []
     loss = 0.0
@@ -94,7 +96,8 @@ def scenarios(draw, *, faults: bool) -> Scenario:
                 at=_tenths(0, 600),
                 robot=st.sampled_from(others),
                 kind=st.sampled_from(FAULT_KINDS),
-            ), max_size=6))
+            ).flatmap(lambda f: st.builds(msgspec.structs.replace, st.just(f), background=st.integers(0, 8))
+                      if f.kind == "load" else st.just(f)), max_size=6))
         loss = draw(st.sampled_from([0.0, 0.0, 0.01, 0.05, 0.1, 0.2]))
     return Scenario(
         name="hypothesis", robots=robots, programs=programs, faults=fault_list,
@@ -233,6 +236,8 @@ wire_messages = st.one_of(
               error=st.sampled_from(["", "boom"]), retryable=st.booleans(), finish_seq=st.integers(0, 10)),
     st.builds(m.ResultAck, program_id=ids, attempt=attempts, origin=names),
     st.builds(m.CancelProgram, program_id=ids, attempt=attempts, origin=names),
+    st.builds(m.ProgramCheckpoint, program_id=ids, attempt=attempts, host=names, state=st.binary(max_size=8),
+              fraction=st.none() | st.floats(0.0, 1.0)),
 )
 
 
@@ -283,6 +288,12 @@ def aimed(node: Node):
                 st.builds(m.ProgramResult, program_id=st.just(ap.program_id), attempt=st.just(attempt),
                           host=st.just(host), ok=st.booleans(), retryable=st.booleans(),
                           finish_seq=st.integers(0, 10)),
+                st.builds(m.ProgramCheckpoint, program_id=st.just(ap.program_id), attempt=st.just(attempt),
+                          host=st.just(host), state=st.binary(max_size=8), fraction=st.none() | st.floats(0.0, 1.0)),
+                st.builds(m.LoadReport, robot=st.just(host), incarnation=st.just(0), seq=st.integers(0, 60),
+                          cores=st.integers(1, 8), speed=st.floats(0.1, 4.0), cpu_busy=st.floats(0.0, 8.0),
+                          runnable=small, ramps_running=st.integers(0, 5), ramps_avg=st.floats(0.0, 5.0),
+                          accepted_total=st.integers(0, 10), finished_total=st.integers(0, 10)),
             ))
             return Received(sender=host, msg=msg)
 
@@ -292,6 +303,9 @@ def aimed(node: Node):
         options.append(st.sampled_from(running).flatmap(lambda key: st.builds(
             ProgramFinished, program_id=st.just(key[0]), attempt=st.just(key[1]), ok=st.booleans(),
             retryable=st.booleans())))
+        options.append(st.sampled_from(running).flatmap(lambda key: st.builds(
+            CheckpointSaved, program_id=st.just(key[0]), attempt=st.just(key[1]), state=st.binary(max_size=8),
+            fraction=st.none() | st.floats(0.0, 1.0))))
     return st.one_of(*options) if options else events
 
 

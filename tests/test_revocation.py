@@ -12,7 +12,6 @@ node leaves and cannot come back, and the others keep running programs.
 from __future__ import annotations
 
 import json
-import os
 import random
 import subprocess
 import sys

@@ -12,7 +12,7 @@ from typing import Optional
 
 import msgspec
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, MofNCompleteColumn, TaskID, TextColumn, TimeElapsedColumn
 
 from ramps.cli.common import err, fail, out
 
@@ -47,7 +47,7 @@ def demo(
         fail(f"unknown size {size!r}; choose one of {', '.join(sizes)}")
     progress = _Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                          TextColumn("{task.fields[spread]}"), console=err, transient=not as_json)
-    tasks: dict[str, int] = {}
+    tasks: dict[str, TaskID] = {}
 
     def on_progress(phase: str, done: int, total: int, dist) -> None:
         if phase not in tasks:

@@ -112,7 +112,7 @@ def node(
         err.print(f"ramps node {rt.robot}: leaving the team, handing running programs back ...")
         rt.stop()
     if rt.revoked_self:
-        fail(f"robot {rt.robot} was revoked by team {rt.team} (revocation list {rt.revocations.seq}): it left the team")
+        fail(f"robot {rt.robot} was revoked by team {rt.team} (revocation list {rt.revocations.seq if rt.revocations else '?'}): it left the team")
 
 
 def _parse_arg(text: str) -> tuple[str, object]:

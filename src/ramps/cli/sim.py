@@ -17,7 +17,7 @@ from typing import Optional
 
 import msgspec
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 
 from ramps.cli.common import POLICY_HELP, check_policy, emit, err, fail
 
@@ -67,8 +67,11 @@ def sim_paper(
                   console=err, transient=True) as progress:
         for e in wanted:
             task = progress.add_task(f"{e} / {policy}", total=len(configurations(e)))
-            reports.append(run_experiment(e, policy=policy, runs=runs, seed=seed,
-                                          progress=lambda done, total, t=task: progress.update(t, completed=done)))
+
+            def advance(done: int, total: int, t: TaskID = task) -> None:
+                progress.update(t, completed=done)
+
+            reports.append(run_experiment(e, policy=policy, runs=runs, seed=seed, progress=advance))
     emit(reports, print_experiment, as_json=as_json, out_file=out_file)
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import datetime as _dt
 from pathlib import Path
+from typing import NoReturn
 
 import typer
 from rich.console import Console
@@ -27,7 +28,7 @@ _err = Console(stderr=True, highlight=False, soft_wrap=True)
 DIR_HELP = "the team's credentials directory (holds the CA)"
 
 
-def _fail(message: str) -> None:
+def _fail(message: str) -> NoReturn:
     _err.print(f"[bold red]error:[/] {message}")
     raise typer.Exit(2)
 

@@ -26,6 +26,8 @@ puts them in every report so origins can tell what a report includes.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from ramps.core.config import RampsConfig
 from ramps.core.cost import program_share, shared_finish_time
 from ramps.core.events import (Action, CheckpointSaved, Note, ProgramFinished, ProgressReported, Send, StartProgram,
@@ -35,6 +37,7 @@ from ramps.core.messages import (
     MAX_PROGRESS_TEXT,
     CancelProgram,
     Heartbeat,
+    LoadReport,
     OffloadAccepted,
     OffloadRejected,
     OffloadRequest,
@@ -132,7 +135,8 @@ class Executor:
         self._advance(now)
         return sorted(max(0.0, job.work - job.done) for job in self.running.values())[:MAX_LISTED]
 
-    def on_offload(self, req: OffloadRequest, now: float, out: list[Action], report_now=None) -> None:
+    def on_offload(self, req: OffloadRequest, now: float, out: list[Action],
+                   report_now: Callable[[], LoadReport] | None = None) -> None:
         self._advance(now)
         key = (req.program_id, req.attempt)
         if key in self.running or key in self._outbox:
@@ -328,7 +332,8 @@ class Executor:
         job.progress_new = False
         job.progress_sent_at = now
         out.append(Send(to=job.origin, msg=ProgramProgress(
-            program_id=pid, attempt=attempt, host=self.me, fraction=job.progress, detail=job.detail)))
+            program_id=pid, attempt=attempt, host=self.me, fraction=0.0 if job.progress is None else job.progress,
+            detail=job.detail)))
 
     def hand_back(self, now: float, out: list[Action]) -> int:
         """Shutting down: end every running program with a retryable result so

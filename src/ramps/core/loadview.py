@@ -166,7 +166,7 @@ class LoadView:
     def accepted(self, robot: str, program_id: str, attempt: int, accept_seq: int) -> None:
         rob = self._robots.get(robot)
         b = rob.bookings.get((program_id, attempt)) if rob else None
-        if b is None or b.accept_seq is not None:
+        if rob is None or b is None or b.accept_seq is not None:
             return
         b.accept_seq = accept_seq
         self._recount(rob)
@@ -175,7 +175,7 @@ class LoadView:
         """The program ended (``finish_seq`` known) or left the host (None)."""
         rob = self._robots.get(robot)
         b = rob.bookings.get((program_id, attempt)) if rob else None
-        if b is None:
+        if rob is None or b is None:
             return
         if finish_seq is None or b.accept_seq is None:
             del rob.bookings[(program_id, attempt)]
@@ -209,7 +209,7 @@ class LoadView:
         rob = self._robots.get(robot)
         rep = rob.report if rob else None
         left = list(rep.remaining) if rep is not None else []
-        if left and rep is not None:
+        if left and rob is not None and rep is not None:
             age = max(0.0, now - rob.received_at)
             background = max(0.0, rep.runnable - rep.ramps_avg)
             speed = self.speed_of(robot, rep.speed)
@@ -277,7 +277,8 @@ class LoadView:
         teammate with a fresh report that is neither blacklisted nor lost."""
         return [row[0] for row in self.scan(now, frozenset())]
 
-    def scan(self, now: float, exclude: frozenset[str], paper: bool = False):
+    def scan(self, now: float, exclude: frozenset[str],
+             paper: bool = False) -> list[tuple[str, int, float, float, float, float]]:
         """(robot, cores, speed, ramps, background, weight) for every candidate,
         in one pass: ramps programs there by ramps' reading of the view, other
         runnable tasks, and the scheduler weight of a program against them

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import random
 from collections import deque
+from typing import Any
 
 import msgspec
 
@@ -250,7 +251,7 @@ class Node:
         else:
             raise TypeError(f"not a ramps event: {event!r}")
 
-    def _receive(self, sender: str, msg, now: float, out: list[Action]) -> None:
+    def _receive(self, sender: str, msg: object, now: float, out: list[Action]) -> None:
         if self.origin.relink.active(now) and self.origin.relink.heard(sender, now):
             self.origin.relinked(sender, now)
             out.append(Note(what="relinked", robot=sender, detail="heard again after this robot's stall"))
@@ -322,7 +323,7 @@ class Node:
         return self._report(cpu_busy=min(float(self.cores), bg + running), runnable=bg + running,
                             ramps_avg=float(running), window=0.0, mem_free=self._mem_free)
 
-    def _report(self, **measured) -> LoadReport:
+    def _report(self, **measured: Any) -> LoadReport:
         """A report of this robot: its identity and the executor's counters,
         plus what was ``measured``."""
         return LoadReport(
