@@ -588,6 +588,14 @@ class Origin:
         rows = {row[0]: row for row in self.view.scan(now, frozenset())}
         cfg = self.config
         keep = False
+        # the fastest a new program could run anywhere by the count of tasks
+        # (the policy's first estimate): a program that would not gain by the
+        # thresholds even at that rate is not priced (most checks in a
+        # balanced team end here, at O(programs))
+        best_rate = max((speed * program_share(cores, ramps + 1.0, background, weight)
+                         for _, cores, speed, ramps, background, weight in rows.values()), default=0.0)
+        if best_rate <= 0.0:
+            return any(ap.state is S.RUNNING or ap.state is S.MOVING for ap in self.programs.values())
         priced: list[tuple[float, AutonomousProgram]] = []
         for ap in self.programs.values():
             if ap.state is not S.RUNNING and ap.state is not S.MOVING:
@@ -609,11 +617,16 @@ class Origin:
             if ap.host != self.me and (age is None or now - age < ap.accepted_at):
                 continue  # no report of its host since it started there
             left = max(0.0, ap.work - ap.done)
+            t_floor = self.work_estimate(ap.submit) * (
+                1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0)) / best_rate
+            rate = speed * program_share(cores, max(1.0, ramps), background, weight)
+            if not self._worth_moving(left / rate, t_floor):
+                continue  # not even by the count of tasks here (an upper bound of the estimate below)
             others = self.view.remaining_work(ap.host, now, round(ramps), ap.work) or []
             if others:  # one of them is this program: the one closest to its estimate
                 others.pop(min(range(len(others)), key=lambda i: abs(others[i] - left)))
             t_here = shared_finish_time(left, others, cores, speed, background, weight)
-            if t_here > cfg.relocate_min_gain:
+            if self._worth_moving(t_here, t_floor):
                 priced.append((t_here, ap))
         priced.sort(key=lambda x: -x[0])
         moved_off: set[str] = set()
@@ -639,17 +652,20 @@ class Origin:
             links=self.links.estimate if self.links is not None else None,
         )
         t_there = placement.expected_time
-        if placement.host == ap.host or t_there is None:
+        if placement.host == ap.host or t_there is None or not self._worth_moving(t_here, t_there):
             return None
         cfg = self.config
-        if t_here <= t_there * (1.0 + cfg.relocate_gain) or t_here - t_there <= cfg.relocate_min_gain:
-            return None
         # the new host takes it if it finishes there within what staying costs
         # (less the thresholds), whatever the origin's view missed
         budget = t_here / (1.0 + cfg.relocate_gain)
         if placement.time_budget is not None:
             budget = min(budget, placement.time_budget)
         return msgspec.structs.replace(placement, time_budget=budget)
+
+    def _worth_moving(self, t_here: float, t_there: float) -> bool:
+        """Eq. (1) with hysteresis: the relative AND the absolute gain."""
+        cfg = self.config
+        return t_here > t_there * (1.0 + cfg.relocate_gain) and t_here - t_there > cfg.relocate_min_gain
 
     def _relocate(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Placement, event) -> None:
         """Offer the program to its new host; the old copy runs on meanwhile."""
