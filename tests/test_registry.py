@@ -75,7 +75,7 @@ def test_arguments_checked_against_the_signature_and_encoded_without_pickle():
 
 @pytest.mark.slow
 def test_a_real_node_reports_per_core_load_memory_and_load_average():
-    from ramps.runtime.localteam import LocalTeam
+    from ramps.testing import LocalTeam
 
     with LocalTeam(1, speed=1.0) as team:
         client = team.client()
@@ -98,7 +98,7 @@ def test_a_real_node_reports_per_core_load_memory_and_load_average():
 def test_a_local_team_keeps_its_node_logs_when_it_ends_in_an_error():
     import shutil
 
-    from ramps.runtime.localteam import LocalTeam
+    from ramps.testing import LocalTeam
 
     with pytest.raises(RuntimeError, match="boom"):
         with LocalTeam(1, speed=1.0) as team:

@@ -21,7 +21,8 @@ from typing import Callable
 
 import msgspec
 
-from ramps.runtime.localteam import LocalTeam, cgroup_mode
+from ramps.runtime.localteam import cgroup_mode
+from ramps.testing import LocalTeam
 
 
 class PhaseResult(msgspec.Struct, kw_only=True):

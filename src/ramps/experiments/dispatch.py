@@ -19,7 +19,7 @@ import time
 from collections import Counter
 
 from ramps.experiments.bench import machine
-from ramps.runtime.localteam import LocalTeam
+from ramps.testing import LocalTeam
 
 
 def _pct(sorted_values: list[float], p: float) -> float:

@@ -328,7 +328,7 @@ def bench_flood(*, messages: int = 10_000, seconds: float = 10.0, programs: int 
                 log: Callable[[str], None] | None = None) -> dict:
     """``ramps bench flood``: two real nodes on loopback, r1 flooded."""
     from ramps.experiments.bench import machine
-    from ramps.runtime.localteam import LocalTeam
+    from ramps.testing import LocalTeam
 
     with LocalTeam(2, cores=2, speed=1.0, keep_logs=True) as team:
         client = team.client("r1")

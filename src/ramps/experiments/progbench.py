@@ -212,7 +212,7 @@ def main(argv: list[str] | None = None) -> dict:
         if a.out:
             Path(a.out).write_text(json.dumps(res, indent=2) + "\n")
         return res
-    from ramps.runtime.localteam import LocalTeam
+    from ramps.testing import LocalTeam
 
     res: dict = {"date": time.strftime("%Y-%m-%d"), "calls": a.calls, "host_cpus": os.cpu_count()}
     with tempfile.TemporaryDirectory(prefix="ramps-progbench-") as tmp:

@@ -18,7 +18,8 @@ import urllib.request
 
 import psutil
 
-from ramps.runtime.localteam import LocalTeam, free_port
+from ramps.runtime.localteam import free_port
+from ramps.testing import LocalTeam
 
 
 def _cpu(pid: int) -> float:
