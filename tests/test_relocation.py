@@ -49,7 +49,11 @@ def test_a_program_leaves_a_host_that_became_loaded():
     team, first, other = loaded_host_team()
     team.advance(4.0)
     assert not offers(team, other), "no move before relocate_settle"
-    for t in range(5, 8):
+    team.advance(5.0)
+    team.publish()
+    team.advance(7.0)
+    assert not offers(team, other), "no move before the gain has lasted relocate_persist"
+    for t in range(8, 10):
         team.advance(float(t))
         team.publish()
     ap = team.program("p")
@@ -83,6 +87,19 @@ def test_no_move_when_the_gain_is_below_the_thresholds():
     # an absolute threshold of 100 s keeps the program where it is
     team, first, other = loaded_host_team(relocate_min_gain=100.0)
     for t in range(2, 20):
+        team.advance(float(t))
+        team.publish()
+    assert team.program("p").host == first and not team.notes("moving")
+
+
+def test_a_brief_spike_of_load_moves_nothing():
+    team, first, other = loaded_host_team()
+    team.advance(6.0)
+    team.publish()  # the load is seen for the first time once the program has settled ...
+    team.advance(7.0)
+    team.nodes[first].executor.background = 0.0
+    team.publish()  # ... and is gone a second later, before relocate_persist
+    for t in range(8, 20):
         team.advance(float(t))
         team.publish()
     assert team.program("p").host == first and not team.notes("moving")
@@ -187,7 +204,7 @@ def test_a_checkpoint_travels_with_the_move_and_with_a_restart_after_a_failure()
     team.deliver()
     (cp,) = team.sent(ProgramCheckpoint, to="o")
     assert cp.state == b"state-40" and cp.fraction == 0.4
-    for t in range(2, 8):
+    for t in range(2, 10):
         team.advance(float(t))
         team.publish()
     ap = team.program("p")

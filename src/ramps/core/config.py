@@ -76,14 +76,16 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: and moves one when its remaining time where it runs exceeds the time to
     #: finish elsewhere (restart, or resume from its last checkpoint, plus
     #: T_comm of parameters and checkpoint) by ``relocate_gain`` (relative)
-    #: AND ``relocate_min_gain`` seconds; at most ``relocate_max_moves`` moves
-    #: per program, none within ``relocate_settle`` seconds of an acceptance
+    #: AND ``relocate_min_gain`` seconds, for ``relocate_persist`` seconds in a
+    #: row (a spike of load moves nothing); at most ``relocate_max_moves``
+    #: moves per program, none within ``relocate_settle`` s of an acceptance
     relocate: bool = True
     relocate_period: float = 1.0
     relocate_gain: float = 0.2
     relocate_min_gain: float = 5.0
     relocate_max_moves: int = 2
     relocate_settle: float = 5.0
+    relocate_persist: float = 3.0
 
     def __post_init__(self) -> None:
         for name in self.__struct_fields__:

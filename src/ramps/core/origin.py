@@ -17,7 +17,8 @@ from processor sharing at its host's reported load otherwise. A program
 moves when its remaining time where it runs exceeds the time to finish on
 the best other robot (from scratch, or from its last checkpoint, plus T_comm
 of parameters and checkpoint) by ``relocate_gain`` and ``relocate_min_gain``
-together; at most ``relocate_max_moves`` times, never within
+together, and has for ``relocate_persist`` seconds (a brief spike of load
+moves nothing); at most ``relocate_max_moves`` times, never within
 ``relocate_settle`` of an acceptance, at most one program off a host per
 check. A move keeps the old copy running until the new host accepts
 (``MOVING``): a result from either copy is delivered and the other stopped;
@@ -621,12 +622,17 @@ class Origin:
                 1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0)) / best_rate
             rate = speed * program_share(cores, max(1.0, ramps), background, weight)
             if not self._worth_moving(left / rate, t_floor):
+                ap.move_wanted_since = None
                 continue  # not even by the count of tasks here (an upper bound of the estimate below)
             others = self.view.remaining_work(ap.host, now, round(ramps), ap.work) or []
             if others:  # one of them is this program: the one closest to its estimate
                 others.pop(min(range(len(others)), key=lambda i: abs(others[i] - left)))
             t_here = shared_finish_time(left, others, cores, speed, background, weight)
-            if self._worth_moving(t_here, t_floor):
+            if not self._worth_moving(t_here, t_floor):
+                ap.move_wanted_since = None
+            elif ap.move_wanted_since is None:
+                ap.move_wanted_since = now  # a load spike must last before a program moves for it
+            if ap.move_wanted_since is not None and now - ap.move_wanted_since >= cfg.relocate_persist:
                 priced.append((t_here, ap))
         priced.sort(key=lambda x: -x[0])
         moved_off: set[str] = set()
@@ -672,6 +678,7 @@ class Origin:
         old = [ap.attempt, ap.host, ap.last_heard, ap.done, ap.done_at, ap.work, ap.resumed_from, ap.accepted_at]
         ap.moves += 1
         self.moves += 1
+        ap.move_wanted_since = None
         ap.moving_from = old
         out.append(Note(what="moving", program_id=ap.program_id, robot=msg.host, attempt=ap.attempt,
                         detail=f"from {ap.host}: expected {msg.expected_time:.1f} s there"))

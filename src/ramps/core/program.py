@@ -119,7 +119,7 @@ class AutonomousProgram:
         "program_id", "submit", "state", "attempt", "host", "live", "deadline", "timer",
         "last_heard", "rejections", "excluded", "submitted_at", "failures", "written_off",
         "made", "moves", "moving_from", "accepted_at", "done", "done_at", "work", "checkpoint",
-        "checkpoint_fraction", "resumed_from",
+        "checkpoint_fraction", "resumed_from", "move_wanted_since",
     )
 
     def __init__(self, submit: Submit, now: float) -> None:
@@ -161,6 +161,8 @@ class AutonomousProgram:
         self.checkpoint: bytes | None = None
         self.checkpoint_fraction = 0.0
         self.resumed_from: float | None = None
+        #: since when relocation checks have found a move worth it (None: not now)
+        self.move_wanted_since: float | None = None
 
     def handler_for(self, event: str) -> str:
         try:
