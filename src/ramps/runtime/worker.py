@@ -38,12 +38,31 @@ _dec = msgspec.msgpack.Decoder()
 _LEN = struct.Struct(">I")
 
 
+def _read_exactly(stream: BinaryIO, n: int) -> bytes:
+    """``n`` bytes, or fewer at end of stream. The pipes of forked workers are
+    unbuffered (``buffering=0``), where one ``read`` returns at most what the
+    pipe holds (64 KiB): arguments or results beyond that were cut short, and
+    the worker or the pool took the short frame for a dead peer."""
+    data = stream.read(n)
+    if data is None or len(data) == n:
+        return data or b""
+    parts = [data]
+    got = len(data)
+    while got < n:
+        more = stream.read(n - got)
+        if not more:
+            break
+        parts.append(more)
+        got += len(more)
+    return b"".join(parts)
+
+
 def read_frame(stream: BinaryIO) -> bytes | None:
-    head = stream.read(4)
+    head = _read_exactly(stream, 4)
     if len(head) < 4:
         return None
     (n,) = _LEN.unpack(head)
-    body = stream.read(n)
+    body = _read_exactly(stream, n)
     return body if len(body) == n else None
 
 
