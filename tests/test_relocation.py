@@ -244,3 +244,18 @@ def test_checkpoints_cross_the_wire_within_their_limit():
     with pytest.raises(WireError):
         decode(encode("a", OffloadRequest(program_id="p", attempt=1, origin="o", host="a", program="x",
                                           resume=b"s" * (MAX_CHECKPOINT_BYTES + 1))))
+
+
+def test_cancelling_during_a_move_stops_both_copies():
+    from ramps.core.events import Cancel
+    team, first, other = move_under_way()
+    team.handle("o", Cancel(program_id="p"))
+    team.deliver()
+    (d,) = team.delivered("p")
+    assert not d.ok and d.error_kind == "cancelled"
+    assert any(m.attempt == 1 for m in team.sent(CancelProgram, to=first))
+    assert any(m.attempt == 2 for m in team.sent(CancelProgram, to=other))
+    team.release()
+    team.advance(30.0)
+    assert len(team.delivered("p")) == 1
+    assert not team.nodes[first].executor.running and not team.nodes[other].executor.running

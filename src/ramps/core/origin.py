@@ -654,7 +654,8 @@ class Origin:
             PlacementRequest(program_id=ap.program_id, work=work,
                              payload_size=sub.payload_size + len(ap.checkpoint or b""), result_size=sub.result_size),
             self.view, now, self._reloc_rng, net=self.net, config=self.config,
-            exclude=frozenset({ap.host or ""}) | self.view.short_of_memory(sub.memory),
+            exclude=frozenset({ap.host or ""}) | self.view.short_of_memory(sub.memory)
+            | self.relink.excluded(self.view.robots(), now),
             links=self.links.estimate if self.links is not None else None,
         )
         t_there = placement.expected_time
