@@ -23,6 +23,7 @@ def test_help_lists_the_commands():
         assert word in res.output
 
 
+@pytest.mark.slow
 def test_sim_paper_json_carries_classification_per_distribution():
     res = invoke("sim", "paper", "--experiment", "unloaded", "--runs", "1", "--json")
     assert res.exit_code == 0, res.output
@@ -38,6 +39,7 @@ def test_sim_paper_json_carries_classification_per_distribution():
     assert s["optimal"] + s["near_optimal"] + s["non_optimal"] == 24
 
 
+@pytest.mark.slow
 def test_sim_paper_table_has_summary_line():
     res = invoke("sim", "paper", "--experiment", "loaded", "--runs", "1", "--policy", "paper")
     assert res.exit_code == 0
@@ -112,6 +114,7 @@ def test_sim_run_missing_file():
     assert "Traceback" not in res.output
 
 
+@pytest.mark.slow
 def test_bench_sim_small_writes_json(tmp_path):
     out = tmp_path / "b.json"
     res = invoke("bench", "sim", "--runs", "1", "--robots", "20", "--programs", "100", "--origins", "2",

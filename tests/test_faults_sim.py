@@ -13,6 +13,7 @@ from ramps.experiments.campaign import run_campaign, run_one
 from ramps.experiments.faults import plans, run_fault_experiment
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["sequential", "simultaneous"])
 @pytest.mark.parametrize("kind", ["crash", "network", "mixed"])
 def test_failure_experiments_recover_every_program(mode, kind):
@@ -51,6 +52,7 @@ def test_paper_policy_detects_by_heartbeat_only():
     assert rep.summary["detection_median_s"] > 3.0
 
 
+@pytest.mark.slow
 def test_campaign_keeps_every_program_exactly_once():
     rep = run_campaign(60, seed=11)
     assert rep.runs == 60 and rep.faults > 60
@@ -64,6 +66,7 @@ def test_campaign_runs_are_replayable():
     assert (a.programs, a.faults, a.completed) == (b.programs, b.faults, b.completed)
 
 
+@pytest.mark.slow
 def test_cli_campaign_and_faults_json():
     runner = CliRunner()
     res = runner.invoke(app, ["sim", "campaign", "--runs", "20", "--seed", "2", "--json"])

@@ -143,6 +143,7 @@ def test_truncated_valid_messages(data: bytes, cut: int) -> None:
     decodes_or_wire_error(data[:cut % max(1, len(data))])
 
 
+@pytest.mark.slow
 @WIRE
 @given(data=encodings, flips=st.lists(st.tuples(st.integers(0, 10_000), st.integers(0, 7)), min_size=1, max_size=8))
 def test_bit_flipped_valid_messages(data: bytes, flips) -> None:
@@ -174,6 +175,7 @@ def test_spliced_valid_messages(a: bytes, b: bytes, i: int, j: int) -> None:
     decodes_or_wire_error(a[:i % (len(a) + 1)] + b[j % (len(b) + 1):])
 
 
+@pytest.mark.slow
 @WIRE
 @given(v=st.integers(-(2**63), 2**64 - 1).filter(lambda v: v != PROTOCOL_VERSION), msg=messages,
        body=st.none() | msgpack_values)
@@ -188,12 +190,14 @@ def test_other_versions_are_refused_naming_both(v: int, msg: m.Message, body) ->
     assert f"this node speaks version {PROTOCOL_VERSION}" in str(info.value)
 
 
+@pytest.mark.slow
 @WIRE
 @given(value=msgpack_values)
 def test_valid_msgpack_of_the_wrong_shape(value) -> None:
     decodes_or_wire_error(msgspec.msgpack.encode(value))
 
 
+@pytest.mark.slow
 @WIRE
 @given(tag=st.sampled_from(TAGS), fields=st.dictionaries(
     st.sampled_from(["robot", "program_id", "attempt", "host", "origin", "program", "args", "cores", "speed",
@@ -273,6 +277,7 @@ STEPS = ["hostile", "hostile", "aimed", "aimed", "replay_sent", "replay_heard", 
          "submit", "finish", "progress", "cancel", "peer", "tick", "to_deadline"]
 
 
+@pytest.mark.slow
 @CORE
 @given(policy=st.sampled_from(sorted(POLICIES)), seed=st.integers(0, 1000), data=st.data())
 def test_core_survives_hostile_input_and_delivers_each_program_once(policy: str, seed: int, data) -> None:

@@ -38,6 +38,7 @@ child.kill()
 '''
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(cgroup_support() is not None, reason=f"cpu cgroups unavailable: {cgroup_support()}")
 def test_cgroup_run_queue_counts_the_robots_processes_not_the_nodes_threads():
     cg = RobotCgroup(f"measure-{time.monotonic_ns()}", 2.0, cgroup_mode())
@@ -76,6 +77,7 @@ def test_own_running_counts_this_processes_busy_threads():
     assert seen >= 2, seen
 
 
+@pytest.mark.slow
 def test_speed_is_scaled_to_the_quota_of_a_core():
     full = measure.measure_speed(0.1)
     assert 0.05 < full < 20

@@ -50,6 +50,7 @@ def test_origins_see_each_others_placements_within_a_latency(prompt: bool) -> No
     assert seen == (1 if prompt else 0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("team", ["idle", "loaded", "mixed"])
 def test_generated_bursts_stay_close_to_the_bound(team: str) -> None:
     for i in range(3):
@@ -60,6 +61,7 @@ def test_generated_bursts_stay_close_to_the_bound(team: str) -> None:
         assert res.ratio_round_robin >= res.ratio_lower_bound - 1e-9
 
 
+@pytest.mark.slow
 def test_bounds_bracket_what_a_team_can_do() -> None:
     for team in ("idle", "loaded", "mixed"):
         for timing in ("burst", "staggered"):

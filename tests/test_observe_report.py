@@ -205,6 +205,7 @@ def test_sim_paper_plot_draws_the_figures_with_the_papers_values(tmp_path):
                                                                                      "unloaded-spread"]
 
 
+@pytest.mark.slow
 def test_fault_figures_from_fault_reports():
     """The failure experiments' figures, from the reports `ramps sim paper -e faults --json` (or the testbed) saves."""
     from ramps.experiments.faults import run_fault_experiment

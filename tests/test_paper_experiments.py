@@ -28,6 +28,7 @@ def test_experiment_shapes():
         configurations("sideways")
 
 
+@pytest.mark.slow
 def test_paper_policy_models_stale_information(unloaded):
     s = unloaded["paper"].summary
     assert s.distributions == 72
@@ -38,6 +39,7 @@ def test_paper_policy_models_stale_information(unloaded):
     assert s.lost == 0 and s.duplicated == 0
 
 
+@pytest.mark.slow
 def test_ramps_policy_is_optimal_on_unloaded_teams(unloaded):
     s = unloaded["ramps"].summary
     assert s.optimal_or_near_share == 1.0
@@ -46,6 +48,7 @@ def test_ramps_policy_is_optimal_on_unloaded_teams(unloaded):
         assert cfg.median_makespan <= 1.05 * cfg.median_round_robin, (cfg.team_size, cfg.programs)
 
 
+@pytest.mark.slow
 def test_ramps_policy_on_loaded_teams(loaded):
     s = loaded.summary
     assert s.free_core_violations == 0

@@ -21,6 +21,7 @@ from __future__ import annotations
 from collections import Counter
 
 import msgspec
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -122,6 +123,7 @@ def assert_exactly_once(res: SimResult, sc: Scenario) -> None:
 
 
 # =================================================================== simulated teams
+@pytest.mark.slow
 @SIM
 @given(sc=scenarios(faults=False))
 def test_without_faults_every_program_completes_exactly_once(sc: Scenario) -> None:
@@ -134,6 +136,7 @@ def test_without_faults_every_program_completes_exactly_once(sc: Scenario) -> No
     assert sum(res.distribution.values()) == res.completed
 
 
+@pytest.mark.slow
 @SIM
 @given(sc=scenarios(faults=True))
 def test_with_faults_on_non_origins_every_program_is_delivered_exactly_once(sc: Scenario) -> None:
@@ -167,6 +170,7 @@ def replay_blacklists(trace: list[TraceEntry]) -> int:
     return checked
 
 
+@pytest.mark.slow
 @SIM
 @given(sc=scenarios(faults=True))
 def test_never_placed_on_a_blacklisted_robot(sc: Scenario) -> None:
@@ -194,6 +198,7 @@ def test_blacklist_replay_catches_a_bad_placement() -> None:
         raise AssertionError("the replay missed a placement on a blacklisted robot")
 
 
+@pytest.mark.slow
 @SIM
 @given(sc=scenarios(faults=True))
 def test_same_scenario_and_seed_give_the_same_run(sc: Scenario) -> None:
@@ -309,6 +314,7 @@ def aimed(node: Node):
     return st.one_of(*options) if options else events
 
 
+@pytest.mark.slow
 @CORE
 @given(policy=st.sampled_from(POLICIES), seed=st.integers(0, 1000), data=st.data())
 def test_node_survives_arbitrary_input_and_never_delivers_twice(policy, seed, data) -> None:

@@ -87,6 +87,7 @@ def test_altered_foreign_or_garbage_lists_are_refused(ca, tmp_path):
         rv.load(ca / "r1" / rv.REVOKED_FILE, ca_cert, "warehouse")
 
 
+@pytest.mark.slow
 def test_cli_revoke_writes_the_list_and_explains(ca):
     run = [sys.executable, "-m", "ramps.cli", "team", "revoke", "r2", "--dir", str(ca)]
     res = subprocess.run(run, capture_output=True, text=True, timeout=60)

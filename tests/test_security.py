@@ -280,6 +280,7 @@ def tls_peer(team):
         session.close()
 
 
+@pytest.mark.slow
 def test_admission_of_teammates_and_of_strangers(team, tls_peer):
     d, rogue = team
     r2 = sec.check_credentials(*bundle(d, "r2"))
@@ -301,6 +302,7 @@ def test_admission_of_teammates_and_of_strangers(team, tls_peer):
     assert sec.probe_tls(dead, r2) == "unreachable"
 
 
+@pytest.mark.slow
 def test_client_with_credentials_of_another_team_fails_at_once(team, tls_peer):
     import ramps
 
@@ -314,6 +316,7 @@ def test_client_with_credentials_of_another_team_fails_at_once(team, tls_peer):
         ramps.connect(team="lab", connect=[tls_peer], multicast=False, secure=True, credentials=rogue / "r9")
 
 
+@pytest.mark.slow
 def test_teammate_gone_between_admission_and_open_is_no_refusal(team):
     """Zenoh's connect/exit_on_failure wants every endpoint: a teammate that
     leaves between the admission check and zenoh.open must not fail the join."""
@@ -344,6 +347,7 @@ def test_credentials_paths_expand_the_home_directory(monkeypatch, tmp_path):
         sec.credential_paths(None, ca="/a.pem")
 
 
+@pytest.mark.slow
 def test_access_control_passes_team_keys_and_drops_the_rest(team):
     """Two secured peers: what one publishes under ramps/<team>/ reaches the
     other; the same under another team's prefix or any other key does not."""
@@ -378,6 +382,7 @@ def test_access_control_passes_team_keys_and_drops_the_rest(team):
     assert set(got) == {"ramps/warehouse/x"}
 
 
+@pytest.mark.slow
 def test_members_admit_only_the_named_certificates(team):
     """With ``members``, a teammate whose certificate name is not listed links
     over TLS (same CA) but access control drops all it says."""

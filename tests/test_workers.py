@@ -10,8 +10,12 @@ import time
 from pathlib import Path
 
 import msgspec
+import pytest
 
 from ramps.runtime.workers import WorkerPool
+
+# every test starts a worker pool: real processes
+pytestmark = pytest.mark.slow
 
 TESTS = str(Path(__file__).parent)
 TARGETS = {"sleepy": "e2eprogs:sleepy", "where": "e2eprogs:where", "stamp": "e2eprogs:stamp"}
