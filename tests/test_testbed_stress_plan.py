@@ -91,3 +91,24 @@ def test_the_application_submits_again_what_its_crashed_origin_lost():
     team = FakeTeam(lose=100)
     final, again = _wait_resubmitting([(0.1, team.submit("burn", 0.1), 0)], [team], log=lambda _m: None)
     assert again == RESUBMITS and final[0][1].exception() is not None
+
+
+def test_replacement_per_program_reads_the_kept_origin_trace(tmp_path):
+    """``python -m ramps.testbed.experiments``: from R5's crash (the origin
+    wrote it off 0.1 s after) to each displaced program's next acceptance."""
+    import json
+
+    from ramps.testbed.experiments import replacement_per_program
+
+    d = tmp_path / "simultaneous_crash_R5-0"
+    d.mkdir()
+    lines = [(1.0, "accepted", "p1", "r5"), (1.0, "accepted", "p2", "r5"), (1.0, "accepted", "p3", "r2"),
+             (10.1, "failed", "p1", "r5"), (10.2, "accepted", "p1", "r3"), (10.4, "accepted", "p2", "r4"),
+             (10.5, "accepted", "p3", "r4")]  # p3 was not on r5: not displaced
+    d.joinpath("r1.trace.jsonl").write_text("".join(
+        json.dumps({"t": t, "robot": "r1", "what": w, "program_id": p, "other": o, "attempt": 1, "detail": ""}) + "\n"
+        for t, w, p, o in lines))
+    report = {"experiments": [{"mode": "simultaneous", "runs": [{"plan": "simultaneous crash: R5", "seed": 0,
+                                                                "failures": [{"robot": "R5", "detection": 0.1}]}]}]}
+    got = replacement_per_program(report, tmp_path)
+    assert list(got) == ["simultaneous"] and [round(x, 3) for x in got["simultaneous"]] == [0.2, 0.4]

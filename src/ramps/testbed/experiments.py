@@ -511,3 +511,44 @@ def run_campaign(runs: int, seed: int = 0, *, policy: str = "ramps", robots: int
         unexplained_restarts=sum(len(r.unexplained) for r in results),
         left_running=sum(len(r.left_running) for r in results), orphans=sum(r.orphans for r in results),
         resubmitted=sum(r.resubmitted for r in results))
+
+
+# ====================================================================== re-placement per program
+def replacement_per_program(report: dict, logs: Path) -> dict[str, list[float]]:
+    """Per displaced program, seconds from its host's failure to its
+    acceptance by another robot, by mode, from a ``ramps testbed experiment
+    faults --keep-logs LOGS --out REPORT`` run (the report's per-failure
+    ``recovery`` is the time until the *last* displaced program runs again).
+    The failure time is the origin's first write-off of the robot less the
+    recorded detection time."""
+    out: dict[str, list[float]] = {}
+    for exp in report["experiments"]:
+        for run in exp["runs"]:
+            d = Path(logs) / f"{run['plan'].replace(' ', '_').replace(':', '').replace(',', '-')}-{run['seed']}"
+            trace = sorted(read_trace(d / "r1.trace.jsonl"), key=lambda e: e.t)
+            for f in run["failures"]:
+                robot = NAMES[f["robot"]]
+                first = next((e.t for e in trace if e.what in ("failed", "blacklisted") and e.other == robot), None)
+                if first is None or f["detection"] is None:
+                    continue
+                t_fail = first - f["detection"]
+                done_before = {e.program_id for e in trace if e.what == "delivered" and e.t < t_fail}
+                held = {p for p, h in hosts_at(trace, t_fail).items() if h == robot and p not in done_before}
+                again: dict[str, float] = {}
+                for e in trace:
+                    if e.t >= t_fail and e.what == "accepted" and e.program_id in held and e.other != robot:
+                        again.setdefault(e.program_id, e.t - t_fail)
+                out.setdefault(exp["mode"], []).extend(again.values())
+    return out
+
+
+if __name__ == "__main__":  # python -m ramps.testbed.experiments REPORT.json LOGS
+    import statistics
+
+    if len(sys.argv) != 3:
+        sys.exit("usage: python -m ramps.testbed.experiments REPORT.json LOGS  (of ramps testbed experiment "
+                 "faults --out REPORT.json --keep-logs LOGS): per displaced program, failure to running again")
+    for mode, values in replacement_per_program(json.loads(Path(sys.argv[1]).read_text()), Path(sys.argv[2])).items():
+        values.sort()
+        print(f"{mode}: {len(values)} displaced programs running again after median "
+              f"{statistics.median(values):.2f} s (min {values[0]:.2f} s, max {values[-1]:.2f} s)")
