@@ -283,6 +283,31 @@ def testbed_experiment_sweep(
         raise typer.Exit(1)
 
 
+@experiment_app.command("slow-link")
+def testbed_experiment_slow_link(
+    rate: float = typer.Option(1.0, "--rate", min=0.01, max=1000.0, help="MB/s of the slowed robot's link (tbf; this kernel has no netem, so no added delay)"),
+    payload: int = typer.Option(1_000_000, "--payload", min=1, max=1_000_000, help="bytes of parameters of each program (a client sends at most 1 MB)"),
+    units: float = typer.Option(0.3, "--units", min=0.01, max=10.0, help="work units of each program"),
+    programs: int = typer.Option(6, "--programs", min=1, max=100, help="programs per run, submitted one after another"),
+    as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
+    out_file: Path | None = typer.Option(None, "--out", help="also save the JSON here"),
+) -> None:
+    """T_comm measured per teammate: r1 (loaded) places programs with large parameters on idle r2
+    and r3, first with every link at full speed, then with r3's link slowed (tc tbf, both directions);
+    prints r1's measured link to each teammate (what `ramps status` shows), how its estimate of r3's
+    bandwidth converges, and where the programs ran. About 3 minutes."""
+    from ramps.errors import RampsError
+    from ramps.testbed.slowlink import format_report, run_slow_link
+
+    try:
+        rep = run_slow_link(rate=rate * 1e6, payload=payload, units=units, programs=programs,
+                            log=lambda m: err.print(m, highlight=False))
+    except (PermissionError, RampsError, RuntimeError, TimeoutError) as exc:
+        fail(str(exc))
+    emit([rep], lambda r, console: console.print(format_report(r), highlight=False), as_json=as_json,
+         out_file=out_file)
+
+
 @testbed_app.command("fidelity")
 def testbed_fidelity(
     caps: bool = typer.Option(True, "--caps/--no-caps", help="per-program CPU caps (the default; --no-caps to see why)"),
