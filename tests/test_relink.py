@@ -89,14 +89,18 @@ def test_no_offer_goes_to_a_host_whose_link_is_not_back() -> None:
     team = busy_origin_team()
     team.advance(1.0)
     team.handle("o", Stalled(seconds=1.6))
+    # while every teammate relinks, the policy chooses among all: the swamped
+    # origin does not keep everything (a's the fastest)
+    submit(team, pid="q0")
+    assert [r.host for r in team.sent(OffloadRequest)] == ["a"]
     team.handle("o", PeerAlive(robot="b"))  # b's link is back, a's is not
     submit(team, pid="q")
-    assert [r.host for r in team.sent(OffloadRequest)] == ["b"]
+    assert [r.host for r in team.sent(OffloadRequest)] == ["a", "b"]
     # a message from a read right after the wake was sent before its link closed: proves nothing
     hb = Heartbeat(host="a", incarnation=0, programs=[])
     team.handle("o", Received(sender="a", msg=hb))
     submit(team, pid="q2")
-    assert [r.host for r in team.sent(OffloadRequest)][-1] != "a"
+    assert [r.host for r in team.sent(OffloadRequest)][-1] == "b"
     team.advance(team.now + RELINK_SETTLE)
     team.handle("o", Received(sender="a", msg=hb))  # later: a's link is back
     submit(team, pid="q3")
@@ -125,10 +129,12 @@ def test_relink_bookkeeping() -> None:
     assert not r.waiting("a", 0.0) and r.excluded(["a", "o"], 0.0) == frozenset()
     r.stalled(10.0)
     assert r.waiting("a", 10.0) and not r.waiting("o", 10.0) and not r.waiting(None, 10.0)
-    assert r.excluded(["a", "b", "o"], 10.1) == {"a", "b"}
+    assert r.excluded(["a", "b", "c", "o"], 10.1) == frozenset()  # every teammate: choose among all
+    assert r.heard("c", 10.1, certain=True)
+    assert r.excluded(["a", "b", "c", "o"], 10.1) == {"a", "b"}
     assert not r.heard("a", 10.1)  # within the settle time
     assert r.heard("b", 10.1, certain=True) and not r.heard("b", 10.2, certain=True)
     assert r.heard("a", 10.3) and r.excluded(["a", "b"], 10.3) == frozenset()
-    assert not r.waiting("c", 13.0) and r.relinked == 2 and r.stalls == 1
+    assert not r.waiting("d", 13.0) and r.relinked == 3 and r.stalls == 1
     with pytest.raises(ValueError):
         Relink("o", timeout=-1.0)

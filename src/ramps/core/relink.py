@@ -12,8 +12,9 @@ every teammate is *relinking* until it is heard again:
 - a teammate's silence is not counted while it relinks: the origin's
   heartbeat and connect timeouts on it wait for the link (``Origin.tick``),
   and once it is back they count from that moment (``Origin.relinked``);
-- no new offer goes to a teammate that relinks (placement excludes it; with
-  every teammate excluded, the policy still chooses among all of them);
+- no new offer goes to a teammate that relinks while another is back
+  (placement excludes it); while every teammate relinks, the policy chooses
+  among all of them, as before, rather than pile everything on this robot;
 - a teammate is back when the transport says so (``PeerAlive``), or when a
   message from it arrives at least ``settle`` seconds after the wake (the
   messages it sent before its link closed are read right after the wake and
@@ -22,11 +23,14 @@ every teammate is *relinking* until it is heard again:
 
 Rules: no clock (``now`` comes in), no I/O. A stall shorter than the
 transport's lease never closes links; the driver reports only those that
-may have (``ramps.runtime.node``), so a busy robot's short stalls do not keep
-its teammates out of placement.
+may have (``ramps.runtime.node``: three quarters of the lease or more, as
+keep-alives go out every quarter), so a busy robot's short stalls do not
+keep its teammates out of placement.
 """
 
 from __future__ import annotations
+
+from collections.abc import Iterable
 
 import msgspec
 
@@ -81,8 +85,12 @@ class Relink:
         self.relinked += 1
         return True
 
-    def excluded(self, robots, now: float) -> frozenset[str]:
-        """The robots among ``robots`` not to offer anything to now."""
+    def excluded(self, robots: Iterable[str], now: float) -> frozenset[str]:
+        """The robots among ``robots`` not to offer anything to now: none
+        when that would be every teammate (this robot would then run
+        everything itself, however loaded, until one is heard again)."""
         if now >= self.until:
             return frozenset()
-        return frozenset(r for r in robots if self.waiting(r, now))
+        teammates = [r for r in robots if r != self.me]
+        out = frozenset(r for r in teammates if self.waiting(r, now))
+        return frozenset() if len(out) == len(teammates) else out

@@ -94,9 +94,10 @@ STALL_MIN = 0.5
 #: does not count a teammate's silence for as long: ramps.core.relink)
 STALL_GRACE = RELINK_TIMEOUT
 #: a stall this long, as a fraction of the Zenoh lease, may have let
-#: teammates' leases on this node run out and their links close: the core is
-#: told (``Stalled``), so it waits for their links before counting silence
-RELINK_LEASE_FRACTION = 0.5
+#: teammates' leases on this node run out and their links close (Zenoh sends
+#: keep-alives every quarter lease): the core is told (``Stalled``), so it
+#: waits for their links before counting silence
+RELINK_LEASE_FRACTION = 0.75
 #: queued items handled before the timers fire (the rest after them)
 MAX_ITEMS_PER_ROUND = 10_000
 #: answered client requests remembered, so a resent submission is not run twice
