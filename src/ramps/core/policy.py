@@ -32,7 +32,7 @@ from __future__ import annotations
 import heapq
 import math
 import random
-from typing import Callable, ClassVar
+from typing import Any, Callable, ClassVar
 
 import msgspec
 
@@ -94,7 +94,9 @@ class Policy:
 class PaperPolicy(Policy):
     name = "paper"
 
-    def choose(self, req, view, now, rng, *, net, config, exclude=frozenset(), links=None):
+    def choose(self, req: PlacementRequest, view: LoadView, now: float, rng: random.Random, *, net: NetworkEstimate,
+               config: RampsConfig, exclude: frozenset[str] = frozenset(),
+               links: Callable[[str], NetworkEstimate] | None = None) -> Placement:
         # the prototype paid the same T_comm for every executor, local included,
         # and slowed its estimate in proportion to the robot's CPU utilisation
         work = req.work
@@ -116,11 +118,13 @@ class RampsPolicy(Policy):
     shares_load = True
     relocates = True
 
-    def choose(self, req, view, now, rng, *, net, config, exclude=frozenset(), links=None):
+    def choose(self, req: PlacementRequest, view: LoadView, now: float, rng: random.Random, *, net: NetworkEstimate,
+               config: RampsConfig, exclude: frozenset[str] = frozenset(),
+               links: Callable[[str], NetworkEstimate] | None = None) -> Placement:
         me = view.me
         work = req.work
         t_comm_default = comm_time(req.payload_size, req.result_size, net)
-        rows = []
+        rows: list[list[Any]] = []  # [t, utilisation, robot, runnable, background, ramps, cores, speed, weight, t_comm]
         t_best = math.inf
         for robot, cores, speed, ramps, background, weight in view.scan(now, exclude):
             runnable = ramps + background
@@ -178,7 +182,9 @@ class RoundRobinPolicy(Policy):
     def __init__(self) -> None:
         self._next = 0
 
-    def choose(self, req, view, now, rng, *, net, config, exclude=frozenset(), links=None):
+    def choose(self, req: PlacementRequest, view: LoadView, now: float, rng: random.Random, *, net: NetworkEstimate,
+               config: RampsConfig, exclude: frozenset[str] = frozenset(),
+               links: Callable[[str], NetworkEstimate] | None = None) -> Placement:
         cands = [row[0] for row in view.scan(now, exclude)]
         ring = [view.me] + sorted(c for c in cands if c != view.me)
         host = ring[self._next % len(ring)]
@@ -189,7 +195,9 @@ class RoundRobinPolicy(Policy):
 class RandomPolicy(Policy):
     name = "random"
 
-    def choose(self, req, view, now, rng, *, net, config, exclude=frozenset(), links=None):
+    def choose(self, req: PlacementRequest, view: LoadView, now: float, rng: random.Random, *, net: NetworkEstimate,
+               config: RampsConfig, exclude: frozenset[str] = frozenset(),
+               links: Callable[[str], NetworkEstimate] | None = None) -> Placement:
         cands = sorted(row[0] for row in view.scan(now, exclude))
         return Placement(host=rng.choice(cands))
 
@@ -197,7 +205,9 @@ class RandomPolicy(Policy):
 class LocalOnlyPolicy(Policy):
     name = "local_only"
 
-    def choose(self, req, view, now, rng, *, net, config, exclude=frozenset(), links=None):
+    def choose(self, req: PlacementRequest, view: LoadView, now: float, rng: random.Random, *, net: NetworkEstimate,
+               config: RampsConfig, exclude: frozenset[str] = frozenset(),
+               links: Callable[[str], NetworkEstimate] | None = None) -> Placement:
         return Placement(host=view.me)
 
 
