@@ -264,7 +264,8 @@ def testbed_experiment_sweep(
     """The paper's unloaded and loaded sweeps (Tables 3-4) and several-origins bursts on real node
     processes, each beside the simulator's makespan and distribution for the same configuration:
     the simulator's fidelity per configuration (ratio = testbed / simulator; corrected = with the
-    simulator scaled by what a work unit cost the host during the run). About 4 minutes."""
+    simulator scaled by what a work unit cost the host during the run; starved = also by the least
+    share of its due CPU a robot obtained from the host). About 2-4 minutes."""
     from ramps.errors import RampsError
     from ramps.testbed.sweeps import DEFAULT_CONFIGS, EXPERIMENTS, FULL_CONFIGS, format_report, run_testbed_sweep
 

@@ -20,7 +20,12 @@ processes take CPU from the robots. So each configuration also reads the CPU
 seconds the programs' workers used on every robot, gives a unit's cost
 during the run (``unit_cpu``) against the cost when the speed was measured
 (``calibration``), and ``corrected_ratio`` compares the testbed with the
-simulator scaled by it: what is left is the emulation's and the runtime's.
+simulator scaled by it. Nor does a busy host give the robots all their
+quota: a robot's cgroup competes with every process of the root cgroup as
+one entity. So each configuration also reads every robot's cgroup usage
+while it ran programs, against what the model gives it (its quota times its
+busy emulated cores), and ``starved_ratio`` scales the simulator by the least
+fed robot's share too: what is left is the emulation's and the runtime's.
 
 Run ``ramps testbed experiment sweep`` (root; ``--help``): a small
 representative subset by default (about 4 minutes), ``--full`` for more.
@@ -82,6 +87,11 @@ class SweepCase(msgspec.Struct, kw_only=True):
     failed: int
     #: the host's 1-minute load average at the end (2 cores; the robots need ``quota * robots``)
     host_load: float
+    #: the least share of the CPU it was due (its quota, times its busy emulated cores by the
+    #: model) that a robot running programs got from the host, and the ratio with the simulator
+    #: also scaled by it (capped at 1): what is left when the host's starvation is taken out
+    cpu_obtained: float = 1.0
+    starved_ratio: float = 0.0
 
 
 class TestbedSweepReport(msgspec.Struct, kw_only=True):
@@ -95,6 +105,7 @@ class TestbedSweepReport(msgspec.Struct, kw_only=True):
     mean_abs_ratio_error: float
     mean_abs_corrected_error: float
     wall_seconds: float = 0.0
+    mean_abs_starved_error: float = 0.0
 
 
 def sim_scenario(robots: int, programs: int, loaded: int, origins: int, *, cores: int, speed: float, work: float,
@@ -130,12 +141,36 @@ def _workers_cpu(tb, seen: dict[str, dict[int, tuple[str, float]]]) -> None:
         merge_cpu(seen.setdefault(r, {}), robot_cpu(tb, r))
 
 
-def _run_on_testbed(tb, clients: dict, programs: int, origins: int, work: float, timeout: float
-                    ) -> tuple[float, list[int], int, int, float]:
-    """One burst on a running testbed: makespan, distribution, completed, failed, workers' CPU seconds."""
+class _Burst(msgspec.Struct, kw_only=True):
+    makespan: float
+    distribution: list[int]
+    completed: int
+    failed: int
+    #: CPU seconds of the programs' workers
+    spent: float
+    #: the least share of its due CPU any robot with programs obtained (1.0: all it should)
+    obtained: float
+
+
+def _usage(tb, robot: str) -> float:
+    from pathlib import Path
+
+    from ramps.runtime.measure import cgroup_usage
+
+    dirs = [Path(d) for d in tb.robots[robot]["cgroup"]]
+    return cgroup_usage(dirs[0], dirs[1] if len(dirs) > 1 else None)
+
+
+def _run_on_testbed(tb, clients: dict, programs: int, origins: int, work: float, timeout: float, *,
+                    cores: int, busy: dict[str, int]) -> _Burst:
+    """One burst on a running testbed. Besides the makespan and distribution, how much of
+    the CPU it was due each robot got while it ran programs: ``quota * min(1, (programs +
+    busy) / cores)`` host cores by the model, against its cgroup's usage from the burst's
+    start to its last program's end (a host busy with other work gives the robots less)."""
     before: dict[str, dict[int, tuple[str, float]]] = {}
     _workers_cpu(tb, before)
     seen = {r: dict(v) for r, v in before.items()}
+    u0 = {r: _usage(tb, r) for r in tb.names}
     futures = []
     t0 = time.monotonic()
     for i in range(programs):  # the origins submit at the same moments, each its own program in turn
@@ -145,9 +180,13 @@ def _run_on_testbed(tb, clients: dict, programs: int, origins: int, work: float,
     ends: list[float] = []
     for f in futures:
         f.add_done_callback(lambda _f: ends.append(time.monotonic()))
+    last: dict[str, tuple[float, float]] = {}  # robot -> (time, usage) while it still ran a program
     deadline = time.monotonic() + timeout
     while not all(f.done() for f in futures) and time.monotonic() < deadline:
         _workers_cpu(tb, seen)
+        now = time.monotonic()
+        for r in {f.host for f in futures if not f.done() and f.host in tb.robots}:
+            last[r] = (now, _usage(tb, r))
         time.sleep(0.2)
     _workers_cpu(tb, seen)
     ok = [f for f in futures if f.done() and f.exception() is None]
@@ -155,10 +194,15 @@ def _run_on_testbed(tb, clients: dict, programs: int, origins: int, work: float,
         if not f.done():
             f.cancel()
     dist = [sum(1 for f in ok if f.host == r) for r in tb.names]
-    makespan = (max(ends) - t0) if ends else float("nan")
+    shares = []
+    for r, k in zip(tb.names, dist):
+        if k and r in last and last[r][0] - t0 > 1.0:
+            due = tb.quota * min(1.0, (k + busy.get(r, 0)) / cores)
+            shares.append((last[r][1] - u0[r]) / (last[r][0] - t0) / due)
     spent = sum(secs - before.get(r, {}).get(pid, (kind, 0.0))[1]
                 for r, procs in seen.items() for pid, (kind, secs) in procs.items() if kind == "worker")
-    return makespan, dist, len(ok), len(futures) - len(ok), spent
+    return _Burst(makespan=(max(ends) - t0) if ends else float("nan"), distribution=dist, completed=len(ok),
+                  failed=len(futures) - len(ok), spent=spent, obtained=min(shares, default=1.0))
 
 
 def _wait_idle(obs, timeout: float = 30.0) -> None:
@@ -200,19 +244,24 @@ def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None =
                     time.sleep(SETTLE)  # the load is adopted, capped and reported
                     sim, sim_dists = simulate_config(n, k, loaded, origins, cores=cores, speed=speed, work=work,
                                                      seeds=seeds)
-                    span, dist, done, failed, spent = _run_on_testbed(tb, clients, k, origins, work, timeout)
-                    unit = spent / max(done * work, 1e-9) if done else calibration
+                    busy = {f"r{i}": stress for i in range(n - loaded + 1, n + 1)}
+                    b = _run_on_testbed(tb, clients, k, origins, work, timeout, cores=cores, busy=busy)
+                    span, dist, done, failed = b.makespan, b.distribution, b.completed, b.failed
+                    unit = b.spent / max(done * work, 1e-9) if done else calibration
                     corrected = sim * unit / calibration
+                    obtained = min(1.0, b.obtained)  # more than its due is not a correction
                     case = SweepCase(experiment=exp, robots=n, programs=k, loaded=loaded, origins=origins,
                                      makespan=round(span, 2), distribution=dist, sim_makespan=round(sim, 2),
                                      sim_distributions=sim_dists, ratio=round(span / sim, 3),
                                      unit_cpu=round(unit, 3), calibration=round(calibration, 3),
                                      corrected_ratio=round(span / corrected, 3), completed=done, failed=failed,
-                                     host_load=round(os.getloadavg()[0], 2))
+                                     host_load=round(os.getloadavg()[0], 2), cpu_obtained=round(b.obtained, 3),
+                                     starved_ratio=round(span / (corrected / obtained), 3))
                     log(f"  {exp:12s} {n} robots, {origins} x {k} programs, {loaded} loaded: testbed {span:.1f} s "
                         f"{dist}, simulator {sim:.1f} s {sim_dists[0]}: ratio {case.ratio:.2f}, corrected "
-                        f"{case.corrected_ratio:.2f} (a unit cost {unit:.2f} CPU s, calibration {calibration:.2f}; "
-                        f"host load {case.host_load})")
+                        f"{case.corrected_ratio:.2f} (a unit cost {unit:.2f} CPU s, calibration {calibration:.2f}), "
+                        f"{case.starved_ratio:.2f} with the CPU the host gave (the least fed robot got "
+                        f"{b.obtained:.0%} of its due); host load {case.host_load}")
                     out.append(case)
                     for i in range(n - loaded + 1, n + 1):
                         tb.remove_load(f"r{i}")
@@ -225,6 +274,7 @@ def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None =
         cores=cores, quota=quota, speed=speed, work=work, seeds=seeds, cases=out,
         mean_abs_ratio_error=round(statistics.fmean(abs(c.ratio - 1) for c in good), 3) if good else 0.0,
         mean_abs_corrected_error=round(statistics.fmean(abs(c.corrected_ratio - 1) for c in good), 3) if good else 0.0,
+        mean_abs_starved_error=round(statistics.fmean(abs(c.starved_ratio - 1) for c in good), 3) if good else 0.0,
         wall_seconds=round(time.monotonic() - started, 1))
 
 
@@ -232,12 +282,17 @@ def format_report(rep: TestbedSweepReport) -> str:
     lines = [(f"robots of {rep.cores} cores on {rep.quota:g} host cores, programs of {rep.work:g} units "
               f"({rep.work / rep.speed:.1f} s alone on an emulated core), simulator median of {rep.seeds} seeds"),
              (f"{'experiment':12s} {'robots':>6s} {'origins x programs':>18s} {'loaded':>6s} {'testbed s':>9s} "
-              f"{'simulator s':>11s} {'ratio':>6s} {'corrected':>9s}  testbed / simulator distribution")]
+              f"{'simulator s':>11s} {'ratio':>6s} {'corrected':>9s} {'CPU got':>7s} {'starved':>7s}  "
+              "testbed / simulator distribution")]
     for c in rep.cases:
         lines.append(f"{c.experiment:12s} {c.robots:6d} {f'{c.origins} x {c.programs}':>18s} {c.loaded:6d} "
-                     f"{c.makespan:9.1f} {c.sim_makespan:11.1f} {c.ratio:6.2f} {c.corrected_ratio:9.2f}  "
+                     f"{c.makespan:9.1f} {c.sim_makespan:11.1f} {c.ratio:6.2f} {c.corrected_ratio:9.2f} "
+                     f"{c.cpu_obtained:7.0%} {c.starved_ratio:7.2f}  "
                      f"{'-'.join(map(str, c.distribution))} / {'-'.join(map(str, c.sim_distributions[0]))}"
                      + (f"  ({c.failed} failed)" if c.failed else ""))
     lines.append(f"mean |ratio - 1|: {rep.mean_abs_ratio_error:.1%}, corrected for the host's speed "
-                 f"{rep.mean_abs_corrected_error:.1%}; {rep.wall_seconds:.0f} s")
+                 f"{rep.mean_abs_corrected_error:.1%}, and for the CPU the host gave the robots "
+                 f"{rep.mean_abs_starved_error:.1%}; {rep.wall_seconds:.0f} s")
+    lines.append("CPU got: the least share of its due CPU a robot running programs obtained from the host; "
+                 "starved: the ratio with the simulator scaled by the host's speed and by that share")
     return "\n".join(lines)
