@@ -59,3 +59,10 @@ def test_the_campaign_with_load_changes_keeps_exactly_once():
         assert run.ok, run
         moves += run.moves
     assert moves > 0
+
+
+def test_relocation_against_none_on_campaign_scenarios():
+    from ramps.experiments.relocation import compare_on_campaign
+    rep = compare_on_campaign(3)
+    assert rep.runs == 3 and len(rep.ratios) == 3 and rep.lost == 0 and rep.duplicated == 0
+    assert rep.ratios == sorted(rep.ratios) and all(r > 0 for r in rep.ratios)

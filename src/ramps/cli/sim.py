@@ -194,6 +194,9 @@ def sim_relocation(
                                            help="seconds between checkpoints in the checkpointing variant"),
     seeds: int = typer.Option(5, "--seeds", min=1, help="simulation seeds"),
     seed: int = typer.Option(0, "--seed", help="first seed"),
+    campaign: int = typer.Option(0, "--campaign", min=0,
+                                 help="instead: run this many scenarios of `ramps sim campaign --load-changes` "
+                                      "(faults and load changes) with relocation on and off, and compare makespans"),
     as_json: bool = typer.Option(False, "--json", help="write the results as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
 ) -> None:
@@ -203,9 +206,12 @@ def sim_relocation(
     checkpoint (resume elsewhere), and round robin on the same seeds, and prints each makespan against the
     hindsight optimum: the best static distribution for someone who knew the load would come.
     """
-    from ramps.experiments.relocation import run_relocation
-    from ramps.experiments.report import print_relocation
+    from ramps.experiments.relocation import compare_on_campaign, run_relocation
+    from ramps.experiments.report import print_relocation, print_relocation_campaign
 
+    if campaign:
+        emit([compare_on_campaign(campaign, seed)], print_relocation_campaign, as_json=as_json, out_file=out_file)
+        return
     try:
         rep = run_relocation(robots=robots, cores=cores, programs=programs, work=work, loaded=loaded, busy=busy,
                              load_at=load_at, checkpoint_every=checkpoint_every, seeds=seeds, seed=seed)

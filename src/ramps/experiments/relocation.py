@@ -131,3 +131,43 @@ def run_relocation(*, robots: int = 3, cores: int = 4, programs: int = 8, work: 
                             load_at=load_at, busy=busy, checkpoint_every=checkpoint_every, hindsight_optimum=opt,
                             optimum_distribution=split, runs=runs, median_ratio=med,
                             wall_seconds=time.perf_counter() - started)
+
+
+class CampaignComparison(msgspec.Struct, kw_only=True):
+    """Relocation on against off on the fault campaign's scenarios with load changes."""
+
+    runs: int
+    seed: int
+    #: makespan with relocation / without, per run, sorted
+    ratios: list[float]
+    median: float
+    better: int
+    worse: int
+    moves: int
+    lost: int
+    duplicated: int
+    wall_seconds: float
+
+
+def compare_on_campaign(runs: int, seed: int = 0) -> CampaignComparison:
+    """Run each of ``runs`` campaign scenarios (``ramps sim campaign
+    --load-changes``, same seeds) with relocation on and off."""
+    import random
+
+    from ramps.experiments.campaign import random_scenario
+
+    started = time.perf_counter()
+    ratios, moves, lost, dup = [], 0, 0, 0
+    for i in range(runs):
+        s = seed * 1_000_000 + i
+        sc = random_scenario(random.Random(s), s, "ramps", True)
+        on = simulate(sc)
+        off = simulate(msgspec.structs.replace(sc, config=msgspec.structs.replace(sc.config, relocate=False)))
+        ratios.append(on.makespan / off.makespan if off.makespan > 0 else 1.0)
+        moves += sum(st.moves for st in on.statistics)
+        lost += on.lost + off.lost
+        dup += on.duplicated + off.duplicated
+    ratios.sort()
+    return CampaignComparison(runs=runs, seed=seed, ratios=ratios, median=statistics.median(ratios),
+                              better=sum(r < 0.999 for r in ratios), worse=sum(r > 1.001 for r in ratios),
+                              moves=moves, lost=lost, duplicated=dup, wall_seconds=time.perf_counter() - started)

@@ -218,6 +218,14 @@ def print_relocation(rep, console: Console) -> None:
     console.print("median vs hindsight: " + ", ".join(f"{k} {v:.3f}" for k, v in rep.median_ratio.items()))
 
 
+def print_relocation_campaign(rep, console: Console) -> None:
+    r = rep.ratios
+    console.print(f"{rep.runs} campaign scenarios with faults and load changes (seed {rep.seed}): makespan with "
+                  f"relocation / without: median {rep.median:.3f}, p10 {r[len(r) // 10]:.3f}, "
+                  f"p90 {r[min(len(r) - 1, 9 * len(r) // 10)]:.3f}, best {r[0]:.3f}, worst {r[-1]:.3f}; better in "
+                  f"{rep.better}, worse in {rep.worse}; {rep.moves} moves; lost {rep.lost}, duplicated {rep.duplicated}")
+
+
 def print_sweep(rep, console: Console) -> None:
     """One row per family of generated several-origins scenarios: makespan
     against the lower bound (and the omniscient oracle), beside round robin."""
