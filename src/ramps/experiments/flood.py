@@ -28,6 +28,7 @@ from typing import Any, Callable
 
 from ramps.core import messages as m
 from ramps.experiments import fuzz
+from ramps.runtime.watch import TeamWatcher
 
 #: how often the load publisher reports (``NodeSettings.publish_period``)
 REPORT_PERIOD = 1.0
@@ -102,42 +103,17 @@ def raw_session(endpoints: list[str], *, shared_memory: bool = False):
     return zenoh.open(c)
 
 
-class LoadWatcher:
-    """The latest load report of every robot, heard on the team's load key."""
-
-    def __init__(self, session, team: str) -> None:
-        self._lock = threading.Lock()
-        self.reports: dict[str, tuple[m.LoadReport, float]] = {}
-        self._sub = session.declare_subscriber(f"ramps/{team}/load/*", self._on_report)
-
-    def _on_report(self, sample) -> None:
-        try:
-            env = m.decode(sample.payload.to_bytes())
-        except m.WireError:
-            return
-        if isinstance(env.msg, m.LoadReport) and env.msg.robot == env.sender:
-            with self._lock:
-                self.reports[env.msg.robot] = (env.msg, time.monotonic())
-
-    def bad_messages(self, robot: str) -> int | None:
-        with self._lock:
-            rep = self.reports.get(robot)
-        return None if rep is None else rep[0].bad_messages
-
-    def wait_settled(self, robots: list[str], timeout: float = 15.0) -> dict[str, int | None]:
-        """Counters once two successive reports of every robot agree."""
-        deadline = time.monotonic() + timeout
-        last = {r: self.bad_messages(r) for r in robots}
-        while time.monotonic() < deadline:
-            time.sleep(2 * REPORT_PERIOD + 0.2)
-            now = {r: self.bad_messages(r) for r in robots}
-            if now == last and None not in now.values():
-                return now
-            last = now
-        return last
-
-    def close(self) -> None:
-        self._sub.undeclare()
+def wait_settled(watcher: TeamWatcher, robots: list[str], timeout: float = 15.0) -> dict[str, int | None]:
+    """Each robot's count of dropped messages, once two successive reports of every robot agree."""
+    deadline = time.monotonic() + timeout
+    last = {r: watcher.bad_messages(r) for r in robots}
+    while time.monotonic() < deadline:
+        time.sleep(2 * REPORT_PERIOD + 0.2)
+        now = {r: watcher.bad_messages(r) for r in robots}
+        if now == last and None not in now.values():
+            return now
+        last = now
+    return last
 
 
 class RssSampler:
@@ -208,7 +184,7 @@ def flood_team(*, team: str, endpoints: list[str], target: str, pids: dict[str, 
     robots = sorted(pids)
     calls = _legit_calls(programs)
     with raw_session(endpoints) as session:
-        watcher = LoadWatcher(session, team)
+        watcher = TeamWatcher(session, team)
         try:
             # warm up: the programs' code paths, the workers, the Zenoh routes
             warm = [client.submit(p, **a) for p, a in calls[:min(len(calls), 10)]]
@@ -222,7 +198,7 @@ def flood_team(*, team: str, endpoints: list[str], target: str, pids: dict[str, 
                     raise RuntimeError(f"{target} never counted a probe message (no load reports heard?)")
                 session.put(inbox, b"\xc1probe")
                 time.sleep(0.3)
-            before = watcher.wait_settled(robots)
+            before = wait_settled(watcher, robots)
             time.sleep(1.0)
             rss_before = {r: _rss(pid) for r, pid in pids.items()}
             say(f"flooding {target}: {messages} messages in {seconds:g} s while {programs} programs run ...")
@@ -285,7 +261,7 @@ def flood_team(*, team: str, endpoints: list[str], target: str, pids: dict[str, 
             for _p, _a, f in futures:
                 h = getattr(f, "host", "?")
                 hosts[h] = hosts.get(h, 0) + 1
-            after = watcher.wait_settled(robots)
+            after = wait_settled(watcher, robots)
             time.sleep(1.0)
             rss_after = {r: _rss(pid) for r, pid in pids.items()}
             counted = {r: (after[r] or 0) - (before[r] or 0) for r in robots}
@@ -343,4 +319,4 @@ def bench_flood(*, messages: int = 10_000, seconds: float = 10.0, programs: int 
     return res
 
 
-__all__ = ["LoadWatcher", "RssSampler", "bench_flood", "flood_pool", "flood_team", "raw_session"]
+__all__ = ["RssSampler", "bench_flood", "flood_pool", "flood_team", "raw_session", "wait_settled"]
