@@ -258,6 +258,7 @@ def testbed_experiment_sweep(
     cores: int = typer.Option(4, "--cores", min=1, max=16, help="emulated cores of each robot"),
     work: float = typer.Option(0.3, "--work", min=0.05, max=10.0, help="work units of each program (0.3: about 9 s alone on an emulated core of 0.05 host cores)"),
     seeds: int = typer.Option(3, "--seeds", min=1, max=20, help="simulator runs per configuration (the median is compared)"),
+    keep_logs: Path | None = typer.Option(None, "--keep-logs", help="copy every node's log and decision trace here (one folder per team size)"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
 ) -> None:
@@ -274,7 +275,7 @@ def testbed_experiment_sweep(
     configs = [c for c in (FULL_CONFIGS if full else DEFAULT_CONFIGS) if experiment in ("all", c[0])]
     err.print(f"{len(configs)} configuration(s) on the testbed and in the simulator ...")
     try:
-        rep = run_testbed_sweep(configs, cores=cores, quota=quota, work=work, seeds=seeds,
+        rep = run_testbed_sweep(configs, cores=cores, quota=quota, work=work, seeds=seeds, keep_logs=keep_logs,
                                 log=lambda m: err.print(m, highlight=False))
     except (PermissionError, RampsError, RuntimeError, ValueError) as exc:
         fail(str(exc))

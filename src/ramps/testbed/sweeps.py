@@ -37,6 +37,7 @@ import os
 import statistics
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import msgspec
 
@@ -153,8 +154,6 @@ class _Burst(msgspec.Struct, kw_only=True):
 
 
 def _usage(tb, robot: str) -> float:
-    from pathlib import Path
-
     from ramps.runtime.measure import cgroup_usage
 
     dirs = [Path(d) for d in tb.robots[robot]["cgroup"]]
@@ -216,11 +215,13 @@ def _wait_idle(obs, timeout: float = 30.0) -> None:
 
 def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None = None, *, cores: int = 4,
                       quota: float = 0.2, work: float = 0.3, seeds: int = 3, stress: int = 8,
-                      timeout: float = 300.0, log: Callable[[str], None] | None = None) -> TestbedSweepReport:
-    """Every configuration on real processes and in the simulator (module docstring)."""
+                      timeout: float = 300.0, keep_logs: Path | None = None,
+                      log: Callable[[str], None] | None = None) -> TestbedSweepReport:
+    """Every configuration on real processes and in the simulator (module docstring);
+    with ``keep_logs``, every node's log and decision trace go to ``keep_logs/sweep-<robots>``."""
     from ramps.testbed import Testbed
     from ramps.testbed.bed import Observer
-    from ramps.testbed.experiments import SETTLE, identical_speed
+    from ramps.testbed.experiments import SETTLE, _keep, identical_speed
 
     log = log or (lambda _m: None)
     configs = list(configs or DEFAULT_CONFIGS)
@@ -269,6 +270,8 @@ def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None =
             finally:
                 for c in clients.values():
                     c.close()
+                if keep_logs is not None:
+                    _keep(tb, Path(keep_logs) / f"sweep-{size}")
     good = [c for c in out if c.completed]
     return TestbedSweepReport(
         cores=cores, quota=quota, speed=speed, work=work, seeds=seeds, cases=out,
