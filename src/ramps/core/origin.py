@@ -37,6 +37,7 @@ import math
 import random
 import statistics
 from collections import deque
+from typing import Any
 
 import msgspec
 
@@ -307,7 +308,7 @@ class Origin:
         heapq.heappush(self._timers, (when, self._seq, ap.program_id))
 
     # ================================================================ dispatch
-    def _route(self, pid: str, attempt: int, host: str, event: str, now: float, out: list[Action], msg) -> None:
+    def _route(self, pid: str, attempt: int, host: str, event: str, now: float, out: list[Action], msg: Any) -> None:
         ap = self.programs.get(pid)
         if ap is None:
             self._anomaly(out, pid, host, f"{event} for a program this robot never submitted")
@@ -336,7 +337,7 @@ class Origin:
             out.append(Send(to=host, msg=CancelProgram(program_id=pid, attempt=attempt, origin=self.me)))
         # a rejection of an old attempt needs nothing
 
-    def _step(self, ap: AutonomousProgram, event: str, now: float, out: list[Action], msg) -> None:
+    def _step(self, ap: AutonomousProgram, event: str, now: float, out: list[Action], msg: Any) -> None:
         try:
             name = ap.handler_for(event)
         except ProtocolError as exc:
@@ -351,10 +352,10 @@ class Origin:
         out.append(Note(what="anomaly", program_id=pid, robot=robot, detail=detail))
 
     # ================================================================ handlers
-    def _ignore(self, ap, now, out, msg, event) -> None:
+    def _ignore(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
         pass
 
-    def _place(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
+    def _place(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
         self.place(ap, now, out)
 
     def place(self, ap: AutonomousProgram, now: float, out: list[Action], *, host: str | None = None,
@@ -413,7 +414,7 @@ class Origin:
             transfer = queued / link.bandwidth
         self._set_timer(ap, now + self.config.connect_timeout + transfer, "connect_timeout")
 
-    def _on_accepted(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
+    def _on_accepted(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
         if isinstance(msg, OffloadAccepted):
             self.view.accepted(ap.host, ap.program_id, ap.attempt, msg.accept_seq)
         ap.state = S.RUNNING
@@ -426,10 +427,10 @@ class Origin:
         if self._relocate_due is None and self._relocating():
             self._relocate_due = now + self.config.relocate_period
 
-    def _on_heartbeat(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
+    def _on_heartbeat(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
         ap.last_heard = now
 
-    def _on_rejected(self, ap: AutonomousProgram, now: float, out: list[Action], msg: OffloadRejected, event) -> None:
+    def _on_rejected(self, ap: AutonomousProgram, now: float, out: list[Action], msg: OffloadRejected, event: str) -> None:
         self.rejections += 1
         host = ap.host
         self._leave_host(ap, host, None)
@@ -462,7 +463,7 @@ class Origin:
             return
         self.place(ap, now, out)
 
-    def _on_host_failed(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
+    def _on_host_failed(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
         host = ap.host
         reason = event
         self.host_failures += 1
@@ -529,7 +530,7 @@ class Origin:
         out.append(Note(what="backoff", program_id=ap.program_id, attempt=ap.attempt, detail=detail))
         self._set_timer(ap, now + wait, "backoff_done")
 
-    def _on_result(self, ap: AutonomousProgram, now: float, out: list[Action], msg: ProgramResult, event) -> None:
+    def _on_result(self, ap: AutonomousProgram, now: float, out: list[Action], msg: ProgramResult, event: str) -> None:
         out.append(Send(to=msg.host, msg=ResultAck(program_id=ap.program_id, attempt=msg.attempt, origin=self.me)))
         self._finish_with(ap, msg, now, out)
 
@@ -575,7 +576,7 @@ class Origin:
         """Program name -> the work placements now assume (learned ones only)."""
         return {name: statistics.median(runs) for name, runs in self._learned.items() if runs}
 
-    def _on_cancel(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
+    def _on_cancel(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
         self._deliver(ap, now, out, ok=False, error="cancelled by the application", host=ap.host or "",
                       kind="cancelled")
 
@@ -674,7 +675,7 @@ class Origin:
         cfg = self.config
         return t_here > t_there * (1.0 + cfg.relocate_gain) and t_here - t_there > cfg.relocate_min_gain
 
-    def _relocate(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Placement, event) -> None:
+    def _relocate(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Placement, event: str) -> None:
         """Offer the program to its new host; the old copy runs on meanwhile."""
         old = [ap.attempt, ap.host, ap.last_heard, ap.done, ap.done_at, ap.work, ap.resumed_from, ap.accepted_at]
         ap.moves += 1
@@ -686,7 +687,7 @@ class Origin:
         self.place(ap, now, out, placement=msg)
         ap.state = S.MOVING
 
-    def _on_moved(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
+    def _on_moved(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
         """The new host took the program: stop the old copy."""
         self._drop_old_copy(ap, out)
         self._on_accepted(ap, now, out, msg, event)
@@ -707,7 +708,7 @@ class Origin:
         if host not in ap.live.values():
             self._by_host.get(host, set()).discard(ap.program_id)
 
-    def _on_move_failed(self, ap: AutonomousProgram, now: float, out: list[Action], msg, event) -> None:
+    def _on_move_failed(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
         host = ap.host
         if event == "rejected":
             self.rejections += 1
