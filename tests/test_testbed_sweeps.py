@@ -64,3 +64,12 @@ def test_the_report_prints_both_worlds_side_by_side():
                              mean_abs_ratio_error=0.1, mean_abs_corrected_error=0.03)
     text = format_report(rep)
     assert "2 x 6" in text and "4-5-3 / 4-4-4" in text and "1.10" in text and "1.03" in text
+
+
+def test_a_process_keeps_the_kind_it_was_first_given_while_its_cpu_is_updated():
+    from ramps.testbed.fidelity import merge_cpu
+
+    seen = {10: ("worker", 1.0), 11: ("node", 0.5)}
+    # an exiting worker (a zombie) has an empty command line and reads as "other"
+    merge_cpu(seen, {10: ("other", 1.5), 11: ("node", 0.6), 12: ("fork_server", 0.1)})
+    assert seen == {10: ("worker", 1.5), 11: ("node", 0.6), 12: ("fork_server", 0.1)}
