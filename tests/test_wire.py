@@ -393,16 +393,17 @@ def test_a_load_report_lists_at_most_max_listed_running_programs() -> None:
 
 
 def test_a_load_report_lists_at_most_max_listed_links_and_learned_programs() -> None:
-    rep = msgspec.structs.replace(report("r1"), links=[m.LinkSeen("r2", 0.05, 1e6)] * m.MAX_LISTED,
+    rep = msgspec.structs.replace(report("r1"), links=[m.LinkSeen("r2", 0.05, 1e6, 0.67)] * m.MAX_LISTED,
                                   learned=[m.LearnedWork("route_plan", 4.2)] * m.MAX_LISTED)
     back = decode(encode("r1", rep)).msg
-    assert back.links[0] == m.LinkSeen("r2", 0.05, 1e6) and back.learned[0] == m.LearnedWork("route_plan", 4.2)
+    assert back.links[0] == m.LinkSeen("r2", 0.05, 1e6, 0.67) and back.learned[0] == m.LearnedWork("route_plan", 4.2)
     assert decode(encode("r1", msgspec.structs.replace(rep, links=[m.LinkSeen("r2")]))).msg.links[0].latency is None
     for field, extra in (("links", m.LinkSeen("r3")), ("learned", m.LearnedWork("p", 1.0))):
         text = _refused(encode("r1", msgspec.structs.replace(rep, **{field: getattr(rep, field) + [extra]})))
         assert f"$.msg.{field}" in text
     for bad in (dict(links=[m.LinkSeen("*", 0.1, 1.0)]), dict(links=[m.LinkSeen("r2", -0.1, 1.0)]),
-                dict(links=[m.LinkSeen("r2", 0.1, math.inf)]), dict(learned=[m.LearnedWork("", 1.0)]),
+                dict(links=[m.LinkSeen("r2", 0.1, math.inf)]), dict(links=[m.LinkSeen("r2", None, None, -1.0)]),
+                dict(learned=[m.LearnedWork("", 1.0)]),
                 dict(learned=[m.LearnedWork("p", -1.0)]), dict(learned=[m.LearnedWork("p", math.nan)])):
         _refused(encode("r1", msgspec.structs.replace(rep, **bad)))
 

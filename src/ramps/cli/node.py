@@ -236,12 +236,14 @@ def status(
     out.print(table)
     links = [(r.robot, link) for r in st.robots for link in r.links]
     if links:  # T_comm as each robot measured it (ramps.core.links): the cost model prices transfers with these
-        lt = Table(title="links each robot measured (its placements use them)", title_justify="left")
-        for name in ("robot", "to", "latency", "bandwidth"):
+        lt = Table(title="links each robot measured, and teammates' speeds its results corrected "
+                         "(its placements use them)", title_justify="left")
+        for name in ("robot", "to", "latency", "bandwidth", "speed x"):
             lt.add_column(name, justify="left" if name in ("robot", "to") else "right")
         for robot, link in links:
             lt.add_row(robot, link.robot, "-" if link.latency is None else f"{1000 * link.latency:.1f} ms",
-                       "-" if link.bandwidth is None else f"{link.bandwidth / 1e6:.2f} MB/s")
+                       "-" if link.bandwidth is None else f"{link.bandwidth / 1e6:.2f} MB/s",
+                       "-" if link.speed_factor is None else f"{link.speed_factor:.2f}")
         out.print(lt)
     learned = [(r.robot, w) for r in st.robots for w in r.learned]
     if learned:

@@ -169,12 +169,15 @@ class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, ta
 
 
 class LinkSeen(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
-    """A link to a teammate as a load report lists it: [teammate, one-way
-    latency in s, bandwidth in bytes/s], None where not measured yet."""
+    """A teammate as a load report lists it: [teammate, one-way latency in
+    s, bandwidth in bytes/s, how fast it runs programs relative to the speed
+    it reports, as this robot's results showed (``ramps.core.speed``)], None
+    where not measured (or not corrected) yet."""
 
     robot: RobotName
     latency: Amount | None = None
     bandwidth: Amount | None = None
+    speed_factor: Amount | None = None
 
 
 class LearnedWork(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):

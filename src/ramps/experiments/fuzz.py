@@ -106,7 +106,8 @@ def random_report(rng: random.Random, robot: str | None = None) -> m.LoadReport:
         running=[m.RunningProgram(rng.choice(PROGRAMS), rng.choice(PEERS), rng.choice([None, 0.0, rng.random(), 1.0]))
                  for _ in range(rng.choice([0, 0, 1, 3]))],
         remaining=sorted(_amount(rng, 120.0) for _ in range(rng.choice([0, 1, 4, m.MAX_LISTED if extreme else 2]))),
-        links=[m.LinkSeen(rng.choice(PEERS), rng.choice([None, _amount(rng, 0.5)]), rng.choice([None, _amount(rng, 1e7)]))
+        links=[m.LinkSeen(rng.choice(PEERS), rng.choice([None, _amount(rng, 0.5)]), rng.choice([None, _amount(rng, 1e7)]),
+                          rng.choice([None, _amount(rng, 2.0)]))
                for _ in range(rng.choice([0, 1, 3, m.MAX_LISTED if extreme else 2]))],
         learned=[m.LearnedWork(rng.choice(PROGRAMS), _amount(rng, 100.0)) for _ in range(rng.choice([0, 1, 2]))],
     )

@@ -915,9 +915,12 @@ class NodeRuntime:
         def ok(x: float | None) -> float | None:  # within the schema, or the whole report would be refused
             return x if x is not None and math.isfinite(x) and x >= 0 else None
 
-        links = sorted(self.node.links.measured().items())[:MAX_LISTED]
+        measured = self.node.links.measured()
+        factors = self.node.host_speeds.factor if self.node.host_speeds is not None else {}
+        links = [(r, measured.get(r)) for r in sorted(set(measured) | set(factors))[:MAX_LISTED]]
         work = sorted(self.node.origin.learned_work().items())[:MAX_LISTED]
-        return dict(links=[LinkSeen(r, ok(e.latency), ok(e.bandwidth)) for r, e in links],
+        return dict(links=[LinkSeen(r, ok(e.latency) if e else None, ok(e.bandwidth) if e else None,
+                                    ok(factors.get(r))) for r, e in links],
                     learned=[LearnedWork(p, w) for p, w in work if ok(w) is not None])
 
     def _running_list(self) -> list[RunningProgram]:
