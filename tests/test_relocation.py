@@ -259,3 +259,14 @@ def test_cancelling_during_a_move_stops_both_copies():
     team.advance(30.0)
     assert len(team.delivered("p")) == 1
     assert not team.nodes[first].executor.running and not team.nodes[other].executor.running
+
+
+def test_the_new_copys_worker_dying_keeps_the_old_copy():
+    team, first, other = move_under_way()
+    team.finish(other, "p", 2, ok=False, retryable=True, error="worker process died")
+    ap = team.program("p")
+    assert ap.state is ProgramState.RUNNING and ap.host == first and ap.live == {1: first}
+    team.release()  # its acceptance arrives late: that copy is no longer wanted
+    team.finish(first, "p", 1, ok=True, value=b"old")
+    team.advance(30.0)
+    assert [d.value for d in team.delivered("p")] == [b"old"]
