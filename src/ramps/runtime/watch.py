@@ -15,9 +15,9 @@ itself); anything that does not decode is ignored, never raised. ``close()``
 undeclares the subscribers, and closes the session only if the watcher
 opened it.
 
-One watcher for the tools that watch a team: the flood benchmark uses it;
-the testbed's ``Observer`` and the detection tool's ``Watcher`` have the
-same shape (``report``, ``ready``, ``view``; ``wait``) and can move onto it.
+One watcher for the tools that watch a team: the flood benchmark, the
+testbed (``ramps.testbed.bed.watch_team``: readiness, status, experiments)
+and the detection-time tool all use it.
 """
 
 from __future__ import annotations

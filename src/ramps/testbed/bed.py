@@ -67,12 +67,15 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ramps.errors import NoTeam, RampsError
 from ramps.runtime.localteam import CG_ROOT, RobotCgroup, cgroup_mode, partial_views
 from ramps.runtime.measure import cgroup_tree, proc_stat_fields
 from ramps.testbed import net
+
+if TYPE_CHECKING:
+    from ramps.runtime.watch import TeamWatcher
 
 STATE_DIR = Path(os.environ.get("RAMPS_TESTBED_STATE", "/run/ramps"))
 PORT = 7447
@@ -377,7 +380,7 @@ class Testbed:
         robots = list(robots or self.names)
         t0 = time.monotonic()
         deadline = t0 + timeout
-        with Observer(self) as obs:
+        with watch_team(self) as obs:
             while True:
                 for r in robots:
                     if self.process_state(r) == "dead":
@@ -599,7 +602,7 @@ class Testbed:
                                    robots=robots, connect=self.endpoints())
         if team_view:
             try:
-                with Observer(self) as obs:
+                with watch_team(self) as obs:
                     deadline = time.monotonic() + timeout  # let liveliness and load reports arrive
                     want = {r["robot"] for r in robots if r["process"] == "running" and r["link"] == "up"}
                     while time.monotonic() < deadline and not want <= obs.ready():
@@ -705,88 +708,17 @@ class Testbed:
         self.down()
 
 
-class Observer:
+def watch_team(testbed: "Testbed") -> "TeamWatcher":
     """A plain Zenoh session in the root namespace that watches the team:
-    liveliness tokens and the latest load report of each robot.
+    liveliness and the latest load report of each robot
+    (``ramps.runtime.watch.TeamWatcher``).
 
     Used instead of a ``Team`` client for readiness and status because it
     is closed by its ``with`` block whatever interrupts it (a Ctrl-C in the
     middle of ``Team()`` would leave a session whose thread blocks exit)."""
+    from ramps.runtime.watch import TeamWatcher
 
-    def __init__(self, testbed: "Testbed") -> None:
-        import zenoh
-
-        from ramps.runtime import keys
-
-        self._lock = threading.Lock()
-        self.alive: set[str] = set()
-        self.reports: dict[str, tuple[Any, float]] = {}
-        self.session = zenoh.open(testbed.zenoh_config())
-        try:
-            self._subs = [
-                self.session.liveliness().declare_subscriber(keys.alive(testbed.team), self._on_alive, history=True),
-                self.session.declare_subscriber(keys.load(testbed.team), self._on_load),
-            ]
-        except BaseException:
-            self.session.close()
-            raise
-
-    def _on_alive(self, sample) -> None:
-        import zenoh
-
-        from ramps.runtime import keys
-
-        robot = keys.robot_of(str(sample.key_expr))
-        with self._lock:
-            (self.alive.add if sample.kind == zenoh.SampleKind.PUT else self.alive.discard)(robot)
-
-    def _on_load(self, sample) -> None:
-        from ramps.core.messages import LoadReport, WireError, decode
-
-        try:
-            msg = decode(sample.payload.to_bytes()).msg
-        except WireError:
-            return
-        if isinstance(msg, LoadReport):
-            with self._lock:
-                self.reports[msg.robot] = (msg, time.monotonic())
-
-    def report(self, robot: str):
-        """The latest load report of ``robot``, or None."""
-        with self._lock:
-            rep = self.reports.get(robot)
-        return rep[0] if rep else None
-
-    def ready(self) -> set[str]:
-        """Robots alive that have published load since this observer opened."""
-        with self._lock:
-            return self.alive & set(self.reports)
-
-    def view(self) -> list[dict[str, Any]]:
-        now = time.monotonic()
-        with self._lock:
-            rows = []
-            for r in sorted(self.alive | set(self.reports)):
-                rep, at = self.reports.get(r, (None, None))
-                row: dict[str, Any] = dict(robot=r, alive=r in self.alive)
-                if rep is not None:
-                    row.update(cores=rep.cores, speed=rep.speed, cpu_busy=rep.cpu_busy,
-                               running=rep.ramps_running, sees=rep.sees, report_age=round(now - at, 3))
-                rows.append(row)
-            return rows
-
-    def close(self) -> None:
-        try:
-            for sub in self._subs:
-                sub.undeclare()
-        finally:
-            self.session.close()
-
-    def __enter__(self) -> "Observer":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+    return TeamWatcher.open(testbed.zenoh_config(), testbed.team)
 
 
 # ====================================================================== sweeping

@@ -61,65 +61,16 @@ own default, ``NodeSettings.lease_ms`` = 2000 ms, not Zenoh's 10 s.
 from __future__ import annotations
 
 import statistics
-import threading
 import time
+from typing import TYPE_CHECKING
 
-from ramps.runtime import keys
+from ramps.testbed.bed import watch_team
 
-
-class Watcher:
-    """Liveliness PUT/DELETE times of every robot, seen from the root namespace."""
-
-    def __init__(self, testbed) -> None:
-        import zenoh
-
-        self.cv = threading.Condition()
-        self.events: list[tuple[float, str, bool]] = []
-        self.alive: set[str] = set()
-        self.session = zenoh.open(testbed.zenoh_config())
-        self.sub = self.session.liveliness().declare_subscriber(keys.alive(testbed.team), self._on, history=True)
-
-    def _on(self, sample) -> None:
-        import zenoh
-
-        now = time.monotonic()
-        robot = keys.robot_of(str(sample.key_expr))
-        put = sample.kind == zenoh.SampleKind.PUT
-        with self.cv:
-            self.events.append((now, robot, put))
-            (self.alive.add if put else self.alive.discard)(robot)
-            self.cv.notify_all()
-
-    def wait(self, robot: str, alive: bool, timeout: float, since: float | None = None) -> float | None:
-        """Time of the first PUT (``alive``) or DELETE of ``robot`` at or after
-        ``since``; with no ``since``, now if the robot already is so."""
-        deadline = time.monotonic() + timeout
-        with self.cv:
-            while True:
-                if since is None and (robot in self.alive) == alive:
-                    return time.monotonic()
-                for t, r, put in self.events:
-                    if since is not None and t >= since and r == robot and put == alive:
-                        return t
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return None
-                self.cv.wait(left)
-
-    def close(self) -> None:
-        try:
-            self.sub.undeclare()
-        finally:
-            self.session.close()
-
-    def __enter__(self) -> "Watcher":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
+if TYPE_CHECKING:
+    from ramps.runtime.watch import TeamWatcher
 
 
-def detection_time(testbed, watcher: Watcher, robot: str, fault: str, *, timeout: float = 30.0,
+def detection_time(testbed, watcher: TeamWatcher, robot: str, fault: str, *, timeout: float = 30.0,
                    rejoin: bool = True) -> tuple[float | None, float | None]:
     """(seconds until the DELETE, seconds from recover until the PUT again)."""
     if watcher.wait(robot, True, timeout) is None:
@@ -137,7 +88,7 @@ def detection_time(testbed, watcher: Watcher, robot: str, fault: str, *, timeout
     return (None if gone is None else gone - t0), back
 
 
-def flapping(testbed, watcher: Watcher, robot: str, *, loss: float, duration: float,
+def flapping(testbed, watcher: TeamWatcher, robot: str, *, loss: float, duration: float,
              outages: tuple[float, float] | None = None, seed: int = 0) -> dict:
     """False alarms on a poor but working link: for ``duration`` seconds every
     packet of ``robot`` is dropped with probability ``loss``, and with
@@ -198,7 +149,7 @@ def main(argv: list[str] | None = None) -> None:
 
         outages = tuple(float(x) for x in a.outages.split(",")) if a.outages else None
         results = []
-        with Testbed(a.robots, lease_ms=a.lease_ms) as tb, Watcher(tb) as w:
+        with Testbed(a.robots, lease_ms=a.lease_ms) as tb, watch_team(tb) as w:
             for i, loss in enumerate(float(x) for x in a.loss.split(",")):
                 for gaps in ([None, outages] if outages else [None]):
                     r = flapping(tb, w, tb.names[-1], loss=loss, duration=a.duration, outages=gaps, seed=i)
@@ -211,7 +162,7 @@ def main(argv: list[str] | None = None) -> None:
             with open(a.json, "w") as f:
                 json.dump(results, f, indent=1)
         return
-    with Testbed(a.robots, lease_ms=a.lease_ms) as tb, Watcher(tb) as w:
+    with Testbed(a.robots, lease_ms=a.lease_ms) as tb, watch_team(tb) as w:
         for fault in a.faults.split(","):
             gone, back = [], []
             for i in range(a.trials):

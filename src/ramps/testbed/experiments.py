@@ -335,7 +335,7 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
     ``keep_logs``, a failed run's node logs and traces are kept in
     ``keep_logs/campaign-<seed>``."""
     from ramps.testbed import Testbed
-    from ramps.testbed.bed import Observer
+    from ramps.testbed.bed import watch_team
 
     log = log or (lambda _m: None)
     rng = random.Random(seed)
@@ -360,7 +360,7 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
     began: dict[str, float] = {}
     speed = identical_speed(robots, 2)
     with Testbed(names, cores=2, speed=speed, policy=policy, lease_ms=lease_ms, discovery=discovery) as tb, \
-            Observer(tb) as obs, \
+            watch_team(tb) as obs, \
             tb.client("r1", timeout=30.0) as team:
         teams = [team] + [tb.client(o, timeout=30.0) for o in origins[1:]]
         time.sleep(SETTLE)

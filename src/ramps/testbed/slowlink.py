@@ -107,14 +107,14 @@ def run_once(*, shaped: bool, slow: str = "r3", rate: float = 1e6, payload: int 
              programs: int = 6, stress: int = 8, quota: float = 0.3, converge: float = 60.0,
              log: Callable[[str], None] | None = None) -> SlowLinkRun:
     from ramps.testbed import Testbed
-    from ramps.testbed.bed import Observer
+    from ramps.testbed.bed import watch_team
     from ramps.testbed.experiments import SETTLE, identical_speed
 
     log = log or (lambda _m: None)
     speed = identical_speed(1, 4, quota)
     names = ["r1", "r2", "r3"]
     with Testbed(names, cores=4, quota=quota, speed=speed, programs=[TARGET]) as tb, \
-            Observer(tb) as obs, tb.client("r1", timeout=60.0) as team:
+            watch_team(tb) as obs, tb.client("r1", timeout=60.0) as team:
         t0 = time.monotonic()
         convergence: list[LinkSample] = []
         if shaped:

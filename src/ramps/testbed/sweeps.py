@@ -220,7 +220,7 @@ def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None =
     """Every configuration on real processes and in the simulator (module docstring);
     with ``keep_logs``, every node's log and decision trace go to ``keep_logs/sweep-<robots>``."""
     from ramps.testbed import Testbed
-    from ramps.testbed.bed import Observer
+    from ramps.testbed.bed import watch_team
     from ramps.testbed.experiments import SETTLE, _keep, identical_speed
 
     log = log or (lambda _m: None)
@@ -236,7 +236,7 @@ def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None =
     out: list[SweepCase] = []
     for size in sorted({c[1] for c in configs}):
         group = [c for c in configs if c[1] == size]
-        with Testbed(size, cores=cores, quota=quota, speed=speed) as tb, Observer(tb) as obs:
+        with Testbed(size, cores=cores, quota=quota, speed=speed) as tb, watch_team(tb) as obs:
             clients = {f"r{o}": tb.client(f"r{o}", timeout=30.0) for o in range(1, max(c[4] for c in group) + 1)}
             try:
                 for exp, n, k, loaded, origins in group:
