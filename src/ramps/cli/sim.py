@@ -103,6 +103,10 @@ def sim_sweep(
     seed: int = typer.Option(0, "--seed", help="generates the scenarios; the same seed gives the same sweep"),
     settings: list[str] = typer.Option([], "--set", help="change a core setting in every scenario, e.g. "
                                        "--set prompt_reports=false --set max_rejections=3 (see RampsConfig)"),
+    exact_nodes: int = typer.Option(0, "--exact-nodes", min=0,
+                                    help="also search for the exact optimum where the bound and the oracle "
+                                         "differ, visiting at most this many placements per scenario (e.g. "
+                                         "200000: seconds each; a search that runs out proves nothing)"),
     as_json: bool = typer.Option(False, "--json", help="write the results as JSON to stdout instead of tables"),
     out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
 ) -> None:
@@ -130,7 +134,7 @@ def sim_sweep(
                   console=err, transient=True) as progress:
         task = progress.add_task("sweep", total=total)
         rep = run_sweep(family, per_family=scenarios, seeds=seeds, seed=seed, policy=policy, config=config,
-                        progress=lambda done, total: progress.update(task, completed=done))
+                        progress=lambda done, total: progress.update(task, completed=done), exact_nodes=exact_nodes)
     emit([rep], print_sweep, as_json=as_json, out_file=out_file)
 
 

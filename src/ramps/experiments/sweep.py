@@ -36,6 +36,7 @@ import msgspec
 
 from ramps.core.config import RampsConfig
 from ramps.experiments.metrics import Machine, optimal_allocation
+from ramps.experiments.optimum import exact_optimum
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario
 
@@ -73,6 +74,10 @@ class SweepScenario(msgspec.Struct, kw_only=True):
     ratio_lower_bound: float
     ratio_oracle: float
     ratio_round_robin: float
+    #: the exact optimum where it is known: the lower bound when the oracle
+    #: reaches it, else what ``ramps.experiments.optimum`` proved (None: open)
+    optimum: float | None = None
+    ratio_optimum: float | None = None
 
 
 class FamilyRow(msgspec.Struct, kw_only=True):
@@ -90,6 +95,10 @@ class FamilyRow(msgspec.Struct, kw_only=True):
     within_5pct: int
     lost: int
     duplicated: int
+    #: scenarios whose exact optimum is known, and the ratios to it there
+    proven: int = 0
+    median_ratio_optimum: float | None = None
+    worst_ratio_optimum: float | None = None
 
 
 class SweepReport(msgspec.Struct, kw_only=True):
@@ -210,7 +219,9 @@ def oracle(sc: Scenario, work: float = WORK) -> tuple[float, list[int]]:
 
 
 # ---------------------------------------------------------------- running
-def run_scenario(sc: Scenario, *, policy: str, seeds: int, seed: int) -> SweepScenario:
+def run_scenario(sc: Scenario, *, policy: str, seeds: int, seed: int, exact_nodes: int = 0) -> SweepScenario:
+    """``exact_nodes`` > 0 searches for the exact optimum where the lower
+    bound and the oracle differ, visiting at most that many placements."""
     names = [r.name for r in sc.team()]
     runs = []
     for s in range(seeds):
@@ -223,11 +234,18 @@ def run_scenario(sc: Scenario, *, policy: str, seeds: int, seed: int) -> SweepSc
     lb = lower_bound(sc)
     orc, orc_dist = oracle(sc)
     med = statistics.median(r.makespan for r in runs)
+    optimum: float | None = None
+    if orc <= lb * (1 + 1e-9):
+        optimum = lb  # a schedule reaches the bound: it is the optimum
+    elif exact_nodes > 0:
+        best, proven, _ = exact_optimum(machines(sc), releases(sc), WORK, orc, max_nodes=exact_nodes)
+        optimum = best if proven else None
     return SweepScenario(
         name=sc.name, team=sc.name.split("-")[0], timing=sc.name.split("-")[1], robots=len(names),
         origins=len(sc.programs), programs=sum(p.count for p in sc.programs), lower_bound=lb, oracle=orc,
         oracle_distribution=orc_dist, runs=runs, ratio_lower_bound=med / lb, ratio_oracle=med / orc,
         ratio_round_robin=statistics.median(r.round_robin for r in runs) / lb,
+        optimum=optimum, ratio_optimum=None if optimum is None else med / optimum,
     )
 
 
@@ -235,6 +253,7 @@ def _row(name: str, scs: Sequence[SweepScenario]) -> FamilyRow:
     ratios = sorted(s.ratio_lower_bound for s in scs)
     orc = [s.ratio_oracle for s in scs]
     rr = [s.ratio_round_robin for s in scs]
+    opt = [s.ratio_optimum for s in scs if s.ratio_optimum is not None]
     return FamilyRow(
         family=name, scenarios=len(scs), runs=sum(len(s.runs) for s in scs),
         median_ratio=statistics.median(ratios), p90_ratio=ratios[min(len(ratios) - 1, math.ceil(0.9 * len(ratios)) - 1)],
@@ -242,12 +261,14 @@ def _row(name: str, scs: Sequence[SweepScenario]) -> FamilyRow:
         median_round_robin_ratio=statistics.median(rr), worst_round_robin_ratio=max(rr),
         within_2pct=sum(1 for x in ratios if x <= 1.02), within_5pct=sum(1 for x in ratios if x <= 1.05),
         lost=sum(r.lost for s in scs for r in s.runs), duplicated=sum(r.duplicated for s in scs for r in s.runs),
+        proven=len(opt), median_ratio_optimum=statistics.median(opt) if opt else None,
+        worst_ratio_optimum=max(opt) if opt else None,
     )
 
 
 def run_sweep(family: str = "multi-origin", *, per_family: int = 36, seeds: int = 3, seed: int = 0,
               policy: str = "ramps", config: RampsConfig | None = None,
-              progress: Callable[[int, int], None] | None = None) -> SweepReport:
+              progress: Callable[[int, int], None] | None = None, exact_nodes: int = 0) -> SweepReport:
     """``config`` replaces the default settings in every scenario (to measure
     what one mechanism is worth, e.g. ``RampsConfig(prompt_reports=False)``)."""
     if family not in FAMILIES:
@@ -265,7 +286,7 @@ def run_sweep(family: str = "multi-origin", *, per_family: int = 36, seeds: int 
             sc = generate(team_kind, timing, i, seed)
             if config is not None:
                 sc = msgspec.structs.replace(sc, config=config)
-            group.append(run_scenario(sc, policy=policy, seeds=seeds, seed=seed + i))
+            group.append(run_scenario(sc, policy=policy, seeds=seeds, seed=seed + i, exact_nodes=exact_nodes))
             if progress:
                 progress(len(scenarios) + len(group), total)
         scenarios.extend(group)
