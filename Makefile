@@ -1,7 +1,8 @@
 # The two commands of the README:
 #   make demo   -> the main job (bootstraps .venv on first use)
-#   make test   -> the whole test suite (bootstraps .venv on first use, with the
-#                  ROS 2 extra so the ROS face is tested too)
+#   make test   -> ruff, mypy and the whole test suite (bootstraps .venv on first
+#                  use, with the ROS 2 extra so the ROS face is tested too); it
+#                  ends with the slowest tests, to keep the suite in its 15 minutes
 # and the fast loop while you work:
 #   make check  -> ruff + mypy + the tests not marked slow (about a minute on 2 cores)
 PYTHON ?= python3
@@ -21,8 +22,8 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/ramps demo
 
-test: $(STAMP)
-	$(BIN)/python -m pytest -q
+test: lint types $(STAMP)
+	$(BIN)/python -m pytest -q --durations=15
 
 check: lint types $(STAMP)
 	$(BIN)/python -m pytest -q -m "not slow"

@@ -917,7 +917,8 @@ class NodeRuntime:
 
         measured = self.node.links.measured()
         factors = self.node.host_speeds.factor if self.node.host_speeds is not None else {}
-        links = [(r, measured.get(r)) for r in sorted(set(measured) | set(factors))[:MAX_LISTED]]
+        # teammates only: an origin also compares the runs on its own robot
+        links = [(r, measured.get(r)) for r in sorted((set(measured) | set(factors)) - {self.robot})[:MAX_LISTED]]
         work = sorted(self.node.origin.learned_work().items())[:MAX_LISTED]
         return dict(links=[LinkSeen(r, ok(e.latency) if e else None, ok(e.bandwidth) if e else None,
                                     ok(factors.get(r))) for r, e in links],
