@@ -52,6 +52,19 @@ def _stall(t: LocalTeam, robot: str, seconds: float) -> None:
 BAD = ("heartbeat_timeout", "backoff", "host_failed")
 
 
+def _two_sleepy(t: LocalTeam, trace: Path, *, seconds: float, tag: str, start_within: float) -> tuple:
+    """r1 (tracing) and r2 up; r1's application (returned: keep it) submits
+    two programs that sleep ``seconds``, one on each robot (round robin),
+    and sees both start."""
+    t.start_node("r1", extra_env={"RAMPS_TRACE": str(trace)}, wait=False)
+    t.start_node("r2", wait=False)
+    t.wait_visible(["r1", "r2"])
+    team = t.client("r1")
+    futs = [team.options(policy="round_robin").submit("sleepy", seconds=seconds, tag=f"{tag}{i}") for i in range(2)]
+    wait_for(lambda: all((t.marks / f"{tag}{i}").exists() for i in range(2)), start_within, "both programs to start")
+    return team, futs
+
+
 def _assert_clean_trace(trace: list[dict], pid: str) -> None:
     mine = [e for e in trace if e["program_id"] == pid]
     bad = [e for e in mine if any(b in e["what"] or b in e["detail"] for b in BAD) or e["attempt"] > 1]
@@ -69,12 +82,7 @@ def test_stalled_origin_restarts_none_of_its_programs(tmp_path):
     trace = tmp_path / "r1.trace"
     t = LocalTeam(2, tmp_path, cores=2)
     try:
-        t.start_node("r1", extra_env={"RAMPS_TRACE": str(trace)}, wait=False)
-        t.start_node("r2", wait=False)
-        t.wait_visible(["r1", "r2"])
-        team = t.client("r1")
-        futs = [team.options(policy="round_robin").submit("sleepy", seconds=8.0, tag=f"p{i}") for i in range(2)]
-        wait_for(lambda: all((t.marks / f"p{i}").exists() for i in range(2)), 20, "both programs to start")
+        team, futs = _two_sleepy(t, trace, seconds=8.0, tag="p", start_within=20)
         hosts = sorted((t.marks / f"p{i}").read_text().split()[0] for i in range(2))
         assert hosts == ["r1", "r2"], hosts
         time.sleep(2.0)
@@ -181,12 +189,7 @@ def test_a_program_whose_origin_crashed_and_came_back_completes_once(tmp_path):
     trace = tmp_path / "r1.trace"
     t = LocalTeam(2, tmp_path, cores=2)
     try:
-        t.start_node("r1", extra_env={"RAMPS_TRACE": str(trace)}, wait=False)
-        t.start_node("r2", wait=False)
-        t.wait_visible(["r1", "r2"])
-        team = t.client("r1")
-        futs = [team.options(policy="round_robin").submit("sleepy", seconds=3.0, tag=f"c{i}") for i in range(2)]
-        wait_for(lambda: all((t.marks / f"c{i}").exists() for i in range(2)), 60, "both programs to start")
+        team, futs = _two_sleepy(t, trace, seconds=3.0, tag="c", start_within=60)
         for i in range(2):
             (t.marks / f"c{i}").unlink()
         t.kill_node("r1")

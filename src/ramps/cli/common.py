@@ -60,6 +60,18 @@ def check_discovery(discovery: str) -> None:
         fail(f"unknown discovery {discovery!r}; choose both, multicast or connect")
 
 
+def fault_plans(mode: str, kind: str, kinds: tuple[str, ...] | list[str]) -> tuple[list[str], list[str]]:
+    """The failure modes and kinds a ``--mode``/``--kind`` pair asks for
+    (``all`` = every one), or a clear error."""
+    modes = ["sequential", "simultaneous"] if mode == "all" else [mode]
+    chosen = list(kinds) if kind == "all" else [kind]
+    if any(m not in ("sequential", "simultaneous") for m in modes):
+        fail(f"unknown mode {mode!r}; choose sequential, simultaneous or all")
+    if any(k not in kinds for k in chosen):
+        fail(f"unknown kind {kind!r}; choose {', '.join(kinds)} or all")
+    return modes, chosen
+
+
 def emit(reports: list[Any], printer: Callable[[Any, Console], None], *, as_json: bool,
          out_file: Optional[Path]) -> None:
     """Print results as tables (``printer(report, console)`` for each) or as

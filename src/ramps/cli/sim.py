@@ -19,7 +19,7 @@ import msgspec
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 
-from ramps.cli.common import POLICY_HELP, check_policy, emit, err, fail
+from ramps.cli.common import POLICY_HELP, check_policy, emit, err, fail, fault_plans
 
 sim_app = typer.Typer(help="Simulate teams and workloads in virtual time (seconds for hours of robot time).",
                       no_args_is_help=True)
@@ -80,12 +80,7 @@ def _sim_faults(mode: str, kind: str, *, policy: str, runs: int, seed: int, as_j
     from ramps.experiments.faults import KINDS, run_fault_experiment
     from ramps.experiments.report import print_fault_report
 
-    modes = ["sequential", "simultaneous"] if mode == "all" else [mode]
-    kinds = list(KINDS) if kind == "all" else [kind]
-    if any(m not in ("sequential", "simultaneous") for m in modes):
-        fail(f"unknown mode {mode!r}; choose sequential, simultaneous or all")
-    if any(k not in KINDS for k in kinds):
-        fail(f"unknown kind {kind!r}; choose crash, network, mixed or all")
+    modes, kinds = fault_plans(mode, kind, KINDS)
     reports = [run_fault_experiment(m, k, policy=policy, runs=runs, seed=seed) for m in modes for k in kinds]
     emit(reports, print_fault_report, as_json=as_json, out_file=out_file)
     if any(r.summary["lost"] or r.summary["duplicated"] for r in reports):

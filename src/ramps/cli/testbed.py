@@ -31,6 +31,7 @@ from ramps.cli.common import (
     emit,
     err,
     fail,
+    fault_plans,
     out,
     save_json,
 )
@@ -218,12 +219,7 @@ def testbed_experiment_faults(
     from ramps.testbed.experiments import run_plan
 
     check_policy(policy)
-    modes = ["sequential", "simultaneous"] if mode == "all" else [mode]
-    kinds = list(KINDS) if kind == "all" else [kind]
-    if any(m not in ("sequential", "simultaneous") for m in modes):
-        fail(f"unknown mode {mode!r}; choose sequential, simultaneous or all")
-    if any(k not in KINDS for k in kinds):
-        fail(f"unknown kind {kind!r}; choose crash, network, mixed or all")
+    modes, kinds = fault_plans(mode, kind, KINDS)
     total = sum(len(plans(m, k, first=gap, gap=gap)) for m in modes for k in kinds) * runs
     err.print(f"{total} testbed run(s); each takes {gap * 5:g}+ s plus the time the survivors need to finish")
     check_discovery(discovery)
