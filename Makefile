@@ -1,8 +1,9 @@
 # The two commands of the README:
 #   make demo   -> the main job (bootstraps .venv on first use)
 #   make test   -> ruff, mypy and the whole test suite (bootstraps .venv on first
-#                  use, with the ROS 2 extra so the ROS face is tested too); it
-#                  ends with the slowest tests, to keep the suite in its 15 minutes
+#                  use, with the ROS 2 extra so the ROS face is tested too): the
+#                  tests in parallel, then those marked serial alone; each pass
+#                  ends with its slowest tests, to keep the suite in its 15 minutes
 # and the fast loop while you work:
 #   make check  -> ruff + mypy + the tests not marked slow (about a minute on 2 cores)
 PYTHON ?= python3
@@ -22,8 +23,20 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/ramps demo
 
+# the suite in two passes: first every test not marked serial, spread over
+# TEST_WORKERS processes (pytest-xdist; most slow tests wait on robots, leases
+# and timeouts rather than compute, and a module that shares one team stays on
+# one worker, see tests/conftest.py), then the serial ones alone (they measure
+# CPU or time robots at a fraction of a core). Both passes run; either failing
+# fails the target. TEST_WORKERS=0 runs the first pass in one process too.
+TEST_WORKERS ?= 3
+
 test: lint types $(STAMP)
-	$(BIN)/python -m pytest -q --durations=15
+	@rc=0; \
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not serial" --durations=15 || rc=$$?; \
+	echo "== the serial tests, alone"; \
+	$(BIN)/python -m pytest -q -m serial --durations=15 || rc=$$?; \
+	exit $$rc
 
 check: lint types $(STAMP)
 	$(BIN)/python -m pytest -q -m "not slow"

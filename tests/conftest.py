@@ -1,5 +1,76 @@
+"""Shared test set-up.
+
+* ``tests/`` is on ``sys.path`` so test modules share helpers
+  (``tests/corehelpers.py``, ``tests/runtime_team.py``) without a package.
+* Running in parallel (``make test``: pytest-xdist, ``-n 3 --dist
+  loadgroup``): a test that uses a module-scoped fixture (a team or testbed
+  shared by the module's tests) is put in an ``xdist_group`` named after its
+  module, so that module's tests run on one worker and the team starts once;
+  the other tests are spread one by one. Tests marked ``serial`` (they
+  measure CPU, or run emulated robots whose timing assertions need the CPU
+  they were given) are left out of the parallel pass: ``make test`` runs
+  them afterwards, alone.
+* ``--cpu-report FILE``: for every test, its wall time and the CPU time it
+  cost (this process plus every child it waited for: nodes, workers, CLI
+  runs, a testbed's robots), written to ``FILE`` as JSON at the end. It tells
+  a test that waits (CPU far below wall) from one that computes, which is
+  what decides whether running it beside others (pytest-xdist, ``make
+  test``) saves time. With xdist, each worker writes ``FILE.<worker>``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
 import sys
+import time
 from pathlib import Path
+
+import pytest
 
 # let test modules share helpers (tests/corehelpers.py) without a package
 sys.path.insert(0, str(Path(__file__).parent))
+
+_CPU_REPORT: list[dict[str, object]] = []
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--cpu-report", metavar="FILE", default=None,
+                     help="write each test's wall and CPU seconds (with its reaped children) to FILE as JSON")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.get_closest_marker("xdist_group") is not None:
+            continue
+        defs = getattr(item, "_fixtureinfo", None)
+        shared = defs is not None and any(
+            fd.scope in ("module", "package", "class") and not getattr(fd, "_autouse", False)
+            for fds in defs.name2fixturedefs.values() for fd in fds)
+        if shared:
+            item.add_marker(pytest.mark.xdist_group(item.path.stem))
+
+
+def _cpu() -> float:
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):
+    if not item.config.getoption("--cpu-report"):
+        yield
+        return
+    wall, cpu = time.monotonic(), _cpu()
+    yield
+    _CPU_REPORT.append({"test": item.nodeid, "wall_s": round(time.monotonic() - wall, 2),
+                        "cpu_s": round(_cpu() - cpu, 2)})
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    path = session.config.getoption("--cpu-report")
+    if not path or not _CPU_REPORT:
+        return
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    out = Path(f"{path}.{worker}" if worker else path)
+    out.write_text(json.dumps(sorted(_CPU_REPORT, key=lambda r: -float(r["wall_s"])), indent=1))  # type: ignore[arg-type]

@@ -407,6 +407,7 @@ def test_node_leaving_hands_its_programs_back(tmp_path):
 CGROUP_WHY_NOT = cgroup_support()
 
 
+@pytest.mark.serial  # robots of one core each, one of them busy: measured loads need the CPU they were given
 @pytest.mark.skipif(CGROUP_WHY_NOT is not None, reason=f"cpu cgroups unavailable: {CGROUP_WHY_NOT}")
 def test_loaded_robot_gets_fewer_programs_cgroups(tmp_path):
     """Four robots, each its own cpu cgroup with a quota of one core (so each

@@ -16,7 +16,7 @@ import time
 
 import pytest
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.serial]  # robots at a fraction of a core, timed: run alone
 
 RAMPS = [sys.executable, "-m", "ramps.cli"]
 

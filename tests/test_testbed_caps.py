@@ -16,8 +16,8 @@ from ramps.runtime.localteam import cgroup_mode
 from ramps.core.cost import nice_weight
 from ramps.testbed.caps import CFS_PERIOD_US, niceness, shares
 
-pytestmark = [pytest.mark.slow, pytest.mark.skipif(REASON is not None or cgroup_mode() != "v1",
-                                                    reason=REASON or "per-program caps need cgroup v1")]
+pytestmark = [pytest.mark.slow, pytest.mark.serial,  # measures CPU shares: run alone
+              pytest.mark.skipif(REASON is not None or cgroup_mode() != "v1", reason=REASON or "per-program caps need cgroup v1")]
 
 
 def test_shares_are_processor_sharing():

@@ -22,7 +22,7 @@ from test_testbed import REASON, others_leftovers, wait_until
 
 from ramps.testbed.experiments import SETTLE
 
-pytestmark = [pytest.mark.slow, pytest.mark.skipif(REASON is not None, reason=REASON or "")]
+pytestmark = [pytest.mark.slow, pytest.mark.serial, pytest.mark.skipif(REASON is not None, reason=REASON or "")]
 
 NSCLIENT = str(Path(__file__).with_name("nsclient.py"))
 

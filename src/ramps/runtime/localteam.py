@@ -1,4 +1,6 @@
-"""What a team of robots on one machine needs: free loopback ports, cpu
+"""What a team of robots on one machine needs: free loopback ports (below the
+ephemeral range, so parallel test processes and outgoing connections do not
+take them), cpu
 cgroups that make a process tree a small computer of a given number of host
 cores (v1 or v2), and the rule for "every robot sees all the others".
 
@@ -10,6 +12,7 @@ demo, the benchmarks, the end-to-end tests) and by the testbed. The
 from __future__ import annotations
 
 import os
+import random
 import socket
 import time
 from pathlib import Path
@@ -26,10 +29,48 @@ def partial_views(sees: dict[str, int | None], size: int) -> dict[str, int | Non
     return {robot: n for robot, n in sees.items() if (n or 0) < size - 1}
 
 
+#: ports handed out by this process (never given twice, even once free again)
+_GIVEN: set[int] = set()
+_PICK = random.Random()  # seeded from the OS: processes side by side pick differently
+
+
+def _ephemeral_range() -> tuple[int, int]:
+    try:
+        lo, hi = Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()
+        return int(lo), int(hi)
+    except (OSError, ValueError):
+        return 32768, 60999
+
+
 def free_port() -> int:
+    """A loopback TCP port that nothing listens on now, for a node to listen on.
+
+    Picked at random below the kernel's ephemeral range (10000 up to it), so
+    an outgoing connection (a client, another test's session) is never given
+    it by the kernel between this check and the node binding it, and test
+    processes running side by side (pytest-xdist workers) rarely try the
+    same one; a port in use is skipped (the bind check) and none is handed
+    out twice by one process. Falls back to a kernel-chosen port when the
+    ephemeral range leaves no room below it."""
+    lo = 10000
+    hi = _ephemeral_range()[0]
+    if hi - lo >= 1000:
+        for _ in range(200):
+            port = _PICK.randrange(lo, hi)
+            if port in _GIVEN:
+                continue
+            with socket.socket() as s:
+                try:
+                    s.bind(("127.0.0.1", port))
+                except OSError:
+                    continue
+            _GIVEN.add(port)
+            return port
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+        port = s.getsockname()[1]
+    _GIVEN.add(port)
+    return port
 
 
 def cgroup_mode() -> str | None:
