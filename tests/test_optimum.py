@@ -9,8 +9,9 @@ import random
 import pytest
 
 from ramps.experiments.metrics import Machine, finish_time
-from ramps.experiments.optimum import exact_optimum, finish
-from ramps.experiments.sweep import generate, lower_bound, machines, oracle, releases
+from ramps.experiments.optimum import (exact_optimum, finish, improve, makespan_of, simple_bound, solve,
+                                       window_bound, window_end)
+from ramps.experiments.sweep import generate, lower_bound, machines, oracle, oracle_schedule, releases
 
 W = 53.0
 
@@ -95,3 +96,74 @@ def test_the_sweep_reports_the_optimum_where_it_is_known():
     assert run_scenario(sc, policy="ramps", seeds=1, seed=0).optimum is None  # no search: open
     burst = run_scenario(generate("idle", "burst", 0, 0), policy="ramps", seeds=1, seed=0)
     assert burst.optimum == burst.lower_bound  # the oracle reaches the bound
+
+
+def test_a_window_end_is_never_after_the_robot_ends():
+    """The window bound's robot: programs released in [t1, t2) with at least
+    work - (t2 - t1) * speed left at t2, and those released at or after t2
+    as if released at t2, end no later than the robot really does (this
+    uses the two properties above and a third: less work left never ends
+    later; checked, not proven)."""
+    rng = random.Random(11)
+    for _ in range(3000):
+        m = _random_machine(rng)
+        rel = sorted(rng.uniform(0, 12) for _ in range(rng.randint(1, 9)))
+        t1, t2 = sorted(rng.sample([0.0] + rel, 2))
+        x = sum(1 for r in rel if t1 <= r < t2)
+        y = sum(1 for r in rel if r >= t2)
+        assert window_end(m, x, W - (t2 - t1) * m.speed, y, t2, W) <= finish(m, rel, W) + 1e-6
+
+
+def test_window_end_is_processor_sharing_from_t2():
+    m = Machine(cores=4, speed=1.0, background=0)
+    # 4 programs from 0, one more at 8: the four end at 8 + 45 / 0.8, the last 8 s alone after
+    assert window_end(m, 4, W - 8.0, 1, 8.0, W) == pytest.approx(8.0 + 45 / 0.8 + 8.0)
+    assert window_end(m, 4, W - 8.0, 1, 8.0, W) == pytest.approx(finish(m, [0.0] * 4 + [8.0], W))
+    assert window_end(m, 0, 0.0, 0, 8.0, W) == 0.0
+    assert window_end(m, 2, 10.0, 0, 8.0, W) == pytest.approx(18.0)
+
+
+def test_the_bounds_never_pass_the_optimum_and_solve_finds_it():
+    rng = random.Random(5)
+    proven_by_bound = 0
+    for _ in range(40):
+        team = [_random_machine(rng) for _ in range(rng.randint(2, 3))]
+        rel = sorted(rng.choice((0.0, rng.uniform(0, 10))) for _ in range(rng.randint(1, 6)))
+        best = _brute_force(team, rel)
+        assert simple_bound(team, rel, W) <= best + 1e-6
+        assert window_bound(team, rel, W, 0.0, best) <= best + 1e-6
+        found = solve(team, rel, W, [0] * len(rel), time_limit=30.0)
+        assert found.proven and found.best == pytest.approx(best)
+        assert found.bound <= found.best + 1e-9 and found.gap == 0.0
+        proven_by_bound += found.how == "bound"
+    assert proven_by_bound > 0  # the bounds alone settle some
+
+
+def test_the_window_bound_is_stronger_than_the_sweeps():
+    sc = generate("idle", "staggered", 10, 0)  # 11 robots, 54 programs, staggered over 10 s
+    team, rel = machines(sc), releases(sc)
+    orc, placed = oracle_schedule(sc)
+    lb = lower_bound(sc)
+    wb = window_bound(team, rel, W, lb, orc)
+    assert lb * 1.05 < wb <= orc
+
+
+def test_improve_keeps_a_real_schedule_and_never_gets_worse():
+    for index in (0, 7, 11):
+        sc = generate("mixed", "staggered", index, 0)
+        team, rel = machines(sc), releases(sc)
+        orc, placed = oracle_schedule(sc)
+        assert makespan_of(team, rel, W, placed) == pytest.approx(orc)
+        got, better = improve(team, rel, W, placed)
+        assert got <= orc + 1e-9
+        assert makespan_of(team, rel, W, better) == pytest.approx(got)
+
+
+def test_solve_out_of_time_reports_the_interval():
+    sc = generate("loaded", "staggered", 11, 0)  # 20 robots, 180 programs
+    team, rel = machines(sc), releases(sc)
+    orc, placed = oracle_schedule(sc)
+    found = solve(team, rel, W, placed, time_limit=0.3)
+    assert not found.proven and found.how in ("time", "nodes")
+    assert lower_bound(sc) - 1e-6 <= found.bound < found.best <= orc + 1e-9
+    assert found.gap == pytest.approx(found.best / found.bound - 1)

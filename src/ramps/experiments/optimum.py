@@ -28,14 +28,36 @@ A search that visits ``max_nodes`` placements without finishing proves
 nothing: the result then says so (``proven`` False), and the optimum lies
 between the sweep's lower bound and the best schedule found. Node counts,
 not time, bound it, so a sweep gives the same answer on any machine.
+
+``solve`` puts it together for one scenario, and stays within a time limit:
+
+- an upper bound: the oracle's placement (or any given one), improved by a
+  local search that moves or swaps programs off the robot that ends last
+  (``improve``);
+- a lower bound stronger than the sweep's (``window_bound``): for two release
+  times t1 < t2, the programs released in [t1, t2) have run for at most
+  t2 - t1 seconds at t2, so at least ``work - (t2 - t1) * speed`` of each is
+  left; a robot given x of them and y of those released at or after t2 ends
+  no earlier than processor sharing of x such programs and y whole ones from
+  t2 (``window_end``, exact for two sizes). Whether the team can split the
+  two kinds so that every robot ends by T is a two-dimensional knapsack over
+  robots (exact, by dynamic programming); the smallest feasible T is the
+  bound. Besides the two properties above it assumes a third, checked the
+  same way: a robot never ends earlier when a program has more work left;
+- the search above, cut as soon as it finds a schedule that reaches the
+  lower bound, and stopped at the time limit with what it has: the best
+  schedule, the best bound, and the gap between them.
 """
 
 from __future__ import annotations
 
 import heapq
+import time as _wallclock
 from typing import Sequence
 
-from ramps.experiments.metrics import Machine
+import msgspec
+
+from ramps.experiments.metrics import Machine, optimal_allocation
 
 _EPS = 1e-9
 
@@ -63,11 +85,14 @@ def finish(m: Machine, releases: Sequence[float], work: float) -> float:
 
 
 def exact_optimum(team: Sequence[Machine], releases: Sequence[float], work: float, upper: float,
-                  max_nodes: int = 200_000) -> tuple[float, bool, int]:
+                  max_nodes: int = 200_000, lower: float = 0.0,
+                  deadline: float | None = None) -> tuple[float, bool, int]:
     """(best makespan found, whether it is proven optimal, placements visited).
 
     ``upper`` is the makespan of a feasible schedule (the oracle's); the
-    result is never above it."""
+    result is never above it. ``lower`` is a known lower bound: a schedule
+    that reaches it ends the search, proven. ``deadline`` (a
+    ``time.perf_counter()`` instant) stops it like ``max_nodes`` does."""
     rel = sorted(releases)
     n, robots = len(rel), range(len(team))
     placed: list[list[float]] = [[] for _ in robots]
@@ -102,8 +127,10 @@ def exact_optimum(team: Sequence[Machine], releases: Sequence[float], work: floa
         """False once the node budget is spent."""
         nonlocal best, nodes
         nodes += 1
-        if nodes > max_nodes:
+        if nodes > max_nodes or (deadline is not None and nodes % 256 == 0 and _wallclock.perf_counter() > deadline):
             return False
+        if best <= lower + _EPS:
+            return True  # nothing can beat the bound
         if j == n:
             best = min(best, max(ends(i, 0, 0.0) for i in robots))
             return True
@@ -127,3 +154,219 @@ def exact_optimum(team: Sequence[Machine], releases: Sequence[float], work: floa
 
     proven = search(0) if n else True
     return best, proven, nodes
+
+
+# ------------------------------------------------------- upper bound: local search
+def makespan_of(team: Sequence[Machine], releases: Sequence[float], work: float,
+                assignment: Sequence[int]) -> float:
+    """The makespan of placing program k (in ``releases`` order) on robot ``assignment[k]``."""
+    per: list[list[float]] = [[] for _ in team]
+    for r, a in zip(releases, assignment):
+        per[a].append(r)
+    return max((finish(m, sorted(p), work) for m, p in zip(team, per)), default=0.0)
+
+
+def improve(team: Sequence[Machine], releases: Sequence[float], work: float, assignment: Sequence[int],
+            deadline: float | None = None) -> tuple[float, list[int]]:
+    """A local optimum near ``assignment``: while moving one program off the
+    robot that ends last, or swapping it with one of another robot's,
+    lowers the larger of the two robots' ends below the makespan, do the best
+    such change. Returns (makespan, assignment)."""
+    rel = list(releases)
+    per: list[list[int]] = [[] for _ in team]  # program indices per robot
+    for k, a in enumerate(assignment):
+        per[a].append(k)
+
+    def end(i: int, ks: Sequence[int]) -> float:
+        return finish(team[i], sorted(rel[k] for k in ks), work)
+
+    ends = [end(i, per[i]) for i in range(len(team))]
+    while deadline is None or _wallclock.perf_counter() < deadline:
+        top = max(ends)
+        i = ends.index(top)
+        change: tuple[float, int, int, int | None] | None = None
+        moved: set[float] = set()  # programs released together are interchangeable
+        for k in per[i]:
+            if rel[k] in moved:
+                continue
+            moved.add(rel[k])
+            without = [q for q in per[i] if q != k]
+            seen: set[tuple] = set()  # so are robots of the same kind holding the same programs
+            for j in range(len(team)):
+                key = (team[j], tuple(sorted(rel[q] for q in per[j])))
+                if j == i or key in seen:
+                    continue
+                seen.add(key)
+                new = max(end(i, without), end(j, per[j] + [k]))
+                if new < top - _EPS and (change is None or new < change[0]):
+                    change = (new, k, j, None)
+                for q in per[j]:  # or swap it with a program released later
+                    if rel[q] <= rel[k] + _EPS:
+                        continue
+                    new = max(end(i, without + [q]), end(j, [p for p in per[j] if p != q] + [k]))
+                    if new < top - _EPS and (change is None or new < change[0]):
+                        change = (new, k, j, q)
+        if change is None:
+            break
+        _, k, j, swap = change
+        per[i].remove(k)
+        per[j].append(k)
+        if swap is not None:
+            per[j].remove(swap)
+            per[i].append(swap)
+        ends[i], ends[j] = end(i, per[i]), end(j, per[j])
+    out = [0] * len(rel)
+    for i, ks in enumerate(per):
+        for k in ks:
+            out[k] = i
+    return max(ends, default=0.0), out
+
+
+# ------------------------------------------------------- lower bound: two windows
+def _rate(m: Machine, k: int) -> float:
+    return m.speed * min(1.0, m.cores / (k + m.background))
+
+
+def window_end(m: Machine, x: int, left: float, y: int, at: float, work: float) -> float:
+    """When ``m`` ends if at time ``at`` it holds ``x`` programs with ``left``
+    work each and ``y`` whole ones (processor sharing, nothing else after)."""
+    left = min(work, max(0.0, left))
+    if y == 0:
+        return at + left / _rate(m, x) if x and left > 0 else 0.0
+    if x == 0 or left <= 0:
+        return at + work / _rate(m, y)
+    return at + left / _rate(m, x + y) + (work - left) / _rate(m, y)
+
+
+def _split_fits(team: Sequence[Machine], t1: float, t2: float, nx: int, ny: int, work: float,
+                target: float) -> bool:
+    """Can the team take nx programs released in [t1, t2) and ny released at
+    or after t2 with every robot's ``window_end`` at most ``target``?
+    dp[y] = the most window programs the robots so far take beside y late ones."""
+    none = -1
+    dp = [0] + [none] * ny
+    tables: dict[Machine, list[int]] = {}
+    for m in team:
+        tab = tables.get(m)
+        if tab is None:
+            left = work - (t2 - t1) * m.speed
+            tab = []
+            x = nx
+            for y in range(ny + 1):
+                if window_end(m, 0, left, y, t2, work) > target:
+                    break
+                while x > 0 and window_end(m, x, left, y, t2, work) > target:
+                    x -= 1
+                tab.append(x)
+            tables[m] = tab
+        new = [none] * (ny + 1)
+        for y, got in enumerate(dp):
+            if got == none:
+                continue
+            for extra in range(min(len(tab), ny - y + 1)):
+                v = min(nx, got + tab[extra])
+                if v > new[y + extra]:
+                    new[y + extra] = v
+        dp = new
+    return dp[ny] >= nx
+
+
+def _windows(releases: Sequence[float]) -> list[float]:
+    """Release times that start a new wave (more than 0.06 s after the one before)."""
+    rel = sorted(releases)
+    return rel[:1] + [b for a, b in zip(rel, rel[1:]) if b - a > 0.06]
+
+
+def simple_bound(team: Sequence[Machine], releases: Sequence[float], work: float) -> float:
+    """The sweep's bound: programs released at or after r, started together
+    at r on an idle team, for every release time r."""
+    rel = sorted(releases)
+    best = 0.0
+    for idx, r in enumerate(rel):
+        if idx and rel[idx - 1] == r:
+            continue
+        best = max(best, r + optimal_allocation(len(rel) - idx, team, work)[1])
+    return best
+
+
+def window_bound(team: Sequence[Machine], releases: Sequence[float], work: float, low: float, high: float,
+                 deadline: float | None = None, tolerance: float = 1e-6) -> float:
+    """The largest T in [low, high] (to ``tolerance``, relative) such that no
+    schedule ends by T, as some pair of windows shows; ``low`` if none does.
+    ``high`` is a schedule's makespan, so the bound stays below it: a bound
+    within the tolerance of it proves that schedule optimal."""
+    rel = sorted(releases)
+    starts = _windows(rel)
+    pairs = [(a, b, sum(1 for r in rel if a <= r < b), sum(1 for r in rel if r >= b))
+             for ia, a in enumerate(starts) for b in starts[ia + 1:]]
+
+    def unreachable(target: float) -> bool:
+        return any(not _split_fits(team, a, b, nx, ny, work, target) for a, b, nx, ny in pairs)
+
+    if not pairs:
+        return low
+    if unreachable(high * (1 - tolerance)):
+        return high * (1 - tolerance)
+    while high - low > tolerance * high:
+        if deadline is not None and _wallclock.perf_counter() > deadline:
+            break
+        mid = (low + high) / 2
+        if unreachable(mid):
+            low = mid
+        else:
+            high = mid
+    return low
+
+
+# ------------------------------------------------------- one scenario
+class OptimumResult(msgspec.Struct, kw_only=True, frozen=True):
+    """What ``solve`` knows about one scenario's optimum."""
+
+    #: the makespan of the best schedule found (an upper bound on the optimum)
+    best: float
+    #: no schedule ends before this
+    bound: float
+    #: best is the optimum (the bound reaches it, or the search finished)
+    proven: bool
+    #: placements the search visited, and seconds spent
+    nodes: int
+    seconds: float
+    #: "bound" (the bound reached the schedule), "search" (the search finished),
+    #: "time" or "nodes" (stopped: not proven)
+    how: str
+
+    @property
+    def gap(self) -> float:
+        """How far the best schedule may be above the optimum (0 when proven)."""
+        return 0.0 if self.proven else self.best / self.bound - 1.0
+
+
+def solve(team: Sequence[Machine], releases: Sequence[float], work: float, assignment: Sequence[int],
+          *, time_limit: float = 10.0, max_nodes: int = 2_000_000, tolerance: float = 1e-6) -> OptimumResult:
+    """The optimum of one scenario where it can be proven within ``time_limit``
+    seconds, else the best schedule and bound found. ``assignment`` is a
+    feasible placement to start from (program k in sorted release order on
+    robot ``assignment[k]``), e.g. the oracle's."""
+    started = _wallclock.perf_counter()
+    deadline = started + time_limit
+    rel = sorted(releases)
+
+    def done(best: float, bound: float, proven: bool, nodes: int, how: str) -> OptimumResult:
+        return OptimumResult(best=best, bound=min(bound, best) if proven else bound, proven=proven, nodes=nodes,
+                             seconds=_wallclock.perf_counter() - started, how=how)
+
+    if not rel:
+        return done(0.0, 0.0, True, 0, "bound")
+    upper, _ = improve(team, rel, work, assignment, deadline)
+    lower = simple_bound(team, rel, work)
+    if upper <= lower * (1 + tolerance):
+        return done(upper, lower, True, 0, "bound")
+    lower = max(lower, window_bound(team, rel, work, lower, upper, deadline, tolerance))
+    if upper <= lower * (1 + tolerance) * (1 + tolerance):
+        return done(upper, lower, True, 0, "bound")
+    best, finished, nodes = exact_optimum(team, rel, work, upper, max_nodes=max_nodes, lower=lower,
+                                          deadline=deadline)
+    if finished:
+        return done(best, best if best > lower * (1 + tolerance) else lower, True, nodes, "search")
+    how = "time" if _wallclock.perf_counter() > deadline else "nodes"
+    return done(best, lower, False, nodes, how)

@@ -20,6 +20,10 @@ model (``ramps.experiments.metrics``):
   either. The exact optimum lies between the two: when they are equal (every
   burst scenario here is within 0.1%), the ratio to the lower bound is the
   ratio to the optimum; otherwise it overstates it.
+* the exact optimum, where the two differ: ``ramps.experiments.optimum.solve``
+  improves the oracle's schedule, raises the bound, and searches, within a
+  time limit per scenario. A scenario it does not prove keeps an interval:
+  the optimum lies between its best bound and its best schedule.
 
 Programs within a burst are submitted 0.05 s apart (each autonomous program
 is started by the application in turn), as in the paper's experiments.
@@ -36,7 +40,7 @@ import msgspec
 
 from ramps.core.config import RampsConfig
 from ramps.experiments.metrics import Machine, optimal_allocation
-from ramps.experiments.optimum import exact_optimum
+from ramps.experiments.optimum import solve
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario
 
@@ -78,6 +82,15 @@ class SweepScenario(msgspec.Struct, kw_only=True):
     #: reaches it, else what ``ramps.experiments.optimum`` proved (None: open)
     optimum: float | None = None
     ratio_optimum: float | None = None
+    #: where the optimum is open, it lies in [best_bound, best_schedule]: the
+    #: strongest lower bound and the best schedule found (both the optimum
+    #: when it is known; None when no search ran)
+    best_bound: float | None = None
+    best_schedule: float | None = None
+    #: the policy's median makespan over best_bound: at least its ratio to
+    #: the optimum (equal when it is proven)
+    ratio_best_bound: float | None = None
+    search_seconds: float = 0.0
 
 
 class FamilyRow(msgspec.Struct, kw_only=True):
@@ -99,6 +112,13 @@ class FamilyRow(msgspec.Struct, kw_only=True):
     proven: int = 0
     median_ratio_optimum: float | None = None
     worst_ratio_optimum: float | None = None
+    #: every scenario the search covered: the ratio to the optimum, or an
+    #: upper limit on it (the ratio to the best bound) where it is open
+    searched: int = 0
+    median_ratio_best_bound: float | None = None
+    worst_ratio_best_bound: float | None = None
+    #: the widest open interval (best schedule / best bound - 1), 0 if none
+    worst_gap: float = 0.0
 
 
 class SweepReport(msgspec.Struct, kw_only=True):
@@ -204,24 +224,35 @@ class _PS:
 
 def oracle(sc: Scenario, work: float = WORK) -> tuple[float, list[int]]:
     """Makespan and distribution of the omniscient central greedy schedule."""
+    end, placed = oracle_schedule(sc, work)
+    counts = [0] * len(sc.team())
+    for i in placed:
+        counts[i] += 1
+    return end, counts
+
+
+def oracle_schedule(sc: Scenario, work: float = WORK) -> tuple[float, list[int]]:
+    """The oracle's makespan and the robot of each program, in ``releases`` order."""
     team = [_PS(m) for m in machines(sc)]
-    counts = [0] * len(team)
+    placed = []
     end = 0.0
     for r in releases(sc):
         for ps in team:
             ps.advance(r)
         best = min(range(len(team)), key=lambda i: (team[i].finish_with(work), -team[i].m.cores * team[i].m.speed))
         team[best].left.append(work)
-        counts[best] += 1
+        placed.append(best)
     for ps in team:
         end = max(end, ps.finish_with(None))
-    return end, counts
+    return end, placed
 
 
 # ---------------------------------------------------------------- running
-def run_scenario(sc: Scenario, *, policy: str, seeds: int, seed: int, exact_nodes: int = 0) -> SweepScenario:
-    """``exact_nodes`` > 0 searches for the exact optimum where the lower
-    bound and the oracle differ, visiting at most that many placements."""
+def run_scenario(sc: Scenario, *, policy: str, seeds: int, seed: int, exact_nodes: int = 0,
+                 exact_seconds: float = 0.0) -> SweepScenario:
+    """``exact_seconds`` > 0 or ``exact_nodes`` > 0 searches for the exact
+    optimum where the lower bound and the oracle differ, for at most that
+    long or that many placements (both when both are given)."""
     names = [r.name for r in sc.team()]
     runs = []
     for s in range(seeds):
@@ -235,17 +266,24 @@ def run_scenario(sc: Scenario, *, policy: str, seeds: int, seed: int, exact_node
     orc, orc_dist = oracle(sc)
     med = statistics.median(r.makespan for r in runs)
     optimum: float | None = None
+    bound = schedule = None
+    seconds = 0.0
     if orc <= lb * (1 + 1e-9):
-        optimum = lb  # a schedule reaches the bound: it is the optimum
-    elif exact_nodes > 0:
-        best, proven, _ = exact_optimum(machines(sc), releases(sc), WORK, orc, max_nodes=exact_nodes)
-        optimum = best if proven else None
+        optimum = bound = schedule = lb  # a schedule reaches the bound: it is the optimum
+    elif exact_nodes > 0 or exact_seconds > 0:
+        found = solve(machines(sc), releases(sc), WORK, oracle_schedule(sc)[1],
+                      time_limit=exact_seconds if exact_seconds > 0 else math.inf,
+                      max_nodes=exact_nodes if exact_nodes > 0 else 10**12)
+        optimum = found.best if found.proven else None
+        bound, schedule, seconds = max(lb, found.bound), found.best, found.seconds
     return SweepScenario(
         name=sc.name, team=sc.name.split("-")[0], timing=sc.name.split("-")[1], robots=len(names),
         origins=len(sc.programs), programs=sum(p.count for p in sc.programs), lower_bound=lb, oracle=orc,
         oracle_distribution=orc_dist, runs=runs, ratio_lower_bound=med / lb, ratio_oracle=med / orc,
         ratio_round_robin=statistics.median(r.round_robin for r in runs) / lb,
         optimum=optimum, ratio_optimum=None if optimum is None else med / optimum,
+        best_bound=bound, best_schedule=schedule, ratio_best_bound=None if bound is None else med / bound,
+        search_seconds=seconds,
     )
 
 
@@ -254,6 +292,9 @@ def _row(name: str, scs: Sequence[SweepScenario]) -> FamilyRow:
     orc = [s.ratio_oracle for s in scs]
     rr = [s.ratio_round_robin for s in scs]
     opt = [s.ratio_optimum for s in scs if s.ratio_optimum is not None]
+    upto = [s.ratio_best_bound for s in scs if s.ratio_best_bound is not None]
+    gaps = [s.best_schedule / s.best_bound - 1 for s in scs
+            if s.optimum is None and s.best_bound is not None and s.best_schedule is not None]
     return FamilyRow(
         family=name, scenarios=len(scs), runs=sum(len(s.runs) for s in scs),
         median_ratio=statistics.median(ratios), p90_ratio=ratios[min(len(ratios) - 1, math.ceil(0.9 * len(ratios)) - 1)],
@@ -262,13 +303,16 @@ def _row(name: str, scs: Sequence[SweepScenario]) -> FamilyRow:
         within_2pct=sum(1 for x in ratios if x <= 1.02), within_5pct=sum(1 for x in ratios if x <= 1.05),
         lost=sum(r.lost for s in scs for r in s.runs), duplicated=sum(r.duplicated for s in scs for r in s.runs),
         proven=len(opt), median_ratio_optimum=statistics.median(opt) if opt else None,
-        worst_ratio_optimum=max(opt) if opt else None,
+        worst_ratio_optimum=max(opt) if opt else None, searched=len(upto),
+        median_ratio_best_bound=statistics.median(upto) if upto else None,
+        worst_ratio_best_bound=max(upto) if upto else None, worst_gap=max(gaps, default=0.0),
     )
 
 
 def run_sweep(family: str = "multi-origin", *, per_family: int = 36, seeds: int = 3, seed: int = 0,
               policy: str = "ramps", config: RampsConfig | None = None,
-              progress: Callable[[int, int], None] | None = None, exact_nodes: int = 0) -> SweepReport:
+              progress: Callable[[int, int], None] | None = None, exact_nodes: int = 0,
+              exact_seconds: float = 0.0) -> SweepReport:
     """``config`` replaces the default settings in every scenario (to measure
     what one mechanism is worth, e.g. ``RampsConfig(prompt_reports=False)``)."""
     if family not in FAMILIES:
@@ -286,7 +330,8 @@ def run_sweep(family: str = "multi-origin", *, per_family: int = 36, seeds: int 
             sc = generate(team_kind, timing, i, seed)
             if config is not None:
                 sc = msgspec.structs.replace(sc, config=config)
-            group.append(run_scenario(sc, policy=policy, seeds=seeds, seed=seed + i, exact_nodes=exact_nodes))
+            group.append(run_scenario(sc, policy=policy, seeds=seeds, seed=seed + i, exact_nodes=exact_nodes,
+                                      exact_seconds=exact_seconds))
             if progress:
                 progress(len(scenarios) + len(group), total)
         scenarios.extend(group)
