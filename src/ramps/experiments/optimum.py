@@ -107,20 +107,34 @@ def exact_optimum(team: Sequence[Machine], releases: Sequence[float], work: floa
             v = cache[key] = finish(team[i], placed[i] + [at] * extra, work)
         return v
 
-    def bound(j: int) -> float:
-        """No placement of programs j.. ends before this (see the module docstring)."""
-        at = rel[j]
+    # where a new wave of releases starts: the bound also tries those
+    waves = [k for k in range(1, n) if rel[k] - rel[k - 1] > 0.06]
+
+    def bound_from(k: int) -> float:
+        """Programs k.. released together at rel[k], beside those placed
+        (those between are left out: a robot never ends earlier with more)."""
+        at = rel[k]
         extra = [0] * len(team)
         worst = max(ends(i, 0, at) for i in robots)
         heap = [(ends(i, 1, at), i) for i in robots]
         heapq.heapify(heap)
-        for _ in range(n - j):
+        for _ in range(n - k):
             t, i = heapq.heappop(heap)
             extra[i] += 1
             worst = max(worst, t)
             if worst >= best - _EPS:
                 break
             heapq.heappush(heap, (ends(i, extra[i] + 1, at), i))
+        return worst
+
+    def bound(j: int) -> float:
+        """No placement of programs j.. ends before this (see the module docstring)."""
+        worst = bound_from(j)
+        for k in waves:
+            if worst >= best - _EPS:
+                break
+            if k > j:
+                worst = max(worst, bound_from(k))
         return worst
 
     def search(j: int) -> bool:
@@ -187,7 +201,7 @@ def improve(team: Sequence[Machine], releases: Sequence[float], work: float, ass
         change: tuple[float, int, int, int | None] | None = None
         moved: set[float] = set()  # programs released together are interchangeable
         for k in per[i]:
-            if rel[k] in moved:
+            if rel[k] in moved or (deadline is not None and _wallclock.perf_counter() > deadline):
                 continue
             moved.add(rel[k])
             without = [q for q in per[i] if q != k]
@@ -301,7 +315,12 @@ def window_bound(team: Sequence[Machine], releases: Sequence[float], work: float
              for ia, a in enumerate(starts) for b in starts[ia + 1:]]
 
     def unreachable(target: float) -> bool:
-        return any(not _split_fits(team, a, b, nx, ny, work, target) for a, b, nx, ny in pairs)
+        for a, b, nx, ny in pairs:
+            if deadline is not None and _wallclock.perf_counter() > deadline:
+                return False  # not shown: the bound stays where it is
+            if not _split_fits(team, a, b, nx, ny, work, target):
+                return True
+        return False
 
     if not pairs:
         return low
