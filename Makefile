@@ -25,15 +25,15 @@ demo: $(STAMP)
 
 # the suite in two passes: first every test not marked serial, spread over
 # TEST_WORKERS processes (pytest-xdist; most slow tests wait on robots, leases
-# and timeouts rather than compute, and a module that shares one team stays on
-# one worker, see tests/conftest.py), then the serial ones alone (they measure
-# CPU or time robots at a fraction of a core). Both passes run; either failing
-# fails the target. TEST_WORKERS=0 runs the first pass in one process too.
+# and timeouts rather than compute; each module stays on one worker, so a
+# team its tests share starts once, see tests/conftest.py), then the serial
+# ones alone (they measure CPU or time robots at a fraction of a core). Both
+# passes run; either failing fails the target. TEST_WORKERS=0: one process.
 TEST_WORKERS ?= 3
 
 test: lint types $(STAMP)
 	@rc=0; \
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup -m "not serial" --durations=15 || rc=$$?; \
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not serial" --durations=15 || rc=$$?; \
 	echo "== the serial tests, alone"; \
 	$(BIN)/python -m pytest -q -m serial --durations=15 || rc=$$?; \
 	exit $$rc

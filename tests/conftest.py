@@ -3,13 +3,13 @@
 * ``tests/`` is on ``sys.path`` so test modules share helpers
   (``tests/corehelpers.py``, ``tests/runtime_team.py``) without a package.
 * Running in parallel (``make test``: pytest-xdist, ``-n 3 --dist
-  loadgroup``): a test that uses a module-scoped fixture (a team or testbed
-  shared by the module's tests) is put in an ``xdist_group`` named after its
-  module, so that module's tests run on one worker and the team starts once;
-  the other tests are spread one by one. Tests marked ``serial`` (they
-  measure CPU, or run emulated robots whose timing assertions need the CPU
-  they were given) are left out of the parallel pass: ``make test`` runs
-  them afterwards, alone.
+  loadfile``): each test module runs on one worker, so a team or testbed
+  that a module's tests share (a module-scoped fixture) starts once.
+  (``--dist loadgroup`` would spread the rest one by one, but with pytest
+  9.2 xdist 3.8 cannot tag test ids with their group, so it ignores the
+  groups.) Tests marked ``serial`` (they measure CPU, or run emulated robots
+  whose timing assertions need the CPU they were given) are left out of the
+  parallel pass: ``make test`` runs them afterwards, alone.
 * ``--cpu-report FILE``: for every test, its wall time and the CPU time it
   cost (this process plus every child it waited for: nodes, workers, CLI
   runs, a testbed's robots), written to ``FILE`` as JSON at the end. It tells
@@ -37,18 +37,6 @@ _CPU_REPORT: list[dict[str, object]] = []
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--cpu-report", metavar="FILE", default=None,
                      help="write each test's wall and CPU seconds (with its reaped children) to FILE as JSON")
-
-
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    for item in items:
-        if item.get_closest_marker("xdist_group") is not None:
-            continue
-        defs = getattr(item, "_fixtureinfo", None)
-        shared = defs is not None and any(
-            fd.scope in ("module", "package", "class") and not getattr(fd, "_autouse", False)
-            for fds in defs.name2fixturedefs.values() for fd in fds)
-        if shared:
-            item.add_marker(pytest.mark.xdist_group(item.path.stem))
 
 
 def _cpu() -> float:

@@ -17,16 +17,35 @@ from ramps.programs.route import ROUTE_SIZES, plan_route
 pytestmark = pytest.mark.slow
 
 
-def leftovers() -> list[str]:
-    """Node processes or demo cgroups still around after a LocalTeam closed."""
+@pytest.fixture
+def teams(monkeypatch) -> list[str]:
+    """The names of the teams this test starts (ramps.testing.LocalTeam), so
+    the leftover check looks at this test's nodes and cgroups only: tests
+    running beside it (pytest-xdist) start teams of their own."""
+    from ramps.testing import local
+
+    started: list[str] = []
+    start = local.LocalTeam.start
+
+    def recording(self, *args, **kwargs):
+        started.append(self.team)
+        return start(self, *args, **kwargs)
+
+    monkeypatch.setattr(local.LocalTeam, "start", recording)
+    return started
+
+
+def leftovers(teams: list[str]) -> list[str]:
+    """Node processes or cgroups of these teams still around after they closed."""
+    assert teams, "the test started no team"
     found = []
     for p in psutil.process_iter(["cmdline"]):
         cmd = " ".join(p.info["cmdline"] or [])
-        if "ramps.cli node" in cmd and "--team local-" in cmd:
+        if "ramps.cli node" in cmd and any(f"--team {t} " in cmd + " " for t in teams):
             found.append(cmd)
     for root in (Path("/sys/fs/cgroup/cpu"), Path("/sys/fs/cgroup")):
         if root.is_dir():
-            found += [str(d) for d in root.glob("ramps-local-*")]
+            found += [str(d) for t in teams for d in root.glob(f"ramps-{t}-*")]
     return found
 
 
@@ -38,7 +57,7 @@ def test_route_calls_explore_distinct_starts_of_one_order():
     assert all(n > 0 for n in lengths)
 
 
-def test_demo_runs_three_placements_on_a_real_team():
+def test_demo_runs_three_placements_on_a_real_team(teams):
     rep = run_demo(robots=3, programs=6, arguments=dict(ROUTE_SIZES["tiny"]), kill=None)
     names = [p.name for p in rep.phases]
     assert names == ["ramps", "round robin", "single robot (r1)"]
@@ -47,15 +66,15 @@ def test_demo_runs_three_placements_on_a_real_team():
     assert rep.phases[1].distribution == {"r1": 2, "r2": 2, "r3": 2}  # round robin
     assert rep.phases[2].distribution == {"r1": 6}  # local only
     assert rep.mode.startswith(("emulated robots", "shared host"))
-    assert leftovers() == []
+    assert leftovers(teams) == []
 
 
-def test_demo_survives_a_killed_robot():
+def test_demo_survives_a_killed_robot(teams):
     rep = run_demo(robots=3, programs=6, arguments=dict(ROUTE_SIZES["tiny"], picks=9), kill="r3", kill_at=0.0)
     ramps_phase = rep.phases[0]
     assert ramps_phase.completed == 6 and ramps_phase.failed == 0
     assert rep.killed == "r3"
-    assert leftovers() == []
+    assert leftovers(teams) == []
 
 
 def test_demo_cli_rejects_unknown_robot_and_size():
@@ -66,7 +85,7 @@ def test_demo_cli_rejects_unknown_robot_and_size():
     assert res.exit_code == 2 and "unknown size" in res.output
 
 
-def test_bench_dispatch_reports_latency_and_throughput(tmp_path):
+def test_bench_dispatch_reports_latency_and_throughput(tmp_path, teams):
     out = tmp_path / "d.json"
     res = CliRunner().invoke(app, ["bench", "dispatch", "--calls", "30", "--burst", "200", "--window", "32",
                                    "--out", str(out)])
@@ -75,4 +94,4 @@ def test_bench_dispatch_reports_latency_and_throughput(tmp_path):
     for key in ("p50_ms", "p99_ms", "throughput_per_s", "remote_p50_ms"):
         assert data[key] > 0
     assert data["completed"] == 200
-    assert leftovers() == []
+    assert leftovers(teams) == []

@@ -10,6 +10,9 @@ disappears, and in ``--frames`` mode on a secured team.
 
 from __future__ import annotations
 
+import os
+import pty
+import select
 import signal
 import subprocess
 import sys
@@ -47,6 +50,42 @@ def top_cmd(t: LocalTeam, *extra: str, secure: bool = True) -> list[str]:
     creds = ["--secure", "--credentials", str(t.credentials("app"))] if secure else []
     return [sys.executable, "-m", "ramps.cli", "top", "--team", t.team, "--no-multicast",
             *sum((["--connect", e] for e in t.endpoints()), []), *creds, *extra]
+
+
+def top_in_a_terminal(cmd: list[str], shown: bytes = b"robots alive", timeout: float = 30.0) -> tuple[str, str, int]:
+    """Run ``ramps top`` with a pseudo-terminal as its output, press Ctrl-C
+    (SIGINT) a second after it first shows ``shown``, and return what it
+    showed, its stderr and its exit status."""
+    master, slave = pty.openpty()
+    p = subprocess.Popen(cmd, stdout=slave, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                         env=dict(os.environ, COLUMNS="250", LINES="60"))
+    os.close(slave)
+    buf = b""
+    try:
+        deadline = time.monotonic() + timeout
+        sent_at = None
+        while p.poll() is None or select.select([master], [], [], 0)[0]:
+            if select.select([master], [], [], 0.1)[0]:
+                try:
+                    buf += os.read(master, 1 << 16)  # keep draining: a full pty would block it
+                except OSError:
+                    break
+            now = time.monotonic()
+            if sent_at is None and shown in buf and now > deadline - timeout + 1:
+                time.sleep(1)
+                p.send_signal(signal.SIGINT)
+                sent_at = now
+            if (sent_at is None and now > deadline) or (sent_at is not None and now > sent_at + 15):
+                break
+        assert sent_at is not None, f"ramps top showed no {shown!r} within {timeout:g} s"
+        p.wait(15)
+        err = p.stderr.read() if p.stderr else ""
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+        os.close(master)
+    return buf.decode(errors="replace"), err, p.returncode
 
 
 def test_top_on_a_secured_team_shows_a_join_a_crash_and_programs_moving_then_quits(tmp_path):
@@ -89,17 +128,10 @@ def test_top_on_a_secured_team_shows_a_join_a_crash_and_programs_moving_then_qui
         assert "gone" in row and "ago" in row  # still listed, with how long ago it was heard
         assert time.monotonic() - killed_at < 120
 
-        # the command: live until Ctrl-C
-        p = subprocess.Popen(top_cmd(t, "--interval", "0.25"), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                             text=True, start_new_session=True)
-        try:
-            time.sleep(4)
-            p.send_signal(signal.SIGINT)
-            out, err = p.communicate(timeout=15)
-        finally:
-            if p.poll() is None:
-                p.kill()
-        assert p.returncode == 0, err
+        # the command, in a terminal (a pty: rich draws live frames only there):
+        # live until Ctrl-C, pressed once it shows the team
+        out, err, rc = top_in_a_terminal(top_cmd(t, "--interval", "0.25"))
+        assert rc == 0, err
         assert "r1" in out and "r3" in out and "Traceback" not in err and "interrupted" in err
 
         # and by itself when the team disappears
