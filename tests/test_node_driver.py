@@ -1,6 +1,7 @@
 """The node driver's own clock and its view of teammates after a stall
 (``ramps.runtime.node.NodeRuntime._clock`` / ``_on_liveliness``), without
-Zenoh or processes: a fake monotonic clock and the real core ``Node``.
+Zenoh or processes: an injected fake clock, an in-memory transport and the
+real core ``Node``. Whole teams of real drivers: tests/test_driver_memory.py.
 The end-to-end version (SIGSTOP of a real node) is tests/test_busy_node_e2e.py."""
 
 from __future__ import annotations
@@ -13,30 +14,19 @@ import ramps.runtime.node as rn
 from ramps.core.events import Received
 from ramps.core.node import Node
 from ramps.runtime.settings import load_settings
+from ramps.testing.memory import FakeClock, MemoryBus
 
 
-class FakeTime:
-    def __init__(self) -> None:
-        self.t = 1000.0
-
-    def monotonic(self) -> float:
-        return self.t
-
-    def time(self) -> float:
-        return self.t
-
-
-def wait(rt, fake: FakeTime, seconds: float) -> None:
+def wait(rt, fake: FakeClock, seconds: float) -> None:
     """The driver sleeps ``seconds`` because it chose to (not a stall)."""
     rt._sleep_until = fake.t + seconds
     fake.t += seconds
 
 
 @pytest.fixture
-def driver(monkeypatch):
-    fake = FakeTime()
-    monkeypatch.setattr(rn, "time", fake)
-    rt = rn.NodeRuntime(load_settings(flags={"robot": "r1", "team": "t"}, environ={}))
+def driver():
+    fake = FakeClock()
+    rt = rn.NodeRuntime(load_settings(flags={"robot": "r1", "team": "t"}, environ={}), clock=fake)
     rt.node = Node("r1", cores=2, speed=1.0)
     for r in ("r2", "r3"):  # teammates the load server knows
         rt.node.handle(Received(sender=r, msg=report(r)), fake.t)
@@ -92,11 +82,10 @@ def test_far_from_a_stall_a_lost_teammate_is_lost_at_once(driver):
 class FakePub:
     def __init__(self, matching: bool) -> None:
         self.sent: list[bytes] = []
-        self.matching = matching
+        self._matching = matching
 
-    @property
-    def matching_status(self):
-        return self
+    def matching(self) -> bool:
+        return self._matching
 
     def put(self, data: bytes) -> None:
         self.sent.append(data)
@@ -107,7 +96,7 @@ def test_an_outcome_waits_for_its_own_client_only_and_not_for_ever(driver):
     is gone) is held; outcomes for other clients are not held behind it; it
     goes when its client is back, or after OUTCOME_HOLD regardless."""
     rt, fake = driver
-    rt.session = object()  # only _pubs is used
+    rt.transport = MemoryBus().transport("r1")  # only _pubs is used
     gone, here = FakePub(matching=False), FakePub(matching=True)
     rt._pubs = {"k/gone": gone, "k/here": here}
     rt._send_outcome("k/gone", b"1")
@@ -116,10 +105,10 @@ def test_an_outcome_waits_for_its_own_client_only_and_not_for_ever(driver):
     assert here.sent == [b"2"] and gone.sent == []
     rt._flush_outcomes()
     assert gone.sent == []
-    gone.matching = True  # the client's link is back
+    gone._matching = True  # the client's link is back
     rt._flush_outcomes()
     assert gone.sent == [b"1", b"3"] and rt._held_outcomes == []
-    gone.matching = False
+    gone._matching = False
     rt._send_outcome("k/gone", b"4")
     fake.t += rn.OUTCOME_HOLD + 0.1
     rt._flush_outcomes()
@@ -153,20 +142,6 @@ def test_a_stall_that_may_have_closed_links_is_told_to_the_core_once(driver):
     assert rt.node.origin.relink.waiting("r3", rt._clock())
 
 
-class FakeSession:
-    """What the driver's client answers use of a Zenoh session."""
-
-    def __init__(self) -> None:
-        self.pubs: dict[str, FakePub] = {}
-        self.updates: list[tuple[str, bytes]] = []
-
-    def declare_publisher(self, key: str, **_) -> FakePub:
-        return self.pubs.setdefault(key, FakePub(matching=True))
-
-    def put(self, key: str, data: bytes, **_) -> None:
-        self.updates.append((key, data))
-
-
 def test_a_request_asked_again_is_answered_again_and_never_run_twice(driver, monkeypatch):
     """A client asks about its pending requests again once its link to the
     node is back after a lapse (an outcome sent meanwhile may have gone
@@ -178,7 +153,11 @@ def test_a_request_asked_again_is_answered_again_and_never_run_twice(driver, mon
     from ramps.runtime import keys
 
     rt, fake = driver
-    rt.session = FakeSession()
+    bus = MemoryBus()
+    rt.transport = bus.transport("r1")
+    app = bus.transport("app")
+    heard: list[bytes] = []
+    app.subscribe(keys.client(rt.team, "app"), lambda _k, data: heard.append(data))
     rt.incarnation = 7
     monkeypatch.setattr(rn, "OUTCOMES_KEPT_BYTES", 500)
     sub = [SubmitProgram(client="app", request_id=i, program="echo", args=encode_args(x=1))
@@ -187,21 +166,24 @@ def test_a_request_asked_again_is_answered_again_and_never_run_twice(driver, mon
     assert sum(isinstance(a, Note) and a.what == "placed" for a in first) == 1
     again = rt._client_submit(sub[0], rt._clock())
     assert not any(isinstance(a, Note) and a.what == "placed" for a in again)
-    [(key, data)] = rt.session.updates
-    assert key == keys.client(rt.team, "app") and isinstance(decode(data).msg, ProgramUpdate)
+    [data] = heard
+    assert isinstance(decode(data).msg, ProgramUpdate)
     [pid] = list(rt._clients)
     rt._tell_client(pid, ok=True, value=b"v" * 100, host="r1", attempts=1)
-    pub = rt.session.pubs[keys.client(rt.team, "app")]
-    assert len(pub.sent) == 1
+
+    def outcomes() -> list[bytes]:  # blocking puts on the client's key
+        return [d for k, d, block in rt.transport.sent if block and k == keys.client(rt.team, "app")]
+
+    assert len(outcomes()) == 1 and len(heard) == 2
     rt._client_submit(sub[0], rt._clock())  # the outcome went nowhere: asked again
-    assert pub.sent[1] == pub.sent[0] and decode(pub.sent[1]).msg.value == b"v" * 100
+    assert outcomes()[1] == outcomes()[0] and decode(outcomes()[1]).msg.value == b"v" * 100
     rt._client_submit(sub[1], rt._clock())
     [pid2] = list(rt._clients)
     rt._tell_client(pid2, ok=True, value=b"w" * 300, host="r1", attempts=1)  # over the bytes kept: 1 goes
     rt._client_submit(sub[0], rt._clock())
-    lost = decode(pub.sent[-1]).msg
+    lost = decode(outcomes()[-1]).msg
     assert isinstance(lost, ProgramOutcome) and not lost.ok and "no longer keeps" in lost.error
-    assert rt._kept_bytes == len(pub.sent[2])  # only request 2's outcome is kept
+    assert rt._kept_bytes == len(outcomes()[2])  # only request 2's outcome is kept
 
 
 def encode_args(**kw) -> bytes:

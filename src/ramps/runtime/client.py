@@ -35,7 +35,6 @@ import itertools
 import os
 import socket
 import threading
-import time
 import weakref
 from concurrent.futures import Future
 from typing import Any, Iterable, Iterator
@@ -67,8 +66,9 @@ from ramps.errors import (
 )
 from ramps.runtime import keys
 from ramps.runtime.registry import MAX_ARGS_BYTES, Registry, decode_value, default_registry, encode_args
-from ramps.runtime.security import admission, open_session, settings_credentials, tls_listeners
-from ramps.runtime.settings import NodeSettings, load_settings, zenoh_config
+from ramps.runtime.security import admission, settings_credentials, tls_listeners
+from ramps.runtime.settings import NodeSettings, load_settings
+from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
 
 
 class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
@@ -200,10 +200,15 @@ def _track(team: "Team") -> None:
 
 
 class Team:
-    def __init__(self, settings: NodeSettings, *, robot: str | None, timeout: float,
-                 registry: Registry | None = None) -> None:
-        import zenoh
+    """A client's connection to its team (``ramps.connect()``). ``transport``
+    (default: a Zenoh session opened from ``settings``; closed with the
+    Team) and ``clock`` (default: the real one) are its seams to the world,
+    as ``NodeRuntime``'s: ``ramps.testing.memory`` has in-memory ones."""
 
+    def __init__(self, settings: NodeSettings, *, robot: str | None, timeout: float,
+                 registry: Registry | None = None, transport: Transport | None = None,
+                 clock: Clock = REAL_CLOCK) -> None:
+        self.clock = clock
         self.team = settings.team
         self.registry = registry or default_registry
         self.client_id = keys.keys_safe_id(f"{socket.gethostname()}-{os.getpid()}-{os.urandom(3).hex()}")
@@ -229,33 +234,27 @@ class Team:
             exit_on_failure = admission(settings.connect, creds, team=self.team)
         listen = [] if settings.connect else settings.listen
         try:
-            if settings.secure:
-                self.session = open_session(
-                    lambda fast: zenoh_config(settings, listen=listen, credentials=creds, exit_on_failure=fast),
-                    settings.connect, creds, team=self.team, fail_fast=exit_on_failure)
-            else:
-                self.session = zenoh.open(zenoh_config(settings, listen=listen))
-        except zenoh.ZError as exc:
+            self.transport: Transport = transport or ZenohTransport.open(
+                settings, credentials=creds, fail_fast=exit_on_failure, listen=listen)
+        except TransportError as exc:
             raise TransportError(f"cannot open a Zenoh session for team {self.team!r}: {exc}") from exc
         _track(self)
+        t = self.transport
         self._subs = [
-            self.session.declare_subscriber(keys.client(self.team, self.client_id), self._on_outcome),
-            self.session.declare_subscriber(keys.load(self.team), self._on_report),
-            self.session.liveliness().declare_subscriber(keys.alive(self.team), self._on_alive, history=True),
+            t.subscribe(keys.client(self.team, self.client_id), self._on_outcome),
+            t.subscribe(keys.load(self.team), self._on_report),
+            t.subscribe_liveliness(keys.alive(self.team), self._on_alive, history=True),
         ]
         self._timer_thread = threading.Thread(target=self._timeouts, name="ramps-client-timers", daemon=True)
         self._timer_thread.start()
         self.robot = self._find_robot(robot, timeout)
-        self._pub = self.session.declare_publisher(keys.inbox(self.team, self.robot),
-                                                   congestion_control=zenoh.CongestionControl.BLOCK)
+        self._pub = t.publisher(keys.inbox(self.team, self.robot), block=True)
 
     # ------------------------------------------------------------ discovery
-    def _on_alive(self, sample) -> None:
-        import zenoh
-
-        robot = keys.robot_of(str(sample.key_expr))
+    def _on_alive(self, key: str, alive: bool) -> None:
+        robot = keys.robot_of(key)
         with self._lock:
-            if sample.kind == zenoh.SampleKind.PUT:
+            if alive:
                 self._alive.add(robot)
                 if robot == getattr(self, "robot", None) and self._node_lapsed:
                     # the link to our node is back: an outcome it sent meanwhile went nowhere
@@ -264,7 +263,7 @@ class Team:
                     # the outcome, and never runs a request twice (a node that restarted
                     # meanwhile runs it anew: its programs died with the old one)
                     self._node_lapsed = False
-                    now = time.monotonic()
+                    now = self.clock.monotonic()
                     for rid in self._futures:
                         if rid in self._sent:
                             self._unacked[rid] = (self._sent[rid], now)
@@ -296,19 +295,19 @@ class Team:
             except Exception:  # done or cancelled meanwhile
                 pass
 
-    def _on_report(self, sample) -> None:
+    def _on_report(self, _key: str, data: bytes) -> None:
         try:
-            env = decode(sample.payload.to_bytes())
+            env = decode(data)
         except WireError:
             return
         if isinstance(env.msg, LoadReport):
             with self._lock:
-                self._reports[env.msg.robot] = (env.msg, time.monotonic())
+                self._reports[env.msg.robot] = (env.msg, self.clock.monotonic())
 
     def _find_robot(self, robot: str | None, timeout: float) -> str:
-        deadline = time.monotonic() + timeout
+        deadline = self.clock.monotonic() + timeout
         # not secured, linked to nobody after a second: is the team a secured one?
-        probe_at = time.monotonic() + 1.0 if not self.secure and self._connect else None
+        probe_at = self.clock.monotonic() + 1.0 if not self.secure and self._connect else None
         while True:
             with self._lock:
                 alive = sorted(self._alive)
@@ -317,15 +316,15 @@ class Team:
             if robot is None and alive:
                 host = keys.keys_safe_id(socket.gethostname())
                 return host if host in alive else alive[0]
-            if probe_at is not None and time.monotonic() >= probe_at:
+            if probe_at is not None and self.clock.monotonic() >= probe_at:
                 probe_at = None
-                secured = [] if list(self.session.info.peers_zid()) else tls_listeners(self._connect)
+                secured = [] if self.transport.peers() else tls_listeners(self._connect)
                 if secured:
                     self.close()
                     raise NotAdmitted(f"team {self.team!r} at {', '.join(secured)} is secured (TLS, team "
                                       "certificates) and this client is not: connect with --secure --credentials "
                                       "DIR (ramps.connect(..., secure=True, credentials=DIR))")
-            if time.monotonic() >= deadline:
+            if self.clock.monotonic() >= deadline:
                 self.close()
                 want = f"node {robot!r}" if robot else "any node"
                 seen = f" (robots seen: {', '.join(alive)})" if alive else ""
@@ -333,7 +332,7 @@ class Team:
                         "credentials come from the same team CA." if self.secure else "")
                 raise NoTeam(f"{want} of team {self.team!r} could not be reached within {timeout:g} s{seen}; "
                              "is `ramps node` running, and are the team name and endpoints right?" + hint)
-            time.sleep(0.02)
+            self.clock.sleep(0.02)
 
     # ------------------------------------------------------------ submitting
     def options(self, *, timeout: float | None = None, local_only: bool = False, work: float | None = None,
@@ -382,7 +381,7 @@ class Team:
         with self._lock:
             self._futures[rid] = fut
             if timeout is not None:
-                heapq.heappush(self._timers, (time.monotonic() + timeout, rid))
+                heapq.heappush(self._timers, (self.clock.monotonic() + timeout, rid))
                 self._timer_cv.notify()
         fut.add_done_callback(lambda f, rid=rid: self._on_done(rid, f))
         msg = SubmitProgram(client=self.client_id, request_id=rid, program=program, args=args,
@@ -392,7 +391,7 @@ class Team:
         # submission published while the node's link lapsed (a node stalled, starved of CPU) is lost
         reachable = self._node_reachable()
         with self._lock:
-            self._unacked[rid] = (data, time.monotonic() + (SUBMIT_RESEND if reachable else 0.0))
+            self._unacked[rid] = (data, self.clock.monotonic() + (SUBMIT_RESEND if reachable else 0.0))
             self._sent[rid] = data
             self._timer_cv.notify()
         if not reachable:
@@ -412,7 +411,7 @@ class Team:
         (False while the link is down: a put would go nowhere, and a
         submission is sent only once)."""
         try:
-            return bool(self._pub.matching_status.matching)
+            return bool(self._pub.matching())
         except Exception:  # cannot tell: send
             return True
 
@@ -420,7 +419,7 @@ class Team:
         """With the lock held: send again the submissions that are due, if
         the node is reachable (withdrawn ones are forgotten). Returns the
         seconds until the next is due."""
-        now = time.monotonic()
+        now = self.clock.monotonic()
         due = [(rid, data) for rid, (data, at) in self._unacked.items() if at <= now]
         if due and self._node_reachable():
             for rid, data in due:
@@ -437,7 +436,7 @@ class Team:
                     self._lock.acquire()
         if not self._unacked:
             return None
-        return max(HELD_RETRY, min(at for _, at in self._unacked.values()) - time.monotonic())
+        return max(HELD_RETRY, min(at for _, at in self._unacked.values()) - self.clock.monotonic())
 
     def _on_done(self, rid: int, fut: Future) -> None:
         with self._lock:
@@ -450,9 +449,9 @@ class Team:
             except Exception:
                 pass
 
-    def _on_outcome(self, sample) -> None:
+    def _on_outcome(self, _key: str, data: bytes) -> None:
         try:
-            env = decode(sample.payload.to_bytes())
+            env = decode(data)
         except WireError:
             return
         o = env.msg
@@ -503,7 +502,7 @@ class Team:
                     self._timer_cv.wait(retry or 0.5)
                     continue
                 when, rid = self._timers[0]
-                delay = when - time.monotonic()
+                delay = when - self.clock.monotonic()
                 if delay > 0:
                     self._timer_cv.wait(min(delay, retry) if retry else delay)
                     continue
@@ -525,7 +524,7 @@ class Team:
     # ------------------------------------------------------------ looking
     def status(self) -> TeamStatus:
         """The live team view: who is alive, their latest load reports."""
-        now = time.monotonic()
+        now = self.clock.monotonic()
         with self._lock:
             names = sorted(self._alive | set(self._reports))
             rows = []
@@ -565,7 +564,7 @@ class Team:
             except Exception:
                 pass
         try:
-            self.session.close()
+            self.transport.close()
         except Exception:
             pass
         with _OPEN_LOCK:

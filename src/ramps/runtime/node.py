@@ -16,7 +16,11 @@ places anything, so a bad call fails at the caller.
 Shutdown (SIGINT/SIGTERM, ``stop()``): the executor hands every running
 program back to its origin (a retryable result, so the origin places it
 elsewhere at once), programs this node is origin of are cancelled and their
-clients told, then the liveliness token, subscribers and session close.
+clients told, then the liveliness token, subscribers and transport close.
+
+The driver reaches the team only through ``ramps.runtime.transport`` (a
+Zenoh session in production, ``ramps.testing.memory`` in tests) and reads
+time only from its injected clock.
 """
 
 from __future__ import annotations
@@ -28,7 +32,6 @@ import os
 import queue
 import random
 import threading
-import time
 from collections import deque
 from typing import Any, Callable
 
@@ -75,8 +78,9 @@ from ramps.errors import ConfigError, NotAdmitted, ProgramNotFound, TransportErr
 from ramps.runtime import keys, revocation
 from ramps.runtime.measure import LoadSampler, cgroup_dirs, cgroup_quota, detect_cores, measure_speed
 from ramps.runtime.registry import Registry, decode_args, default_registry
-from ramps.runtime.security import admission, open_session, settings_credentials
-from ramps.runtime.settings import NodeSettings, zenoh_config
+from ramps.runtime.security import admission, settings_credentials
+from ramps.runtime.settings import NodeSettings
+from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
 from ramps.runtime.workers import WorkerPool
 
 log = logging.getLogger("ramps.node")
@@ -117,11 +121,27 @@ _insecure_warned = False
 
 
 class NodeRuntime:
+    """One robot's node. ``transport`` (default: a Zenoh session opened
+    from ``settings`` at ``start()``), ``clock`` (default: the real one),
+    ``worker_pool`` and ``load_sampler`` (factories with the signatures of
+    ``WorkerPool`` and ``LoadSampler``; default: those) are the driver's
+    seams to the world: ``ramps.testing.memory`` gives in-memory ones, so
+    tests drive the real driver and core with ``start(threaded=False)`` and
+    ``step()``."""
+
     def __init__(self, settings: NodeSettings, *, registry: Registry | None = None,
-                 on_note: Callable[[Note], None] | None = None) -> None:
+                 on_note: Callable[[Note], None] | None = None, transport: Transport | None = None,
+                 clock: Clock = REAL_CLOCK, worker_pool: Callable[..., Any] = WorkerPool,
+                 load_sampler: Callable[..., Any] = LoadSampler, incarnation: int | None = None) -> None:
         if not settings.robot:
             raise ValueError("a node needs a robot name")
         self.s = settings
+        self.clock = clock
+        self._given_transport = transport
+        self._worker_pool = worker_pool
+        self._load_sampler = load_sampler
+        self._threaded = True
+        self._incarnation = incarnation  # None: random (tests fix it, so a run repeats)
         self.robot = settings.robot
         self.team = settings.team
         self.registry = Registry(dict((registry or default_registry)._specs))
@@ -156,7 +176,7 @@ class NodeRuntime:
         self._drops_unlogged = 0
         self._trace = None
         self._trace_wire = False
-        self.session = None
+        self.transport: Transport | None = None
         self.node: Node | None = None
         #: the driver's stalls (see _clock): how many, seconds in all
         self.stalls = 0
@@ -186,11 +206,10 @@ class NodeRuntime:
         self.metrics = None
 
     # ================================================================ lifecycle
-    def start(self) -> "NodeRuntime":
-        import zenoh
-
+    def start(self, *, threaded: bool = True) -> "NodeRuntime":
+        """Join the team and start driving. ``threaded=False``: no driver
+        thread; the caller drives it with ``step()`` (tests)."""
         s = self.s
-        zenoh.try_init_log_from_env()  # RUST_LOG=zenoh=debug shows Zenoh's own view (links, leases)
         creds, exit_on_failure = self._join_checks()
         if creds is not None:
             self._load_revocations(creds)
@@ -204,16 +223,16 @@ class NodeRuntime:
         # a speed measured at boot is measured again while no program runs
         # (robots booting together measure each other's start-up; ramps.core.speed)
         self._quota = quota
-        self._remeasure_at = None if s.speed else time.monotonic() + REMEASURE_PERIOD
-        self.incarnation = int.from_bytes(os.urandom(6), "big")
+        self._remeasure_at = None if s.speed else self.clock.monotonic() + REMEASURE_PERIOD
+        self.incarnation = self._incarnation or int.from_bytes(os.urandom(6), "big")
         return_freed_memory()
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=s.core,
                          rng=random.Random(self.incarnation), incarnation=self.incarnation,
                          registry=self.registry.names(), program_weight=nice_weight(s.worker_nice))
-        self.pool = WorkerPool(self.cores, self.registry.targets(), self._finished, nice=s.worker_nice,
+        self.pool = self._worker_pool(self.cores, self.registry.targets(), self._finished, nice=s.worker_nice,
                                on_progress=self._progress_reported, on_checkpoint=self._checkpoint_saved)
         self.pool.start()
-        self.sampler = LoadSampler(lambda: self.pool.busy() + self.pool.queued(), window=s.window,
+        self.sampler = self._load_sampler(lambda: self.pool.busy() + self.pool.queued(), window=s.window,
                                    scope=scope, cgroup=cg if scope == "cgroup" else None,
                                    acct=acct if scope == "cgroup" else None)
         self.sampler.start()
@@ -232,36 +251,33 @@ class NodeRuntime:
         if s.metrics:
             self._serve_metrics(s.metrics)
         try:
-            if s.secure:
-                self.session = open_session(lambda fast: zenoh_config(s, credentials=creds, exit_on_failure=fast),
-                                            s.connect, creds, team=self.team, fail_fast=exit_on_failure)
-            else:
-                self.session = zenoh.open(zenoh_config(s))
+            self.transport = self._given_transport or ZenohTransport.open(s, credentials=creds,
+                                                                          fail_fast=exit_on_failure)
             put = self._q.put
+            t = self.transport
             self._subs = [
-                self.session.declare_subscriber(keys.inbox(self.team, self.robot),
-                                                self._on_wire),
-                self.session.declare_subscriber(keys.load(self.team),
-                                                self._on_wire),
-                self.session.liveliness().declare_subscriber(
-                    keys.alive(self.team),
-                    lambda smp: put(("live", keys.robot_of(str(smp.key_expr)), smp.kind == zenoh.SampleKind.PUT)),
-                    history=True),
+                t.subscribe(keys.inbox(self.team, self.robot), self._on_wire),
+                t.subscribe(keys.load(self.team), self._on_wire),
+                t.subscribe_liveliness(keys.alive(self.team),
+                                       lambda key, alive: put(("live", keys.robot_of(key), alive)), history=True),
             ]
             if self._ca_cert is not None:
-                self._subs.append(self.session.declare_subscriber(
-                    revocation.revoked_key(self.team),
-                    lambda smp: put(("revoked", smp.payload.to_bytes()))))
-            self._load_pub = self.session.declare_publisher(keys.load(self.team, self.robot))
-            self._token = self.session.liveliness().declare_token(keys.alive(self.team, self.robot))
-        except zenoh.ZError as exc:
+                self._subs.append(t.subscribe(revocation.revoked_key(self.team),
+                                              lambda _key, data: put(("revoked", data))))
+            self._load_pub = t.publisher(keys.load(self.team, self.robot))
+            self._token = t.declare_token(keys.alive(self.team, self.robot))
+        except TransportError as exc:
             self._teardown()
             raise TransportError(f"cannot join team {self.team!r} over Zenoh: {exc}") from exc
         except NotAdmitted:
             self._teardown()
             raise
-        self._driver = threading.Thread(target=self._drive, name=f"ramps-node-{self.robot}", daemon=True)
-        self._driver.start()
+        self._threaded = threaded
+        self._last_read = self.clock.monotonic()
+        self._next_pub = self._clock()
+        if threaded:
+            self._driver = threading.Thread(target=self._drive, name=f"ramps-node-{self.robot}", daemon=True)
+            self._driver.start()
         self._started = True
         log.info("node %s joined team %s: %d cores, speed %.2f, load scope %s", self.robot, self.team,
                  self.cores, self.speed, scope)
@@ -304,8 +320,12 @@ class NodeRuntime:
             return
         done = threading.Event()
         self._q.put(("stop", done))
-        done.wait(timeout)
-        self._driver.join(timeout)
+        if self._threaded:
+            done.wait(timeout)
+            self._driver.join(timeout)
+        else:
+            while self.step():
+                pass
         self._teardown()
 
     def wait(self, timeout: float | None = None) -> bool:
@@ -323,7 +343,7 @@ class NodeRuntime:
     def endpoints(self) -> list[str]:
         """Where this node listens (with the real ports)."""
         try:
-            return [str(x) for x in self.session.info.locators()] if hasattr(self.session.info, "locators") else []
+            return self.transport.locators() if self.transport is not None else []
         except Exception:  # pragma: no cover - informational only
             return []
 
@@ -340,12 +360,12 @@ class NodeRuntime:
                 sub.undeclare()
             except Exception:
                 pass
-        if self.session is not None:
+        if self.transport is not None:
             try:
-                self.session.close()
+                self.transport.close()
             except Exception:
                 pass
-            self.session = None
+            self.transport = None
         if getattr(self, "sampler", None):
             self.sampler.stop()
         if getattr(self, "pool", None):
@@ -359,17 +379,16 @@ class NodeRuntime:
         self._stopped.set()
 
     # ================================================================ inputs
-    def _on_wire(self, sample) -> None:
-        """Zenoh callback: queue the bytes for the driver, unless the backlog
+    def _on_wire(self, _key: str, data: bytes) -> None:
+        """Transport callback: queue the bytes for the driver, unless the backlog
         already holds MAX_BACKLOG_BYTES (a flood, or a driver that cannot keep
         up): then drop and count, so memory stays bounded. Small messages
         (submits, heartbeats) pass any realistic burst."""
-        data = sample.payload.to_bytes()
         if self._backlog_bytes + len(data) > MAX_BACKLOG_BYTES:
             self.overflow += 1
             return
         self._backlog_bytes += len(data)
-        self._q.put(("wire", data, time.monotonic()))
+        self._q.put(("wire", data, self.clock.monotonic()))
 
     def _finished(self, key, ok: bool, value: bytes, error: str, retryable: bool) -> None:
         self._q.put(("finished", ProgramFinished(program_id=key[0], attempt=key[1], ok=ok, value=value, error=error,
@@ -395,7 +414,7 @@ class NodeRuntime:
         write off healthy programs, its own included, the moment the node
         wakes): the stall is taken out of the core's time. Deadlines stay
         as long in the time the node was awake to hear."""
-        t = time.monotonic()
+        t = self.clock.monotonic()
         late = t - max(self._last_read, self._sleep_until)
         if late > STALL_MIN:
             self._stall_offset += late
@@ -419,64 +438,86 @@ class NodeRuntime:
         return self.node.handle(Stalled(seconds=seconds), now)
 
     def _drive(self) -> None:
+        while self._round(block=True):
+            pass
+
+    def step(self) -> bool:
+        """One round of the driver without waiting: every queued item, then
+        the timers due by the clock (publish, core deadlines, held
+        teammates and outcomes). False once the node has stopped. For a
+        node started with ``threaded=False`` (tests, ``ramps.testing.memory``)."""
+        return self._round(block=False)
+
+    def next_wake(self) -> float:
+        """The clock's monotonic time at which the driver wants its next round
+        (the time it allowed itself to sleep until)."""
+        return self._sleep_until
+
+    def _round(self, *, block: bool) -> bool:
         node = self.node
         clock = self._clock
-        self._last_read = time.monotonic()
-        next_pub = clock()
-        period = self.s.publish_period
         q = self._q
-        while True:
-            now = clock()
-            deadline = node.next_deadline()
-            wake = next_pub if deadline is None else min(deadline, next_pub)
-            wake = min(wake, self._next_release()) if self._held_lost else wake
-            wake = min(wake, now + OUTCOME_RETRY) if self._held_outcomes else wake
-            wait = max(0.0, wake - now)
-            self._sleep_until = time.monotonic() + wait
-            try:
-                item = q.get(timeout=wait)
-            except queue.Empty:
-                item = None
-            # every message queued before the timers fire: heartbeats and
-            # results that piled up while the node stalled count first
-            actions: list = []
-            budget = MAX_ITEMS_PER_ROUND
-            while item is not None:
-                now = clock()
-                if self._stall_pending:
-                    actions.extend(self._stall_told(now))
-                if item[0] == "stop":
-                    self._apply(actions)
-                    self._shutdown(item[1])
-                    if self.revoked_self:  # nobody asked: leave the team now (run_node and the CLI see wait())
-                        self._teardown()
-                    return
-                try:
-                    actions.extend(self._handle(item, now))
-                except Exception:  # a bug must not take the node down; say so loudly
-                    log.exception("node %s: error handling %s", self.robot, item[0])
-                if len(actions) >= 256:
-                    self._apply(actions)
-                    actions = []
-                budget -= 1
-                try:
-                    item = q.get_nowait() if budget > 0 else None
-                except queue.Empty:
-                    item = None
+        now = clock()
+        deadline = node.next_deadline()
+        next_pub = self._next_pub
+        wake = next_pub if deadline is None else min(deadline, next_pub)
+        wake = min(wake, self._next_release()) if self._held_lost else wake
+        wake = min(wake, now + OUTCOME_RETRY) if self._held_outcomes else wake
+        wait = max(0.0, wake - now)
+        self._sleep_until = self.clock.monotonic() + wait
+        try:
+            item = q.get(timeout=wait) if block else q.get_nowait()
+        except queue.Empty:
+            item = None
+        # every message queued before the timers fire: heartbeats and
+        # results that piled up while the node stalled count first
+        actions: list = []
+        budget = MAX_ITEMS_PER_ROUND
+        while item is not None:
             now = clock()
             if self._stall_pending:
                 actions.extend(self._stall_told(now))
-            if self._held_lost:
-                actions.extend(self._release_lost(now))
-            if now >= next_pub:
-                self._publish(now)
-                next_pub = now + period if now - next_pub > period else next_pub + period
+            if item[0] == "stop":
+                self._apply(actions)
+                self._shutdown(item[1])
+                if self.revoked_self:  # nobody asked: leave the team now (run_node and the CLI see wait())
+                    self._teardown()
+                return False
+            try:
+                actions.extend(self._handle(item, now))
+            except Exception:  # a bug must not take the node down; say so loudly
+                log.exception("node %s: error handling %s", self.robot, item[0])
+            if len(actions) >= 256:
+                self._apply(actions)
+                actions = []
+            budget -= 1
+            try:
+                item = q.get_nowait() if budget > 0 else None
+            except queue.Empty:
+                item = None
+        now = clock()
+        if self._stall_pending:
+            actions.extend(self._stall_told(now))
+        if self._held_lost:
+            actions.extend(self._release_lost(now))
+        if now >= next_pub:
+            self._publish(now)
+            period = self.s.publish_period
+            self._next_pub = now + period if now - next_pub > period else next_pub + period
+        deadline = node.next_deadline()
+        if deadline is not None and deadline <= now:
+            actions.extend(node.tick(now))
+        self._apply(actions)
+        if self._held_outcomes:
+            self._flush_outcomes()
+        if not block:  # the next round is due at the earliest of its timers
+            wake = self._next_pub
             deadline = node.next_deadline()
-            if deadline is not None and deadline <= now:
-                actions.extend(node.tick(now))
-            self._apply(actions)
-            if self._held_outcomes:
-                self._flush_outcomes()
+            wake = wake if deadline is None else min(wake, deadline)
+            wake = min(wake, self._next_release()) if self._held_lost else wake
+            wake = min(wake, now + OUTCOME_RETRY) if self._held_outcomes else wake
+            self._sleep_until = self.clock.monotonic() + max(0.0, wake - now)
+        return True
 
     def _on_liveliness(self, robot: str, alive: bool, now: float) -> list:
         """A teammate's liveliness token came or went. Just after this node
@@ -486,7 +527,7 @@ class NodeRuntime:
         robot comes back meanwhile; a robot that does not is lost then."""
         if robot in self._revoked:
             return []
-        if not alive and self._stalled_at and time.monotonic() - self._stalled_at < STALL_GRACE:
+        if not alive and self._stalled_at and self.clock.monotonic() - self._stalled_at < STALL_GRACE:
             self._held_lost[robot] = now + STALL_GRACE
             return []
         if alive and self._held_lost.pop(robot, None) is not None:
@@ -561,7 +602,7 @@ class NodeRuntime:
         return out
 
     def _republish(self, now: float) -> None:
-        if self.revocations is None or now < self._republish_at or self.session is None:
+        if self.revocations is None or now < self._republish_at or self.transport is None:
             return
         self._republish_at = now + revocation.REPUBLISH_PERIOD
         self._put(revocation.revoked_key(self.team), revocation.encode(self.revocations))
@@ -720,7 +761,7 @@ class NodeRuntime:
         client's link to it is being rebuilt: an outcome published then was
         lost, and the client waited for ever), it is held until one does, for
         OUTCOME_HOLD at most, then sent regardless."""
-        self._send_or_hold(key, data, block=True, until=time.monotonic() + OUTCOME_HOLD)
+        self._send_or_hold(key, data, block=True, until=self.clock.monotonic() + OUTCOME_HOLD)
 
     def _send_or_hold(self, key: str, data: bytes, *, block: bool, until: float) -> None:
         if any(k == key for k, _, _, _ in self._held_outcomes) or not self._reachable(key, block):
@@ -729,16 +770,13 @@ class NodeRuntime:
         self._put(key, data, block=block)
 
     def _reachable(self, key: str, block: bool) -> bool:
-        if self.session is None:
+        if self.transport is None:
             return True
         try:
             pub = self._pubs.get(key)
             if pub is None:
-                import zenoh
-
-                cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
-                pub = self._pubs[key] = self.session.declare_publisher(key, congestion_control=cc)
-            return bool(pub.matching_status.matching)
+                pub = self._pubs[key] = self.transport.publisher(key, block=block)
+            return bool(pub.matching())
         except Exception:  # cannot tell: send
             return True
 
@@ -746,7 +784,7 @@ class NodeRuntime:
         """Send what was held, per key in order, once its receiver is
         reachable or its time is up."""
         held, self._held_outcomes = self._held_outcomes, []
-        now = time.monotonic()
+        now = self.clock.monotonic()
         waiting: set[str] = set()
         for key, data, until, block in held:
             if key in waiting or (now < until and not self._reachable(key, block)):
@@ -757,7 +795,7 @@ class NodeRuntime:
 
     # ================================================================ outputs
     def _apply(self, actions: list) -> None:
-        mnow = time.monotonic() - self._stall_offset  # the core's clock, for metrics' latencies
+        mnow = self.clock.monotonic() - self._stall_offset  # the core's clock, for metrics' latencies
         for a in actions:
             if self.metrics is not None:
                 self.metrics.on_action(a, self.node, mnow)
@@ -801,23 +839,21 @@ class NodeRuntime:
         if target is None:
             return
         fraction, detail = self._progress.get(pid, (None, ""))
-        if self.session is None:
+        if self.transport is None:
             return
         data = encode(self.robot, ProgramUpdate(request_id=target[1], state=state, host=host, attempt=attempt,
                                                 fraction=fraction, detail=detail))
         try:  # advisory: dropped rather than let a stalled client stall this driver (outcomes block, see _put)
-            import zenoh
-
-            self.session.put(keys.client(self.team, target[0]), data, congestion_control=zenoh.CongestionControl.DROP)
+            self.transport.put(keys.client(self.team, target[0]), data, block=False)
         except Exception as exc:
             log.debug("node %s could not send a program update: %s", self.robot, exc)
 
     def _write_trace(self, what: str, program_id: str, other: str, attempt: int, detail: str, *,
                      at: float | None = None) -> None:
-        """One JSON line per decision: ``t`` is time.monotonic() (one clock for
+        """One JSON line per decision: ``t`` is self.clock.monotonic() (one clock for
         every process of a host), ``wall`` the Unix time, fields as the
         simulator's trace (``ramps.sim.engine.TraceEntry``)."""
-        rec = {"t": round(time.monotonic() if at is None else at, 6), "wall": round(time.time(), 6),
+        rec = {"t": round(self.clock.monotonic() if at is None else at, 6), "wall": round(self.clock.time(), 6),
                "robot": self.robot, "what": what, "program_id": program_id, "other": other, "attempt": attempt,
                "detail": detail}
         try:
@@ -833,15 +869,12 @@ class NodeRuntime:
         thread, and the core already survives lost messages (connect
         timeouts, periodic heartbeats, results resent until acknowledged).
         Outcomes to a client (``block=True``) are not resent, so they wait."""
-        if self.session is None:
+        if self.transport is None:
             return
         pub = self._pubs.get(key)
         try:
             if pub is None:
-                import zenoh
-
-                cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
-                pub = self._pubs[key] = self.session.declare_publisher(key, congestion_control=cc)
+                pub = self._pubs[key] = self.transport.publisher(key, block=block)
                 if len(self._pubs) > 4096:  # clients come and go
                     self._pubs.pop(next(iter(self._pubs))).undeclare()
             pub.put(data)
@@ -860,8 +893,8 @@ class NodeRuntime:
 
     def _publish(self, now: float) -> None:
         due = self._remeasure_at
-        if due is not None and time.monotonic() >= due and not self.pool.busy() and not self.pool.queued():
-            self._remeasure_at = time.monotonic() + REMEASURE_PERIOD
+        if due is not None and self.clock.monotonic() >= due and not self.pool.busy() and not self.pool.queued():
+            self._remeasure_at = self.clock.monotonic() + REMEASURE_PERIOD
             threading.Thread(target=self._remeasure, name=f"ramps-speed-{self.robot}", daemon=True).start()
         busy, runnable, ramps_avg = self.sampler.averages()
         per_core, load1, mem_free = self.sampler.extras()
@@ -955,7 +988,7 @@ class NodeRuntime:
         log.info("node %s leaving team %s: handed back %d program(s)", self.robot, self.team, handed)
         if self.bad_messages:
             log.warning("node %s dropped %d malformed message(s) while it ran", self.robot, self.bad_messages)
-        time.sleep(0.05)  # let Zenoh flush the hand-backs
+        self.clock.sleep(0.05)  # let Zenoh flush the hand-backs
         done.set()
 
 

@@ -1,0 +1,193 @@
+"""The seam between the runtime's drivers (node, client) and Zenoh.
+
+How this works: ``NodeRuntime`` and ``ramps.connect()`` talk to the team
+only through a ``Transport``: publish bytes on a key (with or without
+blocking when the link is congested), subscribe to a key expression with a
+callback ``(key, bytes)``, declare a liveliness token and watch the team's
+tokens ``(key, alive)``, ask whether a key has a subscriber now, list the
+locators and peers, close. ``ZenohTransport`` is that over a real Zenoh
+session (the only place in the drivers that touches ``zenoh`` objects);
+``ramps.testing.memory.MemoryTransport`` is the same over an in-process bus,
+so a driver's logic runs in tests in milliseconds, without processes.
+
+Time goes through a ``Clock`` (``monotonic``, ``time``, ``sleep``):
+``REAL_CLOCK`` in production, a fake one in tests
+(``ramps.testing.memory.FakeClock``).
+
+Zenoh errors surface as ``ramps.errors.TransportError`` with Zenoh's words.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING, Any, Callable, Protocol
+
+from ramps.errors import TransportError
+
+if TYPE_CHECKING:
+    from ramps.runtime.settings import NodeSettings
+
+#: a subscriber's callback: the sample's key and its bytes
+OnSample = Callable[[str, bytes], None]
+#: a liveliness subscriber's callback: the token's key, and whether it came (True) or went
+OnAlive = Callable[[str, bool], None]
+
+
+class Clock(Protocol):
+    """Where a driver reads time: ``monotonic()`` for deadlines, ``time()``
+    for wall stamps in traces, ``sleep()`` for its few deliberate pauses."""
+
+    def monotonic(self) -> float: ...
+
+    def time(self) -> float: ...
+
+    def sleep(self, seconds: float) -> None: ...
+
+
+class RealClock:
+    """The process's clocks (``time.monotonic``, ``time.time``, ``time.sleep``)."""
+
+    def monotonic(self) -> float:
+        return time.monotonic()
+
+    def time(self) -> float:
+        return time.time()
+
+    def sleep(self, seconds: float) -> None:
+        time.sleep(seconds)
+
+
+REAL_CLOCK = RealClock()
+
+
+class Declared(Protocol):
+    """A subscriber or token: ``undeclare()`` ends it."""
+
+    def undeclare(self) -> None: ...
+
+
+class Publisher(Protocol):
+    """A declared publisher on one key."""
+
+    def put(self, data: bytes) -> None: ...
+
+    def matching(self) -> bool:
+        """Whether some subscriber matches its key now."""
+        ...
+
+    def undeclare(self) -> None: ...
+
+
+class Transport(Protocol):
+    """What a driver needs of the team's network (see the module's docstring)."""
+
+    def subscribe(self, key: str, callback: OnSample) -> Declared: ...
+
+    def subscribe_liveliness(self, key: str, callback: OnAlive, *, history: bool = True) -> Declared: ...
+
+    def declare_token(self, key: str) -> Declared: ...
+
+    def publisher(self, key: str, *, block: bool = False) -> Publisher: ...
+
+    def put(self, key: str, data: bytes, *, block: bool = False) -> None: ...
+
+    def locators(self) -> list[str]: ...
+
+    def peers(self) -> list[str]: ...
+
+    def close(self) -> None: ...
+
+
+class _ZenohPublisher:
+    def __init__(self, pub: Any) -> None:
+        self._pub = pub
+
+    def put(self, data: bytes) -> None:
+        self._pub.put(data)
+
+    def matching(self) -> bool:
+        return bool(self._pub.matching_status.matching)
+
+    def undeclare(self) -> None:
+        self._pub.undeclare()
+
+
+class ZenohTransport:
+    """A ``Transport`` over one Zenoh session (owned: ``close()`` closes it)."""
+
+    def __init__(self, session: Any) -> None:
+        import zenoh
+
+        self._z = zenoh
+        self.session = session
+
+    @classmethod
+    def open(cls, settings: "NodeSettings", *, credentials: Any = None, fail_fast: bool = False,
+             listen: list[str] | None = None) -> "ZenohTransport":
+        """A session for ``settings`` as ``ramps node`` and ``ramps.connect``
+        open it: TLS with this robot's ``credentials`` on a secured team
+        (``security.open_session``), else plain. Raises TransportError."""
+        import zenoh
+
+        from ramps.runtime.security import open_session
+        from ramps.runtime.settings import zenoh_config
+
+        zenoh.try_init_log_from_env()  # RUST_LOG=zenoh=debug shows Zenoh's own view (links, leases)
+        extra: dict[str, Any] = {} if listen is None else {"listen": listen}
+        try:
+            if settings.secure:
+                session = open_session(
+                    lambda fast: zenoh_config(settings, credentials=credentials, exit_on_failure=fast, **extra),
+                    settings.connect, credentials, team=settings.team, fail_fast=fail_fast)
+            else:
+                session = zenoh.open(zenoh_config(settings, **extra))
+        except zenoh.ZError as exc:
+            raise TransportError(str(exc)) from exc
+        return cls(session)
+
+    def subscribe(self, key: str, callback: OnSample) -> Declared:
+        try:
+            return self.session.declare_subscriber(
+                key, lambda smp: callback(str(smp.key_expr), smp.payload.to_bytes()))
+        except self._z.ZError as exc:
+            raise TransportError(str(exc)) from exc
+
+    def subscribe_liveliness(self, key: str, callback: OnAlive, *, history: bool = True) -> Declared:
+        put = self._z.SampleKind.PUT
+        try:
+            return self.session.liveliness().declare_subscriber(
+                key, lambda smp: callback(str(smp.key_expr), smp.kind == put), history=history)
+        except self._z.ZError as exc:
+            raise TransportError(str(exc)) from exc
+
+    def declare_token(self, key: str) -> Declared:
+        try:
+            return self.session.liveliness().declare_token(key)
+        except self._z.ZError as exc:
+            raise TransportError(str(exc)) from exc
+
+    def _cc(self, block: bool) -> Any:
+        return self._z.CongestionControl.BLOCK if block else self._z.CongestionControl.DROP
+
+    def publisher(self, key: str, *, block: bool = False) -> Publisher:
+        try:
+            return _ZenohPublisher(self.session.declare_publisher(key, congestion_control=self._cc(block)))
+        except self._z.ZError as exc:
+            raise TransportError(str(exc)) from exc
+
+    def put(self, key: str, data: bytes, *, block: bool = False) -> None:
+        self.session.put(key, data, congestion_control=self._cc(block))
+
+    def locators(self) -> list[str]:
+        info = self.session.info
+        return [str(x) for x in info.locators()] if hasattr(info, "locators") else []
+
+    def peers(self) -> list[str]:
+        return [str(z) for z in self.session.info.peers_zid()]
+
+    def close(self) -> None:
+        self.session.close()
+
+
+__all__ = ["Clock", "Declared", "OnAlive", "OnSample", "Publisher", "REAL_CLOCK", "RealClock", "Transport",
+           "ZenohTransport"]

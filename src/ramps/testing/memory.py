@@ -1,0 +1,398 @@
+"""The real node driver over an in-memory network, a fake clock and in-process programs.
+
+How this works: a ``MemoryBus`` joins several ``MemoryTransport`` (one per
+node or client) in this process. A put is handed at once, synchronously, to
+every subscriber whose key expression intersects the key (Zenoh's own
+``zenoh.KeyExpr.intersects``), on every transport it can reach.
+Liveliness follows Zenoh: declaring a token tells every liveliness
+subscriber that can reach it (PUT), undeclaring it, closing or ``kill()``-ing
+its transport tells them it went (DELETE); a new liveliness subscriber with
+``history`` hears the tokens there now. ``cut(name)`` isolates one transport
+(its teammates' tokens go for it and its tokens go for them, nothing passes
+either way) and ``restore(name)`` joins it again (the tokens come back), as a
+link that fails and reconnects.
+
+``FakeClock`` is the shared time (``advance()`` moves it; ``sleep()`` too).
+``MemoryPool`` stands for ``ramps.runtime.workers.WorkerPool``: it runs the
+registered Python functions in this process when told (``complete()``), so a
+test decides when a program ends. ``StillSampler`` stands for the load
+sampler (an idle robot).
+
+``MemoryTeam`` puts it together: real ``NodeRuntime`` objects (real driver,
+real core) started with ``threaded=False``; ``run(seconds)`` steps every
+node and moves the clock to the earliest time one of them wants to wake,
+never past it, so no node sees a stall unless a test makes one. Everything
+is deterministic and takes milliseconds.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any, Callable
+
+import msgspec
+
+from ramps.runtime.registry import decode_args, resolve
+
+__all__ = ["FakeClock", "MemoryBus", "MemoryPool", "MemoryTeam", "MemoryTransport", "StillSampler"]
+
+_enc = msgspec.msgpack.Encoder()
+
+
+@functools.lru_cache(maxsize=4096)
+def intersects(a: str, b: str) -> bool:
+    """Whether two key expressions intersect, as Zenoh decides it."""
+    import zenoh
+
+    return bool(zenoh.KeyExpr(a).intersects(zenoh.KeyExpr(b)))
+
+
+class FakeClock:
+    """A clock that moves only when told (``advance``, ``sleep``)."""
+
+    def __init__(self, start: float = 1000.0, wall: float = 1.8e9) -> None:
+        self.t = start
+        self._wall = wall - start
+
+    def monotonic(self) -> float:
+        return self.t
+
+    def time(self) -> float:
+        return self.t + self._wall
+
+    def sleep(self, seconds: float) -> None:
+        self.t += max(0.0, seconds)
+
+    def advance(self, seconds: float) -> None:
+        self.t += seconds
+
+
+class _Declared:
+    def __init__(self, undeclare: Callable[[], None]) -> None:
+        self._undeclare = undeclare
+        self.live = True
+
+    def undeclare(self) -> None:
+        if self.live:
+            self.live = False
+            self._undeclare()
+
+
+class _MemoryPublisher:
+    def __init__(self, transport: "MemoryTransport", key: str, block: bool) -> None:
+        self.t, self.key, self.block = transport, key, block
+
+    def put(self, data: bytes) -> None:
+        self.t.put(self.key, data, block=self.block)
+
+    def matching(self) -> bool:
+        return self.t.bus.matching(self.t, self.key)
+
+    def undeclare(self) -> None:
+        pass
+
+
+class MemoryBus:
+    """Transports of one process joined in memory (see the module's docstring)."""
+
+    def __init__(self) -> None:
+        self.transports: dict[str, MemoryTransport] = {}
+        self._subs: list[tuple[MemoryTransport, str, Callable[[str, bytes], None]]] = []
+        self._lsubs: list[tuple[MemoryTransport, str, Callable[[str, bool], None]]] = []
+        self._tokens: list[tuple[MemoryTransport, str]] = []
+        self._cut: set[str] = set()
+        #: messages that reached no subscriber because a link was cut
+        self.lost = 0
+
+    def transport(self, name: str) -> "MemoryTransport":
+        if name in self.transports and not self.transports[name].closed:
+            raise ValueError(f"a transport named {name!r} is already on this bus")
+        t = self.transports[name] = MemoryTransport(self, name)
+        return t
+
+    def reaches(self, a: "MemoryTransport", b: "MemoryTransport") -> bool:
+        if a.closed or b.closed:
+            return False
+        return a is b or (a.name not in self._cut and b.name not in self._cut)
+
+    # ------------------------------------------------------------ data
+    def put(self, src: "MemoryTransport", key: str, data: bytes) -> None:
+        delivered = False
+        for t, expr, cb in list(self._subs):
+            if intersects(expr, key):
+                if self.reaches(src, t):
+                    cb(key, bytes(data))
+                    delivered = True
+        if not delivered and src.name in self._cut:
+            self.lost += 1
+
+    def matching(self, src: "MemoryTransport", key: str) -> bool:
+        return any(self.reaches(src, t) and intersects(expr, key) for t, expr, _ in self._subs)
+
+    def subscribe(self, t: "MemoryTransport", key: str, cb: Callable[[str, bytes], None]) -> _Declared:
+        entry = (t, key, cb)
+        self._subs.append(entry)
+        return _Declared(lambda: self._subs.remove(entry))
+
+    # ------------------------------------------------------------ liveliness
+    def _tell(self, token: tuple["MemoryTransport", str], alive: bool, only: "MemoryTransport | None" = None) -> None:
+        owner, key = token
+        for t, expr, cb in list(self._lsubs):
+            if (only is None or t is only) and intersects(expr, key) and self.reaches(owner, t):
+                cb(key, alive)
+
+    def declare_token(self, t: "MemoryTransport", key: str) -> _Declared:
+        token = (t, key)
+        self._tokens.append(token)
+        self._tell(token, True)
+
+        def undeclare() -> None:
+            self._tell(token, False)
+            self._tokens.remove(token)
+
+        return _Declared(undeclare)
+
+    def subscribe_liveliness(self, t: "MemoryTransport", key: str, cb: Callable[[str, bool], None],
+                             history: bool) -> _Declared:
+        entry = (t, key, cb)
+        self._lsubs.append(entry)
+        if history:
+            for owner, tkey in list(self._tokens):
+                if intersects(key, tkey) and self.reaches(owner, t):
+                    cb(tkey, True)
+        return _Declared(lambda: self._lsubs.remove(entry))
+
+    # ------------------------------------------------------------ faults
+    def _others(self, name: str) -> list["MemoryTransport"]:
+        return [t for n, t in self.transports.items() if n != name and not t.closed]
+
+    def cut(self, name: str) -> None:
+        """Isolate one transport: its links to every other one fail."""
+        if name in self._cut:
+            return
+        me = self.transports[name]
+        for token in [tk for tk in self._tokens if tk[0] is not me]:  # it hears its teammates go
+            self._tell(token, False, only=me)
+        for token in [tk for tk in self._tokens if tk[0] is me]:  # and they hear it go
+            for other in self._others(name):
+                self._tell(token, False, only=other)
+        self._cut.add(name)
+
+    def restore(self, name: str) -> None:
+        """Join a cut transport again: the tokens on both sides come back."""
+        if name not in self._cut:
+            return
+        self._cut.discard(name)
+        me = self.transports[name]
+        for token in [tk for tk in self._tokens if tk[0] is not me]:
+            if self.reaches(token[0], me):
+                self._tell(token, True, only=me)
+        for token in [tk for tk in self._tokens if tk[0] is me]:
+            for other in self._others(name):
+                if self.reaches(me, other):
+                    self._tell(token, True, only=other)
+
+    def kill(self, name: str) -> None:
+        """The process behind a transport dies: its tokens go, it hears nothing more."""
+        self.transports[name].close()
+
+
+class MemoryTransport:
+    """A ``ramps.runtime.transport.Transport`` on a ``MemoryBus``."""
+
+    def __init__(self, bus: MemoryBus, name: str) -> None:
+        self.bus, self.name = bus, name
+        self.closed = False
+        self._declared: list[_Declared] = []
+        #: every put from this transport: (key, bytes, block)
+        self.sent: list[tuple[str, bytes, bool]] = []
+
+    def _keep(self, d: _Declared) -> _Declared:
+        self._declared.append(d)
+        return d
+
+    def _check(self) -> None:
+        if self.closed:
+            from ramps.errors import TransportError
+
+            raise TransportError(f"transport {self.name!r} is closed")
+
+    def subscribe(self, key: str, callback: Callable[[str, bytes], None]) -> _Declared:
+        self._check()
+        return self._keep(self.bus.subscribe(self, key, callback))
+
+    def subscribe_liveliness(self, key: str, callback: Callable[[str, bool], None], *,
+                             history: bool = True) -> _Declared:
+        self._check()
+        return self._keep(self.bus.subscribe_liveliness(self, key, callback, history))
+
+    def declare_token(self, key: str) -> _Declared:
+        self._check()
+        return self._keep(self.bus.declare_token(self, key))
+
+    def publisher(self, key: str, *, block: bool = False) -> _MemoryPublisher:
+        self._check()
+        return _MemoryPublisher(self, key, block)
+
+    def put(self, key: str, data: bytes, *, block: bool = False) -> None:
+        if self.closed:
+            return
+        self.sent.append((key, bytes(data), block))
+        self.bus.put(self, key, data)
+
+    def locators(self) -> list[str]:
+        return [f"memory/{self.name}"]
+
+    def peers(self) -> list[str]:
+        return [n for n, t in self.bus.transports.items() if t is not self and self.bus.reaches(self, t)]
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        for d in reversed(self._declared):  # tokens go (DELETE) while the transport still reaches its subscribers
+            d.undeclare()
+        self.closed = True
+
+
+class MemoryPool:
+    """In-process stand-in for ``WorkerPool``: ``run`` queues a program,
+    ``complete()`` runs the queued ones (the registered Python functions) and
+    reports each as a worker would. Nothing runs until a test says so."""
+
+    def __init__(self, size: int, targets: dict[str, str], on_finished: Callable[..., None], *, nice: int = 0,
+                 on_progress: Callable[..., None] | None = None,
+                 on_checkpoint: Callable[..., None] | None = None) -> None:
+        self.size, self.targets, self.on_finished = size, targets, on_finished
+        self.jobs: dict[tuple[str, int], tuple[str, bytes]] = {}
+        self.started = self.stopped = False
+        #: every program started: (key, program)
+        self.ran: list[tuple[tuple[str, int], str]] = []
+
+    def start(self) -> None:
+        self.started = True
+
+    def stop(self) -> None:
+        self.stopped = True
+        self.jobs.clear()
+
+    def run(self, key: tuple[str, int], program: str, args: bytes, resume: bytes | None = None) -> None:
+        if not self.stopped:
+            self.jobs[key] = (program, args)
+            self.ran.append((key, program))
+
+    def cancel(self, key: tuple[str, int]) -> None:
+        self.jobs.pop(key, None)
+
+    def busy(self) -> int:
+        return min(len(self.jobs), self.size)
+
+    def queued(self) -> int:
+        return max(0, len(self.jobs) - self.size)
+
+    def complete(self) -> int:
+        """Run every queued program now; how many."""
+        jobs, self.jobs = self.jobs, {}
+        for key, (program, args) in jobs.items():
+            try:
+                value = resolve(self.targets[program])(**decode_args(args))
+                self.on_finished(key, True, _enc.encode(value), "", False)
+            except Exception as exc:
+                self.on_finished(key, False, b"", f"{type(exc).__name__}: {exc}", False)
+        return len(jobs)
+
+
+class StillSampler:
+    """In-process stand-in for ``LoadSampler``: an idle robot but for the
+    programs of its pool."""
+
+    def __init__(self, ramps_count: Callable[[], int], **_: Any) -> None:
+        self.count = ramps_count
+
+    def start(self) -> None:
+        pass
+
+    def stop(self) -> None:
+        pass
+
+    def averages(self) -> tuple[float, float, float]:
+        n = float(self.count())
+        return n, n, n
+
+    def extras(self) -> tuple[list[float], float, int]:
+        return [], 0.0, 8 << 30
+
+
+class MemoryTeam:
+    """Real ``NodeRuntime`` nodes on one ``MemoryBus`` and ``FakeClock``,
+    stepped by hand (see the module's docstring)."""
+
+    def __init__(self, robots: dict[str, tuple[int, float]], *, team: str = "mem",
+                 settings: dict[str, Any] | None = None, programs: list[str] | None = None) -> None:
+        from ramps.runtime.settings import load_settings
+
+        self.bus = MemoryBus()
+        self.clock = FakeClock()
+        self.team = team
+        self.nodes: dict[str, Any] = {}
+        self.pools: dict[str, MemoryPool] = {}
+        self._settings = settings or {}
+        self._programs = programs or []
+        self._load_settings = load_settings
+        for i, (name, (cores, speed)) in enumerate(robots.items()):
+            self.add(name, cores=cores, speed=speed, seed=i)
+
+    def add(self, name: str, *, cores: int = 2, speed: float = 1.0, seed: int = 0) -> Any:
+        """Start one more node (real driver, real core) on the bus."""
+        from ramps.runtime.node import NodeRuntime
+
+        flags = {"robot": name, "team": self.team, "cores": cores, "speed": speed, "programs": self._programs,
+                 **self._settings}
+        s = self._load_settings(flags=flags, environ={})
+
+        def pool(*a: Any, **kw: Any) -> MemoryPool:
+            p = self.pools[name] = MemoryPool(*a, **kw)
+            return p
+
+        rt = NodeRuntime(s, transport=self.bus.transport(name), clock=self.clock, worker_pool=pool,
+                         load_sampler=StillSampler, incarnation=seed + 1)
+        rt.start(threaded=False)
+        self.nodes[name] = rt
+        return rt
+
+    def step(self) -> None:
+        """One round of every running node, until none has anything queued."""
+        for _ in range(100):
+            for rt in list(self.nodes.values()):
+                if rt.transport is not None:
+                    rt.step()
+            if all(rt._q.empty() for rt in self.nodes.values() if rt.transport is not None):
+                return
+
+    def run(self, seconds: float, *, complete: bool = True, until: Callable[[], bool] | None = None) -> None:
+        """Step the team for ``seconds`` of fake time: the clock moves to the
+        earliest time a node wants to wake (never past it). ``complete``:
+        programs queued on each pool run at each round; ``until``: stop early
+        once it is true."""
+        end = self.clock.t + seconds
+        while True:
+            self.step()
+            if complete:
+                for name, pool in self.pools.items():
+                    if self.nodes[name].transport is not None and pool.jobs:
+                        pool.complete()
+                        self.step()
+            if until is not None and until():
+                return
+            live = [rt for rt in self.nodes.values() if rt.transport is not None]
+            wake = min((rt.next_wake() for rt in live), default=end)
+            if self.clock.t >= end:
+                return
+            self.clock.t = min(end, max(wake, self.clock.t + 1e-3))
+
+    def stop(self, name: str) -> None:
+        """Shut one node down cleanly (it hands its programs back)."""
+        self.nodes[name].stop()
+
+    def close(self) -> None:
+        for rt in self.nodes.values():
+            rt.stop()
