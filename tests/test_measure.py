@@ -39,6 +39,7 @@ child.kill()
 
 
 @pytest.mark.slow
+@pytest.mark.serial  # measures CPU use: alone
 @pytest.mark.skipif(cgroup_support() is not None, reason=f"cpu cgroups unavailable: {cgroup_support()}")
 def test_cgroup_run_queue_counts_the_robots_processes_not_the_nodes_threads():
     cg = RobotCgroup(f"measure-{time.monotonic_ns()}", 2.0, cgroup_mode())

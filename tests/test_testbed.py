@@ -196,7 +196,9 @@ def test_load_runs_inside_the_robot(bed):
     assert bed.robots["r2"]["load_pids"] == []
     assert wait_until(lambda: all(not os.path.exists(f"/proc/{p}") or open(f"/proc/{p}/stat").read().split()[2] == "Z"
                                   for p in pids), 3)
-    bed.recover("r2")  # ... and recover brings node and load back
+    # ... and recover brings node and load back; the new node boots beside two busy
+    # loops in 2/3 of a host core, which on a loaded host takes more than the default 30 s
+    bed.recover("r2", timeout=90)
     assert len(bed.robots["r2"]["load_pids"]) == 2
     bed.remove_load("r2")
 

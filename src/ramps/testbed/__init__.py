@@ -17,6 +17,7 @@ Rules: root only; everything is removed on ``down()``/leaving the ``with``
 block/SIGINT/SIGTERM; ``down_all()`` clears what crashed runs left.
 """
 
-from ramps.testbed.bed import Testbed, TestbedError, down_all, leftovers
+from ramps.testbed.bed import Testbed, TestbedError
+from ramps.testbed.cleanup import down_all, leftovers
 
 __all__ = ["Testbed", "TestbedError", "down_all", "leftovers"]

@@ -28,13 +28,13 @@ dialing r1 too, stalls of both overlapping left them deaf to each other for
 good, zenoh#2806: the stressed campaign, seed 25000000.)
 ``discovery="multicast"`` or ``"connect"`` picks just one of the two.
 
-Faults (all undone by ``recover``):
-
-* ``crash``: SIGKILL to the node's process group and to every process in
-  the robot's cgroup (node, workers, load). ``recover`` starts a new node
-  (and the same background load) in the same namespace and cgroup.
-* ``cut``: ``ip link set eth0 down`` inside the namespace; processes run on.
-* ``freeze``: SIGSTOP to every process of the robot; ``recover``: SIGCONT.
+The testbed is three modules, by concern: this one builds a testbed and
+takes it down (its lifecycle); ``ramps.testbed.faults`` breaks and mends
+robots (crash, cut, lossy, freeze, load; ``Testbed`` inherits its methods);
+``ramps.testbed.cleanup`` clears a host of testbeds, including those of
+crashed runs (``down_all``, ``leftovers``); ``ramps.testbed.procs`` holds
+the pid and cgroup helpers they share. The names ``ramps.testbed.bed``
+always had still import from here.
 
 State: every testbed writes ``/run/ramps/testbed-<tb>.json`` (robots, IPs,
 namespaces, cgroups, pids with their start times, faults), so ``ramps
@@ -47,10 +47,10 @@ raised before anything is created. ``down()`` removes everything this
 testbed made (processes, cgroups, namespaces and veths, bridge, state
 file); it runs on leaving the ``with`` block (exception or not), on
 SIGINT/SIGTERM of the creating process and at interpreter exit (unless
-``detach()`` was called), and a second call does nothing. ``down_all()``
-removes what crashed earlier runs left: every ``ramps-*`` namespace, every
-``rb-*`` link, every ``ramps-t<N>-*`` cgroup (only testbed cgroups: a
-``LocalTeam`` of a parallel test is left alone) and their processes.
+``detach()`` was called), and a second call does nothing. The testbed id
+(``t<X>``, subnet ``10.201.X.0/24``) is reserved by creating its state file
+exclusively, so testbeds started at once by parallel processes (pytest-xdist
+workers) never take the same one.
 """
 
 from __future__ import annotations
@@ -69,10 +69,11 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from ramps.errors import NoTeam, RampsError
-from ramps.runtime.localteam import CG_ROOT, RobotCgroup, cgroup_mode, partial_views
-from ramps.runtime.measure import cgroup_tree, proc_stat_fields
+from ramps.errors import NoTeam
+from ramps.runtime.localteam import RobotCgroup, cgroup_mode, partial_views
 from ramps.testbed import net
+from ramps.testbed.faults import Faults
+from ramps.testbed.procs import TestbedError, _alive, _cgroup, _cgroup_pids, _clean_env, _proc_stat, _signal_all
 
 if TYPE_CHECKING:
     from ramps.runtime.watch import TeamWatcher
@@ -81,70 +82,12 @@ STATE_DIR = Path(os.environ.get("RAMPS_TESTBED_STATE", "/run/ramps"))
 PORT = 7447
 FAULTS = ("crashed", "cut", "frozen", "lossy")
 
-
-class TestbedError(RampsError):
-    """A testbed cannot be built, found or driven (no testbed up, unknown robot, ...)."""
-
-    __test__ = False  # not a pytest test class
-
-
-# ====================================================================== processes
-def _proc_stat(pid: int) -> tuple[str, int] | None:
-    """(state letter, start time in ticks) of a process, or None if gone."""
-    rest = proc_stat_fields(pid)
-    return None if rest is None else (rest[0], int(rest[19]))
-
-
-def _alive(pid: int | None, start: int | None) -> str:
-    """'running', 'stopped' or 'dead' for a pid recorded with its start time."""
-    if not pid:
-        return "dead"
-    st = _proc_stat(pid)
-    if st is None or st[0] in ("Z", "X") or (start is not None and st[1] != start):
-        return "dead"
-    return "stopped" if st[0] in ("T", "t") else "running"
-
-
-def _cgroup_pids(dirs: list[str]) -> list[int]:
-    """Every process in these cgroups and their children (the per-program
-    cgroups of ``ramps.testbed.caps``)."""
-    pids: set[int] = set()
-    for d in dirs:
-        for sub in cgroup_tree(d):
-            try:
-                pids.update(int(p) for p in (sub / "cgroup.procs").read_text().split())
-            except OSError:
-                pass
-    return sorted(pids)
-
-
-def _signal_all(pids: list[int], sig: int) -> None:
-    for pid in pids:
-        try:
-            os.kill(pid, sig)
-        except (ProcessLookupError, PermissionError):
-            pass
-
-
-def _cgroup(dirs: list[str], mode: str) -> RobotCgroup:
-    """A handle on an existing robot cgroup (RobotCgroup() would create it)."""
-    cg = RobotCgroup.__new__(RobotCgroup)
-    cg.mode = mode
-    cg.dirs = [Path(d) for d in dirs]
-    return cg
-
-
-def _clean_env() -> dict[str, str]:
-    # the nodes get their settings from the command line, not from this shell;
-    # RAMPS_TRACE_WIRE passes, to chase delays between robots in their traces
-    env = {k: v for k, v in os.environ.items() if not k.startswith("RAMPS_") or k == "RAMPS_TRACE_WIRE"}
-    src = str(Path(__file__).resolve().parents[2])  # src layout: keep `ramps` importable as in this process
-    env["PYTHONPATH"] = src + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    return env
+__all__ = ["FAULTS", "PORT", "STATE_DIR", "Testbed", "TestbedError", "watch_team",
+           "_alive", "_cgroup", "_cgroup_pids", "_clean_env", "_proc_stat", "_signal_all"]
 
 
 # ====================================================================== the testbed
-class Testbed:
+class Testbed(Faults):
     """Emulated robots on this host; see the module docstring.
 
     >>> with Testbed(3, lease_ms=1000) as tb:
@@ -270,8 +213,14 @@ class Testbed:
                 self.state_dir.mkdir(parents=True, exist_ok=True)
                 taken = {int(m.group(1)) for f in self.state_dir.glob("testbed-t*.json")
                          if (m := re.fullmatch(r"testbed-t(\d+)", f.stem))}
-                self.x = net.free_subnet(taken)
-                self.tb = f"t{self.x}"
+                while True:  # reserve the id by creating its state file: a parallel testbed picking it too skips it
+                    self.x = net.free_subnet(taken)
+                    self.tb = f"t{self.x}"
+                    try:
+                        with open(self.state_file, "x"):
+                            break
+                    except FileExistsError:
+                        taken.add(self.x)
                 self.log_dir = Path(tempfile.mkdtemp(prefix=f"ramps-testbed-{self.tb}-"))
                 for i, r in enumerate(self.names, 1):
                     ns = net.ns_name(self.tb, r)
@@ -434,155 +383,6 @@ class Testbed:
         c.insert_json5("scouting/multicast/enabled", "false")
         return c
 
-    # ------------------------------------------------------------ faults
-    def process_state(self, robot: str) -> str:
-        """'running', 'stopped' or 'dead' of the robot's node."""
-        rb = self._robot(robot)
-        p = self._popen.get(rb["pid"])
-        if p is not None and p.poll() is not None:
-            return "dead"
-        return _alive(rb["pid"], rb["start"])
-
-    def _pids(self, robot: str) -> list[int]:
-        """Every live process of the robot: its cgroup's members and its recorded pids."""
-        rb = self.robots[robot]
-        pids = set(_cgroup_pids(rb["cgroup"]))
-        for pid, start in [(rb["pid"], rb["start"]), *[tuple(x) for x in rb["load_pids"]]]:
-            if _alive(pid, start) != "dead":
-                pids.add(pid)
-        return sorted(pids)
-
-    def _kill(self, robot: str) -> None:
-        rb = self.robots[robot]
-        if rb["pid"] and _alive(rb["pid"], rb["start"]) != "dead":
-            try:
-                os.killpg(rb["pid"], signal.SIGKILL)
-            except (ProcessLookupError, PermissionError):
-                pass
-        for _ in range(50):  # a worker may be forking: repeat until the cgroup is empty
-            pids = self._pids(robot)
-            if not pids:
-                break
-            _signal_all(pids, signal.SIGKILL)
-            _signal_all(pids, signal.SIGCONT)  # a stopped process dies only once continued on some kernels
-            time.sleep(0.02)
-        self._reap()
-
-    def _reap(self) -> None:
-        for pid, p in list(self._popen.items()):
-            if p.poll() is not None:
-                del self._popen[pid]
-
-    def crash(self, robot: str) -> None:
-        """SIGKILL the robot's node, workers and load (a power cut)."""
-        with self._lock:
-            self._live()
-            rb = self._robot(robot)
-            self._kill(robot)
-            rb["faults"] = [f for f in rb["faults"] if f != "frozen"] + ["crashed"] * ("crashed" not in rb["faults"])
-            rb["load_pids"] = []
-            self._save()
-
-    def cut(self, robot: str) -> None:
-        """Take the robot's network link down; its processes keep running."""
-        with self._lock:
-            self._live()
-            rb = self._robot(robot)
-            net.link_down(rb["ns"])
-            if "cut" not in rb["faults"]:
-                rb["faults"].append("cut")
-            self._save()
-
-    def lossy(self, robot: str, loss: float) -> None:
-        """Drop each of the robot's packets, in and out, with probability
-        ``loss`` (a poor WiFi link; TCP retransmits, so keep-alives arrive
-        late rather than never). ``loss=0`` or ``recover`` ends it."""
-        with self._lock:
-            self._live()
-            rb = self._robot(robot)
-            net.set_loss(rb["ns"], loss)
-            rb["faults"] = [f for f in rb["faults"] if f != "lossy"] + ["lossy"] * (loss > 0)
-            self._save()
-
-    def freeze(self, robot: str) -> None:
-        """SIGSTOP every process of the robot (sockets stay open, nothing answers)."""
-        with self._lock:
-            self._live()
-            rb = self._robot(robot)
-            if "crashed" in rb["faults"]:
-                raise TestbedError(f"robot {robot} is crashed; recover it before freezing it")
-            if rb["pid"]:
-                try:
-                    os.killpg(rb["pid"], signal.SIGSTOP)
-                except ProcessLookupError:
-                    pass
-            deadline = time.monotonic() + 2.0
-            while True:  # until every process is stopped (signals are delivered asynchronously)
-                running = [p for p in self._pids(robot) if (_proc_stat(p) or ("T", 0))[0] not in ("T", "t")]
-                if not running or time.monotonic() > deadline:
-                    break
-                _signal_all(running, signal.SIGSTOP)
-                time.sleep(0.005)
-            if "frozen" not in rb["faults"]:
-                rb["faults"].append("frozen")
-            self._save()
-
-    def recover(self, robot: str, *, wait: bool = True, timeout: float = 30.0) -> list[str]:
-        """Undo every fault of the robot (link up, SIGCONT, restart a crashed
-        node and its load); with ``wait``, until the root namespace sees it alive
-        again. Returns the faults undone."""
-        with self._lock:
-            self._live()
-            rb = self._robot(robot)
-            undone = list(rb["faults"])
-            if "cut" in undone or net.link_state(rb["ns"]) != "up":
-                net.link_up(rb["ns"])
-            if "lossy" in undone:
-                net.set_loss(rb["ns"], 0)
-            if "frozen" in undone:
-                _signal_all(self._pids(robot), signal.SIGCONT)
-                if rb["pid"]:
-                    try:
-                        os.killpg(rb["pid"], signal.SIGCONT)
-                    except ProcessLookupError:
-                        pass
-            if "crashed" in undone or self.process_state(robot) == "dead":
-                self._kill(robot)  # leftovers of the old incarnation, if any
-                rb["load_pids"] = []
-                self._start_node(robot)
-                self._start_load(robot, rb["load"])
-            rb["faults"] = []
-            self._save()
-        if wait:
-            self.wait_alive([robot], timeout)
-        return undone
-
-    def add_load(self, robot: str, n: int = 1) -> None:
-        """Start ``n`` busy processes inside the robot (its namespace and cgroup)."""
-        if n < 0:
-            raise ValueError("n must be >= 0")
-        with self._lock:
-            self._live()
-            rb = self._robot(robot)
-            rb["load"] += n
-            if "crashed" not in rb["faults"]:
-                self._start_load(robot, n)
-                if "frozen" in rb["faults"]:
-                    _signal_all([p for p, _ in rb["load_pids"][-n:]], signal.SIGSTOP)
-            self._save()
-
-    def remove_load(self, robot: str) -> None:
-        with self._lock:
-            rb = self._robot(robot)
-            _signal_all([p for p, s in rb["load_pids"] if _alive(p, s) != "dead"], signal.SIGKILL)
-            rb["load"], rb["load_pids"] = 0, []
-            self._reap()
-            self._save()
-
-    def _live(self) -> None:
-        if not self._created or self._down:
-            raise TestbedError("this testbed is not up")
-
     # ------------------------------------------------------------ looking
     def status(self, *, team_view: bool = False, timeout: float = 2.0) -> dict[str, Any]:
         """Per robot: namespace present, link state, node process state, load,
@@ -721,74 +521,10 @@ def watch_team(testbed: "Testbed") -> "TeamWatcher":
     return TeamWatcher.open(testbed.zenoh_config(), testbed.team)
 
 
-# ====================================================================== sweeping
-_TB_CGROUP = re.compile(r"ramps-t\d+-\w+")
+def __getattr__(name: str) -> object:
+    # the host sweep moved to ramps.testbed.cleanup (which imports this module)
+    if name in ("down_all", "leftovers"):
+        from ramps.testbed import cleanup
 
-
-def down_all(state_dir: Path | None = None) -> list[str]:
-    """Remove every testbed on this host, including leftovers of crashed runs:
-    processes in testbed cgroups and namespaces, ``ramps-t<N>-*`` cgroups,
-    ``ramps-*`` namespaces, ``rb-*`` links, state files. Returns what went."""
-    net.need_root()
-    gone: list[str] = []
-    d = Path(state_dir or STATE_DIR)
-    for f in sorted(d.glob("testbed-*.json")):
-        try:
-            Testbed.attach(f.stem.removeprefix("testbed-"), state_dir=d).down()
-            gone.append(f"testbed {f.stem.removeprefix('testbed-')}")
-        except (TestbedError, ValueError, KeyError, OSError):
-            f.unlink(missing_ok=True)
-    dirs = []
-    for sub in ("cpu", "cpuacct", ""):
-        base = CG_ROOT / sub if sub else CG_ROOT
-        if base.is_dir():
-            dirs += [p for p in base.iterdir() if p.is_dir() and _TB_CGROUP.fullmatch(p.name)]
-    for pid, tb in _capper_pids():  # a capper whose testbed's state file is gone
-        _signal_all([pid], signal.SIGKILL)
-        gone.append(f"caps process {pid} of testbed-{tb}")
-    for ns in net.namespaces():
-        if ns.startswith(net.NS_PREFIX):
-            _signal_all(net.netns_pids(ns), signal.SIGKILL)
-    for _ in range(20):
-        pids = _cgroup_pids([str(p) for p in dirs])
-        if not pids:
-            break
-        _signal_all(pids, signal.SIGKILL)
-        time.sleep(0.05)
-    for p in dirs:
-        mode = "v2" if p.parent == CG_ROOT else "v1"
-        _cgroup([str(p)], mode).remove()
-        if not p.exists():
-            gone.append(f"cgroup {p}")
-    gone += net.sweep()
-    for f in d.glob("testbed-*.tmp"):
-        f.unlink(missing_ok=True)
-    return gone
-
-
-def leftovers() -> list[str]:
-    """What ``down_all`` would remove (empty when the host is clean)."""
-    found = [f"namespace {ns}" for ns in net.namespaces() if ns.startswith(net.NS_PREFIX)]
-    found += [f"link {name}" for name in net.links() if name.startswith(net.LINK_PREFIX)]
-    for sub in ("cpu", "cpuacct", ""):
-        base = CG_ROOT / sub if sub else CG_ROOT
-        if base.is_dir():
-            found += [f"cgroup {p}" for p in base.iterdir() if p.is_dir() and _TB_CGROUP.fullmatch(p.name)]
-    found += [f"caps process {pid} of testbed-{tb}" for pid, tb in _capper_pids()]
-    return found
-
-
-def _capper_pids() -> list[tuple[int, str]]:
-    """(pid, testbed id) of processes running ``ramps.testbed.caps``."""
-    out = []
-    for d in Path("/proc").iterdir():
-        if d.name.isdigit() and int(d.name) != os.getpid():
-            try:
-                argv = (d / "cmdline").read_bytes().split(b"\0")
-            except OSError:
-                continue
-            if b"ramps.testbed.caps" in argv:  # ... -m ramps.testbed.caps <state dir>/testbed-<tb>.json
-                after = argv[argv.index(b"ramps.testbed.caps") + 1:]
-                state = Path(os.fsdecode(after[0])) if after else Path()
-                out.append((int(d.name), state.stem.removeprefix("testbed-")))
-    return out
+        return getattr(cleanup, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
