@@ -11,6 +11,7 @@ import pytest
 from corehelpers import report
 
 import ramps.runtime.node as rn
+import ramps.runtime.node_clients as node_clients
 from ramps.core.events import Received
 from ramps.core.node import Node
 from ramps.runtime.settings import load_settings
@@ -159,7 +160,7 @@ def test_a_request_asked_again_is_answered_again_and_never_run_twice(driver, mon
     heard: list[bytes] = []
     app.subscribe(keys.client(rt.team, "app"), lambda _k, data: heard.append(data))
     rt.incarnation = 7
-    monkeypatch.setattr(rn, "OUTCOMES_KEPT_BYTES", 500)
+    monkeypatch.setattr(node_clients, "OUTCOMES_KEPT_BYTES", 500)
     sub = [SubmitProgram(client="app", request_id=i, program="echo", args=encode_args(x=1))
            for i in (1, 2)]
     first = rt._client_submit(sub[0], rt._clock())

@@ -1,0 +1,178 @@
+"""A node's side of its clients: submissions checked, outcomes sent once, answers again.
+
+How this works: a client (``ramps.connect()``) sends ``SubmitProgram`` to
+its robot's node; ``_client_submit`` checks the program's name, arguments
+(against its signature), policy and size before the core places anything,
+so a bad call fails at the caller with a clear error and nothing runs. Each
+request is one program however often it is resent; the node keeps recent
+outcomes (``OUTCOMES_KEPT_BYTES``) and answers a request asked again with
+where it stands or its outcome again. An outcome is sent once, held while
+its client is not reachable (``OUTCOME_HOLD`` at most); progress updates are
+advisory and dropped under congestion.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from ramps.core.events import (
+    Submit,
+)
+from ramps.core.messages import (
+    ProgramOutcome,
+    ProgramUpdate,
+    SubmitProgram,
+    encode,
+)
+from ramps.core.policy import POLICIES
+from ramps.core.program import ProgramState
+from ramps.errors import ProgramNotFound
+from ramps.runtime import keys
+from ramps.runtime.registry import decode_args
+
+log = logging.getLogger("ramps.node")
+#: answered client requests remembered, so a resent submission is not run twice
+ANSWERED_KEPT = 65536
+#: bytes of recent outcomes kept, so one a client asks for again (its link
+#: lapsed while it was sent: it went nowhere) is sent again
+OUTCOMES_KEPT_BYTES = 16 * 1024 * 1024
+#: seconds an outcome waits for its client to be reachable, and between two looks
+OUTCOME_HOLD = 30.0
+OUTCOME_RETRY = 0.05
+
+
+class ClientAnswers:
+    """The driver's answers to clients (mixed into ``NodeRuntime``)."""
+
+    def _client_submit(self, m: SubmitProgram, now: float) -> list:
+        rkey = (m.client, m.request_id)
+        if rkey in self._requests or rkey in self._answered:
+            # a repeated request (clients resend until acknowledged, and ask again after
+            # their link to this node lapsed): one program per request; answer where it stands
+            return self._answer_again(rkey)
+        self._seq += 1
+        pid = f"{self.robot}#{self.incarnation % 100000}-{self._seq}"
+        self._requests[rkey] = pid
+        self._clients[pid] = rkey
+        try:
+            spec = self.registry.get(m.program)
+            spec.check_args(decode_args(m.args))
+        except ProgramNotFound as exc:
+            return self._tell_client(pid, ok=False, error=str(exc), kind="refused", host=self.robot)
+        except Exception as exc:  # signature mismatch, undecodable arguments
+            return self._tell_client(pid, ok=False, kind="bad_arguments",
+                                     error=f"bad arguments for program {m.program!r}: {exc}")
+        if m.policy and m.policy not in POLICIES:
+            return self._tell_client(pid, ok=False, kind="bad_arguments",
+                                     error=f"unknown policy {m.policy!r}; choose one of {', '.join(POLICIES)}")
+        if len(m.args) > self.s.max_args_bytes:
+            return self._tell_client(pid, ok=False, kind="bad_arguments",
+                                     error=f"arguments are {len(m.args)} bytes; the limit is {self.s.max_args_bytes}")
+        return self.node.handle(Submit(
+            program_id=pid, program=m.program, args=m.args, payload_size=len(m.args),
+            work=m.work or spec.work, result_size=m.result_size or spec.result,
+            local_only=m.local_only or spec.local_only, policy=m.policy, memory=spec.memory,
+        ), now)
+
+    def _tell_client(self, pid: str, *, ok: bool, value: bytes = b"", error: str = "", kind: str = "",
+                     host: str = "", attempts: int = 0, moves: int = 0, resumed_from: float | None = None) -> list:
+        target = self._clients.pop(pid, None)
+        if target is None:
+            return []
+        client, request_id = target
+        self._requests.pop(target, None)
+        self._progress.pop(pid, None)
+        data = encode(self.robot, ProgramOutcome(
+            request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts,
+            moves=moves, resumed_from=resumed_from))
+        self._answered[target] = data  # a resend still in flight must not run it again
+        self._kept_outcomes.append(target)
+        self._kept_bytes += len(data)
+        while self._kept_outcomes and (self._kept_bytes > OUTCOMES_KEPT_BYTES
+                                       or len(self._kept_outcomes) > ANSWERED_KEPT):
+            old_key = self._kept_outcomes.popleft()
+            old = self._answered.get(old_key)
+            if old is not None:
+                self._kept_bytes -= len(old)
+                self._answered[old_key] = None
+        if len(self._answered) > ANSWERED_KEPT:
+            old = self._answered.pop(next(iter(self._answered)))
+            self._kept_bytes -= len(old) if old is not None else 0
+        self._send_outcome(keys.client(self.team, client), data)
+        return []
+
+    def _answer_again(self, rkey: tuple[str, int]) -> list:
+        """A client asked again about a request: its program's state if it
+        runs (an update acknowledges the request), its outcome again if this
+        node still keeps it (the first may have gone nowhere: the client's
+        link lapsed while this node was stalled, and Zenoh may still report a
+        match through another peer), else an outcome saying it is lost."""
+        pid = self._requests.get(rkey)
+        if pid is not None:
+            ap = self.node.origin.programs.get(pid)
+            if ap is None:
+                self._update_client(pid, "placed", "", 0)
+            else:
+                self._update_client(pid, "running" if ap.state is ProgramState.RUNNING else "placed",
+                                    ap.host or "", ap.attempt)
+            return []
+        data = self._answered.get(rkey)
+        if data is None:
+            data = encode(self.robot, ProgramOutcome(
+                request_id=rkey[1], ok=False, error_kind="", host=self.robot, attempts=0,
+                error=f"node {self.robot} answered this request long ago and no longer keeps its outcome"))
+        self._send_outcome(keys.client(self.team, rkey[0]), data)
+        return []
+
+    def _send_outcome(self, key: str, data: bytes) -> None:
+        """An outcome is sent once, never resent. If no subscriber of that
+        client matches its key right now (after this node stalled, the
+        client's link to it is being rebuilt: an outcome published then was
+        lost, and the client waited for ever), it is held until one does, for
+        OUTCOME_HOLD at most, then sent regardless."""
+        self._send_or_hold(key, data, block=True, until=self.clock.monotonic() + OUTCOME_HOLD)
+
+    def _send_or_hold(self, key: str, data: bytes, *, block: bool, until: float) -> None:
+        if any(k == key for k, _, _, _ in self._held_outcomes) or not self._reachable(key, block):
+            self._held_outcomes.append((key, data, until, block))
+            return
+        self._put(key, data, block=block)
+
+    def _reachable(self, key: str, block: bool) -> bool:
+        if self.transport is None:
+            return True
+        try:
+            pub = self._pubs.get(key)
+            if pub is None:
+                pub = self._pubs[key] = self.transport.publisher(key, block=block)
+            return bool(pub.matching())
+        except Exception:  # cannot tell: send
+            return True
+
+    def _flush_outcomes(self) -> None:
+        """Send what was held, per key in order, once its receiver is
+        reachable or its time is up."""
+        held, self._held_outcomes = self._held_outcomes, []
+        now = self.clock.monotonic()
+        waiting: set[str] = set()
+        for key, data, until, block in held:
+            if key in waiting or (now < until and not self._reachable(key, block)):
+                waiting.add(key)
+                self._held_outcomes.append((key, data, until, block))
+            else:
+                self._put(key, data, block=block)
+
+    def _update_client(self, pid: str, state: str, host: str, attempt: int) -> None:
+        """Tell the program's client where it stands (advisory; see ProgramUpdate)."""
+        target = self._clients.get(pid)
+        if target is None:
+            return
+        fraction, detail = self._progress.get(pid, (None, ""))
+        if self.transport is None:
+            return
+        data = encode(self.robot, ProgramUpdate(request_id=target[1], state=state, host=host, attempt=attempt,
+                                                fraction=fraction, detail=detail))
+        try:  # advisory: dropped rather than let a stalled client stall this driver (outcomes block, see _put)
+            self.transport.put(keys.client(self.team, target[0]), data, block=False)
+        except Exception as exc:
+            log.debug("node %s could not send a program update: %s", self.robot, exc)

@@ -1,0 +1,204 @@
+"""What reaches a node's driver: teammates' messages, clients' requests, liveliness, revocations.
+
+How this works: ``NodeRuntime`` (``ramps.runtime.node``) takes each queued
+item on its driver thread and hands it to ``_handle`` here: bytes from the
+wire are decoded (a bad message is counted and dropped, one log line a
+period), a client's submission goes to ``ramps.runtime.node_clients``, a
+teammate's message, a program's end or progress to the core. A teammate's
+liveliness becomes ``PeerAlive``/``PeerLost`` for the core, except that
+just after this node stalled a loss is held for ``STALL_GRACE`` (it may be
+only the teammate's lease on this frozen node that ran out). On a secured
+team, a newer revocation list signed by the team CA shuts the robots it
+names out (or makes this robot leave).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+
+from ramps.core.events import (
+    Cancel,
+    PeerAlive,
+    PeerLost,
+    Received,
+)
+from ramps.core.messages import (
+    CancelSubmitted,
+    LoadReport,
+    ProgramOutcome,
+    ProgramUpdate,
+    SubmitProgram,
+    WireError,
+    decode,
+)
+from ramps.core.relink import RELINK_TIMEOUT
+from ramps.errors import NotAdmitted
+from ramps.runtime import revocation
+
+log = logging.getLogger("ramps.node")
+#: seconds between two log lines about dropped messages (each is counted)
+DROP_LOG_PERIOD = 1.0
+#: seconds after a stall during which a teammate's lost liveliness is held,
+#: in case it is only its lease on this stalled node that ran out (the core
+#: does not count a teammate's silence for as long: ramps.core.relink)
+STALL_GRACE = RELINK_TIMEOUT
+
+
+class Inbound:
+    """The driver's inputs (mixed into ``NodeRuntime``)."""
+
+    def _on_liveliness(self, robot: str, alive: bool, now: float) -> list:
+        """A teammate's liveliness token came or went. Just after this node
+        stalled, every teammate's lease on it may have run out: their links
+        close and their tokens vanish here, then come back as soon as Zenoh
+        reconnects. Such a loss is held for STALL_GRACE and forgotten if the
+        robot comes back meanwhile; a robot that does not is lost then."""
+        if robot in self._revoked:
+            return []
+        if not alive and self._stalled_at and self.clock.monotonic() - self._stalled_at < STALL_GRACE:
+            self._held_lost[robot] = now + STALL_GRACE
+            return []
+        if alive and self._held_lost.pop(robot, None) is not None:
+            if self._trace is not None:
+                self._write_trace("peer_back", "", robot, 0, "lost and back while this node recovered from a stall")
+            return self._peer_event(robot, True, now)  # its link is back: the core counts its silence again
+        return self._peer_event(robot, alive, now)
+
+    def _peer_event(self, robot: str, alive: bool, now: float) -> list:
+        """A teammate's liveliness, to the origin (its hosts) and to the
+        executor (its origins: one gone for good has its programs here
+        stopped, see ``Executor.on_origin_lost``)."""
+        if alive:
+            self.node.executor.on_origin_back(robot)
+        else:
+            self.node.executor.on_origin_lost(robot, now)
+        return self.node.handle(PeerAlive(robot=robot) if alive else PeerLost(robot=robot), now)
+
+    def _load_revocations(self, creds) -> None:
+        """Secured team: the list saved beside this robot's credentials, if
+        any. A robot on it does not join (``NotAdmitted``)."""
+        from ramps.runtime.security import _load_cert
+
+        self._ca_cert = _load_cert(creds.ca, "team CA certificate")
+        self._revocation_file = str(creds.cert.parent / revocation.REVOKED_FILE)
+        rl = revocation.load(self._revocation_file, self._ca_cert, self.team)
+        if rl is None:
+            return
+        if self.robot in rl.robots:
+            raise NotAdmitted(f"robot {self.robot!r} is revoked by team {self.team!r} (revocation list {rl.seq} "
+                              f"of {rl.issued}, {self._revocation_file}): it may not join the team")
+        self.revocations, self._revoked = rl, frozenset(rl.robots)
+
+    def _on_revocations(self, data: bytes, now: float) -> list:
+        """A revocation list from the team: adopt it if it is newer and signed
+        by the team CA; shut the newly revoked robots out (or leave, if this
+        robot is one of them). Anything else is remote bad input: counted."""
+        try:
+            rl = revocation.decode(data, self._ca_cert, self.team)
+        except Exception as exc:  # CredentialsError, or anything odd in a foreign message
+            self.bad_messages += 1
+            if now - self._drop_logged_at >= DROP_LOG_PERIOD:  # a flood is one line a period
+                log.warning("node %s ignored a revocation list: %s", self.robot, exc)
+                self._drop_logged_at = now
+            return []
+        if self.revocations is not None and rl.seq <= self.revocations.seq:
+            return []
+        new = sorted(set(rl.robots) - self._revoked)
+        self.revocations, self._revoked = rl, frozenset(rl.robots)
+        self._republish_at = 0.0  # pass it on now
+        try:
+            revocation.save(self._revocation_file, rl)
+        except OSError as exc:
+            log.warning("node %s could not save revocation list %d to %s: %s", self.robot, rl.seq,
+                        self._revocation_file, exc)
+        out: list = []
+        for robot in new:
+            if self._trace is not None:
+                self._write_trace("revoked", "", robot, 0, f"list {rl.seq}")
+            if robot == self.robot:
+                self.revoked_self = True
+                continue
+            log.warning("node %s: robot %s is revoked by the team (list %d): shut out", self.robot, robot, rl.seq)
+            self._held_lost.pop(robot, None)
+            self.node.executor.stop_origin(robot, now, out)
+            out.extend(self.node.handle(PeerLost(robot=robot), now))
+        if self.revoked_self:
+            log.error("node %s: this robot is revoked by team %s (list %d): handing programs back and leaving",
+                      self.robot, self.team, rl.seq)
+            self._q.put(("stop", threading.Event()))
+        return out
+
+    def _republish(self, now: float) -> None:
+        if self.revocations is None or now < self._republish_at or self.transport is None:
+            return
+        self._republish_at = now + revocation.REPUBLISH_PERIOD
+        self._put(revocation.revoked_key(self.team), revocation.encode(self.revocations))
+
+    def _next_release(self) -> float:
+        return min(self._held_lost.values())
+
+    def _release_lost(self, now: float) -> list:
+        out: list = []
+        for robot, when in list(self._held_lost.items()):
+            if when <= now:
+                del self._held_lost[robot]
+                out.extend(self._peer_event(robot, False, now))
+        return out
+
+    def _handle(self, item: tuple, now: float) -> list:
+        kind = item[0]
+        node = self.node
+        if kind == "wire":
+            self._backlog_bytes -= len(item[1])
+            try:
+                env = decode(item[1])  # the wire limit; client arguments are checked on submit
+            except WireError as exc:
+                self.bad_messages += 1
+                if now - self._drop_logged_at < DROP_LOG_PERIOD:
+                    self._drops_unlogged += 1
+                else:
+                    n = self._drops_unlogged
+                    more = f" ({n} more dropped since the last such line)" if n else ""
+                    log.warning("node %s dropped a message: %s%s", self.robot, exc, more)
+                    self._drop_logged_at, self._drops_unlogged = now, 0
+                return []
+            msg = env.msg
+            if env.sender in self._revoked:  # refused at the ramps layer (see ramps.runtime.revocation)
+                self.revoked_dropped += 1
+                return []
+            if self._trace_wire:
+                self._write_trace("rx", getattr(msg, "program_id", ""), env.sender, getattr(msg, "attempt", 0),
+                                  f"{type(msg).__name__} queued {now - item[2]:.3f} s", at=item[2])
+            if isinstance(msg, SubmitProgram):
+                return self._client_submit(msg, now)
+            if isinstance(msg, CancelSubmitted):
+                pid = self._requests.get((msg.client, msg.request_id))
+                if pid is None or node.origin.programs[pid].state in ("done", "failed"):
+                    return []
+                return node.handle(Cancel(program_id=pid), now)
+            if isinstance(msg, (ProgramOutcome, ProgramUpdate)):
+                return []
+            if isinstance(msg, LoadReport) and msg.robot != env.sender:
+                self.bad_messages += 1
+                return []
+            return node.handle(Received(sender=env.sender, msg=msg), now)
+        if kind == "finished":
+            if self.metrics is not None:
+                self.metrics.on_finished(item[1])
+            return node.handle(item[1], now)
+        if kind in ("progress", "speed"):
+            return node.handle(item[1], now)
+        if kind == "live":
+            robot, alive = item[1], item[2]
+            if robot == self.robot:
+                return []
+            if self._trace_wire:
+                self._write_trace("peer_alive" if alive else "peer_lost", "", robot, 0, "liveliness")
+            return self._on_liveliness(robot, alive, now)
+        if kind == "call":
+            item[1]()
+            return []
+        if kind == "revoked":
+            return self._on_revocations(item[1], now)
+        raise ValueError(f"unknown queue item {kind!r}")

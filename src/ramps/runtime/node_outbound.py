@@ -1,0 +1,231 @@
+"""What a node's driver does with the core's actions, and its load reports.
+
+How this works: ``_apply`` turns each action of the core into its effect:
+``Send`` is published to the teammate's inbox (DROP under congestion: the
+core survives lost messages), ``StartProgram``/``StopProgram`` go to the
+worker pool, ``Deliver`` becomes the client's outcome
+(``ramps.runtime.node_clients``), ``Note`` a client update, a trace line and
+a log line. ``_publish`` builds the periodic load report from the sampler
+and the core (what it runs, its links, what it learned) and publishes it;
+``_shutdown`` hands running programs back and cancels this origin's.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import threading
+
+import msgspec
+
+from ramps.core.events import (
+    Cancel,
+    Deliver,
+    Note,
+    Progress,
+    PublishReport,
+    Send,
+    StartProgram,
+    StopProgram,
+)
+from ramps.core.messages import (
+    MAX_LISTED,
+    LearnedWork,
+    LinkSeen,
+    RunningProgram,
+    encode,
+)
+from ramps.core.speed import REMEASURE_PERIOD, SpeedMeasured
+from ramps.runtime import keys
+from ramps.runtime.measure import measure_speed
+
+log = logging.getLogger("ramps.node")
+#: core notes a client hears about (ProgramUpdate.state), as placed/running/host_failed
+_CLIENT_STATES = {"placed": "placed", "accepted": "running", "failed": "host_failed"}
+
+
+class Outbound:
+    """The driver's outputs (mixed into ``NodeRuntime``)."""
+
+    def _apply(self, actions: list) -> None:
+        mnow = self.clock.monotonic() - self._stall_offset  # the core's clock, for metrics' latencies
+        for a in actions:
+            if self.metrics is not None:
+                self.metrics.on_action(a, self.node, mnow)
+            if isinstance(a, Send):
+                self._put(keys.inbox(self.team, a.to), encode(self.robot, a.msg))
+                if self._trace_wire:
+                    self._write_trace("tx", getattr(a.msg, "program_id", ""), a.to, getattr(a.msg, "attempt", 0),
+                                      type(a.msg).__name__)
+            elif isinstance(a, StartProgram):
+                self.pool.run((a.program_id, a.attempt), a.program, a.args, a.resume)
+            elif isinstance(a, StopProgram):
+                self.pool.cancel((a.program_id, a.attempt))
+            elif isinstance(a, Deliver):
+                kind = a.error_kind
+                if self.node.executor.closing and kind == "cancelled":
+                    kind, a = "shutdown", msgspec.structs.replace(a, error=f"origin {self.robot} shut down")
+                if self._trace is not None:  # first, so a caller holding the result finds it traced
+                    self._write_trace("delivered", a.program_id, a.host, a.attempts, a.error_kind)
+                self._tell_client(a.program_id, ok=a.ok, value=a.value, error=a.error, kind=kind, host=a.host,
+                                  attempts=a.attempts, moves=a.moves, resumed_from=a.resumed_from)
+            elif isinstance(a, PublishReport):
+                self._publish_prompt(a.report)
+            elif isinstance(a, Progress):
+                self._progress[a.program_id] = (a.fraction, a.detail)
+                self._update_client(a.program_id, "progress", a.host, a.attempt)
+            elif isinstance(a, Note):
+                if a.what in _CLIENT_STATES and a.program_id in self._clients:
+                    state = _CLIENT_STATES[a.what]
+                    self._update_client(a.program_id, "replaced" if state == "placed" and a.attempt > 1 else state,
+                                        a.robot, a.attempt)
+                if self._trace is not None:
+                    self._write_trace(a.what, a.program_id, a.robot, a.attempt, a.detail)
+                if a.what in ("blacklisted", "unblacklisted", "failed", "anomaly"):
+                    log.info("node %s: %s %s %s %s", self.robot, a.what, a.robot, a.program_id, a.detail)
+                if self.on_note is not None:
+                    self.on_note(a)
+
+    def _write_trace(self, what: str, program_id: str, other: str, attempt: int, detail: str, *,
+                     at: float | None = None) -> None:
+        """One JSON line per decision: ``t`` is self.clock.monotonic() (one clock for
+        every process of a host), ``wall`` the Unix time, fields as the
+        simulator's trace (``ramps.sim.engine.TraceEntry``)."""
+        rec = {"t": round(self.clock.monotonic() if at is None else at, 6), "wall": round(self.clock.time(), 6),
+               "robot": self.robot, "what": what, "program_id": program_id, "other": other, "attempt": attempt,
+               "detail": detail}
+        try:
+            self._trace.write(json.dumps(rec) + "\n")
+        except OSError as exc:  # a full disk must not stop the node
+            log.warning("node %s: trace file write failed, trace off: %s", self.robot, exc)
+            self._trace = None
+            self._trace_wire = False
+
+    def _put(self, key: str, data: bytes, *, block: bool = False) -> None:
+        """Publish on ``key``. Messages to robots use Zenoh's DROP congestion
+        control: a frozen teammate must never stall this node's only driver
+        thread, and the core already survives lost messages (connect
+        timeouts, periodic heartbeats, results resent until acknowledged).
+        Outcomes to a client (``block=True``) are not resent, so they wait."""
+        if self.transport is None:
+            return
+        pub = self._pubs.get(key)
+        try:
+            if pub is None:
+                pub = self._pubs[key] = self.transport.publisher(key, block=block)
+                if len(self._pubs) > 4096:  # clients come and go
+                    self._pubs.pop(next(iter(self._pubs))).undeclare()
+            pub.put(data)
+        except Exception as exc:
+            log.warning("node %s could not publish on %s: %s", self.robot, key, exc)
+
+    def _remeasure(self) -> None:
+        """Measure this robot's speed again, off the driver's thread (briefly:
+        0.05 s of CPU); the core keeps the figure if it is faster."""
+        try:
+            speed = measure_speed(0.05, quota=self._quota, cores=self.cores)
+        except Exception:  # never worth a node
+            log.exception("node %s: measuring its speed again failed", self.robot)
+            return
+        self._q.put(("speed", SpeedMeasured(speed=speed)))
+
+    def _publish(self, now: float) -> None:
+        due = self._remeasure_at
+        if due is not None and self.clock.monotonic() >= due and not self.pool.busy() and not self.pool.queued():
+            self._remeasure_at = self.clock.monotonic() + REMEASURE_PERIOD
+            threading.Thread(target=self._remeasure, name=f"ramps-speed-{self.robot}", daemon=True).start()
+        busy, runnable, ramps_avg = self.sampler.averages()
+        per_core, load1, mem_free = self.sampler.extras()
+        self.node.executor.background = max(0.0, runnable - ramps_avg)
+        if self.load_scope == "cgroup":
+            busy = min(busy * self._busy_scale, float(self.cores))
+        report = self.node.make_report(cpu_busy=busy,
+                                       runnable=runnable, ramps_avg=ramps_avg, window=self.s.window,
+                                       mem_free=mem_free, cpu_per_core=per_core, load_avg=load1)
+        sees = frozenset(self.node.view.candidates(now)) - {self.robot}
+        if sees != self._sees:
+            self._log_view_change(self._sees, sees)
+            self._sees = sees
+        report = msgspec.structs.replace(report, bad_messages=self.bad_messages + self.overflow,  # `ramps status`
+                                         sees=len(sees), running=self._running_list(), **self._learned())
+        self._last_report = report
+        if self.metrics is not None:
+            st = self.node.statistics()
+            self.metrics.on_report(cpu_busy=busy, runnable=runnable, load_avg=load1, mem_free=mem_free,
+                                   running=st.running, in_flight=st.active_programs, sees=len(sees),
+                                   blacklisted=len(st.blacklisted), dropped=report.bad_messages,
+                                   reports_received=st.reports_received)
+        try:
+            self._load_pub.put(encode(self.robot, report))
+            if self._trace_wire:
+                self._write_trace("tx", "", "*", 0, "LoadReport")
+        except Exception as exc:
+            log.warning("node %s could not publish its load: %s", self.robot, exc)
+        self._republish(now)
+
+    def _publish_prompt(self, report) -> None:
+        """A report of the instant from the core (its programs changed), with
+        what only the sampler measures taken from the last periodic report."""
+        last = getattr(self, "_last_report", None)
+        if last is not None:
+            report = msgspec.structs.replace(report, mem_free=last.mem_free, cpu_per_core=last.cpu_per_core,
+                                             load_avg=last.load_avg, bad_messages=last.bad_messages,
+                                             sees=last.sees, links=last.links, learned=last.learned)
+        # what it runs and whom it wrote off, as the periodic report says: without them
+        # `ramps status`, `ramps top` and ROS diagnostics saw both flap to empty
+        report = msgspec.structs.replace(report, running=self._running_list(),
+                                         blacklisted=self.node.view.blacklisted())
+        try:
+            self._load_pub.put(encode(self.robot, report))
+        except Exception as exc:
+            log.warning("node %s could not publish its load: %s", self.robot, exc)
+
+    def _learned(self) -> dict[str, list]:
+        """What this node measured of its links and learned of its programs'
+        work, for its load report (``ramps status``)."""
+        def ok(x: float | None) -> float | None:  # within the schema, or the whole report would be refused
+            return x if x is not None and math.isfinite(x) and x >= 0 else None
+
+        measured = self.node.links.measured()
+        factors = self.node.host_speeds.factor if self.node.host_speeds is not None else {}
+        # teammates only: an origin also compares the runs on its own robot
+        links = [(r, measured.get(r)) for r in sorted((set(measured) | set(factors)) - {self.robot})[:MAX_LISTED]]
+        work = sorted(self.node.origin.learned_work().items())[:MAX_LISTED]
+        return dict(links=[LinkSeen(r, ok(e.latency) if e else None, ok(e.bandwidth) if e else None,
+                                    ok(factors.get(r))) for r, e in links],
+                    learned=[LearnedWork(p, w) for p, w in work if ok(w) is not None])
+
+    def _running_list(self) -> list[RunningProgram]:
+        """The programs this robot runs, with their progress (``ramps status``)."""
+        jobs = list(self.node.executor.running.values())[:MAX_LISTED]
+        return [RunningProgram(j.program, j.origin, j.progress) for j in jobs]
+
+    def _log_view_change(self, before: frozenset[str], after: frozenset[str]) -> None:
+        """One line when teammates enter or leave this robot's view (the
+        robots it could place programs on), so a log tells who it saw when."""
+        def names(robots: frozenset[str]) -> str:
+            shown = sorted(robots)
+            return ", ".join(shown[:8]) + (f" and {len(shown) - 8} more" if len(shown) > 8 else "")
+
+        parts = [f"+{names(after - before)}" if after - before else "",
+                 f"-{names(before - after)}" if before - after else ""]
+        log.info("node %s sees %d teammate(s): %s", self.robot, len(after), " ".join(p for p in parts if p))
+
+    def _shutdown(self, done: threading.Event) -> None:
+        now = self._clock()
+        node = self.node
+        out: list = []
+        handed = node.executor.hand_back(now, out)
+        for pid, ap in list(node.origin.programs.items()):
+            if ap.state not in ("done", "failed"):
+                out.extend(node.handle(Cancel(program_id=pid), now))
+        self._apply(node._loopback(out, now))
+        for key, data, _, block in self._held_outcomes:  # leaving: the last chance to send them
+            self._put(key, data, block=block)
+        self._held_outcomes = []
+        log.info("node %s leaving team %s: handed back %d program(s)", self.robot, self.team, handed)
+        if self.bad_messages:
+            log.warning("node %s dropped %d malformed message(s) while it ran", self.robot, self.bad_messages)
+        self.clock.sleep(0.05)  # let Zenoh flush the hand-backs
+        done.set()
