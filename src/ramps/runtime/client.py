@@ -43,12 +43,9 @@ import msgspec
 
 from ramps.core.messages import (
     CancelSubmitted,
-    LearnedWork,
-    LinkSeen,
     LoadReport,
     ProgramOutcome,
     ProgramUpdate,
-    RunningProgram,
     SubmitProgram,
     WireError,
     decode,
@@ -68,90 +65,8 @@ from ramps.runtime import keys
 from ramps.runtime.registry import MAX_ARGS_BYTES, Registry, decode_value, default_registry, encode_args
 from ramps.runtime.security import admission, settings_credentials, tls_listeners
 from ramps.runtime.settings import NodeSettings, load_settings
+from ramps.runtime.futures import ProgramFuture, RobotStatus, TeamStatus
 from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
-
-
-class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
-    robot: str
-    alive: bool
-    cores: int = 0
-    speed: float = 0.0
-    cpu_busy: float = 0.0
-    runnable: float = 0.0
-    ramps_running: int = 0
-    #: messages the robot's node dropped (undecodable, or over its backlog)
-    bad_messages: int = 0
-    accepted_total: int = 0
-    finished_total: int = 0
-    blacklisted: list[str] = []
-    cpu_per_core: list[float] = []
-    load_avg: float = 0.0
-    mem_free: int = 0
-    report_age: float | None = None
-    #: teammates the robot could place a program on (None: not reported)
-    sees: int | None = None
-    #: programs running there: [program, origin robot, progress 0..1 or None]
-    running: list[RunningProgram] = []
-    #: the robot's measured links to teammates [teammate, latency s, bandwidth B/s],
-    #: and the work it learned of the programs it placed [program, work units]
-    links: list[LinkSeen] = []
-    learned: list[LearnedWork] = []
-
-
-class TeamStatus(msgspec.Struct, frozen=True, kw_only=True):
-    team: str
-    robots: list[RobotStatus]
-
-
-class ProgramFuture(Future):
-    """A ``concurrent.futures.Future`` that follows its program on the team.
-
-    ``program``: its name; ``state``: "submitted", "placed", "running",
-    "replaced" (placed again after a failure or refusal), "host_failed",
-    then "done" or "failed"; ``host``: the robot it was last offered to (the
-    one that ran it, once done); ``attempts``: placements so far;
-    ``progress``: the newest fraction (0..1) the program reported, or None;
-    ``progress_detail``: the text that came with it; once done, ``moves``:
-    how often it was relocated while running, and ``resumed_from``: the
-    progress of the checkpoint its last attempt resumed from (None: it ran
-    from the start, see ``ramps.checkpoint``). Updates are advisory
-    (they may be lost or arrive late); the result is not."""
-
-    def __init__(self, program: str = "") -> None:
-        super().__init__()
-        self.program = program
-        self.state = "submitted"
-        self.host = ""
-        self.attempts = 0
-        self.progress: float | None = None
-        self.progress_detail = ""
-        self.moves = 0
-        self.resumed_from: float | None = None
-        self._update_callbacks: list = []
-
-    def add_update_callback(self, fn) -> None:
-        """Call ``fn(future)`` (on a ramps thread: do not block) whenever the
-        state, host or progress changes, and once when the future is done."""
-        self._update_callbacks.append(fn)
-        self.add_done_callback(fn)
-
-    def _updated(self, u: ProgramUpdate) -> None:
-        if self.done():
-            return
-        if u.state != "progress":
-            self.state = u.state
-        elif self.state in ("submitted", "placed", "replaced"):
-            self.state = "running"  # progress comes from a running program
-        if u.host:
-            self.host = u.host
-        self.attempts = max(self.attempts, u.attempt)
-        if u.fraction is not None:
-            self.progress, self.progress_detail = u.fraction, u.detail
-        for fn in list(self._update_callbacks):
-            try:
-                fn(self)
-            except Exception:  # a callback's bug must not stop the others (Future does the same)
-                pass
 
 
 #: seconds a client waits for its node to come back before failing the
