@@ -182,11 +182,8 @@ def test_the_real_client_over_the_memory_transport(team):
     same bus: its submission runs on the team and its future resolves once;
     a node that leaves fails its pending programs at the client."""
     from ramps.errors import ProgramLost
-    from ramps.runtime.client import Team
-    from ramps.runtime.settings import load_settings
 
-    s = load_settings(flags={"team": team.team}, environ={}, default_robot=False)
-    client = Team(s, robot="r1", timeout=1.0, transport=team.bus.transport("client"), clock=team.clock)
+    client = team.connect("r1")
     try:
         assert client.robot == "r1"
         futs = [client.submit("echo", x=i) for i in range(3)]

@@ -24,6 +24,12 @@ Once done, ``fut.host`` names the robot that ran it and ``fut.attempts`` how
 many placements it took. A per-call timeout
 (``team.options(timeout=...)``) cancels the program and raises
 ``TimeoutError``. Errors are the ``ramps.errors`` tree.
+
+The client reaches the team through ``ramps.runtime.transport`` and reads
+time from its injected clock, as the node does (``ramps.testing.memory``
+runs it in memory). Over 500 lines for a reason: ``Team`` is one class
+whose threads (transport callbacks, timers) share one lock and its state;
+its futures live in ``ramps.runtime.futures``.
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ test decides when a program ends. ``StillSampler`` stands for the load
 sampler (an idle robot).
 
 ``MemoryTeam`` puts it together: real ``NodeRuntime`` objects (real driver,
-real core) started with ``threaded=False``; ``run(seconds)`` steps every
+real core) started with ``threaded=False``, and real clients (``connect()``); ``run(seconds)`` steps every
 node and moves the clock to the earliest time one of them wants to wake,
 never past it, so no node sees a stall unless a test makes one. Everything
 is deterministic and takes milliseconds.
@@ -358,6 +358,16 @@ class MemoryTeam:
         rt.start(threaded=False)
         self.nodes[name] = rt
         return rt
+
+    def connect(self, robot: str, name: str = "app") -> Any:
+        """A real client (``ramps.runtime.client.Team``, what ``ramps.connect()``
+        returns) on the bus, submitting to ``robot``'s node. Its futures
+        resolve as ``run()`` moves the team; ``close()`` it at the end."""
+        from ramps.runtime.client import Team
+        from ramps.runtime.settings import load_settings
+
+        s = load_settings(flags={"team": self.team}, environ={}, default_robot=False)
+        return Team(s, robot=robot, timeout=1.0, transport=self.bus.transport(name), clock=self.clock)
 
     def step(self) -> None:
         """One round of every running node, until none has anything queued."""
