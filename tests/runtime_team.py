@@ -27,15 +27,21 @@ A secured team (``secure=True``): the team gets its own CA in
 ``tls/`` endpoints, and ``client()`` / ``wait_visible`` connect with the
 credentials of an application ``app``.
 
-Optional cpu cgroups (``cgroups=True``, root and a writable cgroup v1 or v2
-cpu controller needed, see ``cgroup_support()``): each node then runs in its
-own cgroup with a CPU quota, so it measures its own load (``load_scope``
-auto), as emulated robots sharing one host do; ``spawn(..., robot=...)``
-starts background load inside a robot's cgroup.
+Cpu cgroups (root and a writable cgroup v1 or v2 cpu controller needed, see
+``cgroup_support()``): each node runs in its own cgroup, so it measures its
+own load (``load_scope`` auto), as emulated robots sharing one host do, and
+``spawn(..., robot=...)`` starts background load inside a robot's cgroup.
+By default (``cgroups=None``) the quota is every core of the host, which
+throttles nothing: it only keeps each node's load reports to its own
+processes, so the tests running beside it (pytest-xdist, other people's
+work on the host) do not make every robot look busy and skew placements.
+``cgroups=True`` sets the quota to ``quota_cores``; ``cgroups=False``, or a
+host without cgroups, measures the whole host as before.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 import subprocess
 import time
@@ -99,6 +105,11 @@ def cgroup_support() -> str | None:
     return None
 
 
+@functools.cache
+def _cgroups_work() -> bool:
+    return cgroup_support() is None
+
+
 # ---------------------------------------------------------------- the team
 class LocalTeam(testing.LocalTeam):
     """``ramps.testing.LocalTeam`` with the tests' defaults: the programs of
@@ -108,15 +119,19 @@ class LocalTeam(testing.LocalTeam):
     programs' marks, and ``close()`` killing at once (no graceful stop)."""
 
     def __init__(self, n: int, tmp: Path, *, cores: int | None = 2, lease_ms: int = 1000,
-                 cgroups: bool = False, quota_cores: float = 1.0, programs=PROGRAMS, **kw: Any) -> None:
+                 cgroups: bool | None = None, quota_cores: float = 1.0, programs=PROGRAMS, **kw: Any) -> None:
         self.n = n
+        if cgroups is None:  # measure each node's own load, throttle nothing (module docstring)
+            quota: float | None = float(len(os.sched_getaffinity(0))) if _cgroups_work() else None
+        else:
+            quota = quota_cores if cgroups else None
         marks = Path(tmp) / "marks"
         env = {k: v for k, v in os.environ.items() if not k.startswith("RAMPS_")}
         env["PYTHONPATH"] = os.pathsep.join([str(TESTS_DIR)] + [p for p in [os.environ.get("PYTHONPATH")] if p])
         env[RUN_ENV] = RUN_ID
         env["RAMPS_E2E_MARKS"] = str(marks)
         super().__init__(n, tmp, team=f"e2e-{uuid.uuid4().hex[:12]}", cores=cores, speed=1.0, lease_ms=lease_ms,
-                         programs=[f"e2eprogs:{p}" for p in programs], cpu_quota=quota_cores if cgroups else None,
+                         programs=[f"e2eprogs:{p}" for p in programs], cpu_quota=quota,
                          env=env, graceful=False, **kw)
         self.marks = marks
         self.marks.mkdir(exist_ok=True)
