@@ -34,8 +34,17 @@ from ramps.core.messages import (
     encode,
 )
 from ramps.core.node import Node
-from ramps.core.origin import Origin
-from ramps.core.program import TRANSITIONS, AutonomousProgram, ProgramState, ProtocolError
+from ramps.core.origin import Origin, resolve_handlers
+from ramps.core.program import (
+    TRANSITIONS,
+    AutonomousProgram,
+    Event,
+    IllegalTransition,
+    Outcome,
+    ProgramState,
+    ProtocolError,
+    Transition,
+)
 
 from ramps.core.config import RampsConfig
 from corehelpers import CFG, Team, busy_origin_team, report, submit
@@ -638,24 +647,76 @@ def test_executor_cancel_stops_only_the_origins_own_program() -> None:
 def test_missing_transition_names_program_state_and_event() -> None:
     ap = AutonomousProgram(Submit(program_id="prog-42", program="x"), 0.0)
     with pytest.raises(ProtocolError) as info:
-        ap.handler_for("teleported")
+        ap.transition("teleported")
     err = info.value
     assert (err.program_id, err.state, err.event) == ("prog-42", ProgramState.OFFERED, "teleported")
     assert "prog-42" in str(err) and "'offered'" in str(err) and "'teleported'" in str(err)
     ap.state = ProgramState.DONE
     with pytest.raises(ProtocolError, match="prog-42.*'done'.*'result'"):
-        ap.handler_for("result")
+        ap.transition(Event.RESULT)
+    ap.state = ProgramState.RUNNING
+    assert ap.transition("heartbeat") is TRANSITIONS[ProgramState.RUNNING][Event.HEARTBEAT]
 
 
 def test_transition_table_is_complete_and_every_handler_exists() -> None:
     assert set(TRANSITIONS) == set(ProgramState)
+    handlers = resolve_handlers(Origin, TRANSITIONS)
     for state, row in TRANSITIONS.items():
-        for event, handler in row.items():
-            assert callable(getattr(Origin, "_" + handler, None)), (state, event, handler)
+        for event, transition in row.items():
+            assert isinstance(event, Event)
+            assert handlers[transition.handler] is getattr(Origin, "_" + transition.handler)
+            assert transition.outcomes, (state, event)
+            assert all(o.state is None or isinstance(o.state, ProgramState) for o in transition.outcomes)
     live = set(ProgramState) - {ProgramState.DONE, ProgramState.FAILED}
     for state in live:
-        assert "cancel" in TRANSITIONS[state], state
+        assert TRANSITIONS[state][Event.CANCEL].allowed(state) == {ProgramState.FAILED}, state
     assert TRANSITIONS[ProgramState.DONE] == {} and TRANSITIONS[ProgramState.FAILED] == {}
+    # every event is handled somewhere, and "stays" means the state it came from
+    assert {e for row in TRANSITIONS.values() for e in row} == set(Event)
+    assert TRANSITIONS[ProgramState.RUNNING][Event.ACCEPTED].allowed(ProgramState.RUNNING) == {ProgramState.RUNNING}
+
+
+def test_a_misspelt_handler_fails_when_the_table_is_resolved() -> None:
+    table = {ProgramState.RUNNING: {Event.HEARTBEAT: Transition("on_heartbeet", (Outcome(None),))}}
+    with pytest.raises(TypeError, match="'running'.*'heartbeat'.*'on_heartbeet'.*_on_heartbeet"):
+        resolve_handlers(Origin, table)
+
+
+def test_a_handler_leaving_the_program_outside_its_allowed_states_raises(monkeypatch) -> None:
+    team = Team({"o": (4, 1.0), "a": (4, 1.0)})
+    team.publish()
+    submit(team)
+    team.deliver()
+    assert team.program("p").state is ProgramState.RUNNING
+    # pretend the table said a heartbeat sends a running program to back-off:
+    # the real handler keeps it running, which the origin must refuse
+    wrong = Transition("on_heartbeat", (Outcome(ProgramState.BACKOFF, "never"),))
+    monkeypatch.setitem(TRANSITIONS[ProgramState.RUNNING], Event.HEARTBEAT, wrong)
+    origin = team.nodes["o"].origin
+    with pytest.raises(IllegalTransition) as info:
+        origin._step(team.program("p"), Event.HEARTBEAT, 1.0, [], None)
+    err = info.value
+    assert (err.program_id, err.state, err.event, err.handler, err.got, err.allowed) == (
+        "p", ProgramState.RUNNING, Event.HEARTBEAT, "on_heartbeat", ProgramState.RUNNING,
+        frozenset({ProgramState.BACKOFF}))
+    assert str(err) == ("program p: handler 'on_heartbeat' for event 'heartbeat' in state 'running' "
+                        "left it 'running'; allowed: backoff")
+
+
+def test_an_event_a_peer_sent_in_the_wrong_state_is_an_anomaly_not_a_raise() -> None:
+    team = Team({"o": (4, 1.0), "a": (4, 1.0)})
+    team.publish()
+    submit(team)
+    team.deliver()
+    ap = team.program("p")
+    ap.state = ProgramState.BACKOFF  # as if backing off when a stray acceptance arrives
+    out: list = []
+    team.nodes["o"].origin._step(ap, Event.ACCEPTED, 2.0, out, None)
+    assert [a.what for a in out if isinstance(a, Note)] == ["anomaly"]
+    assert "'backoff'" in out[0].detail and "'accepted'" in out[0].detail
+    with pytest.raises(ProtocolError):  # the application's own cancel of a finished program is misuse
+        ap.state = ProgramState.DONE
+        team.nodes["o"].origin._step(ap, Event.CANCEL, 2.0, out, None)
 
 
 # =================================================================== bugs found by review, now fixed

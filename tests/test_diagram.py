@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from ramps.core import diagram
-from ramps.core.program import TRANSITIONS, ProgramState
+from ramps.core.program import TRANSITIONS, Event, ProgramState, Transition
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "state-machine.md"
 HOW = f"regenerate it with: {diagram.COMMAND}"
@@ -35,7 +35,7 @@ def test_every_legal_transition_is_an_edge() -> None:
     assert "    [*] --> offered: submit" in text
     for state, row in TRANSITIONS.items():
         for event in row:
-            assert f"    {state.value} --> " in text and f": {event}" in text, (state, event)
+            assert f"    {state.value} --> " in text and f": {event.value}" in text, (state, event)
     edges = diagram.edges()
     assert {(s, e) for s, e, *_ in edges} == {(s, e) for s, row in TRANSITIONS.items() for e in row}
     for state in (ProgramState.DONE, ProgramState.FAILED):
@@ -53,15 +53,23 @@ def test_every_legal_transition_is_an_edge() -> None:
     ("backoff", "backoff_done", "offered"),
     ("backoff", "cancel", "failed"),
     ("running", "accepted", "running"),  # ignored duplicate: stays
+    ("moving", "result", "running"),  # the new copy's worker died: the old copy runs on
 ])
 def test_known_edges(state: str, event: str, target: str) -> None:
     assert any(line.startswith(f"    {state} --> {target}: {event}") for line in diagram.mermaid().splitlines())
 
 
-def test_a_handler_without_targets_is_an_error() -> None:
-    table = {ProgramState.OFFERED: {"teleported": "on_teleport"}}
-    with pytest.raises(KeyError, match="on_teleport.*'offered'.*'teleported'"):
+def test_a_transition_without_outcomes_is_an_error() -> None:
+    table = {ProgramState.OFFERED: {Event.RELOCATE: Transition("on_teleport", ())}}
+    with pytest.raises(ValueError, match="'offered'.*'relocate'.*on_teleport"):
         diagram.mermaid(table)
+
+
+def test_every_allowed_next_state_is_drawn() -> None:
+    """What the origin checks at run time and what the page shows are the same set."""
+    drawn = {(s, e, t) for s, e, _h, t, _w in diagram.edges()}
+    checked = {(s, e, t) for s, row in TRANSITIONS.items() for e, tr in row.items() for t in tr.allowed(s)}
+    assert drawn == checked
 
 
 def test_main_prints_the_page() -> None:

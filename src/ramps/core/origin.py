@@ -37,6 +37,7 @@ import math
 import random
 import statistics
 from collections import deque
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import msgspec
@@ -58,10 +59,20 @@ from ramps.core.messages import (
     ResultAck,
 )
 from ramps.core.policy import Placement, Policy, PlacementRequest, make_policy
-from ramps.core.program import FINAL, AutonomousProgram, ProgramState, ProtocolError
+from ramps.core.program import (
+    FINAL,
+    TRANSITIONS,
+    AutonomousProgram,
+    Event,
+    IllegalTransition,
+    ProgramState,
+    ProtocolError,
+    Transition,
+)
 from ramps.core.relink import Relink
 
 S = ProgramState
+E = Event
 #: how many of a program's latest runs its learned work is the median of
 LEARN_RUNS = 8
 #: most running programs one relocation check prices against the team (the
@@ -137,16 +148,16 @@ class Origin:
         if ap is None:
             raise KeyError(f"no program {program_id!r} was submitted here")
         if ap.state not in FINAL:
-            self._step(ap, "cancel", now, out, None)
+            self._step(ap, E.CANCEL, now, out, None)
 
     def on_accepted(self, msg: OffloadAccepted, now: float, out: list[Action]) -> None:
-        self._route(msg.program_id, msg.attempt, msg.host, "accepted", now, out, msg)
+        self._route(msg.program_id, msg.attempt, msg.host, E.ACCEPTED, now, out, msg)
 
     def on_rejected(self, msg: OffloadRejected, now: float, out: list[Action]) -> None:
-        self._route(msg.program_id, msg.attempt, msg.host, "rejected", now, out, msg)
+        self._route(msg.program_id, msg.attempt, msg.host, E.REJECTED, now, out, msg)
 
     def on_result(self, msg: ProgramResult, now: float, out: list[Action]) -> None:
-        self._route(msg.program_id, msg.attempt, msg.host, "result", now, out, msg)
+        self._route(msg.program_id, msg.attempt, msg.host, E.RESULT, now, out, msg)
 
     def on_progress(self, msg: ProgramProgress, now: float, out: list[Action]) -> None:
         """A host says how far a program is: pass it on if the attempt is
@@ -187,7 +198,7 @@ class Origin:
 
     def on_heartbeat(self, msg: Heartbeat, now: float, out: list[Action]) -> None:
         for ref in msg.programs:
-            self._route(ref.program_id, ref.attempt, msg.host, "heartbeat", now, out, None)
+            self._route(ref.program_id, ref.attempt, msg.host, E.HEARTBEAT, now, out, None)
 
     def on_peer_lost(self, robot: str, now: float, out: list[Action]) -> None:
         self.view.set_lost(robot, True)
@@ -200,7 +211,7 @@ class Origin:
                 out.append(Note(what="failed", program_id=pid, robot=robot, attempt=old[0],
                                 detail="host_lost while moving away"))
             if ap.host == robot and ap.state in (S.OFFERED, S.RUNNING, S.MOVING):
-                self._step(ap, "host_lost", now, out, None)
+                self._step(ap, E.HOST_LOST, now, out, None)
         if self.view.isolated(now, self.config.isolation_timeout):
             self._revive_written_off(now, out)
 
@@ -277,10 +288,10 @@ class Origin:
                 continue
             ap.deadline = None
             kind = ap.timer
-            if self.relink.waiting(ap.host, now) and kind in ("heartbeat_timeout", "connect_timeout"):
+            if self.relink.waiting(ap.host, now) and kind in (E.HEARTBEAT_TIMEOUT, E.CONNECT_TIMEOUT):
                 self._set_timer(ap, self.relink.until, kind)  # its link is not back since this robot stalled
                 continue
-            if kind == "heartbeat_timeout":
+            if kind == E.HEARTBEAT_TIMEOUT:
                 due = ap.last_heard + self.config.heartbeat_timeout
                 if due > now:  # heard from the host since the timer was set
                     self._set_timer(ap, due, kind)
@@ -298,21 +309,21 @@ class Origin:
             ap = self.programs[pid]
             if ap.host == host and ap.state in (S.OFFERED, S.RUNNING) and ap.deadline is not None:
                 ap.last_heard = max(ap.last_heard, now)
-                if ap.timer == "connect_timeout":
+                if ap.timer == E.CONNECT_TIMEOUT:
                     self._set_timer(ap, max(ap.deadline, now + self.config.connect_timeout), ap.timer)
 
-    def _set_timer(self, ap: AutonomousProgram, when: float, kind: str) -> None:
+    def _set_timer(self, ap: AutonomousProgram, when: float, kind: Event) -> None:
         ap.deadline = when
         ap.timer = kind
         self._seq += 1
         heapq.heappush(self._timers, (when, self._seq, ap.program_id))
 
     # ================================================================ dispatch
-    def _route(self, pid: str, attempt: int, host: str, event: str, now: float, out: list[Action], msg: Any) -> None:
+    def _route(self, pid: str, attempt: int, host: str, event: Event, now: float, out: list[Action], msg: Any) -> None:
         ap = self.programs.get(pid)
         if ap is None:
             self._anomaly(out, pid, host, f"{event} for a program this robot never submitted")
-            if event == "result":
+            if event == E.RESULT:
                 out.append(Send(to=host, msg=ResultAck(program_id=pid, attempt=attempt, origin=self.me)))
             return
         if attempt == ap.attempt and host == ap.host and ap.live.get(attempt) == host:
@@ -320,7 +331,7 @@ class Origin:
             self._step(ap, event, now, out, msg)
             return
         # about an attempt that is not the current one
-        if event == "result":
+        if event == E.RESULT:
             out.append(Send(to=host, msg=ResultAck(program_id=pid, attempt=attempt, origin=self.me)))
             if ap.state not in FINAL and ap.live.get(attempt) == host:
                 self._finish_with(ap, msg, now, out)
@@ -328,7 +339,7 @@ class Origin:
                 self.discarded += 1
                 out.append(Note(what="discarded", program_id=pid, robot=host, attempt=attempt,
                                 detail="stale result from an attempt no longer wanted"))
-        elif event in ("accepted", "heartbeat"):
+        elif event in (E.ACCEPTED, E.HEARTBEAT):
             if ap.live.get(attempt) == host and ap.state not in FINAL:
                 if ap.moving_from is not None and ap.moving_from[0] == attempt:
                     ap.moving_from[2] = now  # the copy a move takes over from still runs
@@ -337,25 +348,31 @@ class Origin:
             out.append(Send(to=host, msg=CancelProgram(program_id=pid, attempt=attempt, origin=self.me)))
         # a rejection of an old attempt needs nothing
 
-    def _step(self, ap: AutonomousProgram, event: str, now: float, out: list[Action], msg: Any) -> None:
+    def _step(self, ap: AutonomousProgram, event: Event, now: float, out: list[Action], msg: Any) -> None:
+        """Run the transition ``event`` takes from the program's state, then
+        check it left the program in one of the states the table allows."""
+        state = ap.state
         try:
-            name = ap.handler_for(event)
+            transition = ap.transition(event)
         except ProtocolError as exc:
-            if event in ("cancel",):
-                raise
-            self._anomaly(out, ap.program_id, ap.host or "", str(exc))
+            if event is E.CANCEL:
+                raise  # the application's misuse
+            self._anomaly(out, ap.program_id, ap.host or "", str(exc))  # a peer's doing
             return
-        getattr(self, "_" + name)(ap, now, out, msg, event)
+        _HANDLERS[transition.handler](self, ap, now, out, msg, event)
+        allowed = transition.allowed(state)
+        if ap.state not in allowed:
+            raise IllegalTransition(ap.program_id, state, event, transition.handler, ap.state, allowed)
 
     def _anomaly(self, out: list[Action], pid: str, robot: str, detail: str) -> None:
         self.anomalies += 1
         out.append(Note(what="anomaly", program_id=pid, robot=robot, detail=detail))
 
     # ================================================================ handlers
-    def _ignore(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
+    def _ignore(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
         pass
 
-    def _place(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
+    def _place(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
         self.place(ap, now, out)
 
     def place(self, ap: AutonomousProgram, now: float, out: list[Action], *, host: str | None = None,
@@ -412,9 +429,9 @@ class Origin:
             queued = sum(self.programs[pid].submit.payload_size for pid in self._by_host.get(host, ())
                          if self.programs[pid].state is S.OFFERED and self.programs[pid].host == host)
             transfer = queued / link.bandwidth
-        self._set_timer(ap, now + self.config.connect_timeout + transfer, "connect_timeout")
+        self._set_timer(ap, now + self.config.connect_timeout + transfer, E.CONNECT_TIMEOUT)
 
-    def _on_accepted(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
+    def _on_accepted(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
         if isinstance(msg, OffloadAccepted):
             self.view.accepted(ap.host, ap.program_id, ap.attempt, msg.accept_seq)
         ap.state = S.RUNNING
@@ -423,14 +440,14 @@ class Origin:
         ap.excluded.clear()
         ap.accepted_at = ap.done_at = now
         out.append(Note(what="accepted", program_id=ap.program_id, robot=ap.host, attempt=ap.attempt))
-        self._set_timer(ap, now + self.config.heartbeat_timeout, "heartbeat_timeout")
+        self._set_timer(ap, now + self.config.heartbeat_timeout, E.HEARTBEAT_TIMEOUT)
         if self._relocate_due is None and self._relocating():
             self._relocate_due = now + self.config.relocate_period
 
-    def _on_heartbeat(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
+    def _on_heartbeat(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
         ap.last_heard = now
 
-    def _on_rejected(self, ap: AutonomousProgram, now: float, out: list[Action], msg: OffloadRejected, event: str) -> None:
+    def _on_rejected(self, ap: AutonomousProgram, now: float, out: list[Action], msg: OffloadRejected, event: Event) -> None:
         self.rejections += 1
         host = ap.host
         self._leave_host(ap, host, None)
@@ -463,7 +480,7 @@ class Origin:
             return
         self.place(ap, now, out)
 
-    def _on_host_failed(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
+    def _on_host_failed(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
         host = ap.host
         reason = event
         self.host_failures += 1
@@ -487,7 +504,7 @@ class Origin:
             return
         self._leave_host(ap, host, None)
         ap.live.pop(ap.attempt, None)
-        if host != self.me and reason in ("host_lost", "heartbeat_timeout"):
+        if host != self.me and reason in (E.HOST_LOST, E.HEARTBEAT_TIMEOUT):
             ap.written_off.append((ap.attempt, host, now))
             self._revivable.add(ap.program_id)
         else:
@@ -503,13 +520,13 @@ class Origin:
         # certainly unreachable: its programs need only a short jitter, since
         # hosts' admission and prompt reports keep the origins re-placing at
         # once from piling up; silence (a timeout) keeps the paper's back-off
-        self._backoff(ap, now, out, certain=reason == "host_lost")
+        self._backoff(ap, now, out, certain=reason == E.HOST_LOST)
 
-    def _still_publishing(self, host: str | None, reason: str, now: float) -> bool:
+    def _still_publishing(self, host: str | None, reason: Event, now: float) -> bool:
         if not self.config.hedge_suspects or host is None or host == self.me or self.view.is_lost(host):
             return False
-        window = {"heartbeat_timeout": self.config.heartbeat_timeout,
-                  "connect_timeout": self.config.connect_timeout}.get(reason)
+        window = {E.HEARTBEAT_TIMEOUT: self.config.heartbeat_timeout,
+                  E.CONNECT_TIMEOUT: self.config.connect_timeout}.get(reason)
         age = self.view.report_age(host, now)
         # a report that arrived at least a heartbeat period after we last heard
         # about the program (or offered it): the host outlived the silence. A
@@ -528,9 +545,9 @@ class Origin:
         """Back off for ``wait`` seconds, then place the program again."""
         ap.state = S.BACKOFF
         out.append(Note(what="backoff", program_id=ap.program_id, attempt=ap.attempt, detail=detail))
-        self._set_timer(ap, now + wait, "backoff_done")
+        self._set_timer(ap, now + wait, E.BACKOFF_DONE)
 
-    def _on_result(self, ap: AutonomousProgram, now: float, out: list[Action], msg: ProgramResult, event: str) -> None:
+    def _on_result(self, ap: AutonomousProgram, now: float, out: list[Action], msg: ProgramResult, event: Event) -> None:
         out.append(Send(to=msg.host, msg=ResultAck(program_id=ap.program_id, attempt=msg.attempt, origin=self.me)))
         self._finish_with(ap, msg, now, out)
 
@@ -576,7 +593,7 @@ class Origin:
         """Program name -> the work placements now assume (learned ones only)."""
         return {name: statistics.median(runs) for name, runs in self._learned.items() if runs}
 
-    def _on_cancel(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
+    def _on_cancel(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
         self._deliver(ap, now, out, ok=False, error="cancelled by the application", host=ap.host or "",
                       kind="cancelled")
 
@@ -643,7 +660,7 @@ class Origin:
             placement = self._price_move(ap, t_here, now)
             if placement is not None:
                 moved_off.add(ap.host or "")
-                self._step(ap, "relocate", now, out, placement)
+                self._step(ap, E.RELOCATE, now, out, placement)
         return keep
 
     def _price_move(self, ap: AutonomousProgram, t_here: float, now: float) -> Placement | None:
@@ -675,7 +692,7 @@ class Origin:
         cfg = self.config
         return t_here > t_there * (1.0 + cfg.relocate_gain) and t_here - t_there > cfg.relocate_min_gain
 
-    def _relocate(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Placement, event: str) -> None:
+    def _relocate(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Placement, event: Event) -> None:
         """Offer the program to its new host; the old copy runs on meanwhile."""
         old = [ap.attempt, ap.host, ap.last_heard, ap.done, ap.done_at, ap.work, ap.resumed_from, ap.accepted_at]
         ap.moves += 1
@@ -687,7 +704,7 @@ class Origin:
         self.place(ap, now, out, placement=msg)
         ap.state = S.MOVING
 
-    def _on_moved(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
+    def _on_moved(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
         """The new host took the program: stop the old copy."""
         self._drop_old_copy(ap, out)
         self._on_accepted(ap, now, out, msg, event)
@@ -708,9 +725,9 @@ class Origin:
         if host not in ap.live.values():
             self._by_host.get(host, set()).discard(ap.program_id)
 
-    def _on_move_failed(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: str) -> None:
+    def _on_move_failed(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
         host = ap.host
-        if event == "rejected":
+        if event == E.REJECTED:
             self.rejections += 1
             if msg.report is not None and self.view.on_report(msg.report, now, fresh=True):
                 out.append(Note(what="unblacklisted", robot=msg.report.robot))
@@ -719,7 +736,7 @@ class Origin:
             why = f"{host} refused: {msg.reason}"
         else:
             self.host_failures += 1
-            if event == "connect_timeout":
+            if event == E.CONNECT_TIMEOUT:
                 out.append(Send(to=host, msg=CancelProgram(program_id=ap.program_id, attempt=ap.attempt,
                                                            origin=self.me)))
             if self.view.blacklist(host):
@@ -744,7 +761,7 @@ class Origin:
             (ap.attempt, ap.host, ap.last_heard, ap.done, ap.done_at, ap.work, ap.resumed_from,
              ap.accepted_at) = old
             ap.state = S.RUNNING
-            self._set_timer(ap, max(now, ap.last_heard + self.config.heartbeat_timeout), "heartbeat_timeout")
+            self._set_timer(ap, max(now, ap.last_heard + self.config.heartbeat_timeout), E.HEARTBEAT_TIMEOUT)
             return
         ap.failures += 1
         self._backoff(ap, now, out, certain=True)
@@ -774,3 +791,24 @@ class Origin:
 
     def active(self) -> int:
         return sum(1 for ap in self.programs.values() if ap.state not in FINAL)
+
+
+Handler = Callable[[Origin, AutonomousProgram, float, list[Action], Any, Event], None]
+
+
+def resolve_handlers(cls: type, transitions: Mapping[ProgramState, Mapping[Event, Transition]]) -> dict[str, Handler]:
+    """Every handler the table names, as ``cls``'s method ``_<name>``; a name
+    with no such method is an error naming the state, the event and the name."""
+    handlers: dict[str, Handler] = {}
+    for state, row in transitions.items():
+        for event, transition in row.items():
+            method = getattr(cls, "_" + transition.handler, None)
+            if not callable(method):
+                raise TypeError(f"ramps.core.program.TRANSITIONS[{state.value!r}][{event.value!r}] names handler "
+                                f"{transition.handler!r}, but {cls.__name__} has no method _{transition.handler}")
+            handlers[transition.handler] = method
+    return handlers
+
+
+#: the table's handlers, resolved once: a misspelt name fails here, at import
+_HANDLERS = resolve_handlers(Origin, TRANSITIONS)

@@ -1,4 +1,5 @@
-"""The autonomous program: states, and the one table of legal transitions.
+"""The autonomous program: its states, its events, and the one table of legal
+transitions.
 
 How this works: an autonomous program (AP) is created on its origin robot by
 ``Submit``. It places itself with the origin's policy, offers its parameters
@@ -8,45 +9,31 @@ result or a clear error. When its host fails (no acceptance in time, silence,
 or the transport reports the host lost) it blacklists the host, waits a
 random back-off (``BACKOFF``) and places itself again; when a host turns it
 away because it is busier than the origin thought, it re-places at once.
+Relocation (``MOVING``): the program runs on its old host while a new
+attempt is offered to the new one; whichever result comes first is
+delivered and the other copy cancelled; if the new host turns it away or
+fails, the old copy simply keeps running.
 
-``TRANSITIONS[state][event]`` names the handler (a method of ``Origin``) for
-every legal pair. Events about an attempt other than the current one never
-reach the table: the origin settles them first (cancel the stray copy, or
-discard a stale result). A pair missing from the table is an error that names
-the program, state and event: for remote input the origin counts it as an
+``TRANSITIONS[state][event]`` is a ``Transition``: the handler (a method of
+``ramps.core.origin.Origin``, by name; ``Origin`` resolves every name once,
+when its module is imported, so a typo fails at import) and the states the
+handler may leave the program in, each with the condition for it. The
+origin runs the handler, then checks the program's new state against that
+list: a handler that leaves it anywhere else raises ``IllegalTransition``
+(a bug on this robot, never a peer's doing). ``ramps.core.diagram`` draws
+the state diagram in ``docs/state-machine.md`` from this same table; read
+the table there rather than here.
+
+Events about an attempt other than the current one never reach the table:
+the origin settles them first (cancel the stray copy, or discard a stale
+result). A pair missing from the table is a ``ProtocolError`` naming the
+program, state and event: for remote input the origin counts it as an
 anomaly and drops it; for local misuse it raises.
-
-    state      event             handler            next
-    offered    accepted          on_accepted        running
-    offered    rejected          on_rejected        offered | failed
-    offered    connect_timeout   on_host_failed     backoff (or offered locally, if cut off)
-    offered    host_lost         on_host_failed     backoff
-    offered    heartbeat         on_accepted        running  (acceptance lost/reordered)
-    offered    result            on_result          done | failed | backoff
-    running    heartbeat         on_heartbeat       running
-    running    heartbeat_timeout on_host_failed     backoff
-    running    host_lost         on_host_failed     backoff
-    running    result            on_result          done | failed | backoff
-    running    accepted          ignore             running  (duplicate)
-    backoff    backoff_done      place              offered
-    running    relocate          relocate           moving   (eq. 1 says move)
-    moving     accepted          on_moved           running  (old copy cancelled)
-    moving     heartbeat         on_moved           running  (acceptance lost/reordered)
-    moving     rejected          on_move_failed     running  (old copy kept)
-    moving     connect_timeout   on_move_failed     running | backoff (old copy lost meanwhile)
-    moving     host_lost         on_move_failed     running | backoff
-    moving     result            on_result          done | failed | running
-    any live   cancel            on_cancel          failed
-
-Relocation (``MOVING``): the program runs on its old host while a new attempt
-is offered to the new one; both attempts are live, so whichever result comes
-first is delivered and the other copy cancelled. Once the new host accepts,
-the old copy is cancelled; if the new host turns it away or fails, the old
-copy simply keeps running.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
@@ -62,48 +49,136 @@ class ProgramState(StrEnum):
     FAILED = "failed"
 
 
+class Event(StrEnum):
+    """What can happen to a program (a message about its current attempt, a
+    timer, the transport, or the application)."""
+
+    #: the host took the offer (``OffloadAccepted``)
+    ACCEPTED = "accepted"
+    #: the host turned it away (``OffloadRejected``)
+    REJECTED = "rejected"
+    #: no acceptance within ``connect_timeout`` (timer)
+    CONNECT_TIMEOUT = "connect_timeout"
+    #: the transport says the host's session is gone
+    HOST_LOST = "host_lost"
+    #: the host says the program still runs (``Heartbeat``)
+    HEARTBEAT = "heartbeat"
+    #: no heartbeat within ``heartbeat_timeout`` (timer)
+    HEARTBEAT_TIMEOUT = "heartbeat_timeout"
+    #: the host sent the program's result (``ProgramResult``)
+    RESULT = "result"
+    #: the random back-off is over (timer)
+    BACKOFF_DONE = "backoff_done"
+    #: a relocation check found a much better host (eq. 1)
+    RELOCATE = "relocate"
+    #: the application cancelled the program
+    CANCEL = "cancel"
+
+
 class ProtocolError(Exception):
     """An event that has no transition from the program's current state."""
 
     def __init__(self, program_id: str, state: ProgramState, event: str) -> None:
-        super().__init__(f"program {program_id}: no transition from state {state.value!r} on event {event!r}")
+        super().__init__(f"program {program_id}: no transition from state {state.value!r} on event {str(event)!r}")
         self.program_id = program_id
         self.state = state
         self.event = event
 
 
+class IllegalTransition(ProtocolError):
+    """A handler left a program in a state its transition does not allow: a
+    bug in the origin, raised whatever caused the event."""
+
+    def __init__(self, program_id: str, state: ProgramState, event: str, handler: str,
+                 got: ProgramState, allowed: frozenset[ProgramState]) -> None:
+        Exception.__init__(
+            self, f"program {program_id}: handler {handler!r} for event {str(event)!r} in state {state.value!r} "
+            f"left it {got.value!r}; allowed: {', '.join(sorted(s.value for s in allowed))}")
+        self.program_id = program_id
+        self.state = state
+        self.event = event
+        self.handler = handler
+        self.got = got
+        self.allowed = allowed
+
+
+@dataclass(frozen=True, slots=True)
+class Outcome:
+    """One state a handler may leave the program in, and when."""
+
+    #: the next state; ``None``: the program stays where it was
+    state: ProgramState | None
+    #: the condition, in a few words (drawn on the diagram's edge)
+    when: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class Transition:
+    """What an event does in one state: run ``handler``, end in one of ``outcomes``."""
+
+    #: the ``Origin`` method that handles it, without its leading underscore
+    handler: str
+    outcomes: tuple[Outcome, ...]
+
+    def allowed(self, state: ProgramState) -> frozenset[ProgramState]:
+        """The states the program may be in after the handler ran from ``state``."""
+        return frozenset(state if o.state is None else o.state for o in self.outcomes)
+
+
 S = ProgramState
-TRANSITIONS: dict[ProgramState, dict[str, str]] = {
+E = Event
+
+
+def _t(handler: str, *outcomes: tuple[ProgramState | None, str]) -> Transition:
+    return Transition(handler, tuple(Outcome(state, when) for state, when in outcomes))
+
+
+#: the program gives up (``max_attempts`` failures) where it would back off
+_GIVE_UP = (S.FAILED, "max_attempts")
+_ACCEPTED = _t("on_accepted", (S.RUNNING, ""))
+_ACCEPT_LATE = _t("on_accepted", (S.RUNNING, "acceptance lost or reordered"))
+_REJECTED = _t("on_rejected", (S.OFFERED, "re-placed at once"), (S.BACKOFF, "turned away again, or closing here"),
+               (S.FAILED, "permanent, or max_attempts"))
+_HOST_FAILED = _t("on_host_failed", (S.BACKOFF, "host blacklisted"),
+                  (S.OFFERED, "host still publishes, or origin cut off: re-placed"), _GIVE_UP)
+_RESULT = _t("on_result", (S.DONE, "ok"), (S.FAILED, "program error, or max_attempts"),
+             (S.OFFERED, "worker lost: re-placed"), (None, "worker lost, another copy live"))
+_CANCEL = _t("on_cancel", (S.FAILED, "cancelled"))
+_MOVE_FAILED = _t("on_move_failed", (S.RUNNING, "old copy kept"), (S.BACKOFF, "old copy lost meanwhile"), _GIVE_UP)
+
+TRANSITIONS: dict[ProgramState, dict[Event, Transition]] = {
     S.OFFERED: {
-        "accepted": "on_accepted",
-        "rejected": "on_rejected",
-        "connect_timeout": "on_host_failed",
-        "host_lost": "on_host_failed",
-        "heartbeat": "on_accepted",
-        "result": "on_result",
-        "cancel": "on_cancel",
+        E.ACCEPTED: _ACCEPTED,
+        E.REJECTED: _REJECTED,
+        E.CONNECT_TIMEOUT: _HOST_FAILED,
+        E.HOST_LOST: _HOST_FAILED,
+        E.HEARTBEAT: _ACCEPT_LATE,
+        E.RESULT: _RESULT,
+        E.CANCEL: _CANCEL,
     },
     S.RUNNING: {
-        "heartbeat": "on_heartbeat",
-        "heartbeat_timeout": "on_host_failed",
-        "host_lost": "on_host_failed",
-        "result": "on_result",
-        "accepted": "ignore",
-        "relocate": "relocate",
-        "cancel": "on_cancel",
+        E.HEARTBEAT: _t("on_heartbeat", (None, "")),
+        E.HEARTBEAT_TIMEOUT: _HOST_FAILED,
+        E.HOST_LOST: _HOST_FAILED,
+        E.RESULT: _RESULT,
+        E.ACCEPTED: _t("ignore", (None, "duplicate, ignored")),
+        E.RELOCATE: _t("relocate", (S.MOVING, "eq. (1) gain over the thresholds")),
+        E.CANCEL: _CANCEL,
     },
     S.MOVING: {
-        "accepted": "on_moved",
-        "heartbeat": "on_moved",
-        "rejected": "on_move_failed",
-        "connect_timeout": "on_move_failed",
-        "host_lost": "on_move_failed",
-        "result": "on_result",
-        "cancel": "on_cancel",
+        E.ACCEPTED: _t("on_moved", (S.RUNNING, "old copy cancelled")),
+        E.HEARTBEAT: _t("on_moved", (S.RUNNING, "acceptance lost or reordered: old copy cancelled")),
+        E.REJECTED: _MOVE_FAILED,
+        E.CONNECT_TIMEOUT: _MOVE_FAILED,
+        E.HOST_LOST: _MOVE_FAILED,
+        E.RESULT: _t("on_result", (S.DONE, "ok"), (S.FAILED, "program error"),
+                     (S.RUNNING, "new copy's worker lost: old copy kept"),
+                     (S.BACKOFF, "new copy's worker lost, old copy gone"), _GIVE_UP),
+        E.CANCEL: _CANCEL,
     },
     S.BACKOFF: {
-        "backoff_done": "place",
-        "cancel": "on_cancel",
+        E.BACKOFF_DONE: _t("place", (S.OFFERED, "")),
+        E.CANCEL: _CANCEL,
     },
     S.DONE: {},
     S.FAILED: {},
@@ -133,7 +208,7 @@ class AutonomousProgram:
         self.live: dict[int, str] = {}
         #: absolute time of the pending timer, and which timer it is
         self.deadline: float | None = None
-        self.timer: str | None = None
+        self.timer: Event | None = None
         self.last_heard = now
         self.rejections = 0
         self.excluded: set[str] = set()
@@ -164,8 +239,10 @@ class AutonomousProgram:
         #: since when relocation checks have found a move worth it (None: not now)
         self.move_wanted_since: float | None = None
 
-    def handler_for(self, event: str) -> str:
+    def transition(self, event: str) -> Transition:
+        """The transition ``event`` takes from the current state, or a
+        ``ProtocolError`` naming the program, the state and the event."""
         try:
-            return TRANSITIONS[self.state][event]
-        except KeyError:
+            return TRANSITIONS[self.state][Event(event)]
+        except (ValueError, KeyError):
             raise ProtocolError(self.program_id, self.state, event) from None
