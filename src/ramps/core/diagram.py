@@ -38,7 +38,7 @@ COMMAND = "python -m ramps.core.diagram > docs/state-machine.md"
 def edges(transitions: Table = TRANSITIONS) -> list[tuple[ProgramState, Event, str, ProgramState, str]]:
     """(state, event, handler, next state, condition) for every outcome of
     every legal transition, in table order."""
-    out = []
+    out: list[tuple[ProgramState, Event, str, ProgramState, str]] = []
     for state, row in transitions.items():
         for event, transition in row.items():
             if not transition.outcomes:
