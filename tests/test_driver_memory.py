@@ -196,3 +196,50 @@ def test_the_real_client_over_the_memory_transport(team):
             pending.result(1.0)
     finally:
         client.close()
+
+
+def test_the_memory_bus_behaves_as_zenoh_does_for_the_driver():
+    """Key expressions match as Zenoh's do; liveliness comes with history,
+    goes on undeclare, close and cut, and comes back on restore; a cut
+    transport still hears itself and nobody else."""
+    from ramps.testing.memory import MemoryBus
+
+    bus = MemoryBus()
+    a, b = bus.transport("a"), bus.transport("b")
+    heard: list[tuple[str, str, bytes]] = []
+    alive: list[tuple[str, str, bool]] = []
+    a.subscribe("t/msg/a", lambda k, d: heard.append(("a", k, d)))
+    b.subscribe("t/load/*", lambda k, d: heard.append(("b", k, d)))
+    token_a = a.declare_token("t/alive/a")
+    b.subscribe_liveliness("t/alive/*", lambda k, up: alive.append(("b", k, up)), history=True)
+    a.subscribe_liveliness("t/alive/**", lambda k, up: alive.append(("a", k, up)), history=False)
+    assert alive == [("b", "t/alive/a", True)]  # history: the token already there
+    b.declare_token("t/alive/b")
+    assert alive[-1] == ("a", "t/alive/b", True)
+    b.put("t/msg/a", b"1")
+    a.put("t/load/a", b"2")
+    b.put("t/msg/c", b"3")  # nobody's key
+    assert heard == [("a", "t/msg/a", b"1"), ("b", "t/load/a", b"2")]
+    assert b.publisher("t/msg/a").matching() and not b.publisher("t/msg/zz").matching()
+    with pytest.raises(ValueError, match="already"):
+        bus.transport("a")
+    alive.clear()
+    bus.cut("a")
+    assert sorted(alive) == [("a", "t/alive/b", False), ("b", "t/alive/a", False)]
+    heard.clear()
+    b.put("t/msg/a", b"lost")
+    a.put("t/msg/a", b"self")  # a process hears its own subscribers while cut
+    assert heard == [("a", "t/msg/a", b"self")] and not b.publisher("t/msg/a").matching()
+    assert bus.lost == 0 and a.peers() == [] and b.peers() == []
+    alive.clear()
+    bus.restore("a")
+    assert sorted(alive) == [("a", "t/alive/b", True), ("b", "t/alive/a", True)]
+    alive.clear()
+    token_a.undeclare()  # a session's own liveliness subscribers see its own tokens, as in Zenoh
+    assert sorted(alive) == [("a", "t/alive/a", False), ("b", "t/alive/a", False)]
+    alive.clear()
+    bus.kill("b")  # its tokens go; it hears nothing more
+    assert alive == [("a", "t/alive/b", False)]
+    heard.clear()
+    a.put("t/load/x", b"gone")
+    assert heard == [] and b.closed

@@ -132,7 +132,7 @@ class MemoryBus:
     def subscribe(self, t: "MemoryTransport", key: str, cb: Callable[[str, bytes], None]) -> _Declared:
         entry = (t, key, cb)
         self._subs.append(entry)
-        return _Declared(lambda: self._subs.remove(entry))
+        return _Declared(lambda: self._drop(self._subs, entry))
 
     # ------------------------------------------------------------ liveliness
     def _tell(self, token: tuple["MemoryTransport", str], alive: bool, only: "MemoryTransport | None" = None) -> None:
@@ -160,7 +160,12 @@ class MemoryBus:
             for owner, tkey in list(self._tokens):
                 if intersects(key, tkey) and self.reaches(owner, t):
                     cb(tkey, True)
-        return _Declared(lambda: self._lsubs.remove(entry))
+        return _Declared(lambda: self._drop(self._lsubs, entry))
+
+    @staticmethod
+    def _drop(entries: list, entry: tuple) -> None:
+        if entry in entries:
+            entries.remove(entry)
 
     # ------------------------------------------------------------ faults
     def _others(self, name: str) -> list["MemoryTransport"]:
@@ -193,8 +198,12 @@ class MemoryBus:
                     self._tell(token, True, only=other)
 
     def kill(self, name: str) -> None:
-        """The process behind a transport dies: its tokens go, it hears nothing more."""
-        self.transports[name].close()
+        """The process behind a transport dies: it hears nothing more, and its
+        teammates hear its tokens go."""
+        t = self.transports[name]
+        self._subs = [e for e in self._subs if e[0] is not t]
+        self._lsubs = [e for e in self._lsubs if e[0] is not t]
+        t.close()
 
 
 class MemoryTransport:
