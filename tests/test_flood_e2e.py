@@ -24,7 +24,7 @@ import psutil
 import pytest
 from runtime_team import LocalTeam
 
-from ramps.experiments.flood import flood_team
+from ramps.bench.flood import flood_team
 
 pytestmark = pytest.mark.slow
 

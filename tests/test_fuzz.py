@@ -41,7 +41,9 @@ from ramps.core.events import (
 )
 from ramps.core.messages import PROTOCOL_VERSION, WireError, decode, encode
 from ramps.core.policy import POLICIES
-from ramps.experiments.fuzz import ME, CoreHarness, run_fuzz
+from ramps.bench.fuzz import CoreHarness, run_fuzz
+from ramps.testing import hostile
+from ramps.testing.hostile import ME
 
 COMMON = dict(deadline=None, derandomize=True, database=None,
               suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large, HealthCheck.filter_too_much])
@@ -281,7 +283,7 @@ STEPS = ["hostile", "hostile", "aimed", "aimed", "replay_sent", "replay_heard", 
 @CORE
 @given(policy=st.sampled_from(sorted(POLICIES)), seed=st.integers(0, 1000), data=st.data())
 def test_core_survives_hostile_input_and_delivers_each_program_once(policy: str, seed: int, data) -> None:
-    h = CoreHarness(random.Random(seed), policy)  # checks every action it is handed (see ramps.experiments.fuzz)
+    h = CoreHarness(random.Random(seed), policy)  # checks every action it is handed (see ramps.bench.fuzz)
     node = h.node
     n_submitted = 0
     for _ in range(data.draw(st.integers(0, 60), label="steps")):
@@ -381,3 +383,28 @@ def test_fuzz_benchmark_is_deterministic() -> None:
     strip = ("seconds", "inputs_per_s", "machine")
     a, b = (run_fuzz(inputs=1500, seed=5) for _ in range(2))
     assert {k: v for k, v in a.items() if k not in strip} == {k: v for k, v in b.items() if k not in strip}
+
+
+def test_hostile_generators_replay_by_seed_and_only_ever_raise_wire_error():
+    """The generators shipped in ``ramps.testing.hostile`` (for users' own
+    tests): every kind of wire input, the same bytes for the same seed, and
+    ``decode`` either accepts them or raises ``WireError``, nothing else."""
+    from ramps.testing import WIRE_KINDS
+
+    assert WIRE_KINDS is hostile.WIRE_KINDS and len(WIRE_KINDS) >= 10
+    for name, _weight, make in WIRE_KINDS:
+        first = [make(random.Random(i)) for i in range(30)]
+        assert first == [make(random.Random(i)) for i in range(30)], name
+        for data in first:
+            assert isinstance(data, bytes), name
+            try:
+                decode(data)
+            except WireError:
+                pass
+    oversized = hostile.oversized(random.Random(1))
+    assert len(oversized) > m.MAX_MESSAGE_BYTES
+    with pytest.raises(WireError):
+        decode(oversized)
+    msg = hostile.random_message(random.Random(3))
+    data = encode(hostile.ME, msg)
+    assert encode(hostile.ME, decode(data).msg) == data  # valid, and survives the round trip

@@ -18,7 +18,7 @@ import threading
 import time
 from collections import Counter
 
-from ramps.experiments.bench import machine
+from ramps.bench.simulator import machine
 from ramps.testing import LocalTeam
 
 

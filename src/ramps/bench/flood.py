@@ -27,7 +27,7 @@ import time
 from typing import Any, Callable
 
 from ramps.core import messages as m
-from ramps.experiments import fuzz
+from ramps.testing import hostile
 from ramps.runtime.watch import TeamWatcher
 
 #: how often the load publisher reports (``NodeSettings.publish_period``)
@@ -45,7 +45,7 @@ def flood_pool(seed: int = 0, *, small: int = 2000, big: int = 24, big_min: int 
     whose arguments take it over the limit, and a valid-looking one of a few
     MB with one bad field (parsed to the end, then refused)."""
     rng = random.Random(seed)
-    makers = [k for k in fuzz.WIRE_KINDS if k[0] not in ("valid",)]
+    makers = [k for k in hostile.WIRE_KINDS if k[0] not in ("valid",)]
     _names, weights, fns = zip(*makers)
     out_small: list[bytes] = []
     while len(out_small) < small:
@@ -66,7 +66,7 @@ def flood_pool(seed: int = 0, *, small: int = 2000, big: int = 24, big_min: int 
             data = m.encode("p", m.OffloadRequest(program_id="a", attempt=1, origin="p", host="r1", program="burn",
                                                   args=b"\x00" * max(n, m.MAX_MESSAGE_BYTES + 1)))
         else:
-            data = fuzz._enc.encode({"v": m.PROTOCOL_VERSION, "sender": "p", "msg": {
+            data = hostile.ENCODER.encode({"v": m.PROTOCOL_VERSION, "sender": "p", "msg": {
                 "type": "offload", "program_id": "a", "attempt": 1, "origin": "p", "host": "**",
                 "program": "burn", "args": b"\x00" * n}})
         if _refused(data):
@@ -303,7 +303,7 @@ def _alive(pid: int) -> bool:
 def bench_flood(*, messages: int = 10_000, seconds: float = 10.0, programs: int = 40, seed: int = 0,
                 log: Callable[[str], None] | None = None) -> dict:
     """``ramps bench flood``: two real nodes on loopback, r1 flooded."""
-    from ramps.experiments.bench import machine
+    from ramps.bench.simulator import machine
     from ramps.testing import LocalTeam
 
     with LocalTeam(2, cores=2, speed=1.0, keep_logs=True) as team:

@@ -1,4 +1,4 @@
-"""``python -m ramps.experiments.progbench``: what executables, progress and the ROS face cost.
+"""``python -m ramps.bench.progbench``: what executables, progress and the ROS face cost.
 
 How this works: a real three-robot team on this machine (``LocalTeam``, 2
 cores each) registers two executables next to the built-in Python ``echo``:

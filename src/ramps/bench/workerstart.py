@@ -1,6 +1,6 @@
 """How soon do programs beyond one per core start? (issue 14)
 
-``python -m ramps.experiments.workerstart [--cores 4] [--quota 0.32]
+``python -m ramps.bench.workerstart [--cores 4] [--quota 0.32]
 [--programs 12] [--rounds 3] [--out FILE.json]``
 
 A robot of ``--cores`` cores, emulated as a cpu cgroup of ``--quota`` host
@@ -75,7 +75,7 @@ def inner(cores: int, programs: int, rounds: int, hold_s: float) -> dict:
         if len(done) >= programs:
             ev.set()
 
-    pool = WorkerPool(cores, {"hold": "ramps.experiments.workerstart:hold"}, finished, nice=10)
+    pool = WorkerPool(cores, {"hold": "ramps.bench.workerstart:hold"}, finished, nice=10)
     cpu0 = _cpu_seconds()
     pool.start()
     time.sleep(1.0)  # the pool's first workers are up before the first round
@@ -108,7 +108,7 @@ def inner(cores: int, programs: int, rounds: int, hold_s: float) -> dict:
 _OWNER = (
     "import time, msgspec\n"
     "from ramps.runtime.workers import WorkerPool\n"
-    "pool = WorkerPool(2, {'hold': 'ramps.experiments.workerstart:hold'}, lambda *a: None)\n"
+    "pool = WorkerPool(2, {'hold': 'ramps.bench.workerstart:hold'}, lambda *a: None)\n"
     "pool.start()\n"
     "for i in range(4): pool.run((f'k{i}', 1), 'hold', msgspec.msgpack.encode({'seconds': 60}))\n"
     "while len(pool.pids()) < 4: time.sleep(0.05)\n"
@@ -149,7 +149,7 @@ def death_times(trials: int) -> list[float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m ramps.experiments.workerstart", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m ramps.bench.workerstart", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cores", type=int, default=4, help="the robot's cores (its worker pool's size)")
     ap.add_argument("--quota", type=float, default=0.32, help="host cores the robot's cgroup may use (0: no cgroup)")
@@ -172,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
             with open(a.out, "w") as f:
                 json.dump({"death_s": times}, f, indent=1)
         return 0 if all(t < 1.0 for t in times) else 1
-    cmd = [sys.executable, "-m", "ramps.experiments.workerstart", "--inner", "--cores", str(a.cores),
+    cmd = [sys.executable, "-m", "ramps.bench.workerstart", "--inner", "--cores", str(a.cores),
            "--programs", str(a.programs), "--rounds", str(a.rounds), "--hold", str(a.hold)]
     cg = None
     mode = "unconfined (no cgroup: not root or no cpu controller)"

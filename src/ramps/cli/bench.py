@@ -32,7 +32,7 @@ def bench_sim(
     out_file: Path = typer.Option(Path("bench-results/sim.json"), "--out", "-o", help="where to save the JSON"),
 ) -> None:
     """Time the full paper sweep and a large-team scenario."""
-    from ramps.experiments.bench import bench_large, bench_sweep, machine
+    from ramps.bench.simulator import bench_large, bench_sweep, machine
 
     if origins > robots:
         fail("--origins cannot exceed --robots")
@@ -61,7 +61,7 @@ def bench_dispatch_cmd(
     out_file: Path = typer.Option(Path("bench-results/dispatch.json"), "--out", "-o", help="where to save the JSON"),
 ) -> None:
     """Latency from submit to result of a no-op program on a real loopback team, and throughput."""
-    from ramps.experiments.dispatch import bench_dispatch
+    from ramps.bench.dispatch import bench_dispatch
 
     err.print(f"starting {nodes} nodes on loopback; {calls} sequential calls, then {burst} with {window} in flight ...")
     res = bench_dispatch(nodes=nodes, calls=calls, burst=burst, window=window)
@@ -85,7 +85,7 @@ def bench_fuzz_cmd(
     out_file: Path = typer.Option(Path("bench-results/fuzz.json"), "--out", "-o", help="where to save the JSON"),
 ) -> None:
     """Garbage, mutated and hostile messages at the wire decoder, the argument decoder and the core (exit 1 on any unhandled exception)."""
-    from ramps.experiments.fuzz import run_fuzz
+    from ramps.bench.fuzz import run_fuzz
 
     err.print(f"fuzzing with {inputs} inputs, seed {seed} ...")
     res = run_fuzz(inputs=inputs, seed=seed, progress=lambda n: err.print(f"  {n} inputs", highlight=False))
@@ -115,7 +115,7 @@ def bench_flood_cmd(
     out_file: Path = typer.Option(Path("bench-results/flood.json"), "--out", "-o", help="where to save the JSON"),
 ) -> None:
     """Flood a real node with malformed and oversized messages while it runs programs: drops counted, memory, programs completed."""
-    from ramps.experiments.flood import bench_flood
+    from ramps.bench.flood import bench_flood
 
     err.print(f"starting 2 nodes on loopback; flooding r1 with {messages} messages over {seconds:g} s ...")
     res = bench_flood(messages=messages, seconds=seconds, programs=programs, seed=seed)

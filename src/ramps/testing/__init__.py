@@ -13,11 +13,18 @@ overflow, reconnection) in milliseconds, without processes.
 node`` processes on this machine (loopback, free ports, multicast off,
 optionally one cpu cgroup per robot), for end-to-end tests, the demo and
 the benchmarks.
+
+``hostile`` (``ramps.testing.hostile``) makes what a broken or hostile peer
+may send: valid messages at their limits and mutated, truncated, oversized
+or foreign bytes (``WIRE_KINDS``), one seeded ``random.Random`` each, for
+testing code that handles ramps messages (``ramps bench fuzz`` runs them).
 """
 
+from ramps.testing import hostile
 from ramps.testing.fake import FakeTeam
+from ramps.testing.hostile import WIRE_KINDS, random_message
 from ramps.testing.local import LocalTeam, NodeProc, describe, tagged_processes
 from ramps.testing.memory import FakeClock, MemoryBus, MemoryTeam, MemoryTransport
 
-__all__ = ["FakeClock", "FakeTeam", "LocalTeam", "MemoryBus", "MemoryTeam", "MemoryTransport", "NodeProc", "describe",
-           "tagged_processes"]
+__all__ = ["FakeClock", "FakeTeam", "LocalTeam", "MemoryBus", "MemoryTeam", "MemoryTransport", "NodeProc", "WIRE_KINDS",
+           "describe", "hostile", "random_message", "tagged_processes"]

@@ -1,0 +1,20 @@
+"""Robustness and speed benchmarks: each prints its figures and saves JSON.
+
+How this works: a benchmark measures, it never asserts (the tests do); each
+returns a plain dict that the CLI (``ramps bench ...``, ``ramps.cli.bench``)
+prints and writes to a JSON file, with the machine it ran on. The paper's
+experiments live in ``ramps.experiments``; these are ours:
+
+* ``simulator``: the simulator's speed (``ramps bench sim``: paper sweeps, a
+  1000-robot team) and ``machine()``, the host every benchmark records;
+* ``dispatch``: submit-to-result latency and throughput on a real loopback
+  team (``ramps bench dispatch``);
+* ``fuzz``: hostile input (``ramps.testing.hostile``) at the decoders and the
+  core (``ramps bench fuzz``);
+* ``flood``: a real node flooded with malformed messages keeps working
+  (``ramps bench flood``);
+* ``progbench``: what executables, progress and the ROS face cost
+  (``python -m ramps.bench.progbench``);
+* ``workerstart``: how soon programs beyond one per core start
+  (``python -m ramps.bench.workerstart``).
+"""
