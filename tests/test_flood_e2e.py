@@ -10,8 +10,20 @@ shape, fields out of their limits, pickles, deep nesting and payloads of
 1-9 MB. The flooder blocks rather than drops when Zenoh's queues are full, so
 every message reaches the nodes and their counters (``bad_messages``, in
 their load reports) must match what was sent, one for one. Every program
-must complete with the right result, both nodes must live, and r1's resident
-memory may grow by less than 50 MB. ``ramps bench flood`` runs the same
+must complete with the right result, both nodes must live, and r1's private
+resident memory may grow by less than 50 MB.
+
+Why private, and why it holds (measured with the backlog and /proc/<pid>/status
+sampled inside the node, 2026-11-23, a CPU hog beside): during the flood the
+node's heap grows by up to its backlog (``MAX_BACKLOG_BYTES``, 64 MiB: a
+slowed node reached 60 MiB and dropped 3 messages) plus the messages in
+flight, 120 MB over its baseline at the peak; glibc then kept 30-60 MB of it
+after the flood, which is what failed this test now and then (58-79 MB). The
+node now gives a drained burst back (``ramps.runtime.heap``: ``malloc_trim``
+once 16 MiB went through). Shared memory is left out: 16-19 MiB of Zenoh
+shared-memory segment are mapped into both nodes when a peer's first large
+message arrives (the client's or the teammate's; the flooder has shared
+memory off), at a moment this test does not choose, flood or no flood. ``ramps bench flood`` runs the same
 flood (sender dropping under congestion) and prints the figures.
 """
 
@@ -41,7 +53,8 @@ def test_flooded_node_runs_every_program_counts_every_drop_and_stays_small(tmp_p
                          messages=MESSAGES, seconds=SECONDS, programs=PROGRAMS, block=True)
         summary = {k: res[k] for k in ("messages_sent", "flood_seconds", "dropped_counted", "expected_at_target",
                                        "expected_at_others", "programs_ok", "program_hosts", "rss_before_mb",
-                                       "rss_after_mb", "rss_peak_mb", "failures")}
+                                       "rss_after_mb", "rss_peak_mb", "private_before_mb", "private_after_mb",
+                                       "failures")}
         print(summary)  # the figures, for the record (pytest -s)
         assert res["messages_sent"] == MESSAGES and res["send_errors"] == 0
         assert res["big_messages"] > 0 and res["to_load_key"] > 0
@@ -52,8 +65,8 @@ def test_flooded_node_runs_every_program_counts_every_drop_and_stays_small(tmp_p
         # every malformed message was dropped and counted, none twice
         assert res["dropped_counted"] == {"r1": res["expected_at_target"], "r2": res["expected_at_others"]}, summary
         assert all(res["alive"].values()) and all(n.proc.poll() is None for n in t.nodes.values()), t.logs()
-        growth = res["rss_growth_mb"]["r1"]
-        assert growth < 50, f"r1 grew by {growth:.1f} MB: {summary}"
+        growth = res["private_growth_mb"]["r1"]
+        assert growth < 50, f"r1's private memory grew by {growth:.1f} MB: {summary}"
         # still serving after the flood
         assert client.submit("echo", after=1).result(timeout=60) == {"after": 1}
         # the log says so too: a few lines for the whole flood, and the total on the way out

@@ -15,7 +15,9 @@ Zenoh may drop puts under congestion (the flooder, like robot-to-robot
 traffic, does not block), so the figures say what was sent and what each
 node counted, not an assumed delivery. Measured on r1 (``psutil`` on its
 pid, workers excluded): resident memory after warm-up, at its peak during the
-flood, and after it. Nothing here asserts; tests/test_flood_e2e.py does.
+flood, and after it; and its private part (resident minus shared: its own
+heap, without the Zenoh shared-memory segments that peers' large messages
+map into it). Nothing here asserts; tests/test_flood_e2e.py does.
 """
 
 from __future__ import annotations
@@ -201,6 +203,7 @@ def flood_team(*, team: str, endpoints: list[str], target: str, pids: dict[str, 
             before = wait_settled(watcher, robots)
             time.sleep(1.0)
             rss_before = {r: _rss(pid) for r, pid in pids.items()}
+            private_before = {r: _private(pid) for r, pid in pids.items()}
             say(f"flooding {target}: {messages} messages in {seconds:g} s while {programs} programs run ...")
             futures: list = []
             sent = {"inbox": 0, "load": 0, "big": 0, "bytes": 0, "errors": 0}
@@ -264,6 +267,7 @@ def flood_team(*, team: str, endpoints: list[str], target: str, pids: dict[str, 
             after = wait_settled(watcher, robots)
             time.sleep(1.0)
             rss_after = {r: _rss(pid) for r, pid in pids.items()}
+            private_after = {r: _private(pid) for r, pid in pids.items()}
             counted = {r: (after[r] or 0) - (before[r] or 0) for r in robots}
         finally:
             watcher.close()
@@ -280,6 +284,9 @@ def flood_team(*, team: str, endpoints: list[str], target: str, pids: dict[str, 
         "rss_before_mb": {r: v / MB for r, v in rss_before.items()},
         "rss_after_mb": {r: v / MB for r, v in rss_after.items()},
         "rss_growth_mb": {r: (rss_after[r] - rss_before[r]) / MB for r in robots},
+        "private_before_mb": {r: v / MB for r, v in private_before.items()},
+        "private_after_mb": {r: v / MB for r, v in private_after.items()},
+        "private_growth_mb": {r: (private_after[r] - private_before[r]) / MB for r in robots},
         "rss_peak_mb": sampler.peak / MB,
         "alive": {r: _alive(pid) for r, pid in pids.items()},
     }
@@ -289,6 +296,18 @@ def _rss(pid: int) -> int:
     import psutil
 
     return psutil.Process(pid).memory_info().rss
+
+
+def _private(pid: int) -> int:
+    """Resident memory of the process's own (anonymous) pages: its heap and
+    the backlog in it, not the files it maps nor the Zenoh shared-memory
+    segments of the peers that sent it messages (``RssShmem``: 16-19 MiB per
+    segment, mapped when a peer's first large message arrives, flood or no
+    flood; the flooder itself has shared memory off)."""
+    import psutil
+
+    mi = psutil.Process(pid).memory_info()
+    return mi.rss - getattr(mi, "shared", 0)
 
 
 def _alive(pid: int) -> bool:

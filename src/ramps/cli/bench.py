@@ -130,7 +130,8 @@ def bench_flood_cmd(
         console.print(f"programs: {r['programs_ok']}/{r['programs']} completed correctly "
                       f"({r['programs_failed']} failed, {r['programs_wrong']} wrong) on {r['program_hosts']}; "
                       f"r1 resident memory {r['rss_before_mb']['r1']:.1f} MB before, peak {r['rss_peak_mb']:.1f} MB, "
-                      f"{r['rss_after_mb']['r1']:.1f} MB after (growth {r['rss_growth_mb']['r1']:+.1f} MB); "
+                      f"{r['rss_after_mb']['r1']:.1f} MB after (growth {r['rss_growth_mb']['r1']:+.1f} MB; private "
+                      f"{r['private_growth_mb']['r1']:+.1f} MB); "
                       f"alive: {r['alive']}", highlight=False)
         for f in r["failures"]:
             console.print(f"  {f}", highlight=False)

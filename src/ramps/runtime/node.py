@@ -50,6 +50,7 @@ from ramps.core.speed import REMEASURE_PERIOD
 from ramps.errors import ConfigError, NotAdmitted, TransportError
 from ramps.runtime import keys, revocation
 from ramps.runtime.measure import LoadSampler, cgroup_dirs, cgroup_quota, detect_cores, measure_speed
+from ramps.runtime.heap import HeapTrimmer
 from ramps.runtime.registry import Registry, default_registry
 from ramps.runtime.security import admission, settings_credentials
 from ramps.runtime.settings import NodeSettings
@@ -131,6 +132,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self.overflow = 0
         self._sees: frozenset[str] = frozenset()  # teammates in this robot's view at the last report
         self._backlog_bytes = 0
+        self.heap = HeapTrimmer()  # gives the memory of a drained burst back (ramps.runtime.heap)
         #: a flood of bad messages is logged one line per DROP_LOG_PERIOD
         self._drop_logged_at = -DROP_LOG_PERIOD
         self._drops_unlogged = 0
@@ -344,6 +346,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         already holds MAX_BACKLOG_BYTES (a flood, or a driver that cannot keep
         up): then drop and count, so memory stays bounded. Small messages
         (submits, heartbeats) pass any realistic burst."""
+        self.heap.note(len(data))
         if self._backlog_bytes + len(data) > MAX_BACKLOG_BYTES:
             self.overflow += 1
             return
@@ -462,6 +465,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             actions.extend(self._release_lost(now))
         if now >= next_pub:
             self._publish(now)
+            self.heap.maybe_trim(self._backlog_bytes)
             period = self.s.publish_period
             self._next_pub = now + period if now - next_pub > period else next_pub + period
         deadline = node.next_deadline()
