@@ -3,6 +3,8 @@ driven through ``ramps.testing.FakeTeam`` (real nodes, in-memory network)."""
 
 from __future__ import annotations
 
+import random
+
 
 import pytest
 
@@ -189,7 +191,7 @@ def test_a_stalled_node_keeps_its_own_programs() -> None:
     # issue 14: a node whose driver stalls (busy robot, GC pause, SIGSTOP)
     # used to check heartbeat timeouts before sending its own programs'
     # heartbeats, and wrote its own programs off
-    n = Node("r1", cores=4, speed=1.0)
+    n = Node("r1", cores=4, speed=1.0, rng=random.Random(0))
     acts = n.handle(Submit(program_id="p", program="x", work=50.0), 0.0)
     assert any(isinstance(a, StartProgram) for a in acts)
     t = 0.0
@@ -454,7 +456,7 @@ def test_permanent_rejection_delivers_a_clear_error() -> None:
 
 
 def test_request_for_another_host_is_a_bad_request() -> None:
-    a = Node("a", cores=1, speed=1.0)
+    a = Node("a", cores=1, speed=1.0, rng=random.Random(0))
     req = OffloadRequest(program_id="p", attempt=1, origin="o", host="z", program="x")
     [note, send] = a.handle(Received(sender="o", msg=req), 0.0)
     assert note.what == "refused"
@@ -507,7 +509,7 @@ def test_duplicate_result_delivered_once_and_acknowledged() -> None:
 
 
 def test_result_for_unknown_program_is_an_anomaly_not_a_crash() -> None:
-    o = Node("o", cores=1, speed=1.0)
+    o = Node("o", cores=1, speed=1.0, rng=random.Random(0))
     actions = o.handle(Received(sender="a", msg=ProgramResult(program_id="ghost", attempt=3, host="a", ok=True)), 1.0)
     assert [a.what for a in actions if isinstance(a, Note)] == ["anomaly"]
     # acknowledged all the same, so the host stops resending
@@ -574,7 +576,7 @@ def _request(**kw) -> OffloadRequest:
 
 
 def test_executor_resends_unacknowledged_result_until_acknowledged() -> None:
-    a = Node("a", cores=1, speed=1.0)
+    a = Node("a", cores=1, speed=1.0, rng=random.Random(0))
     a.handle(Received(sender="o", msg=_request()), 0.0)
     [send] = [x for x in a.handle(ProgramFinished(program_id="p", attempt=1, ok=True, value=b"v"), 1.0)
               if isinstance(x, Send)]
@@ -598,7 +600,7 @@ def test_executor_resends_unacknowledged_result_until_acknowledged() -> None:
 
 
 def test_executor_ignores_an_ack_from_somebody_else() -> None:
-    a = Node("a", cores=1, speed=1.0)
+    a = Node("a", cores=1, speed=1.0, rng=random.Random(0))
     a.handle(Received(sender="o", msg=_request()), 0.0)
     a.handle(ProgramFinished(program_id="p", attempt=1, ok=True), 1.0)
     a.handle(Received(sender="x", msg=ResultAck(program_id="p", attempt=1, origin="x")), 1.0)
@@ -606,7 +608,7 @@ def test_executor_ignores_an_ack_from_somebody_else() -> None:
 
 
 def test_executor_is_idempotent_on_a_repeated_request() -> None:
-    a = Node("a", cores=1, speed=1.0)
+    a = Node("a", cores=1, speed=1.0, rng=random.Random(0))
     first = a.handle(Received(sender="o", msg=_request()), 0.0)
     again = a.handle(Received(sender="o", msg=_request()), 0.1)
     assert sum(isinstance(x, StartProgram) for x in first + again) == 1
@@ -620,7 +622,7 @@ def test_executor_is_idempotent_on_a_repeated_request() -> None:
 
 
 def test_executor_heartbeats_list_programs_per_origin() -> None:
-    a = Node("a", cores=4, speed=1.0, incarnation=7)
+    a = Node("a", cores=4, speed=1.0, incarnation=7, rng=random.Random(0))
     a.handle(Received(sender="o", msg=_request(program_id="p1")), 0.0)
     a.handle(Received(sender="o", msg=_request(program_id="p2")), 0.0)
     a.handle(Received(sender="q", msg=_request(program_id="q1", origin="q")), 0.0)
@@ -632,7 +634,7 @@ def test_executor_heartbeats_list_programs_per_origin() -> None:
 
 
 def test_executor_cancel_stops_only_the_origins_own_program() -> None:
-    a = Node("a", cores=4, speed=1.0)
+    a = Node("a", cores=4, speed=1.0, rng=random.Random(0))
     a.handle(Received(sender="o", msg=_request()), 0.0)
     assert a.handle(Received(sender="x", msg=CancelProgram(program_id="p", attempt=1, origin="x")), 0.1) == []
     stopped = a.handle(Received(sender="o", msg=CancelProgram(program_id="p", attempt=1, origin="o")), 0.2)
@@ -726,7 +728,7 @@ def test_an_event_a_peer_sent_in_the_wrong_state_is_an_anomaly_not_a_raise() -> 
     ("paper", {"cores": 0}),
 ])
 def test_bad_load_report_from_a_peer_never_crashes_the_origin(policy: str, bad: dict) -> None:
-    node = Node("o", cores=1, speed=1.0, policy=policy)
+    node = Node("o", cores=1, speed=1.0, policy=policy, rng=random.Random(0))
     try:
         env = decode(encode("a", report("a", **bad)))
     except WireError:
@@ -752,3 +754,13 @@ def test_blacklist_lifted_by_a_rejection_report_is_noted() -> None:
         program_id="p2", attempt=1, host="a", reason="busy", permanent=False, report=fresh)))
     assert not team.nodes["o"].view.is_blacklisted("a")  # lifted, by the rules
     assert [n.robot for n in team.notes("unblacklisted")] == ["a"]
+
+
+# =================================================================== randomness is injected
+def test_a_node_needs_its_random_generator() -> None:
+    with pytest.raises(TypeError, match="rng"):
+        Node("a", cores=1, speed=1.0)  # type: ignore[call-arg]
+    with pytest.raises(TypeError, match=r"Node 'a': rng must be a seeded random.Random .*got NoneType"):
+        Node("a", cores=1, speed=1.0, rng=None)  # type: ignore[arg-type]
+    rng = random.Random(5)
+    assert Node("a", cores=1, speed=1.0, rng=rng).origin.rng is rng

@@ -5,6 +5,8 @@ behaviour, not of timing."""
 
 from __future__ import annotations
 
+import random
+
 import msgspec
 import pytest
 
@@ -132,7 +134,7 @@ def test_host_estimates_the_work_its_programs_have_left() -> None:
     from ramps.core.events import Received
     from ramps.core.node import Node
 
-    a = Node("a", cores=4, speed=1.0)
+    a = Node("a", cores=4, speed=1.0, rng=random.Random(0))
     for i in range(6):
         a.handle(Received(sender="o", msg=OffloadRequest(program_id=f"p{i}", attempt=1, origin="o", host="a",
                                                          program="x", work=60.0)), 0.0)
@@ -290,7 +292,7 @@ def test_prompt_reports_are_rate_limited_but_the_robots_own_view_is_not() -> Non
     from ramps.core.messages import OffloadRequest
     from ramps.core.node import Node
 
-    a = Node("a", cores=4, speed=1.0, config=RampsConfig(prompt_report_interval=1.0, probe_period=0.0))
+    a = Node("a", cores=4, speed=1.0, config=RampsConfig(prompt_report_interval=1.0, probe_period=0.0), rng=random.Random(0))
 
     def offer(pid: str, t: float):
         return a.handle(Received(sender="o", msg=OffloadRequest(program_id=pid, attempt=1, origin="o", host="a",

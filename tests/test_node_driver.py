@@ -6,6 +6,8 @@ The end-to-end version (SIGSTOP of a real node) is tests/test_busy_node_e2e.py."
 
 from __future__ import annotations
 
+import random
+
 import pytest
 
 from corehelpers import report
@@ -28,7 +30,7 @@ def wait(rt, fake: FakeClock, seconds: float) -> None:
 def driver():
     fake = FakeClock()
     rt = rn.NodeRuntime(load_settings(flags={"robot": "r1", "team": "t"}, environ={}), clock=fake)
-    rt.node = Node("r1", cores=2, speed=1.0)
+    rt.node = Node("r1", cores=2, speed=1.0, rng=random.Random(0))
     for r in ("r2", "r3"):  # teammates the load server knows
         rt.node.handle(Received(sender=r, msg=report(r)), fake.t)
     rt._last_read = fake.t
@@ -158,7 +160,7 @@ def test_a_request_asked_again_is_answered_again_and_never_run_twice(driver, mon
     rt.transport = bus.transport("r1")
     app = bus.transport("app")
     heard: list[bytes] = []
-    app.subscribe(keys.client(rt.team, "app"), lambda _k, data: heard.append(data))
+    app.subscribe(keys.client(rt.team, "app"), heard.append)
     rt.incarnation = 7
     monkeypatch.setattr(node_clients, "OUTCOMES_KEPT_BYTES", 500)
     sub = [SubmitProgram(client="app", request_id=i, program="echo", args=encode_args(x=1))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import random
+
 from ramps.core.config import RampsConfig
 from ramps.core.events import Deliver, Note, ProgramFinished, Received, Send, Submit
 from ramps.core.messages import CancelProgram, OffloadAccepted, ProgramResult, ResultAck
@@ -14,8 +16,8 @@ def report(node: Node, now: float):
 
 def setup_pair():
     cfg = RampsConfig(backoff_max=5.0)
-    a = Node("a", cores=1, speed=1.0, config=cfg)
-    b = Node("b", cores=4, speed=1.0, config=cfg)
+    a = Node("a", cores=1, speed=1.0, config=cfg, rng=random.Random(0))
+    b = Node("b", cores=4, speed=1.0, config=cfg, rng=random.Random(0))
     a.handle(Received(sender="a", msg=report(a, 0.0)), 0.0)
     a.handle(Received(sender="b", msg=report(b, 0.0)), 0.0)
     # a already runs one program itself, so the next one goes to b
@@ -55,7 +57,7 @@ def test_heartbeat_for_written_off_attempt_cancels_the_stray_copy():
 
 def test_finished_programs_are_forgotten_after_the_retention_period():
     cfg = RampsConfig(result_retention=60.0)
-    a = Node("a", cores=4, speed=1.0, config=cfg)
+    a = Node("a", cores=4, speed=1.0, config=cfg, rng=random.Random(0))
     a.handle(Received(sender="a", msg=report(a, 0.0)), 0.0)
     for i in range(3):
         a.handle(Submit(program_id=f"a#{i}", program="p", work=1.0), 0.0)

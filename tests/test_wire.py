@@ -11,6 +11,8 @@ client bug outside this change (strict xfail).
 
 from __future__ import annotations
 
+import random
+
 import math
 import threading
 from concurrent.futures import Future
@@ -262,7 +264,7 @@ def test_extreme_but_finite_load_reports_are_anomalies_not_a_division_by_zero() 
                 {"cpu_busy": 1e300}, {"speed": 1e300}):
         rep = report("p", **bad)
         assert report_problem(rep) is not None, bad
-        node = Node("n", cores=2, speed=1.0)
+        node = Node("n", cores=2, speed=1.0, rng=random.Random(0))
         node.executor.background = 100.0
         node.handle(Received(sender="p", msg=rep), 0.0)
         assert node.statistics().anomalies == 1
@@ -275,7 +277,7 @@ def test_extreme_but_finite_load_reports_are_anomalies_not_a_division_by_zero() 
 def test_submit_with_impossible_work_is_refused_before_any_state_changes(policy: str, work: float) -> None:
     """NaN work made every policy's choice fail (min() of nothing, choice
     from nothing) after the program was registered, leaving it stuck."""
-    node = Node("n", cores=2, speed=1.0, policy=policy)
+    node = Node("n", cores=2, speed=1.0, policy=policy, rng=random.Random(0))
     with pytest.raises(ValueError, match="work must be finite"):
         node.handle(Submit(program_id="a", program="x", work=work), 0.0)
     assert node.origin.programs == {} and node.statistics().active_programs == 0
@@ -286,7 +288,7 @@ def test_shutting_down_with_its_own_program_running_locally_terminates(local_onl
     """A node handing its programs back at shutdown re-offered its own local
     program to its own closing executor, which turned it away, forever (the
     driver thread spun, and its action list grew without bound)."""
-    node = Node("n", cores=2, speed=1.0)
+    node = Node("n", cores=2, speed=1.0, rng=random.Random(0))
     node.handle(Submit(program_id="a", program="x", work=1.0, local_only=local_only), 0.0)
     out: list = []
     assert node.executor.hand_back(1.0, out) == 1
@@ -340,7 +342,7 @@ def test_a_garbage_result_value_fails_the_future_instead_of_hanging_it() -> None
     team._futures = {7: fut}
     team._unacked = {}
     team._sent = {}
-    team._on_outcome("k", encode("r1", m.ProgramOutcome(request_id=7, ok=True, value=b"\xc1", host="r1")))
+    team._on_outcome(encode("r1", m.ProgramOutcome(request_id=7, ok=True, value=b"\xc1", host="r1")))
     assert fut.done()
     with pytest.raises(Exception, match="could not be decoded"):
         fut.result()
@@ -354,11 +356,11 @@ def test_a_node_drops_and_counts_what_exceeds_its_backlog(monkeypatch) -> None:
     monkeypatch.setattr(rn, "MAX_BACKLOG_BYTES", 1000)
     node = rn.NodeRuntime(load_settings(flags={"robot": "r1", "team": "t"}, environ={}))
     for _ in range(30):
-        node._on_wire("k", b"x" * 100)
+        node._on_wire(b"x" * 100)
     assert node._backlog_bytes == 1000 and node.overflow == 20
     node._handle(node._q.get_nowait(), 0.0)  # the driver takes one: room for one more
     assert node._backlog_bytes == 900 and node.bad_messages == 1
-    node._on_wire("k", b"y" * 100)
+    node._on_wire(b"y" * 100)
     assert node.overflow == 20 and node._backlog_bytes == 1000
 
 

@@ -104,7 +104,7 @@ class Node:
         speed: float,
         policy: Policy | str = "ramps",
         config: RampsConfig | None = None,
-        rng: random.Random | None = None,
+        rng: random.Random,
         incarnation: int = 0,
         registry: frozenset[str] | None = None,
         net: NetworkEstimate | None = None,
@@ -118,7 +118,11 @@ class Node:
         self.program_weight = program_weight
         self.incarnation = incarnation
         self.config = config or RampsConfig()
-        self.rng = rng or random.Random(0)
+        if not isinstance(rng, random.Random):
+            # no silent default: two robots seeded alike back off in step
+            raise TypeError(f"Node {robot!r}: rng must be a seeded random.Random "
+                            f"(e.g. random.Random(seed)), got {type(rng).__name__}")
+        self.rng = rng
         self.policy = make_policy(policy) if isinstance(policy, str) else policy
         self.view = LoadView(robot, cores=cores, speed=speed, max_report_age=self.config.max_report_age,
                              program_weight=program_weight)
