@@ -216,7 +216,7 @@ class Team:
             except Exception:  # done or cancelled meanwhile
                 pass
 
-    def _on_report(self, _key: str, data: bytes) -> None:
+    def _on_report(self, data: bytes) -> None:
         try:
             env = decode(data)
         except WireError:
@@ -370,7 +370,7 @@ class Team:
             except Exception:
                 pass
 
-    def _on_outcome(self, _key: str, data: bytes) -> None:
+    def _on_outcome(self, data: bytes) -> None:
         try:
             env = decode(data)
         except WireError:

@@ -225,7 +225,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             ]
             if self._ca_cert is not None:
                 self._subs.append(t.subscribe(revocation.revoked_key(self.team),
-                                              lambda _key, data: put(("revoked", data))))
+                                              lambda data: put(("revoked", data))))
             self._load_pub = t.publisher(keys.load(self.team, self.robot))
             self._token = t.declare_token(keys.alive(self.team, self.robot))
         except TransportError as exc:
@@ -341,7 +341,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._stopped.set()
 
     # ================================================================ inputs
-    def _on_wire(self, _key: str, data: bytes) -> None:
+    def _on_wire(self, data: bytes) -> None:
         """Transport callback: queue the bytes for the driver, unless the backlog
         already holds MAX_BACKLOG_BYTES (a flood, or a driver that cannot keep
         up): then drop and count, so memory stays bounded. Small messages

@@ -2,7 +2,7 @@
 
 How this works: a ``MemoryBus`` joins several ``MemoryTransport`` (one per
 node or client) in this process. A put is handed at once, synchronously, to
-every subscriber whose key expression intersects the key (Zenoh's own
+every subscriber whose key expression intersects the key (as bytes) (Zenoh's own
 ``zenoh.KeyExpr.intersects``), on every transport it can reach.
 Liveliness follows Zenoh: declaring a token tells every liveliness
 subscriber that can reach it (PUT), undeclaring it, closing or ``kill()``-ing
@@ -97,7 +97,7 @@ class MemoryBus:
 
     def __init__(self) -> None:
         self.transports: dict[str, MemoryTransport] = {}
-        self._subs: list[tuple[MemoryTransport, str, Callable[[str, bytes], None]]] = []
+        self._subs: list[tuple[MemoryTransport, str, Callable[[bytes], None]]] = []
         self._lsubs: list[tuple[MemoryTransport, str, Callable[[str, bool], None]]] = []
         self._tokens: list[tuple[MemoryTransport, str]] = []
         self._cut: set[str] = set()
@@ -121,7 +121,7 @@ class MemoryBus:
         for t, expr, cb in list(self._subs):
             if intersects(expr, key):
                 if self.reaches(src, t):
-                    cb(key, bytes(data))
+                    cb(bytes(data))
                     delivered = True
         if not delivered and src.name in self._cut:
             self.lost += 1
@@ -129,7 +129,7 @@ class MemoryBus:
     def matching(self, src: "MemoryTransport", key: str) -> bool:
         return any(self.reaches(src, t) and intersects(expr, key) for t, expr, _ in self._subs)
 
-    def subscribe(self, t: "MemoryTransport", key: str, cb: Callable[[str, bytes], None]) -> _Declared:
+    def subscribe(self, t: "MemoryTransport", key: str, cb: Callable[[bytes], None]) -> _Declared:
         entry = (t, key, cb)
         self._subs.append(entry)
         return _Declared(lambda: self._drop(self._subs, entry))
@@ -226,7 +226,7 @@ class MemoryTransport:
 
             raise TransportError(f"transport {self.name!r} is closed")
 
-    def subscribe(self, key: str, callback: Callable[[str, bytes], None]) -> _Declared:
+    def subscribe(self, key: str, callback: Callable[[bytes], None]) -> _Declared:
         self._check()
         return self._keep(self.bus.subscribe(self, key, callback))
 
