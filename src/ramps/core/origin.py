@@ -296,7 +296,8 @@ class Origin:
                 if due > now:  # heard from the host since the timer was set
                     self._set_timer(ap, due, kind)
                     continue
-            self._step(ap, kind, now, out, None)
+            if kind is not None:
+                self._step(ap, kind, now, out, None)
         if self._relocate_due is not None and now >= self._relocate_due:
             self._relocate_due = None
             if self._relocation_check(now, out):
@@ -433,13 +434,13 @@ class Origin:
 
     def _on_accepted(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
         if isinstance(msg, OffloadAccepted):
-            self.view.accepted(ap.host, ap.program_id, ap.attempt, msg.accept_seq)
+            self.view.accepted(ap.placed_host, ap.program_id, ap.attempt, msg.accept_seq)
         ap.state = S.RUNNING
         ap.last_heard = now
         ap.rejections = 0
         ap.excluded.clear()
         ap.accepted_at = ap.done_at = now
-        out.append(Note(what="accepted", program_id=ap.program_id, robot=ap.host, attempt=ap.attempt))
+        out.append(Note(what="accepted", program_id=ap.program_id, robot=ap.placed_host, attempt=ap.attempt))
         self._set_timer(ap, now + self.config.heartbeat_timeout, E.HEARTBEAT_TIMEOUT)
         if self._relocate_due is None and self._relocating():
             self._relocate_due = now + self.config.relocate_period
@@ -449,7 +450,7 @@ class Origin:
 
     def _on_rejected(self, ap: AutonomousProgram, now: float, out: list[Action], msg: OffloadRejected, event: Event) -> None:
         self.rejections += 1
-        host = ap.host
+        host = ap.placed_host
         self._leave_host(ap, host, None)
         ap.live.pop(ap.attempt, None)
         out.append(Note(what="rejected", program_id=ap.program_id, robot=host, attempt=ap.attempt,
@@ -481,7 +482,7 @@ class Origin:
         self.place(ap, now, out)
 
     def _on_host_failed(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
-        host = ap.host
+        host = ap.placed_host
         reason = event
         self.host_failures += 1
         ap.failures += 1
@@ -632,7 +633,7 @@ class Origin:
             ap.done_at = now
             if ap.state is not S.RUNNING or len(ap.live) != 1 or now - ap.accepted_at < cfg.relocate_settle:
                 continue
-            age = self.view.report_age(ap.host, now)
+            age = self.view.report_age(ap.placed_host, now)
             if ap.host != self.me and (age is None or now - age < ap.accepted_at):
                 continue  # no report of its host since it started there
             left = max(0.0, ap.work - ap.done)
@@ -642,7 +643,7 @@ class Origin:
             if not self._worth_moving(left / rate, t_floor):
                 ap.move_wanted_since = None
                 continue  # not even by the count of tasks here (an upper bound of the estimate below)
-            others = self.view.remaining_work(ap.host, now, round(ramps), ap.work) or []
+            others = self.view.remaining_work(ap.placed_host, now, round(ramps), ap.work) or []
             if others:  # one of them is this program: the one closest to its estimate
                 others.pop(min(range(len(others)), key=lambda i: abs(others[i] - left)))
             t_here = shared_finish_time(left, others, cores, speed, background, weight)
@@ -708,7 +709,7 @@ class Origin:
         """The new host took the program: stop the old copy."""
         self._drop_old_copy(ap, out)
         self._on_accepted(ap, now, out, msg, event)
-        out.append(Note(what="moved", program_id=ap.program_id, robot=ap.host, attempt=ap.attempt,
+        out.append(Note(what="moved", program_id=ap.program_id, robot=ap.placed_host, attempt=ap.attempt,
                         detail="" if ap.resumed_from is None else f"resumed from {ap.resumed_from:.3f}"))
 
     def _drop_old_copy(self, ap: AutonomousProgram, out: list[Action] | None = None) -> None:
@@ -726,7 +727,7 @@ class Origin:
             self._by_host.get(host, set()).discard(ap.program_id)
 
     def _on_move_failed(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
-        host = ap.host
+        host = ap.placed_host
         if event == E.REJECTED:
             self.rejections += 1
             if msg.report is not None and self.view.on_report(msg.report, now, fresh=True):

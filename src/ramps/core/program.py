@@ -239,6 +239,14 @@ class AutonomousProgram:
         #: since when relocation checks have found a move worth it (None: not now)
         self.move_wanted_since: float | None = None
 
+    @property
+    def placed_host(self) -> str:
+        """The current attempt's host: set by the first placement, which
+        ``Submit`` makes at once, so every handler may rely on it."""
+        if self.host is None:
+            raise RuntimeError(f"program {self.program_id}: not placed yet (state {self.state.value!r})")
+        return self.host
+
     def transition(self, event: str) -> Transition:
         """The transition ``event`` takes from the current state, or a
         ``ProtocolError`` naming the program, the state and the event."""
