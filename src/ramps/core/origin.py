@@ -8,21 +8,12 @@ actions into the list they are given. Results are delivered exactly once:
 a program keeps the set of attempts whose results it still wants (``live``);
 anything else is acknowledged, so the host stops resending, and discarded.
 
-Relocation after placement (``_relocation_check``, policies that relocate):
-every ``relocate_period`` the origin re-evaluates the paper's eq. (1) for its
-running programs with what it knows now (fresh reports with the hosts'
-work-left estimates, learned work, measured links). Its estimate of how far
-a program is comes from the program's own progress when it reports any, and
-from processor sharing at its host's reported load otherwise. A program
-moves when its remaining time where it runs exceeds the time to finish on
-the best other robot (from scratch, or from its last checkpoint, plus T_comm
-of parameters and checkpoint) by ``relocate_gain`` and ``relocate_min_gain``
-together, and has for ``relocate_persist`` seconds (a brief spike of load
-moves nothing); at most ``relocate_max_moves`` times, never within
-``relocate_settle`` of an acceptance, at most one program off a host per
-check. A move keeps the old copy running until the new host accepts
-(``MOVING``): a result from either copy is delivered and the other stopped;
-a refusal or failure of the new host leaves the old copy running.
+Relocation after placement: ``ramps.core.relocation`` decides when a running
+program should move and where (eq. (1) with its thresholds); the move
+itself is a transition here: ``MOVING`` keeps the old copy running until
+the new host accepts, a result from either copy is delivered and the other
+stopped, and a refusal or failure of the new host leaves the old copy
+running.
 
 Rules: no clock (``now`` comes in), no I/O, randomness from the injected
 ``rng``. Remote misbehaviour (a message about a program we never had, an
@@ -40,10 +31,8 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any
 
-import msgspec
-
 from ramps.core.config import RampsConfig
-from ramps.core.cost import NetworkEstimate, program_share, shared_finish_time
+from ramps.core.cost import NetworkEstimate
 from ramps.core.events import Action, Deliver, Note, Progress, Send, Submit
 from ramps.core.links import Links
 from ramps.core.loadview import LoadView
@@ -70,14 +59,12 @@ from ramps.core.program import (
     Transition,
 )
 from ramps.core.relink import Relink
+from ramps.core.relocation import RELOCATE_BATCH, price_move, relocation_check, worth_moving  # noqa: F401 (re-exported)
 
 S = ProgramState
 E = Event
 #: how many of a program's latest runs its learned work is the median of
 LEARN_RUNS = 8
-#: most running programs one relocation check prices against the team (the
-#: longest remaining first), so a check stays cheap with thousands running
-RELOCATE_BATCH = 8
 
 
 class Origin:
@@ -603,95 +590,7 @@ class Origin:
         return self.config.relocate and any(p.relocates for p in self._policies.values())
 
     def _relocation_check(self, now: float, out: list[Action]) -> bool:
-        """Re-evaluate eq. (1) for the running programs (see the module
-        docstring). Returns whether any program may still move later."""
-        rows = {row[0]: row for row in self.view.scan(now, frozenset())}
-        cfg = self.config
-        keep = False
-        # the fastest a new program could run anywhere by the count of tasks
-        # (the policy's first estimate): a program that would not gain by the
-        # thresholds even at that rate is not priced (most checks in a
-        # balanced team end here, at O(programs))
-        best_rate = max((speed * program_share(cores, ramps + 1.0, background, weight)
-                         for _, cores, speed, ramps, background, weight in rows.values()), default=0.0)
-        if best_rate <= 0.0:
-            return any(ap.state is S.RUNNING or ap.state is S.MOVING for ap in self.programs.values())
-        priced: list[tuple[float, AutonomousProgram]] = []
-        for ap in self.programs.values():
-            if ap.state is not S.RUNNING and ap.state is not S.MOVING:
-                continue
-            policy = self._policies[ap.submit.policy] if ap.submit.policy else self.policy
-            if not policy.relocates or ap.submit.local_only or ap.moves >= cfg.relocate_max_moves:
-                continue
-            keep = True
-            row = rows.get(ap.host or "")
-            if row is None:
-                continue  # its host is suspect or gone quiet: failure detection's business
-            _, cores, speed, ramps, background, weight = row
-            ap.done = min(ap.work, ap.done + max(0.0, now - ap.done_at)
-                          * speed * program_share(cores, max(1.0, ramps), background, weight))
-            ap.done_at = now
-            if ap.state is not S.RUNNING or len(ap.live) != 1 or now - ap.accepted_at < cfg.relocate_settle:
-                continue
-            age = self.view.report_age(ap.placed_host, now)
-            if ap.host != self.me and (age is None or now - age < ap.accepted_at):
-                continue  # no report of its host since it started there
-            left = max(0.0, ap.work - ap.done)
-            t_floor = self.work_estimate(ap.submit) * (
-                1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0)) / best_rate
-            rate = speed * program_share(cores, max(1.0, ramps), background, weight)
-            if not self._worth_moving(left / rate, t_floor):
-                ap.move_wanted_since = None
-                continue  # not even by the count of tasks here (an upper bound of the estimate below)
-            others = self.view.remaining_work(ap.placed_host, now, round(ramps), ap.work) or []
-            if others:  # one of them is this program: the one closest to its estimate
-                others.pop(min(range(len(others)), key=lambda i: abs(others[i] - left)))
-            t_here = shared_finish_time(left, others, cores, speed, background, weight)
-            if not self._worth_moving(t_here, t_floor):
-                ap.move_wanted_since = None
-            elif ap.move_wanted_since is None:
-                ap.move_wanted_since = now  # a load spike must last before a program moves for it
-            if ap.move_wanted_since is not None and now - ap.move_wanted_since >= cfg.relocate_persist:
-                priced.append((t_here, ap))
-        priced.sort(key=lambda x: -x[0])
-        moved_off: set[str] = set()
-        for t_here, ap in priced[:RELOCATE_BATCH]:
-            if ap.host in moved_off:
-                continue  # one at a time off a host: the next check sees it lighter
-            placement = self._price_move(ap, t_here, now)
-            if placement is not None:
-                moved_off.add(ap.host or "")
-                self._step(ap, E.RELOCATE, now, out, placement)
-        return keep
-
-    def _price_move(self, ap: AutonomousProgram, t_here: float, now: float) -> Placement | None:
-        """Where ``ap`` would finish sooner by the relocation thresholds, or None."""
-        sub = ap.submit
-        work = self.work_estimate(sub) * (1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0))
-        policy = self._policies[sub.policy] if sub.policy else self.policy
-        placement = policy.choose(
-            PlacementRequest(program_id=ap.program_id, work=work,
-                             payload_size=sub.payload_size + len(ap.checkpoint or b""), result_size=sub.result_size),
-            self.view, now, self._reloc_rng, net=self.net, config=self.config,
-            exclude=frozenset({ap.host or ""}) | self.view.short_of_memory(sub.memory)
-            | self.relink.excluded(self.view.robots(), now),
-            links=self.links.estimate if self.links is not None else None,
-        )
-        t_there = placement.expected_time
-        if placement.host == ap.host or t_there is None or not self._worth_moving(t_here, t_there):
-            return None
-        cfg = self.config
-        # the new host takes it if it finishes there within what staying costs
-        # (less the thresholds), whatever the origin's view missed
-        budget = t_here / (1.0 + cfg.relocate_gain)
-        if placement.time_budget is not None:
-            budget = min(budget, placement.time_budget)
-        return msgspec.structs.replace(placement, time_budget=budget)
-
-    def _worth_moving(self, t_here: float, t_there: float) -> bool:
-        """Eq. (1) with hysteresis: the relative AND the absolute gain."""
-        cfg = self.config
-        return t_here > t_there * (1.0 + cfg.relocate_gain) and t_here - t_there > cfg.relocate_min_gain
+        return relocation_check(self, now, out)
 
     def _relocate(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Placement, event: Event) -> None:
         """Offer the program to its new host; the old copy runs on meanwhile."""
