@@ -3,9 +3,11 @@
 How this works: a node's transport callback turns every message into a
 Python ``bytes`` object; under a flood of 1-9 MB messages the driver's
 backlog holds up to ``MAX_BACKLOG_BYTES`` of them, and Zenoh and the
-decoder hold a few more in flight. Once they are freed, glibc's allocator
-keeps most of those pages (measured: a node's private memory stayed 30-60 MB
-above its baseline after ``ramps bench flood``, for as long as it ran), so a
+decoder hold a few more in flight. The node already makes every block over
+256 KiB its own mapping, unmapped when freed (``node.return_freed_memory``),
+yet glibc's heap kept 30-60 MB after ``ramps bench flood`` (the node's
+private memory, measured, for as long as it ran; presumably the thousands
+of smaller messages and their objects queued behind the big ones), so a
 robot that weathered one flood would carry its high-water mark for good.
 ``HeapTrimmer`` counts the bytes that arrive (``note``, from the callback)
 and, when at least ``threshold`` bytes came in since the last trim, asks
