@@ -160,7 +160,7 @@ def test_a_request_asked_again_is_answered_again_and_never_run_twice(driver, mon
     rt.transport = bus.transport("r1")
     app = bus.transport("app")
     heard: list[bytes] = []
-    app.subscribe(keys.client(rt.team, "app"), lambda _k, data: heard.append(data))
+    app.subscribe(keys.client(rt.team, "app"), heard.append)
     rt.incarnation = 7
     monkeypatch.setattr(node_clients, "OUTCOMES_KEPT_BYTES", 500)
     sub = [SubmitProgram(client="app", request_id=i, program="echo", args=encode_args(x=1))

@@ -342,7 +342,7 @@ def test_a_garbage_result_value_fails_the_future_instead_of_hanging_it() -> None
     team._futures = {7: fut}
     team._unacked = {}
     team._sent = {}
-    team._on_outcome("k", encode("r1", m.ProgramOutcome(request_id=7, ok=True, value=b"\xc1", host="r1")))
+    team._on_outcome(encode("r1", m.ProgramOutcome(request_id=7, ok=True, value=b"\xc1", host="r1")))
     assert fut.done()
     with pytest.raises(Exception, match="could not be decoded"):
         fut.result()
@@ -356,11 +356,11 @@ def test_a_node_drops_and_counts_what_exceeds_its_backlog(monkeypatch) -> None:
     monkeypatch.setattr(rn, "MAX_BACKLOG_BYTES", 1000)
     node = rn.NodeRuntime(load_settings(flags={"robot": "r1", "team": "t"}, environ={}))
     for _ in range(30):
-        node._on_wire("k", b"x" * 100)
+        node._on_wire(b"x" * 100)
     assert node._backlog_bytes == 1000 and node.overflow == 20
     node._handle(node._q.get_nowait(), 0.0)  # the driver takes one: room for one more
     assert node._backlog_bytes == 900 and node.bad_messages == 1
-    node._on_wire("k", b"y" * 100)
+    node._on_wire(b"y" * 100)
     assert node.overflow == 20 and node._backlog_bytes == 1000
 
 
