@@ -9,7 +9,8 @@
   9.2 xdist 3.8 cannot tag test ids with their group, so it ignores the
   groups.) Tests marked ``serial`` (they measure CPU, or run emulated robots
   whose timing assertions need the CPU they were given) are left out of the
-  parallel pass: ``make test`` runs them afterwards, alone.
+  parallel pass: ``make test`` runs them afterwards, alone. Modules with
+  the most slow tests are collected first, so the workers start on them.
 * ``--cpu-report FILE``: for every test, its wall time and the CPU time it
   cost (this process plus every child it waited for: nodes, workers, CLI
   runs, a testbed's robots), written to ``FILE`` as JSON at the end. It tells
@@ -37,6 +38,18 @@ _CPU_REPORT: list[dict[str, object]] = []
 def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption("--cpu-report", metavar="FILE", default=None,
                      help="write each test's wall and CPU seconds (with its reaped children) to FILE as JSON")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Modules with the most slow tests first, each kept whole (the order of
+    the rest unchanged): xdist hands modules out in this order, so the long
+    ones start at once and the fast ones fill the gaps at the end, instead of
+    the e2e modules (late in the alphabet) starting last and running alone."""
+    slow: dict[Path, int] = {}
+    for item in items:
+        slow[item.path] = slow.get(item.path, 0) + (item.get_closest_marker("slow") is not None)
+    rank = {path: i for i, path in enumerate(sorted(slow, key=lambda p: -slow[p]))}
+    items.sort(key=lambda item: rank[item.path])
 
 
 def _cpu() -> float:
