@@ -110,7 +110,8 @@ def test_sweep_command_prints_and_saves_a_row_per_family(tmp_path) -> None:
     from ramps.cli import app
 
     out = tmp_path / "sweep.json"
-    res = CliRunner().invoke(app, ["sim", "sweep", "-f", "loaded-burst", "-n", "2", "--seeds", "1", "-o", str(out)],
+    res = CliRunner().invoke(app, ["sim", "sweep", "-f", "loaded-burst", "-n", "2", "--seeds", "1", "-o", str(out),
+                                   "--exact-seconds", "0.3"],
                              catch_exceptions=False)
     assert res.exit_code == 0, res.output
     assert "loaded-burst" in res.output and "round robin" in res.output
@@ -119,10 +120,11 @@ def test_sweep_command_prints_and_saves_a_row_per_family(tmp_path) -> None:
     assert (row["family"], row["scenarios"], row["runs"]) == ("loaded-burst", 2, 2)
     assert row["lost"] == row["duplicated"] == 0
     assert 1.0 <= row["median_ratio"] <= row["worst_ratio"]
+    assert row["searched"] == 2 and row["median_ratio_best_bound"] <= row["worst_ratio_best_bound"]
     bad = CliRunner().invoke(app, ["sim", "sweep", "-f", "nope"])
     assert bad.exit_code != 0 and "unknown family" in bad.output
     res = CliRunner().invoke(app, ["sim", "sweep", "-f", "idle-burst", "-n", "1", "--seeds", "1", "--json",
-                                   "--set", "prompt_reports=false"], catch_exceptions=False)
+                                   "--set", "prompt_reports=false", "--exact-seconds", "0"], catch_exceptions=False)
     assert res.exit_code == 0 and json.loads(res.stdout)["settings"] == {"prompt_reports": False}
     bad = CliRunner().invoke(app, ["sim", "sweep", "--set", "max_rejections=many"])
     assert bad.exit_code != 0 and "max_rejections" in bad.output

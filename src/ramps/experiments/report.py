@@ -232,11 +232,10 @@ def print_sweep(rep, console: Console) -> None:
     changed = "".join(f", {k}={v}" for k, v in rep.settings.items())
     table = Table(title=f"several origins at once: policy {rep.policy}{changed}, {rep.seeds_per_scenario} seed(s) "
                         f"per scenario, seed {rep.seed}", title_justify="left")
-    for name in ("family", "scenarios", "runs", "median", "p90", "worst", "<=2%", "<=5%", "vs oracle median",
-                 "vs oracle worst", "optimum known", "vs optimum median", "vs optimum worst",
-                 "vs optimum at most: median", "at most: worst", "widest open gap", "round robin median",
+    for name in ("family", "scenarios", "runs", "median", "p90", "worst", "<=2%", "<=5%", "vs oracle",
+                 "optimum known", "vs optimum", "at most", "open gap", "round robin median",
                  "round robin worst", "lost", "dup"):
-        table.add_column(name, justify="left" if name == "family" else "right")
+        table.add_column(name, justify="left" if name == "family" else "right", no_wrap=name == "family")
 
     def ratio(x: float | None) -> str:
         return "-" if x is None else f"{x:.3f}"
@@ -244,19 +243,20 @@ def print_sweep(rep, console: Console) -> None:
     for r in rep.families:
         table.add_row(r.family, str(r.scenarios), str(r.runs), f"{r.median_ratio:.3f}", f"{r.p90_ratio:.3f}",
                       f"{r.worst_ratio:.3f}", f"{r.within_2pct}/{r.scenarios}", f"{r.within_5pct}/{r.scenarios}",
-                      f"{r.median_ratio_oracle:.3f}", f"{r.worst_ratio_oracle:.3f}", f"{r.proven}/{r.scenarios}",
-                      ratio(r.median_ratio_optimum), ratio(r.worst_ratio_optimum),
-                      ratio(r.median_ratio_best_bound), ratio(r.worst_ratio_best_bound),
+                      f"{r.median_ratio_oracle:.3f}/{r.worst_ratio_oracle:.3f}", f"{r.proven}/{r.scenarios}",
+                      f"{ratio(r.median_ratio_optimum)}/{ratio(r.worst_ratio_optimum)}",
+                      f"{ratio(r.median_ratio_best_bound)}/{ratio(r.worst_ratio_best_bound)}",
                       f"{100 * r.worst_gap:.1f}%" if r.searched else "-",
                       f"{r.median_round_robin_ratio:.3f}", f"{r.worst_round_robin_ratio:.3f}", str(r.lost),
                       str(r.duplicated))
     console.print(table)
-    console.print("Ratios are the median makespan over seeds divided by the lower bound (no schedule can do better; "
+    console.print("Pairs are median/worst. Ratios are the median makespan over seeds divided by the lower bound (no schedule can do better; "
                   "the exact optimum lies between it and the oracle, a central scheduler that knows every robot's "
                   "exact state). The exact optimum is known where the oracle reaches the bound, or where "
-                  "a search proved it within --exact-seconds; \"vs optimum at most\" divides by the optimum "
+                  "a search proved it within --exact-seconds; \"at most\" (median/worst) divides by the optimum "
                   "where it is known and by the best bound where it is open (an upper limit on the ratio to "
-                  "the optimum), and the open gap is how far the best schedule found lies above that bound. "
+                  "the optimum), and the open gap is the widest of how far the best schedule found lies above "
+                  "that bound. "
                   + f"{rep.wall_seconds:.1f} s.")
     worst = sorted(rep.scenarios, key=lambda s: -s.ratio_lower_bound)[:5]
     if worst:
