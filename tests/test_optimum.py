@@ -167,3 +167,13 @@ def test_solve_out_of_time_reports_the_interval():
     assert not found.proven and found.how in ("time", "nodes")
     assert lower_bound(sc) - 1e-6 <= found.bound < found.best <= orc + 1e-9
     assert found.gap == pytest.approx(found.best / found.bound - 1)
+
+
+def test_solve_says_what_is_wrong_with_its_input():
+    team = [Machine(4, 1.0, 0)] * 2
+    with pytest.raises(ValueError, match="assignment"):
+        solve(team, [0.0, 1.0], W, [0])
+    with pytest.raises(ValueError, match="assignment"):
+        solve(team, [0.0, 1.0], W, [0, 2])
+    with pytest.raises(ValueError, match="work"):
+        solve(team, [0.0], 0.0, [0])

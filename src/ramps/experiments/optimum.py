@@ -366,6 +366,11 @@ def solve(team: Sequence[Machine], releases: Sequence[float], work: float, assig
     seconds, else the best schedule and bound found. ``assignment`` is a
     feasible placement to start from (program k in sorted release order on
     robot ``assignment[k]``), e.g. the oracle's."""
+    if len(assignment) != len(releases) or any(not 0 <= a < len(team) for a in assignment):
+        raise ValueError(f"assignment must give each of the {len(releases)} programs a robot "
+                         f"0..{len(team) - 1}, got {list(assignment)[:10]}")
+    if work <= 0 or time_limit < 0:
+        raise ValueError(f"work must be > 0 and time_limit >= 0 (got {work}, {time_limit})")
     started = _wallclock.perf_counter()
     deadline = started + time_limit
     rel = sorted(releases)
