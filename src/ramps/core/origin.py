@@ -86,10 +86,10 @@ class Origin:
         #: policies by name: the node's own, plus any a program asked for
         self._policies: dict[str, Policy] = {policy.name: policy}
         self.programs: dict[str, AutonomousProgram] = {}
-        self._by_host: dict[str, set[str]] = {}
+        self._by_host: dict[str, dict[str, None]] = {}  # host -> its live program ids, in placement order (a set's order would follow the process's hash seed)
         self._timers: list[tuple[float, int, str]] = []
         #: programs with a recently written-off attempt that an isolation would revive
-        self._revivable: set[str] = set()
+        self._revivable: dict[str, None] = {}  # ordered, like _by_host
         #: finished programs, oldest first: kept for ``result_retention`` so a
         #: late result is settled (acknowledged, discarded), then forgotten
         self._finished: deque[tuple[float, str]] = deque()
@@ -390,7 +390,7 @@ class Origin:
                 expected = placement.expected_runnable
                 budget = placement.time_budget
         if ap.host is not None and ap.host not in ap.live.values():
-            self._by_host.get(ap.host, set()).discard(ap.program_id)
+            self._by_host.get(ap.host, {}).pop(ap.program_id, None)
         ap.made += 1
         ap.attempt = ap.made
         ap.host = host
@@ -399,7 +399,7 @@ class Origin:
         ap.last_heard = now
         ap.work, ap.done, ap.done_at = work, 0.0, now
         ap.resumed_from = fraction if resume is not None else None
-        self._by_host.setdefault(host, set()).add(ap.program_id)
+        self._by_host.setdefault(host, {})[ap.program_id] = None
         self.view.book(host, ap.program_id, ap.attempt)
         self.placements += 1
         out.append(Note(what="placed", program_id=ap.program_id, robot=host, attempt=ap.attempt))
@@ -494,7 +494,7 @@ class Origin:
         ap.live.pop(ap.attempt, None)
         if host != self.me and reason in (E.HOST_LOST, E.HEARTBEAT_TIMEOUT):
             ap.written_off.append((ap.attempt, host, now))
-            self._revivable.add(ap.program_id)
+            self._revivable[ap.program_id] = None
         else:
             # a host that just went silent is not told: the message could not
             # arrive, and on Zenoh, sending to a cut-off peer can stall this
@@ -623,7 +623,7 @@ class Origin:
         if out is not None:
             out.append(Send(to=host, msg=CancelProgram(program_id=ap.program_id, attempt=attempt, origin=self.me)))
         if host not in ap.live.values():
-            self._by_host.get(host, set()).discard(ap.program_id)
+            self._by_host.get(host, {}).pop(ap.program_id, None)
 
     def _on_move_failed(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
         host = ap.placed_host
@@ -652,7 +652,7 @@ class Origin:
         self._leave_host(ap, host, None)
         ap.live.pop(attempt, None)
         if host not in ap.live.values():
-            self._by_host.get(host or "", set()).discard(ap.program_id)
+            self._by_host.get(host or "", {}).pop(ap.program_id, None)
         old, ap.moving_from = ap.moving_from, None
         out.append(Note(what="move_aborted", program_id=ap.program_id, robot=host or "", attempt=attempt,
                         detail=why))
@@ -674,7 +674,7 @@ class Origin:
             self._leave_host(ap, h, None, attempt=attempt)
         ap.live.clear()
         for ids in self._by_host.values():  # the index only serves live programs
-            ids.discard(ap.program_id)
+            ids.pop(ap.program_id, None)
         ap.state = S.DONE if ok else S.FAILED
         ap.deadline = None
         self._finished.append((now, ap.program_id))
