@@ -39,8 +39,8 @@ from typing import Callable, Sequence
 import msgspec
 
 from ramps.core.config import RampsConfig
-from ramps.experiments.metrics import Machine, optimal_allocation
-from ramps.experiments.optimum import solve
+from ramps.experiments.metrics import Machine
+from ramps.experiments.optimum import simple_bound, solve
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario
 
@@ -177,14 +177,7 @@ def machines(sc: Scenario) -> list[Machine]:
 
 def lower_bound(sc: Scenario, work: float = WORK) -> float:
     """No schedule finishes before this (see the module docstring)."""
-    team = machines(sc)
-    rel = releases(sc)
-    best = 0.0
-    for idx, r in enumerate(rel):
-        if idx and rel[idx - 1] == r:
-            continue
-        best = max(best, r + optimal_allocation(len(rel) - idx, team, work)[1])
-    return best
+    return simple_bound(machines(sc), releases(sc), work)
 
 
 class _PS:
