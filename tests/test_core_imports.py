@@ -11,7 +11,7 @@ hidden global generator and breaks "same seed, same trace". Dynamic imports
 (``__import__``, ``importlib.import_module``) are refused too, so the list
 cannot be dodged.
 
-Rules (STYLE.md, "Conventions for ramps" 1 and 3): a failure names the file
+Rules (docs/architecture.md: the core is sans-I/O): a failure names the file
 and line of each offence. The checker is itself tested on synthetic sources,
 so a broken checker cannot pass silently.
 """

@@ -42,7 +42,7 @@ TEAM_SIZES = (2, 3, 4, 5)
 PROGRAM_COUNTS = (5, 10, 15, 20, 25, 30)
 LOADED_COUNTS = (1, 2, 3, 4)
 
-#: the paper's measured runtimes on 5 robots (DESIGN.md section 4), seconds
+#: the paper's measured runtimes on 5 robots (the paper's section 4: single robot, round robin and RAMPs), seconds
 PAPER_5_ROBOTS = {
     "single": {5: 110, 10: 222, 15: 335, 20: 449, 25: 564, 30: 670},
     "round_robin": {5: 53, 10: 54, 15: 55, 20: 58, 25: 71, 30: 85},

@@ -23,7 +23,8 @@ Zenoh session in production, ``ramps.testing.memory`` in tests) and reads
 time only from its injected clock. This module is its lifecycle and loop;
 what it does with each input is ``node_inbound``, with the core's actions and
 load reports ``node_outbound``, with clients' requests and outcomes
-``node_clients`` (mixed into ``NodeRuntime``).
+``node_clients`` (mixed into ``NodeRuntime``). About 500 lines: the
+lifecycle and the loop only.
 """
 
 from __future__ import annotations

@@ -48,6 +48,11 @@ paper). ``work`` defaults to ``0.9 * gap`` units: with 0.4 host cores per
 robot, 3 programs on a robot get 0.13 host cores each, so a program that
 never moves gets at most ~0.13 * 5 * gap CPU-seconds by the last snapshot of
 a sequential run (1 unit is about 1 CPU-second, see ramps.programs.burn).
+
+Over 500 lines for a reason: the plan runner and the campaign share the
+testbed set-up, trace reading and invariant checks above; the fault
+injection itself is ``ramps.testbed.faults``, the stress plan
+``ramps.testbed.stress``.
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 How this works: one robot of ``cores`` emulated cores (``quota`` host cores)
 runs ``k`` identical programs of ``work`` units at once next to ``b`` busy
 background processes. Weighted processor sharing (the simulator, the cost
-model, DESIGN.md section 4) says every program finishes after::
+model, ramps.core.cost.program_share) says every program finishes after::
 
     work / (speed * cost.program_share(cores, k, b, weight))
 
