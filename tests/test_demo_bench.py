@@ -57,8 +57,10 @@ def test_route_calls_explore_distinct_starts_of_one_order():
     assert all(n > 0 for n in lengths)
 
 
-def test_demo_runs_three_placements_on_a_real_team(teams):
-    rep = run_demo(robots=3, programs=6, arguments=dict(ROUTE_SIZES["tiny"]), kill=None)
+def test_demo_runs_three_placements_on_a_real_team(teams, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # `make demo`'s report path is relative; the nodes run elsewhere
+    rep = run_demo(robots=3, programs=6, arguments=dict(ROUTE_SIZES["tiny"]), kill=None, report="demo.html")
+    assert (tmp_path / "demo.html").is_file() and (tmp_path / "demo.trace.jsonl").stat().st_size > 0
     names = [p.name for p in rep.phases]
     assert names == ["ramps", "round robin", "single robot (r1)"]
     for ph in rep.phases:

@@ -127,7 +127,7 @@ def run_demo(*, robots: int = 5, programs: int = 15, program: str = "route_plan"
         raise ValueError("the origin r1 cannot be killed: its programs would be nobody's concern (paper 3.3)")
     phases = []
     windows: dict[str, tuple[float, float]] = {}  # phase -> Unix times, to cut its part of the trace
-    trace = str(Path(report).with_suffix(".trace.jsonl")) if report else None
+    trace = str(Path(report).with_suffix(".trace.jsonl").resolve()) if report else None  # absolute: the nodes run in their own directory
     if trace:
         Path(trace).parent.mkdir(parents=True, exist_ok=True)
         Path(trace).write_text("")
