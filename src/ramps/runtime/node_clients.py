@@ -142,10 +142,7 @@ class ClientAnswers:
         if self.transport is None:
             return True
         try:
-            pub = self._pubs.get(key)
-            if pub is None:
-                pub = self._pubs[key] = self.transport.publisher(key, block=block)
-            return bool(pub.matching())
+            return bool(self._publisher(key, block).matching())
         except Exception:  # cannot tell: send
             return True
 

@@ -39,6 +39,7 @@ from ramps.core.messages import (
 from ramps.core.speed import REMEASURE_PERIOD, SpeedMeasured
 from ramps.runtime import keys
 from ramps.runtime.measure import measure_speed
+from ramps.runtime.transport import Publisher
 
 log = logging.getLogger("ramps.node")
 #: core notes a client hears about (ProgramUpdate.state), as placed/running/host_failed
@@ -110,15 +111,22 @@ class Outbound:
         Outcomes to a client (``block=True``) are not resent, so they wait."""
         if self.transport is None:
             return
-        pub = self._pubs.get(key)
         try:
-            if pub is None:
-                pub = self._pubs[key] = self.transport.publisher(key, block=block)
-                if len(self._pubs) > 4096:  # clients come and go
-                    self._pubs.pop(next(iter(self._pubs))).undeclare()
-            pub.put(data)
+            self._publisher(key, block).put(data)
         except Exception as exc:
             log.warning("node %s could not publish on %s: %s", self.robot, key, exc)
+
+    def _publisher(self, key: str, block: bool) -> Publisher:
+        """The declared publisher of ``key`` (declared on first use; at most
+        4096 kept, the oldest undeclared: clients come and go). Needs a
+        transport; raises what it raises."""
+        pub = self._pubs.get(key)
+        if pub is None:
+            assert self.transport is not None
+            pub = self._pubs[key] = self.transport.publisher(key, block=block)
+            if len(self._pubs) > 4096:
+                self._pubs.pop(next(iter(self._pubs))).undeclare()
+        return pub
 
     def _remeasure(self) -> None:
         """Measure this robot's speed again, off the driver's thread (briefly:
