@@ -30,11 +30,17 @@ class Machine(msgspec.Struct, frozen=True, array_like=True):
     background: int = 0
 
 
+def rate(m: Machine, k: int) -> float:
+    """Work units per second each of ``k`` programs gets on ``m`` beside its
+    busy processes (processor sharing)."""
+    return m.speed * min(1.0, m.cores / (k + m.background))
+
+
 def finish_time(m: Machine, k: int, work: float) -> float:
     """When k identical programs started together on m all finish."""
     if k <= 0:
         return 0.0
-    return work / (m.speed * min(1.0, m.cores / (k + m.background)))
+    return work / rate(m, k)
 
 
 def model_makespan(counts: Sequence[int], team: Sequence[Machine], work: float) -> float:

@@ -57,7 +57,7 @@ from typing import Sequence
 
 import msgspec
 
-from ramps.experiments.metrics import Machine, optimal_allocation
+from ramps.experiments.metrics import Machine, optimal_allocation, rate
 
 _EPS = 1e-9
 
@@ -69,14 +69,14 @@ def finish(m: Machine, releases: Sequence[float], work: float) -> float:
     while i < n or left:
         nxt = releases[i] if i < n else float("inf")
         if left:
-            rate = m.speed * min(1.0, m.cores / (len(left) + m.background))
+            r = rate(m, len(left))
             first = min(left)
-            if t + first / rate <= nxt:
-                t += first / rate
+            if t + first / r <= nxt:
+                t += first / r
                 left = [x - first for x in left if x - first > _EPS]
                 last = t
                 continue
-            done = (nxt - t) * rate
+            done = (nxt - t) * r
             left = [x - done for x in left]
         t = nxt
         left.append(work)
@@ -237,19 +237,15 @@ def improve(team: Sequence[Machine], releases: Sequence[float], work: float, ass
 
 
 # ------------------------------------------------------- lower bound: two windows
-def _rate(m: Machine, k: int) -> float:
-    return m.speed * min(1.0, m.cores / (k + m.background))
-
-
 def window_end(m: Machine, x: int, left: float, y: int, at: float, work: float) -> float:
     """When ``m`` ends if at time ``at`` it holds ``x`` programs with ``left``
     work each and ``y`` whole ones (processor sharing, nothing else after)."""
     left = min(work, max(0.0, left))
     if y == 0:
-        return at + left / _rate(m, x) if x and left > 0 else 0.0
+        return at + left / rate(m, x) if x and left > 0 else 0.0
     if x == 0 or left <= 0:
-        return at + work / _rate(m, y)
-    return at + left / _rate(m, x + y) + (work - left) / _rate(m, y)
+        return at + work / rate(m, y)
+    return at + left / rate(m, x + y) + (work - left) / rate(m, y)
 
 
 def _split_fits(team: Sequence[Machine], t1: float, t2: float, nx: int, ny: int, work: float,

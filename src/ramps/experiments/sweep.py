@@ -39,7 +39,7 @@ from typing import Callable, Sequence
 import msgspec
 
 from ramps.core.config import RampsConfig
-from ramps.experiments.metrics import Machine
+from ramps.experiments.metrics import Machine, rate
 from ramps.experiments.optimum import simple_bound, solve
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario
@@ -191,7 +191,7 @@ class _PS:
         self.t = 0.0
 
     def rate(self, k: int) -> float:
-        return self.m.speed * min(1.0, self.m.cores / (k + self.m.background))
+        return rate(self.m, k)
 
     def advance(self, to: float) -> None:
         while self.left and self.t < to:
