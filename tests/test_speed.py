@@ -33,15 +33,43 @@ def test_a_host_slower_than_it_says_on_the_same_program_gets_a_factor():
     speeds = HostSpeeds(CFG)
     assert not speeds.on_result("plan", "a", 53.0)  # nothing to compare with yet
     assert not speeds.on_result("plan", "b", 53.0)  # the same as a: nothing to correct
-    # h believes itself 1.5x faster than it is: it counts 1.5x the work
+    # h believes itself 1.5x faster than it is: it counts 1.5x the work;
+    # one figure alone moves nothing, the second does
+    assert not speeds.on_result("plan", "h", 79.5)
     assert speeds.on_result("plan", "h", 79.5)
     assert speeds.factor["h"] == pytest.approx(53.0 / 79.5)
     # its corrected runs now agree with the others': no change
     assert not speeds.on_result("plan", "h", 79.5)
     # a host faster than it says, on another program
     speeds.on_result("map", "a", 10.0)
+    assert not speeds.on_result("map", "f", 5.0)
     assert speeds.on_result("map", "f", 5.0)
     assert speeds.factor["f"] == pytest.approx(CFG.speed_max_correction)
+
+
+def test_calls_of_different_declared_sizes_compare_per_declared_unit():
+    speeds = HostSpeeds(CFG)
+    # a ran a call declared 10 units that took 12; h ran calls declared 40
+    # that took 48 each: the same speed, nothing to correct
+    speeds.on_result("plan", "a", 12.0, declared=10.0)
+    for _ in range(3):
+        assert not speeds.on_result("plan", "h", 48.0, declared=40.0)
+    assert speeds.factor == {}
+    # s takes 1.5x per declared unit, twice: corrected
+    assert not speeds.on_result("plan", "s", 27.0, declared=15.0)
+    assert speeds.on_result("plan", "s", 27.0, declared=15.0)
+    assert speeds.factor["s"] == pytest.approx(1.2 / 1.8)
+
+
+def test_a_run_far_off_the_others_is_another_instance_not_another_speed():
+    """The demo's case: a warm-up of route plans of 4 picks, then plans of 14
+    under the same name and declaration: 4-8x the work, on identical robots."""
+    speeds = HostSpeeds(CFG)
+    for host, done in (("a", 0.21), ("b", 0.22), ("c", 0.20)):
+        speeds.on_result("route_plan", host, done, declared=2.0)
+    for host in "abc":
+        assert not speeds.on_result("route_plan", host, 1.4, declared=2.0)
+    assert speeds.factor == {}
 
 
 def test_a_program_bigger_than_declared_everywhere_is_not_a_slow_team():
@@ -87,8 +115,8 @@ def test_an_origin_places_by_the_speed_results_showed(monkeypatch):
     team.publish()
     o = team.nodes["o"]
     assert o.view.capacity("h") == (4, 1.5)
-    # two programs ran: one on a, one on h, both 53 units of real work
-    for pid, host, done in (("p1", "a", 53.0), ("p2", "h", 79.5)):
+    # three programs ran: one on a, two on h, each 53 units of real work
+    for pid, host, done in (("p1", "a", 53.0), ("p2", "h", 79.5), ("p3", "h", 79.5)):
         team.handle("o", Submit(program_id=pid, program="route_plan", work=53.0))
         ap = o.origin.programs[pid]
         ap.live[ap.attempt] = host  # as if placed there and accepted

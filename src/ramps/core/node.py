@@ -313,7 +313,7 @@ class Node:
             return
         assert self.host_speeds is not None
         before = self.host_speeds.factor.get(msg.host, 1.0)
-        if self.host_speeds.on_result(ap.submit.program, msg.host, msg.work_done):
+        if self.host_speeds.on_result(ap.submit.program, msg.host, msg.work_done, ap.submit.work):
             out.append(Note(what="speed", program_id=msg.program_id, robot=msg.host, attempt=msg.attempt,
                             detail=f"runs at {self.host_speeds.factor[msg.host]:.3g} of the speed it reports "
                                    f"(was {before:.3g}): {ap.submit.program} took {msg.work_done:.4g} units "

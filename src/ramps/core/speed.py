@@ -15,13 +15,23 @@ hardware, and placement followed the error. Two corrections, one per side:
   result could ever say it is faster.
 - **Results, at the origin** (``HostSpeeds``): a host reports the work a
   program took (``ProgramResult.work_done``) counted at the speed it
-  believes. The same program on another robot tells the origin what that
+  believes, and the origin divides it by the work the call declared, so
+  calls of different sizes compare (a call declared twice as big counts
+  half). The same program on another robot tells the origin what that
   work is in the team's terms (the median of its recent runs elsewhere,
   each corrected as below): ``elsewhere / work_done`` is how much faster
   (> 1) or slower the host really is than it says. The origin keeps the
-  median of each host's last ``SAMPLES`` such figures once it is off by more
-  than ``speed_deadband``, within ``speed_max_correction`` either way, and
+  median of each host's last ``SAMPLES`` such figures once it has
+  ``MIN_FIGURES`` of them and they are off by more than ``speed_deadband``;
   its view multiplies the host's reported speed by it.
+- A run beyond ``speed_max_correction`` either way of another is not a
+  robot's speed but a different instance under the same name and
+  declaration (a route plan of 4 picks next to one of 14 measured 4-8x
+  apart on identical robots): a run is compared only with the runs
+  elsewhere within that bound of it, and dropped if there are none. One figure alone (a single short run
+  on a busy machine measured 0.71 of an identical robot) does not move a
+  factor either: ``ramps demo`` placed 4-3-3-3-2 on five identical robots
+  from such figures, and lost to round robin by 40%.
 
 Why the comparison, and not a host comparing a program's estimated work
 with the time it took: a program that takes twice as long as declared on
@@ -48,6 +58,8 @@ from ramps.core.config import RampsConfig
 #: runs it compares them with
 SAMPLES = 5
 RUNS = 8
+#: figures of a host before its factor may change
+MIN_FIGURES = 2
 #: seconds between two re-measurements by the driver (the runtime, and the
 #: simulator for robots whose boot measurement was wrong)
 REMEASURE_PERIOD = 30.0
@@ -91,24 +103,34 @@ class HostSpeeds:
         self.samples = 0
         self.corrections = 0
 
-    def on_result(self, program: str, host: str, work_done: float) -> bool:
+    def on_result(self, program: str, host: str, work_done: float, declared: float = 0.0) -> bool:
         """A first, wanted result of ``program`` from ``host``, which counted
-        ``work_done`` units at the speed it reports; True if the host's
+        ``work_done`` units at the speed it reports, of a call that declared
+        ``declared`` units (0: compare the raw work); True if the host's
         factor changed."""
         cfg = self.config
         if not cfg.speed_learning or not (math.isfinite(work_done) and work_done > 0):
             return False
+        if math.isfinite(declared) and declared > 0:
+            work_done /= declared  # per declared unit: calls of different sizes compare
         runs = self._runs.setdefault(program, deque(maxlen=RUNS))
         elsewhere = [w for h, w in runs if h != host]
         factor = self.factor.get(host, 1.0)
         runs.append((host, work_done * factor))
         if not elsewhere:
             return False  # nothing to compare with yet
+        # only runs within the bound of this one can be the same instance
+        bound = cfg.speed_max_correction
+        alike = [w for w in elsewhere if 1.0 / bound <= w / work_done <= bound]
+        if not alike:
+            return False  # another instance under the same name, not another speed
+        figure = median(alike) / work_done
         self.samples += 1
         figures = self._figures.setdefault(host, deque(maxlen=SAMPLES))
-        figures.append(median(elsewhere) / work_done)
-        bound = cfg.speed_max_correction
-        seen = min(bound, max(1.0 / bound, median(figures)))
+        figures.append(figure)
+        if len(figures) < MIN_FIGURES:
+            return False
+        seen = median(figures)
         if abs(math.log(seen / factor)) <= math.log1p(cfg.speed_deadband):
             return False
         self.factor[host] = seen
