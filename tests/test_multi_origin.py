@@ -308,3 +308,24 @@ def test_prompt_reports_are_rate_limited_but_the_robots_own_view_is_not() -> Non
     assert a._prompt_due == 1.0
     [later] = [x for x in a.tick(1.0) if isinstance(x, PublishReport)]
     assert later.report.ramps_running == 2 and later.report.seq > first.report.seq
+
+
+def test_learned_work_scales_with_each_call_s_declaration() -> None:
+    # a caller that declares bigger calls bigger keeps them apart: both runs
+    # took 4x their declaration, so a call declared 10 is estimated at 40 and
+    # one declared 40 at 160 (not the median of 40 and 160 for both)
+    from ramps.core.events import Received, Submit
+    from ramps.core.messages import ProgramResult
+    from ramps.testing import FakeTeam
+
+    team = FakeTeam({"o": (4, 1.0)})
+    origin = team.nodes["o"].origin
+    for pid, declared in (("p1", 10.0), ("p2", 40.0)):
+        team.handle("o", Submit(program_id=pid, program="plan", work=declared))
+        ap = origin.programs[pid]
+        ap.live[ap.attempt] = "o"
+        team.handle("o", Received(sender="o", msg=ProgramResult(program_id=pid, attempt=ap.attempt, host="o",
+                                                                 ok=True, value=b"", work_done=4 * declared)))
+    assert origin.work_estimate(Submit(program_id="q1", program="plan", work=10.0)) == pytest.approx(40.0)
+    assert origin.work_estimate(Submit(program_id="q2", program="plan", work=40.0)) == pytest.approx(160.0)
+    assert origin.learned_work()["plan"] == pytest.approx(160.0)  # for a call declared like the latest

@@ -101,9 +101,13 @@ class Origin:
         self._seq = 0
         #: measured latency and bandwidth per teammate (set by the node)
         self.links: Links | None = None
-        #: work each program took in its latest runs (hosts' estimates), by
-        #: program name: placements use their median instead of the declared work
+        #: work each program took in its latest runs (hosts' estimates) per
+        #: unit it declared, by program name: placements use the median times
+        #: a call's declaration instead of the declaration alone (so a caller
+        #: that declares bigger calls bigger keeps the sizes apart)
         self._learned: dict[str, deque[float]] = {}
+        #: the declaration of each program's latest learned run (for status)
+        self._declared: dict[str, float] = {}
         #: after this robot's own stall, the hosts whose links are not back yet
         self.relink = Relink(me)
         #: when the next relocation check is due (None: nothing running to move)
@@ -572,19 +576,25 @@ class Origin:
         ap.live.pop(msg.attempt, None)
         if msg.ok and msg.work_done is not None:
             runs = self._learned.setdefault(ap.submit.program, deque(maxlen=LEARN_RUNS))
-            runs.append(msg.work_done)
+            runs.append(msg.work_done / ap.submit.work if ap.submit.work > 0 else msg.work_done)
+            self._declared[ap.submit.program] = ap.submit.work
         self._deliver(ap, now, out, ok=msg.ok, value=msg.value, error=msg.error, host=msg.host,
                       kind="" if msg.ok else "program")
 
     def work_estimate(self, sub: Submit) -> float:
-        """The work a program will take: the median of what its latest runs
-        took (robust to one odd host), or its declaration before any ran."""
+        """The work a program will take: its declaration times the median of
+        what its latest runs took per declared unit (robust to one odd host),
+        or its declaration before any ran."""
         runs = self._learned.get(sub.program)
-        return statistics.median(runs) if runs else sub.work
+        if not runs:
+            return sub.work
+        return statistics.median(runs) * (sub.work if sub.work > 0 else 1.0)
 
     def learned_work(self) -> dict[str, float]:
-        """Program name -> the work placements now assume (learned ones only)."""
-        return {name: statistics.median(runs) for name, runs in self._learned.items() if runs}
+        """Program name -> the work placements now assume for a call declared
+        like its latest run (learned ones only)."""
+        return {name: statistics.median(runs) * (self._declared.get(name, 0.0) or 1.0)
+                for name, runs in self._learned.items() if runs}
 
     def _on_cancel(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
         self._deliver(ap, now, out, ok=False, error="cancelled by the application", host=ap.host or "",

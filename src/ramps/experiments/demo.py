@@ -139,10 +139,14 @@ def run_demo(*, robots: int = 5, programs: int = 15, program: str = "route_plan"
         try:
             time.sleep(2.5)  # every load server hears every robot, loaded ones included
             # warm-up, not measured: each robot's workers load the solver once,
-            # so no placement pays a first-import cost the others do not
+            # so no placement pays a first-import cost the others do not. One
+            # call of the measured ones per robot: the origin learns work and
+            # speeds from these runs, and smaller instances under the same name
+            # and declaration would teach it a program 4-8x smaller than the
+            # one it then places
             if program == "route_plan":
-                warm = dict(args, picks=min(4, args.get("picks", 4)), start=None)
-                for f in [client.options(policy="round_robin").submit(program, **warm) for _ in range(robots * 2)]:
+                warm = [client.options(policy="round_robin").submit(program, **c) for c in calls[:robots]]
+                for f in warm:
                     f.result(timeout=120)
             killed = []
 
