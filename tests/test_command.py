@@ -19,7 +19,8 @@ import psutil
 import pytest
 
 from ramps.errors import BadArguments, ConfigError
-from ramps.runtime.command import STDERR_TAIL, CommandFailed, CommandProgram, parse_progress
+from ramps.runtime.command import (STDERR_TAIL, CommandFailed, CommandProgram, NotACheckpoint, parse_checkpoint,
+                                   parse_progress)
 from ramps.runtime.registry import Registry, encode_args, resolve
 from ramps.runtime.settings import load_settings
 
@@ -84,6 +85,52 @@ def test_parse_progress() -> None:
     assert parse_progress(b"RAMPS_PROGRESS 0.5 half way") == (0.5, "half way")
     for bad in (b"RAMPS_PROGRESS", b"RAMPS_PROGRESS x", b"RAMPS_PROGRESS -0.1", b"RAMPS_PROGRESS nan", b"progress 0.5"):
         assert parse_progress(bad) is None, bad
+
+
+CHECKPOINTING = f"""#!{sys.executable}
+import json, os, sys
+args = json.load(sys.stdin)
+path = os.environ.get("RAMPS_RESUME")
+start = json.load(open(path))["i"] if path else 0
+for i in range(start, args["n"]):
+    print(f"RAMPS_CHECKPOINT {{json.dumps({{'i': i + 1, 'note': 'x'}})}}", file=sys.stderr, flush=True)
+print("a log line", file=sys.stderr)
+json.dump({{"start": start, "resume_file": path}}, sys.stdout)
+"""
+
+
+def test_checkpoint_lines_are_saved_and_a_resumed_run_reads_its_state_from_ramps_resume(tmp_path):
+    p = script(tmp_path, CHECKPOINTING)
+    saved: list = []
+    fresh = CommandProgram(p, name="prog").run({"n": 3}, on_progress=lambda f, d: None, on_checkpoint=saved.append)
+    assert fresh == {"start": 0, "resume_file": None}  # no RAMPS_RESUME on a fresh start
+    assert saved == [{"i": 1, "note": "x"}, {"i": 2, "note": "x"}, {"i": 3, "note": "x"}]
+    again = CommandProgram(p, name="prog").run({"n": 5}, on_progress=lambda f, d: None, on_checkpoint=saved.append,
+                                                resume={"i": 3})
+    assert again["start"] == 3 and saved[-1] == {"i": 5, "note": "x"}
+    assert not Path(again["resume_file"]).exists()  # removed once the program ended
+
+
+@pytest.mark.parametrize("line, why", [("RAMPS_CHECKPOINT {not json", "not one JSON value"),
+                                       ("RAMPS_CHECKPOINT \"" + "x" * 300_000 + "\"", "exceeds the limit")])
+def test_a_checkpoint_ramps_cannot_keep_stops_the_program_with_a_clear_error(tmp_path, line, why):
+    from ramps.runtime.worker import save_checkpoint  # what a worker saves with: it checks the size
+
+    p = script(tmp_path, f"#!{sys.executable}\nimport sys, time\nprint({line!r}, file=sys.stderr, flush=True)\n"
+                         "time.sleep(30)\n")
+    t0 = time.monotonic()
+    with pytest.raises(CommandFailed, match=f"prog wrote a checkpoint ramps cannot keep \\(.*{why}.*\\) and was stopped"):
+        CommandProgram(p, name="prog").run({}, on_progress=lambda f, d: None, on_checkpoint=save_checkpoint)
+    assert time.monotonic() - t0 < 25  # stopped, not left to its sleep
+
+
+def test_parse_checkpoint() -> None:
+    assert parse_checkpoint(b'RAMPS_CHECKPOINT {"i": 2}') == {"i": 2}
+    assert parse_checkpoint(b"RAMPS_CHECKPOINT null") is None
+    assert parse_checkpoint(b"RAMPS_PROGRESS 0.5") is NotACheckpoint
+    assert parse_checkpoint(b"RAMPS_CHECKPOINTS 1") is NotACheckpoint
+    with pytest.raises(ValueError, match="not one JSON value"):
+        parse_checkpoint(b"RAMPS_CHECKPOINT {")
 
 
 def test_time_limit_kills_the_whole_process_group(tmp_path):

@@ -60,6 +60,23 @@ mv "$RAMPS_E2E_MARKS/$tag.tmp" "$RAMPS_E2E_MARKS/$tag"
 wait
 """
 
+# counts to n, checkpointing each step; resumes from RAMPS_RESUME; its marks
+# say its pid, the step it reached and where it started
+CKPT = f"""#!{sys.executable}
+import json, os, sys, time
+args = json.load(sys.stdin)
+path = os.environ.get("RAMPS_RESUME")
+start = json.load(open(path))["i"] if path else 0
+marks = os.path.join(os.environ["RAMPS_E2E_MARKS"], args["tag"])
+for i in range(start, args["n"]):
+    time.sleep(args["dt"])
+    print(f"RAMPS_PROGRESS {{(i + 1) / args['n']:.3f}}", file=sys.stderr, flush=True)
+    print("RAMPS_CHECKPOINT " + json.dumps({{"i": i + 1}}), file=sys.stderr, flush=True)
+    with open(marks + ".tmp", "w") as f:
+        f.write(f"{{os.getpid()}} {{i + 1}} {{start}}")
+    os.replace(marks + ".tmp", marks)
+json.dump({{"start": start, "robot": os.environ.get("RAMPS_ROBOT")}}, sys.stdout)
+"""
 NOT_JSON = """#!/bin/sh
 echo "done!"
 """
@@ -81,7 +98,8 @@ class CommandTeam(LocalTeam):
         cfg = tmp / "commands.toml"
         cfg.write_text(f'[commands.slow]\npath = "{_write(tmp, "hang-slow", HANG)}"\ntimeout = 1.0\n')
         self.node_args = ["--config", str(cfg), "--program", "e2e_progress_progs:stepper"]
-        for name, text in (("solve", SOLVE), ("failing", FAILING), ("hang", HANG), ("notjson", NOT_JSON)):
+        for name, text in (("solve", SOLVE), ("failing", FAILING), ("hang", HANG), ("notjson", NOT_JSON),
+                           ("ckpt", CKPT)):
             self.node_args += ["--command", f"{name}={_write(tmp, name, text)}"]
 
     def start_node(self, name, cores=None, extra_env=None, *, wait=True, extra_args=None):
@@ -225,6 +243,30 @@ def test_ramps_submit_progress_prints_host_state_and_progress(team):
                    *eps, "--no-multicast", "--progress")
     assert run.returncode == 0, run.stderr
     assert "stepper: running on r" in run.stderr and "% step " in run.stderr, run.stderr
+
+
+def test_an_executable_that_checkpoints_resumes_after_its_worker_dies(team, client):
+    """RAMPS_CHECKPOINT lines reach the origin; when the worker under the
+    executable is killed, the program runs again with RAMPS_RESUME naming
+    its latest state, and the caller sees where it resumed from."""
+    t, c = team, client
+    fut = c.submit("ckpt", tag="ck1", n=40, dt=0.1)
+    deadline = time.monotonic() + 60
+    while True:  # until it has checkpointed a few steps
+        text = (t.marks / "ck1").read_text() if (t.marks / "ck1").exists() else ""
+        if text and int(text.split()[1]) >= 8:
+            break
+        assert time.monotonic() < deadline, f"the executable never got going\n{t.logs()}"
+        time.sleep(0.05)
+    time.sleep(0.3)  # the latest checkpoint reaches the origin with the next heartbeat at most
+    pid = int(text.split()[0])
+    worker = psutil.Process(pid).parent()
+    assert worker is not None and "ramps" in " ".join(worker.cmdline())
+    worker.kill()
+    result = fut.result(RESULT_TIMEOUT)
+    assert result["start"] >= 5, result  # resumed from a checkpoint, not from step 0
+    assert fut.resumed_from is not None and 0 < fut.resumed_from <= 1
+    assert _gone([pid]) == []
 
 
 def test_killed_robot_kills_its_executables_and_the_program_moves(team, client):

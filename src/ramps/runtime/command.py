@@ -19,6 +19,14 @@ The contract with the executable (``docs/ros2.md`` repeats it):
 - **progress**: a line ``RAMPS_PROGRESS <fraction> [text]`` on stderr, the
   fraction between 0 and 1; it reaches the caller's future (``fut.progress``)
   and ROS action feedback. Such lines are not part of the stderr tail.
+- **checkpoint**: a line ``RAMPS_CHECKPOINT <one JSON value>`` on stderr
+  saves the program's state (as ``ramps.checkpoint``: at most 256 KiB, at
+  most five a second kept; report progress before it). A checkpoint that
+  is not JSON or too big stops the program with a clear error, as an
+  uncaught ``ramps.checkpoint`` error stops a Python program.
+- **resume**: after a move or a failure, ``RAMPS_RESUME`` names a file
+  holding the latest checkpoint (the same JSON value); on a fresh start it
+  is not set.
 - **time limit**: ``timeout`` seconds (default ``DEFAULT_TIMEOUT``); then the
   process group is killed and the caller gets a clear error.
 - **environment**: the node's, plus ``RAMPS_PROGRAM`` (the program's name).
@@ -42,6 +50,7 @@ import os
 import selectors
 import signal
 import subprocess
+import tempfile
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -52,6 +61,8 @@ DEFAULT_TIMEOUT = 600.0
 STDERR_TAIL = 2000
 #: the prefix of a progress line on stderr
 PROGRESS_PREFIX = b"RAMPS_PROGRESS"
+#: the prefix of a checkpoint line on stderr
+CHECKPOINT_PREFIX = b"RAMPS_CHECKPOINT"
 #: target strings of command programs in the registry start with this
 TARGET_PREFIX = "exec:"
 
@@ -126,19 +137,48 @@ class CommandProgram:
         except (TypeError, ValueError) as exc:
             raise TypeError(f"arguments of an executable travel as JSON: {exc}") from None
 
-    def run(self, kwargs: dict[str, Any], *, on_progress: Callable[[float, str], None] | None = None) -> Any:
+    def run(self, kwargs: dict[str, Any], *, on_progress: Callable[[float, str], None] | None = None,
+            on_checkpoint: Callable[[Any], Any] | None = None, resume: Any = None) -> Any:
+        """Run it once. In a worker, progress and checkpoints go to the
+        program's origin and ``resume`` is the state saved in an earlier
+        attempt (``ramps.runtime.worker``); outside one, pass them."""
         try:
             stdin = json.dumps(kwargs, allow_nan=False).encode()
         except (TypeError, ValueError) as exc:
             raise CommandFailed(f"arguments of {self.name} cannot be passed as JSON: {exc}") from None
-        if on_progress is None:
-            from ramps.runtime import worker
+        from ramps.runtime import worker
 
+        if on_progress is None:
             on_progress = worker.report_progress
+        if on_checkpoint is None:
+            on_checkpoint = worker.save_checkpoint
+            resume = worker.resume_state() if resume is None else resume
         from ramps.runtime.registry import MAX_RESULT_BYTES
 
         env = dict(os.environ)
         env["RAMPS_PROGRAM"] = self.name
+        env.pop("RAMPS_RESUME", None)
+        resume_file = None
+        if resume is not None:
+            try:
+                text = json.dumps(resume, allow_nan=False)
+            except (TypeError, ValueError) as exc:
+                raise CommandFailed(f"{self.name}: its saved state cannot be passed back as JSON: {exc}") from None
+            fd, resume_file = tempfile.mkstemp(prefix=f"ramps-resume-{os.getpid()}-", suffix=".json")
+            with os.fdopen(fd, "w") as f:
+                f.write(text)
+            env["RAMPS_RESUME"] = resume_file
+        try:
+            return self._run(stdin, env, on_progress, on_checkpoint, MAX_RESULT_BYTES)
+        finally:
+            if resume_file:
+                try:
+                    os.unlink(resume_file)
+                except OSError:
+                    pass
+
+    def _run(self, stdin: bytes, env: dict[str, str], on_progress: Callable[[float, str], None],
+             on_checkpoint: Callable[[Any], Any], max_result: int) -> Any:
         guard_r, guard_w = os.pipe()
         try:
             proc = subprocess.Popen([self.path, *self.args], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
@@ -151,8 +191,9 @@ class CommandProgram:
         os.close(guard_r)
         deadline = time.monotonic() + self.timeout
         try:
-            out, err_tail, timed_out, too_big = _communicate(proc, stdin, deadline, MAX_RESULT_BYTES, on_progress)
-            if not (timed_out or too_big):
+            out, err_tail, timed_out, too_big, bad_checkpoint = _communicate(
+                proc, stdin, deadline, max_result, on_progress, on_checkpoint)
+            if not (timed_out or too_big or bad_checkpoint):
                 try:  # it may close its output and go on running
                     proc.wait(timeout=max(0.0, deadline - time.monotonic()))
                 except subprocess.TimeoutExpired:
@@ -171,11 +212,14 @@ class CommandProgram:
                 except ChildProcessError:
                     pass
         tail = err_tail.decode("utf-8", "replace")[-STDERR_TAIL:]
+        if bad_checkpoint:
+            raise CommandFailed(f"{self.name} wrote a checkpoint ramps cannot keep ({bad_checkpoint}) and was stopped"
+                                + _stderr(tail))
         if timed_out:
             raise CommandFailed(f"{self.name} did not finish within its time limit of {self.timeout:g} s and was "
                                 f"killed" + _stderr(tail))
         if too_big:
-            raise CommandFailed(f"{self.name} wrote more than {MAX_RESULT_BYTES} bytes on stdout (results must fit "
+            raise CommandFailed(f"{self.name} wrote more than {max_result} bytes on stdout (results must fit "
                                 "one message: write a file and return its path)")
         code = proc.returncode
         if code != 0:
@@ -236,10 +280,31 @@ def _start_guardian(pgid: int, read_fd: int, write_fd: int) -> int:
         os._exit(0)
 
 
+def parse_checkpoint(line: bytes) -> Any:
+    """``RAMPS_CHECKPOINT {"i": 3}`` -> {"i": 3}; ``NotACheckpoint`` if the
+    line is no checkpoint; ValueError if it is one that is not JSON."""
+    if not line.startswith(CHECKPOINT_PREFIX + b" "):
+        return NotACheckpoint
+    try:
+        return json.loads(line[len(CHECKPOINT_PREFIX) + 1:])
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ValueError(f"not one JSON value: {exc}") from None
+
+
+class NotACheckpoint:
+    """What ``parse_checkpoint`` returns for any other line."""
+
+
+#: the longest checkpoint line read (JSON of MAX_CHECKPOINT_BYTES of state, escaped)
+_MAX_CHECKPOINT_LINE = 6 * 256 * 1024
+
+
 def _communicate(proc: subprocess.Popen, stdin: bytes, deadline: float, max_out: int,
-                 on_progress: Callable[[float, str], None]) -> tuple[bytes, bytes, bool, bool]:
-    """Feed stdin, collect stdout and stderr (progress lines parsed out,
-    stderr kept as a bounded tail) until both close or the time is up."""
+                 on_progress: Callable[[float, str], None],
+                 on_checkpoint: Callable[[Any], Any]) -> tuple[bytes, bytes, bool, bool, str]:
+    """Feed stdin, collect stdout and stderr (progress and checkpoint lines
+    parsed out, stderr kept as a bounded tail) until both close, the time is
+    up or a checkpoint cannot be kept (its reason is the last item)."""
     sel = selectors.DefaultSelector()
     out = bytearray()
     err_tail = bytearray()
@@ -283,23 +348,36 @@ def _communicate(proc: subprocess.Popen, stdin: bytes, deadline: float, max_out:
                     out += chunk
                     if len(out) > max_out:
                         too_big = True
-                        return bytes(out), bytes(err_tail), False, True
+                        return bytes(out), bytes(err_tail), False, True, ""
                     continue
                 line += chunk
                 while True:
                     nl = line.find(b"\n")
                     if nl < 0:
-                        if len(line) > 4096:  # a very long line without a newline: no progress in it
+                        # a very long line without a newline: no progress in it
+                        # (a checkpoint may be long, up to its own limit)
+                        limit = _MAX_CHECKPOINT_LINE if line.startswith(CHECKPOINT_PREFIX) else 4096
+                        if len(line) > limit:
+                            if limit == _MAX_CHECKPOINT_LINE:
+                                return bytes(out), bytes(err_tail), False, False, "a line over 1.5 MiB"
                             err_tail += line
                             line.clear()
                         break
                     one = bytes(line[:nl + 1])
                     del line[:nl + 1]
-                    prog = parse_progress(one.strip())
+                    stripped = one.strip()
+                    prog = parse_progress(stripped)
                     if prog is not None:
                         on_progress(*prog)
-                    else:
-                        err_tail += one
+                        continue
+                    try:
+                        state = parse_checkpoint(stripped)
+                        if state is not NotACheckpoint:
+                            on_checkpoint(state)
+                            continue
+                    except (ValueError, TypeError) as exc:
+                        return bytes(out), bytes(err_tail), False, False, str(exc)[:500]
+                    err_tail += one
                 if len(err_tail) > 4 * STDERR_TAIL:
                     del err_tail[:-STDERR_TAIL * 2]
     finally:
@@ -310,4 +388,4 @@ def _communicate(proc: subprocess.Popen, stdin: bytes, deadline: float, max_out:
             except OSError:
                 pass
     err_tail += line
-    return bytes(out), bytes(err_tail), timed_out, too_big
+    return bytes(out), bytes(err_tail), timed_out, too_big, ""
