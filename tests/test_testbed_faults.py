@@ -52,7 +52,7 @@ def test_origin_cut_off_briefly_delivers_exactly_once():
         ns = f"--net=/run/netns/{tb.namespace('r1')}"
         # round robin from r1: the first program runs on r1, the second on r2
         client = subprocess.Popen(["nsenter", ns, sys.executable, NSCLIENT, tb.team, tb.endpoint("r1"), "burn",
-                                   json.dumps({"units": 3.0}), "2", "round_robin"], stdout=subprocess.PIPE, text=True)
+                                   json.dumps({"units": 1.5}), "2", "round_robin"], stdout=subprocess.PIPE, text=True)
         try:
             assert wait_until(lambda: remote_program(tb) is not None, 30), trace(tb)
             pid, host = remote_program(tb)
@@ -69,7 +69,7 @@ def test_origin_cut_off_briefly_delivers_exactly_once():
         lines = [json.loads(x) for x in out.splitlines() if x.strip()]
         results = [x for x in lines if "ok" in x]
         assert len(results) == 2 and all(r["ok"] for r in results), lines
-        assert all(r["value"]["iterations"] == 48_000_000 for r in results)
+        assert all(r["value"]["iterations"] == 24_000_000 for r in results)
         delivered = [e for e in trace(tb) if e["what"] == "delivered"]
         assert sorted(e["program_id"] for e in delivered) == sorted({e["program_id"] for e in delivered})
         assert len(delivered) == 2
@@ -120,7 +120,9 @@ def test_teammates_keep_hearing_each_other_when_one_drops_off(monkeypatch):
     window = 9.0
     with Testbed(4, cores=1) as tb, tb.client("r1", timeout=30.0) as team:
         time.sleep(SETTLE)
-        futures = [team.options(work=2.0).submit("burn", units=2.0) for _ in range(12)]
+        # two programs a robot, each still running on r4 when its link is cut
+        # (1 unit: about 3.5 s alone on an emulated core of 0.5 host cores)
+        futures = [team.options(work=1.0).submit("burn", units=1.0) for _ in range(8)]
         assert wait_until(lambda: any(e["what"] == "accepted" and e["other"] == "r4" for e in trace(tb)), 20)
         time.sleep(1.0)
         t_cut = time.monotonic()
@@ -137,7 +139,7 @@ def test_teammates_keep_hearing_each_other_when_one_drops_off(monkeypatch):
                 gaps[f"{snd}->{rcv}"] = round(max(b - a for a, b in zip(edges, edges[1:])), 2)
         lost = {e["other"] for e in trace(tb) if e["what"] == "peer_lost"}
         written_off = {e["other"] for e in trace(tb) if e["what"] == "blacklisted"}
-        assert all(f.result(timeout=240)["iterations"] == 32_000_000 for f in futures)
+        assert all(f.result(timeout=240)["iterations"] == 16_000_000 for f in futures)
         tbid = tb.tb
     assert lost == {"r4"}, lost  # r1 did notice r4 go, and no one else
     assert written_off == {"r4"}, written_off
@@ -165,8 +167,11 @@ def test_failure_experiment_plan_on_the_testbed():
     from ramps.experiments.faults import plans
     from ramps.testbed.experiments import run_plan
 
-    plan = plans("simultaneous", "mixed", first=8.0, gap=6.0)[1]  # R5 cut and R4 crashed together
-    run = run_plan(plan, work=1.2)
+    # R5 cut and R4 crashed together 4 s in; programs of about 14 s (0.8 units on
+    # an emulated core of 0.1 host cores) still run on the survivors at the
+    # "after" snapshot (9 s), the displaced ones again by then
+    plan = plans("simultaneous", "mixed", first=4.0, gap=6.0)[1]
+    run = run_plan(plan, work=0.8)
     assert run.completed == 15 and run.lost == 0 and run.duplicated == 0
     assert set(run.distributions) == {"before", "after"}
     # where the origin had its programs (on a loaded CI machine some may still be on their way)
