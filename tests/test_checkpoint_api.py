@@ -54,3 +54,36 @@ def test_a_worker_sends_checkpoints_and_a_restart_resumes_from_one():
         assert done[("p", 2)]["first"] == 2
     finally:
         pool.stop()
+
+
+@pytest.mark.slow
+def test_a_burn_resumed_from_its_checkpoint_ends_with_the_uninterrupted_checksum():
+    from ramps.programs.burn import burn
+
+    done: dict = {}
+    saved: list = []
+    ev = threading.Event()
+
+    def finished(key, ok, value, error, retryable):
+        done[key] = msgspec.msgpack.decode(value) if ok else error
+        ev.set()
+
+    pool = WorkerPool(1, {"burn": "ramps.programs.burn:burn"}, finished,
+                      on_checkpoint=lambda key, state, fraction: saved.append((state, fraction)))
+    pool.start()
+    try:
+        args = msgspec.msgpack.encode({"units": 0.05, "checkpoint_every": 0.01})
+        pool.run(("b", 1), "burn", args)
+        assert ev.wait(30), "no result"
+        whole = done[("b", 1)]
+        assert whole["checksum"] == burn(units=0.05)["checksum"] and whole["resumed_at"] == 0
+        assert saved, "a burn of 5 checkpoints sent none"
+        state, fraction = saved[-1]
+        place = msgspec.msgpack.decode(state)
+        assert 0 < place["done"] < whole["iterations"] and fraction == pytest.approx(place["done"] / whole["iterations"])
+        ev.clear()
+        pool.run(("b", 2), "burn", args, state)  # a move or a restart: the worker is handed the saved place
+        assert ev.wait(30), "no result"
+        assert done[("b", 2)]["resumed_at"] == place["done"] and done[("b", 2)]["checksum"] == whole["checksum"]
+    finally:
+        pool.stop()

@@ -10,7 +10,7 @@ import msgspec
 import pytest
 
 from ramps.programs import burn as burn_mod
-from ramps.programs.burn import ITERATIONS_PER_UNIT, burn, echo, noop
+from ramps.programs.burn import ITERATIONS_PER_UNIT, MAX_UNITS, burn, echo, noop
 from ramps.programs.route import (
     ROUTE_SIZES,
     Order,
@@ -237,3 +237,12 @@ def test_noop_and_echo() -> None:
     assert noop(a=1, b=[2]) == {}
     assert echo() == {}
     assert echo(a=1, b=[2, 3], c={"d": None}) == {"a": 1, "b": [2, 3], "c": {"d": None}}
+
+
+def test_a_checkpointing_burn_gives_the_same_checksum_and_checks_its_argument() -> None:
+    plain = burn(units=0.003)
+    chunked = burn(units=0.003, checkpoint_every=0.001)  # outside a worker: checkpoints do nothing
+    assert chunked["checksum"] == plain["checksum"] and chunked["resumed_at"] == 0
+    for bad in (-1, float("nan"), "1", True, MAX_UNITS * 2):
+        with pytest.raises(ValueError, match="checkpoint_every"):
+            burn(units=0.001, checkpoint_every=bad)  # type: ignore[arg-type]

@@ -14,6 +14,11 @@ Rules:
     * The checksum depends on every iteration, so the loop cannot be skipped,
       and it is the same for the same number of iterations on any machine.
     * Results are JSON-friendly dicts; bad arguments raise ``ValueError``.
+    * ``checkpoint_every`` (units, 0: never) makes the burn report its
+      progress and save its place (``ramps.checkpoint``) after every that
+      many units; moved or restarted, it resumes from the last saved place
+      (``ramps.resume()``), and the checksum is the same as an uninterrupted
+      burn's, so a test can tell a resumed burn from a wrong one.
 """
 
 from __future__ import annotations
@@ -34,26 +39,49 @@ _C = 12_345
 _MASK = 0xFFFFFFFF
 
 
-def _spin(iterations: int) -> int:
+_SEED = 0x2545F491
+
+
+def _spin(iterations: int, x: int = _SEED) -> int:
     a, c, mask = _A, _C, _MASK  # locals: the loop cost does not depend on global lookups
-    x = 0x2545F491
     for _ in range(iterations):
         x = (x * a + c) & mask
     return x
 
 
-def burn(seconds: float = 1.0, *, units: float | None = None) -> dict[str, Any]:
-    """Spin the CPU for ``units`` work units (default: ``seconds``); returns units, iterations, checksum."""
+def burn(seconds: float = 1.0, *, units: float | None = None, checkpoint_every: float = 0.0) -> dict[str, Any]:
+    """Spin the CPU for ``units`` work units (default: ``seconds``); returns units, iterations, checksum
+    (and ``resumed_at``, the iterations a resumed burn found done, when ``checkpoint_every`` > 0)."""
     amount = seconds if units is None else units
     name = "seconds" if units is None else "units"
-    if isinstance(amount, bool) or not isinstance(amount, (int, float)):
-        raise ValueError(f"{name} must be a number, got {amount!r}")
-    if not math.isfinite(amount) or amount < 0:
-        raise ValueError(f"{name} must be a finite number >= 0, got {amount!r}")
-    if amount > MAX_UNITS:
-        raise ValueError(f"{name} must be at most {MAX_UNITS:g}, got {amount!r}")
+    for label, value in ((name, amount), ("checkpoint_every", checkpoint_every)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"{label} must be a number, got {value!r}")
+        if not math.isfinite(value) or value < 0:
+            raise ValueError(f"{label} must be a finite number >= 0, got {value!r}")
+        if value > MAX_UNITS:
+            raise ValueError(f"{label} must be at most {MAX_UNITS:g}, got {value!r}")
     iterations = round(amount * ITERATIONS_PER_UNIT)
-    return {"units": float(amount), "iterations": iterations, "checksum": _spin(iterations)}
+    if not checkpoint_every:
+        return {"units": float(amount), "iterations": iterations, "checksum": _spin(iterations)}
+    import ramps
+
+    done, x = 0, _SEED
+    saved = ramps.resume()
+    if isinstance(saved, dict) and saved.get("iterations") == iterations:  # our own place, not another burn's
+        done, x = int(saved["done"]), int(saved["x"])
+        if not (0 <= done <= iterations and 0 <= x <= _MASK):
+            raise ValueError(f"a checkpoint outside this burn: {saved!r}")
+    resumed_at = done
+    step = max(1, round(checkpoint_every * ITERATIONS_PER_UNIT))
+    while done < iterations:
+        n = min(step, iterations - done)
+        x = _spin(n, x)
+        done += n
+        if done < iterations:
+            ramps.progress(done / iterations)
+            ramps.checkpoint({"iterations": iterations, "done": done, "x": x})
+    return {"units": float(amount), "iterations": iterations, "checksum": x, "resumed_at": resumed_at}
 
 
 def noop(**kwargs: Any) -> dict[str, Any]:
