@@ -9,7 +9,7 @@ import random
 import pytest
 
 from ramps.experiments.metrics import Machine, finish_time
-from ramps.experiments.optimum import (exact_optimum, finish, improve, makespan_of, simple_bound, solve,
+from ramps.experiments.optimum import (exact_optimum, finish, improve, makespan_of, online_limit, simple_bound, solve,
                                        window_bound, window_end)
 from ramps.experiments.sweep import generate, lower_bound, machines, oracle, oracle_schedule, releases
 
@@ -177,3 +177,34 @@ def test_solve_says_what_is_wrong_with_its_input():
         solve(team, [0.0, 1.0], W, [0, 2])
     with pytest.raises(ValueError, match="work"):
         solve(team, [0.0], 0.0, [0])
+
+
+def _brute_online(team, rel) -> float:
+    """min over placements of the worst ratio over prefixes ending at distinct release times."""
+    cuts = [k for k in range(1, len(rel) + 1) if k == len(rel) or rel[k] > rel[k - 1]]
+    opt = {k: _brute_force(team, rel[:k]) for k in cuts}
+    return min(max(makespan_of(team, rel[:k], W, a[:k]) / opt[k] for k in cuts)
+               for a in itertools.product(range(len(team)), repeat=len(rel)))
+
+
+def test_the_online_limit_is_what_brute_force_finds():
+    rng = random.Random(5)
+    for _ in range(25):
+        team = [_random_machine(rng) for _ in range(rng.randint(2, 3))]
+        rel = sorted(rng.choice((0.0, rng.uniform(0, 10))) for _ in range(rng.randint(1, 6)))
+        found = online_limit(team, rel, W)
+        assert found is not None and found.ratio == pytest.approx(_brute_online(team, rel))
+        assert found.ratio >= 1.0 - 1e-9 and len(found.assignment) == len(rel)
+
+
+def test_no_online_placement_is_within_five_percent_of_mixed_staggered_0_and_its_prefixes():
+    # the one proven sweep scenario where ramps is above 5% of the optimum (1.051): any
+    # placement that does not know the releases to come is at least 1.051 above on one of
+    # its prefixes, ramps and the omniscient oracle included
+    sc = generate("mixed", "staggered", 0, 0)
+    found = online_limit(machines(sc), releases(sc), W)
+    assert found is not None and found.ratio == pytest.approx(1.0511, abs=1e-4)
+    assert found.prefix_optima[-1] == pytest.approx(55.854, abs=1e-3)
+    assert online_limit(machines(sc), releases(sc), W, max_nodes=5) is None  # too big for the search: unknown
+    burst = generate("idle", "burst", 0, 0)  # a burst of identical robots: online is optimal
+    assert online_limit(machines(burst), releases(burst), W).ratio == pytest.approx(1.0)

@@ -52,6 +52,7 @@ not time, bound it, so a sweep gives the same answer on any machine.
 from __future__ import annotations
 
 import heapq
+import math
 import time as _wallclock
 from typing import Sequence
 
@@ -390,3 +391,79 @@ def solve(team: Sequence[Machine], releases: Sequence[float], work: float, assig
         return done(best, best if best > lower * (1 + tolerance) else lower, True, nodes, "search")
     how = "time" if _wallclock.perf_counter() > deadline else "nodes"
     return done(best, lower, False, nodes, how)
+
+
+class OnlineLimit(msgspec.Struct, kw_only=True, frozen=True):
+    """What no placement that decides each program when it is released can beat."""
+
+    #: the least, over every way of placing the programs in release order, of the worst
+    #: ratio to the optimum over the scenario's prefixes (below)
+    ratio: float
+    #: the placement that reaches it (program k in release order on robot ``assignment[k]``)
+    assignment: list[int]
+    #: the optimum of each prefix: the programs released up to each distinct release time
+    prefix_optima: list[float]
+    nodes: int
+
+
+def online_limit(team: Sequence[Machine], releases: Sequence[float], work: float,
+                 max_nodes: int = 1_000_000) -> OnlineLimit | None:
+    """The best ratio to the optimum that any online placement can guarantee on this
+    scenario and its prefixes, or None where the search is too big (``max_nodes``).
+
+    A placement that decides each program at its release, knowing the past but not the
+    future, places the first k programs the same way whether more come later or not. So
+    it meets every *prefix* of the scenario (the programs released up to some time, the
+    rest never) with the same first decisions, and on one of them it is at least
+    ``ratio`` above that prefix's optimum: the minimum, over all placements, of their
+    worst prefix ratio. A scenario where it exceeds 1.05 is one where no online
+    placement, however informed about the present, is within 5% of the (clairvoyant)
+    optimum on each of the scenario and its prefixes. Exhaustive over placements
+    (with cuts), so for small scenarios only."""
+    rel = sorted(releases)
+    n = len(rel)
+    if n == 0:
+        return OnlineLimit(ratio=1.0, assignment=[], prefix_optima=[], nodes=0)
+    # the prefixes end where a release time is followed by a later one (programs released
+    # at the same moment are decided knowing of each other)
+    cuts = [k for k in range(1, n + 1) if k == n or rel[k] > rel[k - 1] + _EPS]
+    optima = []
+    for k in cuts:
+        found = solve(team, rel[:k], work, [0] * k, time_limit=math.inf, max_nodes=max_nodes)
+        if not found.proven:
+            return None
+        optima.append(found.best)
+    opt_at = {k: o for k, o in zip(cuts, optima)}
+    best = [math.inf, list[int]()]
+    nodes = 0
+    placed: list[int] = []
+
+    def dfs(worst: float) -> bool:
+        nonlocal nodes
+        k = len(placed)
+        if k in opt_at:
+            worst = max(worst, makespan_of(team, rel[:k], work, placed) / opt_at[k])
+        if worst >= best[0] - _EPS:
+            return True
+        if k == n:
+            best[0], best[1] = worst, list(placed)
+            return True
+        seen = set()
+        for i, m in enumerate(team):
+            key = (m, tuple(j for j, a in enumerate(placed) if a == i))
+            if key in seen:  # the same robot with the same programs: tried once
+                continue
+            seen.add(key)
+            nodes += 1
+            if nodes > max_nodes:
+                return False
+            placed.append(i)
+            ok = dfs(worst)
+            placed.pop()
+            if not ok:
+                return False
+        return True
+
+    if not dfs(1.0):
+        return None
+    return OnlineLimit(ratio=best[0], assignment=best[1], prefix_optima=optima, nodes=nodes)
