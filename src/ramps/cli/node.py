@@ -205,6 +205,10 @@ def status(
     """Show the team: robots, their load, running programs, blacklisted peers, the links
     each robot measured to its teammates and the work it learned of its programs.
 
+    "moved" counts the robot's own programs that it relocated while they ran
+    (a teammate became busy, or a better one appeared), and the moves it
+    abandoned because the new host refused or failed.
+
     Each row is what that robot last published. "sees" is how many teammates
     the robot itself could place a program on (fresh report, not written
     off): a robot that sees fewer than the rest is cut off from part of the
@@ -224,13 +228,15 @@ def status(
         return
     table = Table(title=f"team {st.team}", title_justify="left")
     for name in ("robot", "alive", "cores", "speed", "cpu busy", "per core %", "run queue", "load avg", "mem free",
-                 "programs", "done", "dropped msgs", "sees", "blacklists", "report age"):
+                 "programs", "done", "moved", "dropped msgs", "sees", "blacklists", "report age"):
         table.add_column(name, justify="left" if name in ("robot", "blacklists", "per core %") else "right")
     for r in st.robots:
         table.add_row(r.robot, "yes" if r.alive else "[red]no[/]", str(r.cores), f"{r.speed:g}", f"{r.cpu_busy:.2f}",
                       " ".join(f"{100 * c:.0f}" for c in r.cpu_per_core[:16]), f"{r.runnable:.1f}",
                       f"{r.load_avg:.2f}", f"{r.mem_free / 2**30:.1f} GiB", str(r.ramps_running),
-                      str(r.finished_total), str(r.bad_messages), "-" if r.sees is None else str(r.sees),
+                      str(r.finished_total),
+                      str(r.moves) + (f" ({r.moves_aborted} abandoned)" if r.moves_aborted else ""),
+                      str(r.bad_messages), "-" if r.sees is None else str(r.sees),
                       ", ".join(r.blacklisted),
                       "-" if r.report_age is None else f"{r.report_age:.1f} s")
     out.print(table)

@@ -166,6 +166,10 @@ class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, ta
     #: and learned of its programs' work (at most MAX_LISTED each), for ``ramps status``
     links: Annotated[list["LinkSeen"], Meta(max_length=MAX_LISTED)] = []
     learned: Annotated[list["LearnedWork"], Meta(max_length=MAX_LISTED)] = []
+    #: programs of this robot moved while running since it started, and moves
+    #: abandoned (the new host refused or failed), for ``ramps status``
+    moves: Count = 0
+    moves_aborted: Count = 0
 
 
 class LinkSeen(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):

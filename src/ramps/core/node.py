@@ -334,7 +334,8 @@ class Node:
             robot=self.robot, incarnation=self.incarnation, seq=self._report_seq, cores=self.cores,
             speed=self.speed, program_weight=self.program_weight, ramps_running=len(self.executor.running),
             accepted_total=self.executor.accepted_total, finished_total=self.executor.finished_total,
-            remaining=self.executor.remaining(self._now), **measured,
+            remaining=self.executor.remaining(self._now), moves=self.origin.moves,
+            moves_aborted=self.origin.moves_aborted, **measured,
         )
 
     def statistics(self) -> NodeStatistics:

@@ -45,6 +45,9 @@ class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
     #: and the work it learned of the programs it placed [program, work units]
     links: list[LinkSeen] = []
     learned: list[LearnedWork] = []
+    #: the robot's programs moved while running since its node started, and moves abandoned
+    moves: int = 0
+    moves_aborted: int = 0
 
 
 class TeamStatus(msgspec.Struct, frozen=True, kw_only=True):
