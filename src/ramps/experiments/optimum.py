@@ -434,19 +434,19 @@ def online_limit(team: Sequence[Machine], releases: Sequence[float], work: float
             return None
         optima.append(found.best)
     opt_at = {k: o for k, o in zip(cuts, optima)}
-    best = [math.inf, list[int]()]
+    best_ratio, best_assignment = math.inf, list[int]()
     nodes = 0
     placed: list[int] = []
 
     def dfs(worst: float) -> bool:
-        nonlocal nodes
+        nonlocal nodes, best_ratio, best_assignment
         k = len(placed)
         if k in opt_at:
             worst = max(worst, makespan_of(team, rel[:k], work, placed) / opt_at[k])
-        if worst >= best[0] - _EPS:
+        if worst >= best_ratio - _EPS:
             return True
         if k == n:
-            best[0], best[1] = worst, list(placed)
+            best_ratio, best_assignment = worst, list(placed)
             return True
         seen = set()
         for i, m in enumerate(team):
@@ -466,4 +466,4 @@ def online_limit(team: Sequence[Machine], releases: Sequence[float], work: float
 
     if not dfs(1.0):
         return None
-    return OnlineLimit(ratio=best[0], assignment=best[1], prefix_optima=optima, nodes=nodes)
+    return OnlineLimit(ratio=best_ratio, assignment=best_assignment, prefix_optima=optima, nodes=nodes)
