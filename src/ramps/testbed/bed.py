@@ -70,6 +70,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -106,7 +107,7 @@ class Testbed(Faults):
                  cores: int | None = None, speed: float | None = None, programs: list[str] | None = None,
                  lease_ms: int | None = None, policy: str | None = None, loaded: dict[str, int] | None = None,
                  discovery: str = "both", caps: bool = True, python: str | None = None,
-                 state_dir: Path | None = None) -> None:
+                 state_dir: Path | None = None, config: Mapping[str, Any] | None = None) -> None:
         net.need_root()
         self.mode = cgroup_mode()
         if self.mode is None:
@@ -128,6 +129,9 @@ class Testbed(Faults):
         self.team_name = team
         self.cores, self.speed, self.policy, self.lease_ms = cores, speed, policy, lease_ms
         self.programs = list(programs or [])
+        #: every node's config file, as a dict: node settings, and RampsConfig fields under "core",
+        #: e.g. {"worker_nice": 0, "core": {"relocate": False}}
+        self.config = _check_config(config or {})
         self.discovery = discovery
         #: per-program CPU caps (ramps.testbed.caps; cgroup v1 only for now)
         self.caps = caps and self.mode == "v1"
@@ -171,6 +175,7 @@ class Testbed(Faults):
                     "python", "mode", "loaded"):
             setattr(self, key, st[key])
         self.caps, self.caps_pid = st.get("caps", False), st.get("caps_pid", [None, None])
+        self.config = st.get("config", {})
         self.team_name = st["team"]
         self.log_dir = Path(st["log_dir"]) if st.get("log_dir") else None
         self.state_dir = d
@@ -264,9 +269,21 @@ class Testbed(Faults):
                 cmd += [flag, str(value)]
         for p in self.programs:
             cmd += ["--program", p]
+        if self.config and self.log_dir:
+            cmd += ["--config", str(self._config_file())]
         if self.log_dir:  # every decision, for experiments and post-mortems: <log_dir>/<robot>.trace.jsonl
             cmd += ["--trace", str(self.log_dir / f"{robot}.trace.jsonl")]
         return cmd
+
+    def _config_file(self) -> Path:
+        """``config`` as every node's config file, in the log directory."""
+        assert self.log_dir is not None
+        path = self.log_dir / "node-config.toml"
+        if not path.exists():
+            top = [f"{k} = {json.dumps(v)}" for k, v in sorted(self.config.items()) if k != "core"]
+            core = [f"{k} = {json.dumps(v)}" for k, v in sorted(self.config.get("core", {}).items())]
+            path.write_text("\n".join(top + (["[core]"] + core if core else [])) + "\n")
+        return path
 
     def _spawn(self, robot: str, argv: list[str], log: Path | None) -> tuple[int, int | None]:
         rb = self.robots[robot]
@@ -420,7 +437,7 @@ class Testbed(Faults):
     def _save(self) -> None:
         st = dict(tb=self.tb, x=self.x, team=self.team, quota=self.quota, cores=self.cores, speed=self.speed,
                   policy=self.policy, lease_ms=self.lease_ms, programs=self.programs, discovery=self.discovery,
-                  python=self.python, mode=self.mode, loaded=self.loaded, caps=self.caps, caps_pid=self.caps_pid,
+                  python=self.python, mode=self.mode, loaded=self.loaded, caps=self.caps, caps_pid=self.caps_pid, config=self.config,
                   log_dir=str(self.log_dir) if self.log_dir else None, created_by=os.getpid(),
                   robots=[self.robots[r] for r in self.names if r in self.robots])
         tmp = self.state_file.with_suffix(".tmp")
@@ -510,6 +527,24 @@ class Testbed(Faults):
 
     def __exit__(self, *exc) -> None:
         self.down()
+
+
+def _check_config(config: Mapping[str, Any]) -> dict[str, Any]:
+    """Node settings for every robot of a testbed: known names, scalar values (a typo is an
+    error here, not a node that will not start)."""
+    from ramps.core.config import RampsConfig
+    from ramps.runtime.settings import NodeSettings
+
+    core = config.get("core", {})
+    bad = sorted(set(config) - set(NodeSettings.__struct_fields__) - {"core"})
+    bad += sorted(f"core.{k}" for k in set(core) - set(RampsConfig.__struct_fields__))
+    if bad:
+        raise ValueError(f"unknown node settings {', '.join(bad)} (see ramps.runtime.settings.NodeSettings "
+                         "and ramps.core.config.RampsConfig)")
+    for k, v in [*((k, v) for k, v in config.items() if k != "core"), *core.items()]:
+        if not isinstance(v, (bool, int, float, str)):
+            raise ValueError(f"node setting {k} must be a number, a string or a boolean, got {v!r}")
+    return {**{k: v for k, v in config.items() if k != "core"}, **({"core": dict(core)} if core else {})}
 
 
 def watch_team(testbed: "Testbed") -> "TeamWatcher":
