@@ -4,11 +4,24 @@ How this works: every ``probe_period`` seconds a node that places programs
 sends each teammate it could place on a small ``LinkProbe`` carrying its own
 clock; the teammate answers at once with a ``LinkProbeReply`` echoing it, so
 the round trip needs no shared clock. Every ``PADDED_EVERY``-th probe to a
-robot carries ``PADDED_BYTES`` of padding: the extra
-time it takes over the link's latency gives the bandwidth (so the first
-probe to a robot is a plain one, the second padded). Each link keeps an
-exponentially weighted average of both; a link not measured yet costs the
-configured ``NetworkEstimate``. Pure state: ``now`` comes in, no I/O.
+robot carries ``PADDED_BYTES`` of padding (the first probe to a robot is a
+plain one, the second padded): the extra time it takes over a plain one's
+gives the bandwidth. A link not measured yet costs the configured
+``NetworkEstimate``.
+
+The figures are the *least* round trips among the latest few: the latency
+is half the least of the last ``PLAIN_WINDOW`` plain round trips, the
+bandwidth the padding over the least of the last ``PADDED_WINDOW`` padded
+round trips less that least plain one. Delays on top of a link's own time
+only ever add (a node busy with other work, a robot whose CPU quota is spent
+for the rest of its 100 ms period, a queue behind a big transfer), so the
+least of a few samples is the link and an average of them is the noise:
+averaged, full-speed links on the testbed read 0.15-2.2 MB/s from one late
+probe in a few. A link whose padding adds less than ``MIN_TRANSFER`` is
+faster than a probe can tell: it is given ``PADDED_BYTES / MIN_TRANSFER``
+(164 MB/s), a figure that says "fast" without claiming more. A link that
+slows down is seen once its faster samples leave the window (after
+``PADDED_WINDOW`` padded probes). Pure state: ``now`` comes in, no I/O.
 
 The estimate is of the path as a whole (both robots' radios, any switch, and
 the receiving node's reaction time), which is what a program's parameters
@@ -17,6 +30,8 @@ and result also cross.
 
 from __future__ import annotations
 
+from collections import deque
+
 import msgspec
 
 from ramps.core.cost import NetworkEstimate
@@ -24,10 +39,11 @@ from ramps.core.messages import LinkProbe, LinkProbeReply
 
 #: padding of a bandwidth probe, and how often a link gets one
 PADDED_BYTES = 16 * 1024
-PADDED_EVERY = 6
-#: weight of a new sample in the running averages
-ALPHA = 0.3
-#: a sample below this many seconds of transfer says nothing about bandwidth
+PADDED_EVERY = 3
+#: how many of the latest plain and padded round trips the least is taken of
+PLAIN_WINDOW = 5
+PADDED_WINDOW = 3
+#: padding that adds less than this many seconds: a link faster than a probe can tell
 MIN_TRANSFER = 1e-4
 
 
@@ -38,40 +54,66 @@ class LinkEstimate(msgspec.Struct, kw_only=True):
     replies: int = 0
 
 
+class _Link:
+    __slots__ = ("probes", "replies", "plain", "padded", "size", "waiting")
+
+    def __init__(self) -> None:
+        self.probes = self.replies = self.size = 0
+        #: probes sent and not answered yet: send time -> padding (the latest few)
+        self.waiting: dict[float, int] = {}
+        self.plain: deque[float] = deque(maxlen=PLAIN_WINDOW)
+        self.padded: deque[float] = deque(maxlen=PADDED_WINDOW)
+
+    def latency(self) -> float | None:
+        return min(self.plain) / 2 if self.plain else None
+
+    def bandwidth(self) -> float | None:
+        if not self.plain or not self.padded:
+            return None  # bandwidth is what the padding adds over a plain round trip
+        return self.size / max(MIN_TRANSFER, min(self.padded) - min(self.plain))
+
+
 class Links:
     def __init__(self, default: NetworkEstimate) -> None:
         self.default = default
-        self._links: dict[str, LinkEstimate] = {}
+        self._links: dict[str, _Link] = {}
 
     def probe(self, robot: str, now: float) -> LinkProbe:
-        link = self._links.setdefault(robot, LinkEstimate())
+        link = self._links.get(robot)
+        if link is None:
+            link = self._links[robot] = _Link()
         padded = link.probes % PADDED_EVERY == 1  # the first probe measures latency
         link.probes += 1
+        link.waiting[now] = PADDED_BYTES if padded else 0
+        while len(link.waiting) > 2 * PADDED_EVERY:  # unanswered for long: lost
+            del link.waiting[next(iter(link.waiting))]
         return LinkProbe(sent_at=now, padding=b"\0" * PADDED_BYTES if padded else b"")
 
     def on_reply(self, robot: str, msg: LinkProbeReply, now: float) -> None:
         link = self._links.get(robot)
+        if link is None or msg.sent_at not in link.waiting:
+            return  # a reply to nothing we sent (or answered already)
+        size = link.waiting.pop(msg.sent_at)
         rtt = now - msg.sent_at
-        if link is None or not 0.0 <= rtt < 60.0:
-            return  # a reply to nothing we sent, or from the future
-        link.replies += 1
-        if msg.size == 0:
-            link.latency = rtt / 2 if link.latency is None else (1 - ALPHA) * link.latency + ALPHA * rtt / 2
+        if not 0.0 <= rtt < 60.0:
             return
-        if link.latency is None:
-            return  # bandwidth is what the padding adds over a latency we know
-        transfer = rtt - 2 * link.latency
-        if transfer >= MIN_TRANSFER:
-            bw = msg.size / transfer
-            link.bandwidth = bw if link.bandwidth is None else (1 - ALPHA) * link.bandwidth + ALPHA * bw
+        link.replies += 1
+        if size == 0:
+            link.plain.append(rtt)
+        else:
+            link.padded.append(rtt)
+            link.size = size
 
     def estimate(self, robot: str) -> NetworkEstimate:
         """What a message to ``robot`` costs, measured where it was."""
         link = self._links.get(robot)
-        if link is None or (link.latency is None and link.bandwidth is None):
+        latency = link.latency() if link is not None else None
+        if link is None or latency is None:
             return self.default
-        return NetworkEstimate(latency=self.default.latency if link.latency is None else link.latency,
-                               bandwidth=self.default.bandwidth if link.bandwidth is None else link.bandwidth)
+        bandwidth = link.bandwidth()
+        return NetworkEstimate(latency=latency, bandwidth=self.default.bandwidth if bandwidth is None else bandwidth)
 
     def measured(self) -> dict[str, LinkEstimate]:
-        return {r: msgspec.structs.replace(l) for r, l in self._links.items() if l.replies}
+        return {r: LinkEstimate(latency=link.latency(), bandwidth=link.bandwidth(), probes=link.probes,
+                                replies=link.replies)
+                for r, link in self._links.items() if link.replies}

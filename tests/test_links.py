@@ -1,0 +1,78 @@
+"""T_comm measured per teammate (``ramps.core.links``): the least round trips
+of the latest few are the link; late replies are noise and do not move it."""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+
+from ramps.core.cost import NetworkEstimate
+from ramps.core.links import MIN_TRANSFER, PADDED_BYTES, PADDED_WINDOW, Links
+from ramps.core.messages import LinkProbeReply
+
+DEFAULT = NetworkEstimate(latency=0.005, bandwidth=2.5e6)
+
+
+def exchange(links: Links, robot: str, now: float, latency: float, bandwidth: float, delay: float = 0.0) -> float:
+    """One probe and its reply over a link of that latency and bandwidth, ``delay`` late."""
+    probe = links.probe(robot, now)
+    rtt = 2 * latency + len(probe.padding) / bandwidth + delay
+    links.on_reply(robot, LinkProbeReply(sent_at=probe.sent_at, size=len(probe.padding)), now + rtt)
+    return now + 5.0
+
+
+def test_a_link_not_measured_costs_the_default_and_one_plain_reply_gives_its_latency() -> None:
+    links = Links(DEFAULT)
+    assert links.estimate("r2") == DEFAULT and links.measured() == {}
+    exchange(links, "r2", 0.0, latency=0.002, bandwidth=1e6)
+    assert links.estimate("r2") == NetworkEstimate(latency=pytest.approx(0.002), bandwidth=DEFAULT.bandwidth)
+
+
+def test_late_replies_do_not_drag_a_fast_link_down() -> None:
+    # robots of a fraction of a host core: replies wait out a spent CPU quota
+    # (up to 110 ms late, as measured on the testbed); here two padded replies
+    # in three and every other plain one are late
+    rng = random.Random(1)
+    links, now = Links(DEFAULT), 0.0
+    for i in range(60):
+        padded = i % 3 == 1
+        late = (i // 3) % 3 != 0 if padded else i % 2 == 0
+        now = exchange(links, "r2", now, latency=0.0005, bandwidth=1e9,
+                       delay=rng.uniform(0.005, 0.11) if late else 0.0)
+        if i >= 3 * PADDED_WINDOW:  # a window of padded replies with one on time
+            assert links.estimate("r2").bandwidth == PADDED_BYTES / MIN_TRANSFER  # "fast", no slow link's figure
+    assert links.estimate("r2").latency == pytest.approx(0.0005)
+
+
+def test_a_slow_link_reads_its_rate_and_a_link_that_slows_down_is_seen_within_the_window() -> None:
+    links, now = Links(DEFAULT), 0.0
+    for _ in range(12):
+        now = exchange(links, "r3", now, latency=0.001, bandwidth=1e5, delay=0.0)
+    assert links.estimate("r3").bandwidth == pytest.approx(1e5, rel=0.01)
+    for _ in range(12):
+        now = exchange(links, "r2", now, latency=0.001, bandwidth=1e9)
+    assert links.estimate("r2").bandwidth > 100 * links.estimate("r3").bandwidth
+    # r2's link is throttled to 1 MB/s: read once its fast padded samples have left the window
+    probes = 0
+    while links.estimate("r2").bandwidth > 2e6:
+        now = exchange(links, "r2", now, latency=0.001, bandwidth=1e6)
+        probes += 1
+        assert probes <= 3 * PADDED_WINDOW + 3, "the slowdown was not seen"
+    assert links.estimate("r2").bandwidth == pytest.approx(1e6, rel=0.01)
+
+
+def test_replies_to_probes_never_sent_or_answered_twice_change_nothing() -> None:
+    links, now = Links(DEFAULT), 0.0
+    for _ in range(4):
+        now = exchange(links, "r2", now, latency=0.002, bandwidth=1e6)
+    before = links.estimate("r2")
+    # a forged reply claiming a probe sent a moment ago, and padding it never had
+    links.on_reply("r2", LinkProbeReply(sent_at=now - 1e-6, size=PADDED_BYTES), now)
+    links.on_reply("r9", LinkProbeReply(sent_at=0.0, size=0), now)
+    probe = links.probe("r2", now)
+    links.on_reply("r2", LinkProbeReply(sent_at=probe.sent_at, size=len(probe.padding)), now + 0.004)
+    replies = links.measured()["r2"].replies
+    links.on_reply("r2", LinkProbeReply(sent_at=probe.sent_at, size=len(probe.padding)), now + 0.0001)
+    assert links.measured()["r2"].replies == replies and "r9" not in links.measured()
+    assert links.estimate("r2").latency == pytest.approx(before.latency)
