@@ -14,16 +14,21 @@ shares a real robot's cores::
     share = core * cost.weighted_shares(cores, weights of the busy children)
     core = quota / cores host cores
 
-where the busy children are those that used CPU in the last period (the
-busy loops of background load always do; an idle worker does not) and a
+where the busy children are those that used CPU in the last period or are
+runnable now (the busy loops of background load always are; an idle worker
+is not; a program the kernel starved last period is) and a
 child's weight is its process's CFS weight (``cost.nice_weight``): a worker
 at nice 10 next to busy load at nice 0 gets what the load leaves, as on a
-robot; at equal niceness this is ``core * min(1, cores / busy)``. The
-children's quotas never add up to more than the robot's, so the robot's own
-quota hardly throttles them (only the node's own few percent can push it
-over): measured on this kernel (cgroup v1), children of a throttled parent
-are scheduled very unfairly, which is why the shares are computed here and
-not left to the kernel.
+robot; at equal niceness this is ``core * min(1, cores / busy)``. Measured
+on this kernel (cgroup v1), children of a throttled parent are scheduled
+very unfairly, which is why the shares are computed here and not left to
+the kernel, and why the busy children's quotas add up to at most what the
+node leaves of the robot's: the node's own CPU (the robot's usage less its
+children's, averaged over about a second, plus ``NODE_MARGIN`` of the
+quota) is taken off first, as on a robot whose node at nice 0 runs before
+its programs. Without that reserve, fifteen programs filling a robot of 4
+emulated cores pushed it over its quota by the node's 3% and finished
+spread over 85-126 s where processor sharing ends them together.
 
 The capper rereads the state file every period (robots restart after a crash
 with new workers), and exits when the file is gone (``down``). cgroup v2 is
@@ -50,6 +55,13 @@ CFS_PERIOD_US = 100_000
 #: a child is busy when it used this fraction of its share in the last period
 BUSY_FRACTION = 0.25
 CHILD_PREFIX = "p"
+#: of the robot's quota, kept free beyond the node's measured use (its use varies)
+NODE_MARGIN = 0.005
+#: weight of the latest period in the node's averaged use, and the most it may reserve
+NODE_ALPHA = 0.2
+NODE_MAX = 0.5
+#: a child's quota is rewritten only when its share moved by more than this fraction
+QUOTA_STEP = 0.05
 
 
 def _is_node(pid: int) -> bool:
@@ -83,6 +95,13 @@ def shares(core: float, cores: int, busy: int) -> float:
     return core * cores / busy
 
 
+def _runnable(pid: int) -> bool:
+    """Whether the process is running or waiting for a CPU now: a program the
+    kernel starves uses little of its share, and is busy all the same."""
+    rest = proc_stat_fields(pid)
+    return rest is not None and rest[0] == "R"
+
+
 def niceness(pid: int) -> int:
     """A process's niceness (0 if it is gone)."""
     rest = proc_stat_fields(pid)
@@ -100,6 +119,9 @@ class RobotCaps:
         self._quota: dict[str, int] = {}
         self._share: dict[str, float] = {}  # host cores of each child
         self.share = self.core
+        #: the robot's CPU seconds at the last tick, and its node's averaged use (host cores)
+        self._robot_used: float | None = None
+        self.node_use = 0.0
 
     def children(self) -> list[str]:
         try:
@@ -138,6 +160,7 @@ class RobotCaps:
         """Drop empty children, find the busy ones, set every child's quota."""
         busy: list[str] = []
         live = []
+        children_used = 0.0  # CPU seconds of the live children since the last tick
         for name in self.children():
             try:
                 empty = not (self.cpu / name / "cgroup.procs").read_text().split()
@@ -158,8 +181,15 @@ class RobotCaps:
             used = cgroup_usage(self.cpu / name, self.acct / name if self.acct else None)
             before = self._usage.get(name)
             self._usage[name] = used
-            if before is not None and used - before >= BUSY_FRACTION * self._share.get(name, self.share) * dt:
+            children_used += used - before if before is not None else 0.0
+            if before is not None and (used - before >= BUSY_FRACTION * self._share.get(name, self.share) * dt
+                                       or _runnable(int(name[len(CHILD_PREFIX):]))):
                 busy.append(name)
+        robot_used = cgroup_usage(self.cpu, self.acct)
+        if self._robot_used is not None and robot_used > 0.0:
+            node = max(0.0, robot_used - self._robot_used - children_used) / dt
+            self.node_use += NODE_ALPHA * (node - self.node_use)
+        self._robot_used = robot_used
         weight = {name: nice_weight(niceness(int(name[len(CHILD_PREFIX):]))) for name in live}
         parts, level = weighted_shares(self.cores, [weight[n] for n in busy])
         share = dict(zip(busy, parts))  # emulated cores of each busy child
@@ -167,8 +197,23 @@ class RobotCaps:
         self.share = self.core * min(1.0, level) if busy else self.core
         for name in live:
             self._share[name] = self.core * share.get(name, min(1.0, weight[name] * level))
+        # the busy children share what the node leaves of the robot (module docstring)
+        quota = self.core * self.cores
+        room = quota - min(self.node_use + NODE_MARGIN * quota, NODE_MAX * quota)
+        total = sum(self._share[n] for n in busy)
+        if total > room:
+            for name in busy:
+                self._share[name] *= room / total
+        # the busy children's quotas as they stand: over what the node leaves, the robot's
+        # own quota throttles and the kernel starves some of them (the margin is the slack
+        # between where they are set and where they must be rewritten)
+        over = sum(self._quota.get(n, 0) for n in busy) > (quota - self.node_use) * CFS_PERIOD_US
+        for name in live:
             q = max(1000, int(self._share[name] * CFS_PERIOD_US))
-            if self._quota.get(name) != q:
+            old = self._quota.get(name)
+            # a write refills the child's runtime at once: rewriting a quota every tick for
+            # small changes let programs overrun theirs by a third (and the robot's quota with them)
+            if old is None or abs(q - old) > QUOTA_STEP * old or (over and q < old):
                 try:
                     (self.cpu / name / "cpu.cfs_quota_us").write_text(str(q))
                     self._quota[name] = q
