@@ -28,8 +28,9 @@ def test_outside_a_worker_checkpoint_checks_and_does_nothing_and_resume_is_none(
         ramps.checkpoint(object())
 
 
-@pytest.mark.slow
-def test_a_worker_sends_checkpoints_and_a_restart_resumes_from_one():
+def _pool(programs: dict[str, str]) -> tuple[WorkerPool, dict, list, threading.Event]:
+    """A started one-worker pool: results decoded into ``done`` by key (``ev`` set on each),
+    checkpoints appended to ``saved`` as (key, state, fraction)."""
     done: dict = {}
     saved: list = []
     ev = threading.Event()
@@ -39,9 +40,15 @@ def test_a_worker_sends_checkpoints_and_a_restart_resumes_from_one():
         ev.set()
 
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([TESTS, os.environ.get("PYTHONPATH", "")]))
-    pool = WorkerPool(1, {"resumable": "e2eprogs:resumable"}, finished, env=env,
+    pool = WorkerPool(1, programs, finished, env=env,
                       on_checkpoint=lambda key, state, fraction: saved.append((key, state, fraction)))
     pool.start()
+    return pool, done, saved, ev
+
+
+@pytest.mark.slow
+def test_a_worker_sends_checkpoints_and_a_restart_resumes_from_one():
+    pool, done, saved, ev = _pool({"resumable": "e2eprogs:resumable"})
     try:
         pool.run(("p", 1), "resumable", msgspec.msgpack.encode({"steps": 3, "dt": 0.25}))
         assert ev.wait(30), "no result"
@@ -60,17 +67,7 @@ def test_a_worker_sends_checkpoints_and_a_restart_resumes_from_one():
 def test_a_burn_resumed_from_its_checkpoint_ends_with_the_uninterrupted_checksum():
     from ramps.programs.burn import burn
 
-    done: dict = {}
-    saved: list = []
-    ev = threading.Event()
-
-    def finished(key, ok, value, error, retryable):
-        done[key] = msgspec.msgpack.decode(value) if ok else error
-        ev.set()
-
-    pool = WorkerPool(1, {"burn": "ramps.programs.burn:burn"}, finished,
-                      on_checkpoint=lambda key, state, fraction: saved.append((state, fraction)))
-    pool.start()
+    pool, done, saved, ev = _pool({"burn": "ramps.programs.burn:burn"})
     try:
         args = msgspec.msgpack.encode({"units": 0.05, "checkpoint_every": 0.01})
         pool.run(("b", 1), "burn", args)
@@ -78,7 +75,7 @@ def test_a_burn_resumed_from_its_checkpoint_ends_with_the_uninterrupted_checksum
         whole = done[("b", 1)]
         assert whole["checksum"] == burn(units=0.05)["checksum"] and whole["resumed_at"] == 0
         assert saved, "a burn of 5 checkpoints sent none"
-        state, fraction = saved[-1]
+        _, state, fraction = saved[-1]
         place = msgspec.msgpack.decode(state)
         assert 0 < place["done"] < whole["iterations"] and fraction == pytest.approx(place["done"] / whole["iterations"])
         ev.clear()
