@@ -55,7 +55,7 @@ class LinkEstimate(msgspec.Struct, kw_only=True):
 
 
 class _Link:
-    __slots__ = ("probes", "replies", "plain", "padded", "size", "waiting")
+    __slots__ = ("probes", "replies", "plain", "padded", "size", "waiting", "latency", "bandwidth")
 
     def __init__(self) -> None:
         self.probes = self.replies = self.size = 0
@@ -63,14 +63,15 @@ class _Link:
         self.waiting: dict[float, int] = {}
         self.plain: deque[float] = deque(maxlen=PLAIN_WINDOW)
         self.padded: deque[float] = deque(maxlen=PADDED_WINDOW)
+        #: the figures, updated with each reply (read at every placement)
+        self.latency: float | None = None
+        self.bandwidth: float | None = None
 
-    def latency(self) -> float | None:
-        return min(self.plain) / 2 if self.plain else None
-
-    def bandwidth(self) -> float | None:
-        if not self.plain or not self.padded:
-            return None  # bandwidth is what the padding adds over a plain round trip
-        return self.size / max(MIN_TRANSFER, min(self.padded) - min(self.plain))
+    def update(self) -> None:
+        self.latency = min(self.plain) / 2 if self.plain else None
+        # bandwidth is what the padding adds over a plain round trip
+        self.bandwidth = (self.size / max(MIN_TRANSFER, min(self.padded) - min(self.plain))
+                          if self.plain and self.padded else None)
 
 
 class Links:
@@ -103,17 +104,17 @@ class Links:
         else:
             link.padded.append(rtt)
             link.size = size
+        link.update()
 
     def estimate(self, robot: str) -> NetworkEstimate:
         """What a message to ``robot`` costs, measured where it was."""
         link = self._links.get(robot)
-        latency = link.latency() if link is not None else None
-        if link is None or latency is None:
+        if link is None or link.latency is None:
             return self.default
-        bandwidth = link.bandwidth()
-        return NetworkEstimate(latency=latency, bandwidth=self.default.bandwidth if bandwidth is None else bandwidth)
+        return NetworkEstimate(latency=link.latency,
+                               bandwidth=self.default.bandwidth if link.bandwidth is None else link.bandwidth)
 
     def measured(self) -> dict[str, LinkEstimate]:
-        return {r: LinkEstimate(latency=link.latency(), bandwidth=link.bandwidth(), probes=link.probes,
+        return {r: LinkEstimate(latency=link.latency, bandwidth=link.bandwidth, probes=link.probes,
                                 replies=link.replies)
                 for r, link in self._links.items() if link.replies}
