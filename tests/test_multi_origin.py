@@ -329,3 +329,28 @@ def test_learned_work_scales_with_each_call_s_declaration() -> None:
     assert origin.work_estimate(Submit(program_id="q1", program="plan", work=10.0)) == pytest.approx(40.0)
     assert origin.work_estimate(Submit(program_id="q2", program="plan", work=40.0)) == pytest.approx(160.0)
     assert origin.learned_work()["plan"] == pytest.approx(160.0)  # for a call declared like the latest
+
+
+# ---------------------------------------------------------------- the node's own CPU
+def test_a_robot_whose_node_uses_a_core_is_priced_with_the_cores_its_programs_get() -> None:
+    # r2's node takes a whole core of its 4 (LoadReport.node_cpu): when the programs fill the
+    # robots, r2 runs 3 at full speed, so 8 programs go 3 to r2 and 5 to r3 (1.25x a program
+    # alone), not 4-4 (r2's four at 3/4 speed: 1.33x)
+    robots = [RobotSpec(name="r1", background=8), RobotSpec(name="r2", node_cpu=1.0), RobotSpec(name="r3")]
+    for seed in range(3):
+        res = simulate(Scenario(robots=robots, programs=[ProgramSpec(origin="r1", count=8, work=40.0, spacing=0.05)]),
+                       policy="ramps", seed=seed)
+        assert (res.completed, res.lost, res.duplicated) == (8, 0, 0)
+        assert (res.distribution.get("r2", 0), res.distribution.get("r3", 0)) == (3, 5), res.distribution
+        assert res.makespan == pytest.approx(40.0 * 1.25, rel=0.03)
+    ideal = [RobotSpec(name="r1", background=8), RobotSpec(name="r2"), RobotSpec(name="r3")]
+    res = simulate(Scenario(robots=ideal, programs=[ProgramSpec(origin="r1", count=8, work=40.0, spacing=0.05)]),
+                   policy="ramps", seed=0)
+    assert (res.distribution.get("r2", 0), res.distribution.get("r3", 0)) == (4, 4)
+
+
+def test_node_cpu_is_checked_in_scenarios() -> None:
+    from ramps.sim.scenario import ScenarioError
+
+    with pytest.raises(ScenarioError, match="node_cpu"):
+        Scenario(robots=[RobotSpec(name="r1", cores=2, node_cpu=1.5)], programs=[]).check()

@@ -207,7 +207,9 @@ def status(
 
     "moved" counts the robot's own programs that it relocated while they ran
     (a teammate became busy, or a better one appeared), and the moves it
-    abandoned because the new host refused or failed.
+    abandoned because the new host refused or failed. "node cores" is what
+    the robot's node itself uses (averaged over about 10 s); when programs
+    fill the robot, placements count them as cores the programs cannot have.
 
     Each row is what that robot last published. "sees" is how many teammates
     the robot itself could place a program on (fresh report, not written
@@ -228,7 +230,7 @@ def status(
         return
     table = Table(title=f"team {st.team}", title_justify="left")
     for name in ("robot", "alive", "cores", "speed", "cpu busy", "per core %", "run queue", "load avg", "mem free",
-                 "programs", "done", "moved", "dropped msgs", "sees", "blacklists", "report age"):
+                 "programs", "done", "moved", "node cores", "dropped msgs", "sees", "blacklists", "report age"):
         table.add_column(name, justify="left" if name in ("robot", "blacklists", "per core %") else "right")
     for r in st.robots:
         table.add_row(r.robot, "yes" if r.alive else "[red]no[/]", str(r.cores), f"{r.speed:g}", f"{r.cpu_busy:.2f}",
@@ -236,6 +238,7 @@ def status(
                       f"{r.load_avg:.2f}", f"{r.mem_free / 2**30:.1f} GiB", str(r.ramps_running),
                       str(r.finished_total),
                       str(r.moves) + (f" ({r.moves_aborted} abandoned)" if r.moves_aborted else ""),
+                      f"{r.node_cpu:.2f}",
                       str(r.bad_messages), "-" if r.sees is None else str(r.sees),
                       ", ".join(r.blacklisted),
                       "-" if r.report_age is None else f"{r.report_age:.1f} s")

@@ -374,13 +374,15 @@ def testbed_fidelity(
         t = Table(title=f"testbed robot of {rep.cores} cores on {rep.quota:g} host cores, "
                         f"per-program caps {'on' if rep.caps else 'off'}, {rep.work:g} units each")
         for col in ("programs", "busy", "model s", "measured s", "range s", "error", "robot CPU", "model CPU",
-                    "unit CPU s", "corrected error", "corrected last", "CPU s outside programs"):
+                    "unit CPU s", "corrected error", "corrected last", "CPU s outside programs", "node cores",
+                    "cost model s", "vs it, last"):
             t.add_column(col, justify="right")
         for c in rep.cases:
             t.add_row(str(c.programs), str(c.busy), f"{c.model:.1f}", f"{c.mean:.1f}", f"{c.first:.1f}-{c.last:.1f}",
                       f"{c.error:+.0%}", f"{c.cpu:.2f}", f"{c.cpu_model:.2f}", f"{c.unit_cpu:.2f}",
                       f"{c.corrected_error:+.0%}", f"{c.corrected_last_error:+.0%}",
-                      f"{c.overhead_cpu_s:.1f} of {c.robot_cpu_s:.1f}")
+                      f"{c.overhead_cpu_s:.1f} of {c.robot_cpu_s:.1f}", f"{c.node_cores:.2f}", f"{c.cost_model:.1f}",
+                      f"{c.cost_model_last_error:+.0%}")
         console.print(t)
         console.print(f"mean |error|: completion {rep.mean_abs_error:.0%}, robot CPU {rep.mean_abs_cpu_error:.0%}, "
                       f"completion corrected for the host's speed {rep.mean_abs_corrected_error:.0%}; a work unit "

@@ -278,11 +278,14 @@ class LoadView:
         return [row[0] for row in self.scan(now, frozenset())]
 
     def scan(self, now: float, exclude: frozenset[str],
-             paper: bool = False) -> list[tuple[str, int, float, float, float, float]]:
+             paper: bool = False) -> list[tuple[str, float, float, float, float, float]]:
         """(robot, cores, speed, ramps, background, weight) for every candidate,
         in one pass: ramps programs there by ramps' reading of the view, other
         runnable tasks, and the scheduler weight of a program against them
         (with ``paper``, ``ramps`` is the paper's load and background 0).
+        ``cores`` are those the robot's programs can have: its cores less
+        what its node itself uses (``LoadReport.node_cpu``, at most half of
+        them; the paper's prototype counted all of them).
 
         The hot path of placement in large teams: the same reading as
         ``candidates`` + ``ramps_programs`` + ``background`` (or
@@ -304,10 +307,13 @@ class LoadView:
                 ramps = max(0, base + rob.unseen_accept - rob.unseen_finish)
                 if rep is not None and rep.runnable > rep.ramps_avg:
                     background = rep.runnable - rep.ramps_avg
+            cores: float
             if rep is None:  # only this robot gets here without a report
                 cores, speed, weight = self.cores, self.speed_of(name, self.speed), self.program_weight
             else:
                 cores, speed, weight = rep.cores, self.speed_of(name, rep.speed), rep.program_weight
+                if rep.node_cpu and not paper:
+                    cores -= min(rep.node_cpu, 0.5 * rep.cores)
             out.append((name, cores, speed, ramps, background, weight))
         if exclude:
             kept = [e for e in out if e[0] not in exclude]

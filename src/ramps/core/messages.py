@@ -166,6 +166,10 @@ class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, ta
     #: and learned of its programs' work (at most MAX_LISTED each), for ``ramps status``
     links: Annotated[list["LinkSeen"], Meta(max_length=MAX_LISTED)] = []
     learned: Annotated[list["LearnedWork"], Meta(max_length=MAX_LISTED)] = []
+    #: cores of this robot its node itself used (its threads, not its programs),
+    #: averaged over about 10 s: the cost model takes them off the cores a
+    #: full robot's programs share (``LoadView.scan``)
+    node_cpu: Load = 0.0
     #: programs of this robot moved while running since it started, and moves
     #: abandoned (the new host refused or failed), for ``ramps status``
     moves: Count = 0

@@ -144,8 +144,9 @@ class Node:
         #: the latest time the driver passed in (reports estimate the work
         #: left in running programs as of then)
         self._now = 0.0
-        #: free memory the driver last measured (reports of the instant repeat it)
+        #: free memory and the node's own CPU the driver last measured (reports of the instant repeat them)
         self._mem_free = 0
+        self._node_cpu = 0.0
         #: prompt reports: (accepted, finished) counts last published, the
         #: time of the last one, and when the next one is due
         self._prompt = self.policy.shares_load and self.config.prompt_reports
@@ -296,13 +297,14 @@ class Node:
 
     # ------------------------------------------------------------ load publisher
     def make_report(self, *, cpu_busy: float, runnable: float, ramps_avg: float, window: float,
-                    mem_free: int = 0, cpu_per_core: list[float] | None = None, load_avg: float = 0.0) -> LoadReport:
+                    mem_free: int = 0, cpu_per_core: list[float] | None = None, load_avg: float = 0.0,
+                    node_cpu: float = 0.0) -> LoadReport:
         """This robot's load report, from the driver's measurements."""
         self._report_seq += 1
-        self._mem_free = mem_free
+        self._mem_free, self._node_cpu = mem_free, node_cpu
         return self._report(cpu_busy=cpu_busy, runnable=runnable, ramps_avg=ramps_avg, window=window,
                             mem_free=mem_free, cpu_per_core=cpu_per_core or [], load_avg=load_avg,
-                            blacklisted=self.view.blacklisted())
+                            blacklisted=self.view.blacklisted(), node_cpu=node_cpu)
 
     def _compare_speed(self, msg: ProgramResult, out: list[Action]) -> None:
         """The first wanted result of a whole run (not resumed, not moved):
@@ -325,7 +327,7 @@ class Node:
         running = len(self.executor.running)
         bg = self.executor.background
         return self._report(cpu_busy=min(float(self.cores), bg + running), runnable=bg + running,
-                            ramps_avg=float(running), window=0.0, mem_free=self._mem_free)
+                            ramps_avg=float(running), window=0.0, mem_free=self._mem_free, node_cpu=self._node_cpu)
 
     def _report(self, **measured: Any) -> LoadReport:
         """A report of this robot: its identity and the executor's counters,

@@ -459,7 +459,8 @@ class Team:
                                 cpu_per_core=list(rep.cpu_per_core), load_avg=rep.load_avg,
                                 mem_free=rep.mem_free, bad_messages=rep.bad_messages, report_age=now - at,
                                 sees=rep.sees, running=list(rep.running), links=list(rep.links),
-                                learned=list(rep.learned), moves=rep.moves, moves_aborted=rep.moves_aborted)
+                                learned=list(rep.learned), moves=rep.moves, moves_aborted=rep.moves_aborted,
+                                node_cpu=rep.node_cpu)
                 rows.append(RobotStatus(**base))
         return TeamStatus(team=self.team, robots=rows)
 

@@ -48,6 +48,8 @@ class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
     #: the robot's programs moved while running since its node started, and moves abandoned
     moves: int = 0
     moves_aborted: int = 0
+    #: cores the robot's node itself uses (the cost model takes them off a full robot's)
+    node_cpu: float = 0.0
 
 
 class TeamStatus(msgspec.Struct, frozen=True, kw_only=True):

@@ -204,6 +204,10 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         # smaller quota reports it in its own cores, as its speed is scaled
         self._busy_scale = (self.cores / quota if scope == "cgroup" and quota is not None and quota < self.cores
                             else 1.0)
+        #: this process's CPU seconds and the time when last read, and the cores it used
+        #: (averaged), for load reports: the cost model takes them off a full robot's cores
+        self._node_cpu_at: tuple[float, float] | None = None
+        self.node_cpu = 0.0
         if s.trace:
             try:
                 self._trace = open(s.trace, "a", buffering=1)

@@ -15,7 +15,9 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
 import threading
+import time
 
 import msgspec
 
@@ -45,6 +47,9 @@ log = logging.getLogger("ramps.node")
 #: core notes a client hears about (ProgramUpdate.state), as placed/running/host_failed
 _CLIENT_STATES = {"placed": "placed", "accepted": "running", "failed": "host_failed"}
 
+
+#: weight of the latest report period in the node's averaged own CPU (about 10 reports)
+NODE_CPU_ALPHA = 0.1
 
 class Outbound:
     """The driver's outputs (mixed into ``NodeRuntime``)."""
@@ -148,9 +153,11 @@ class Outbound:
         self.node.executor.background = max(0.0, runnable - ramps_avg)
         if self.load_scope == "cgroup":
             busy = min(busy * self._busy_scale, float(self.cores))
+        self._measure_node_cpu()
         report = self.node.make_report(cpu_busy=busy,
                                        runnable=runnable, ramps_avg=ramps_avg, window=self.s.window,
-                                       mem_free=mem_free, cpu_per_core=per_core, load_avg=load1)
+                                       mem_free=mem_free, cpu_per_core=per_core, load_avg=load1,
+                                       node_cpu=round(self.node_cpu, 4))
         sees = frozenset(self.node.view.candidates(now)) - {self.robot}
         if sees != self._sees:
             self._log_view_change(self._sees, sees)
@@ -188,6 +195,19 @@ class Outbound:
             self._load_pub.put(encode(self.robot, report))
         except Exception as exc:
             log.warning("node %s could not publish its load: %s", self.robot, exc)
+
+    def _measure_node_cpu(self) -> None:
+        """The cores this node's own process used since the last report (its threads:
+        Zenoh, the driver, the sampler; programs run in other processes), in the robot's
+        cores, averaged over about ``1 / NODE_CPU_ALPHA`` reports. Real CPU seconds over
+        real seconds, whatever clock drives the node."""
+        t = os.times()
+        used, wall = t.user + t.system, time.monotonic()
+        last, self._node_cpu_at = self._node_cpu_at, (used, wall)
+        if last is None or wall - last[1] < 0.05:
+            return
+        rate = min(float(self.cores), max(0.0, used - last[0]) / (wall - last[1]) * self._busy_scale)
+        self.node_cpu += NODE_CPU_ALPHA * (rate - self.node_cpu)
 
     def _learned(self) -> dict[str, list]:
         """What this node measured of its links and learned of its programs'

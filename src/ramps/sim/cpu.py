@@ -23,7 +23,7 @@ Key = tuple[str, int]
 class CPU:
     __slots__ = ("cores", "speed", "background", "weight", "jobs", "t", "frozen", "_hist", "_ib", "_ir", "_ik")
 
-    def __init__(self, cores: int, speed: float, background: int, now: float, weight: float = 1.0) -> None:
+    def __init__(self, cores: float, speed: float, background: int, now: float, weight: float = 1.0) -> None:
         self.cores = cores
         self.speed = speed
         self.background = background

@@ -195,7 +195,7 @@ class Simulator:
         r.alive, r.net_up, r.frozen = True, True, False
         r.epoch += 1
         weight = nice_weight(spec.worker_nice)
-        r.cpu = CPU(spec.cores, spec.speed, spec.background, now, weight=weight)
+        r.cpu = CPU(spec.cores - spec.node_cpu, spec.speed, spec.background, now, weight=weight)
         r.node = Node(
             spec.name, cores=spec.cores, speed=spec.measured_speed or spec.speed, policy=self.policy, config=self.sc.config,
             rng=random.Random(self.rng.getrandbits(64)), incarnation=r.incarnation,
@@ -306,7 +306,7 @@ class Simulator:
             r.remeasure_at = self.now + REMEASURE_PERIOD
             self._handle(r, SpeedMeasured(speed=r.spec.speed))
         report = r.node.make_report(cpu_busy=busy, runnable=runnable, ramps_avg=ramps_avg, window=pub.window,
-                                    mem_free=r.spec.memory)
+                                    mem_free=r.spec.memory, node_cpu=r.spec.node_cpu)
         if r.spec.name in self.subscribers:
             self._handle(r, Received(sender=r.spec.name, msg=report))
         self._broadcast(r, report)

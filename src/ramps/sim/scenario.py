@@ -70,6 +70,9 @@ class RobotSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
     measured_speed: float | None = None
     #: CPU-bound processes that are not ramps programs (e.g. ``stress``)
     background: int = 0
+    #: cores the robot's ramps node itself uses (its reports say so, and its
+    #: programs share the rest when they fill the robot); 0: an ideal node
+    node_cpu: float = 0.0
     #: niceness of the robot's ramps programs against that background (0:
     #: equal shares, the paper's world; a ramps node's default is 10, where
     #: a program gets about a tenth of what a busy process does)
@@ -165,6 +168,8 @@ class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
                 raise ScenarioError(f"{p}.measured_speed", f"must be > 0, got {r.measured_speed}")
             if r.background < 0:
                 raise ScenarioError(f"{p}.background", f"must be >= 0, got {r.background}")
+            if not 0.0 <= r.node_cpu <= 0.5 * r.cores:
+                raise ScenarioError(f"{p}.node_cpu", f"must be between 0 and half the robot's cores, got {r.node_cpu}")
             if not -20 <= r.worker_nice <= 19:
                 raise ScenarioError(f"{p}.worker_nice", f"must be -20..19 (a Linux niceness), got {r.worker_nice}")
             if r.latency is not None and not r.latency >= 0:

@@ -69,6 +69,12 @@ class FidelityCase(msgspec.Struct, kw_only=True):
     overhead_by: dict[str, float] = {}
     #: the last program's completion (the makespan) against the model scaled by ``unit_cpu``
     corrected_last_error: float = 0.0
+    #: the cores the robot's node said it used itself (``LoadReport.node_cpu``, at the case's
+    #: end), the cost model's time with them taken off the robot's cores, and the last
+    #: program against that, scaled by ``unit_cpu`` like ``corrected_last_error``
+    node_cores: float = 0.0
+    cost_model: float = 0.0
+    cost_model_last_error: float = 0.0
 
 
 class FidelityReport(msgspec.Struct, kw_only=True):
@@ -86,7 +92,7 @@ class FidelityReport(msgspec.Struct, kw_only=True):
     unit_cpu_s: tuple[float, float]
 
 
-def model_time(work: float, speed: float, cores: int, programs: int, busy: int, weight: float = 1.0) -> float:
+def model_time(work: float, speed: float, cores: float, programs: int, busy: int, weight: float = 1.0) -> float:
     return work / (speed * program_share(cores, programs, busy, weight))
 
 
@@ -130,6 +136,7 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
                 time.sleep(0.1)
             done, pending = wait_futures(futures, timeout=1.0)
             used = cgroup_usage(cpu_dir, acct_dir) - u0
+            node_cores = next((r.node_cpu for r in team.status().robots if r.robot == "r1"), 0.0)
             cpu = used / max(time.monotonic() - t0, 1e-3)
             merge_cpu(seen, robot_cpu(tb))
             by: dict[str, float] = {}
@@ -147,6 +154,8 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
             cpu_m = quota / cores * min(k + b, cores)
             calib = quota / (cores * speed)  # CPU seconds of a unit when the speed was measured
             mc = m * unit / calib
+            # the cost model's own time: the cores the node reports using itself taken off (LoadView.scan)
+            cm = model_time(work, speed, cores - min(node_cores, 0.5 * cores), k, b, weight)
             case = FidelityCase(programs=k, busy=b, model=round(m, 2), mean=round(mean, 2), first=round(min(took), 2),
                                 last=round(max(took), 2), error=round((mean - m) / m, 3), cpu=round(cpu, 3),
                                 cpu_model=round(cpu_m, 3), unit_cpu=round(unit, 3),
@@ -155,13 +164,17 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
                                 program_cpu_s=round(spent, 2), load_cpu_s=round(by.get("load", 0.0), 2),
                                 overhead_cpu_s=round(used - spent - by.get("load", 0.0), 2),
                                 overhead_by={kk: round(v, 2) for kk, v in sorted(by.items())
-                                             if kk not in ("worker", "load")})
+                                             if kk not in ("worker", "load")},
+                                node_cores=round(node_cores, 3), cost_model=round(cm, 2),
+                                cost_model_last_error=round((max(took) - cm * unit / calib) / (cm * unit / calib), 3))
             log(f"  {k} programs + {b} busy: model {m:.1f} s, measured {mean:.1f} s "
                 f"({min(took):.1f}-{max(took):.1f}), error {case.error:+.0%}; "
                 f"robot CPU {cpu:.2f} host cores, model {cpu_m:.2f}; a unit cost {unit:.2f} CPU s "
                 f"(calibration {calib:.2f}), corrected error {case.corrected_error:+.0%} "
                 f"(last {case.corrected_last_error:+.0%}); robot {used:.1f} CPU s, "
-                f"programs {spent:.1f}, outside them {case.overhead_cpu_s:.1f} {case.overhead_by}")
+                f"programs {spent:.1f}, outside them {case.overhead_cpu_s:.1f} {case.overhead_by}; the node "
+                f"reported using {node_cores:.2f} cores itself, so the cost model says {cm:.1f} s: last "
+                f"{case.cost_model_last_error:+.0%} of it, corrected")
             out.append(case)
             if b:
                 tb.remove_load("r1")

@@ -74,7 +74,7 @@ def random_report(rng: random.Random, robot: str | None = None) -> m.LoadReport:
                           rng.choice([None, _amount(rng, 2.0)]))
                for _ in range(rng.choice([0, 1, 3, m.MAX_LISTED if extreme else 2]))],
         learned=[m.LearnedWork(rng.choice(PROGRAMS), _amount(rng, 100.0)) for _ in range(rng.choice([0, 1, 2]))],
-        moves=random_count(rng), moves_aborted=random_count(rng),
+        moves=random_count(rng), moves_aborted=random_count(rng), node_cpu=_amount(rng, 2.0),
     )
 
 
