@@ -354,3 +354,21 @@ def test_node_cpu_is_checked_in_scenarios() -> None:
 
     with pytest.raises(ScenarioError, match="node_cpu"):
         Scenario(robots=[RobotSpec(name="r1", cores=2, node_cpu=1.5)], programs=[]).check()
+
+
+def test_node_cpu_with_two_origins_and_a_crash() -> None:
+    # r1 and r3 each send 7 programs at once; r2's node takes a core. 14 programs fit the
+    # team at full speed only if r2 gets at most 3 (4 + 3 + 4 + 4 cores): the optimum is one
+    # program's time. Then the same with r4 crashing 10 s in: every program once. (The test
+    # above is the one that fails without node_cpu in the view; this one checks that
+    # several origins and a crash keep the optimum and exactly-once beside it.)
+    robots = [RobotSpec(name="r1"), RobotSpec(name="r2", node_cpu=1.0), RobotSpec(name="r3"), RobotSpec(name="r4")]
+    programs = [ProgramSpec(origin=o, count=7, work=40.0, spacing=0.05) for o in ("r1", "r3")]
+    for seed in range(3):
+        res = simulate(Scenario(robots=robots, programs=programs), policy="ramps", seed=seed)
+        assert (res.completed, res.lost, res.duplicated) == (14, 0, 0)
+        assert res.distribution.get("r2", 0) <= 3, res.distribution
+        assert res.makespan <= 40.0 * 1.02, res.makespan
+        crashed = simulate(Scenario(robots=robots, programs=programs,
+                                    faults=[FaultSpec(at=10.0, robot="r4", kind="crash")]), policy="ramps", seed=seed)
+        assert (crashed.completed, crashed.lost, crashed.duplicated) == (14, 0, 0)
