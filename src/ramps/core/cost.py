@@ -42,6 +42,17 @@ def nice_weight(nice: int) -> float:
     return _CFS_WEIGHTS[nice + 20] / 1024.0
 
 
+#: the most of a robot's cores its node's own CPU (``LoadReport.node_cpu``) may take off
+NODE_CPU_MAX = 0.5
+
+
+def program_cores(cores: float, node_cpu: float) -> float:
+    """The cores a full robot's programs can have: its cores less what its node
+    itself uses, at most ``NODE_CPU_MAX`` of them (the cost model's, the
+    simulator's and the testbed's fidelity model's one rule)."""
+    return cores - min(node_cpu, NODE_CPU_MAX * cores)
+
+
 def program_share(cores: float, programs: float, background: float = 0.0, weight: float = 1.0) -> float:
     """Fraction of one core each of ``programs`` ramps programs gets next to
     ``background`` other runnable tasks, the programs weighing ``weight`` each

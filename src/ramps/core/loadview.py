@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 
-from ramps.core.cost import program_share
+from ramps.core.cost import program_cores, program_share
 from ramps.core.messages import MAX_CORES, MAX_LISTED, MAX_LOAD, MAX_SPEED, MAX_WEIGHT, MIN_SPEED, MIN_WEIGHT, LoadReport
 
 
@@ -313,7 +313,7 @@ class LoadView:
             else:
                 cores, speed, weight = rep.cores, self.speed_of(name, rep.speed), rep.program_weight
                 if rep.node_cpu and not paper:
-                    cores -= min(rep.node_cpu, 0.5 * rep.cores)
+                    cores = program_cores(rep.cores, rep.node_cpu)
             out.append((name, cores, speed, ramps, background, weight))
         if exclude:
             kept = [e for e in out if e[0] not in exclude]

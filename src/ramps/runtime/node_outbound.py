@@ -51,6 +51,7 @@ _CLIENT_STATES = {"placed": "placed", "accepted": "running", "failed": "host_fai
 #: weight of the latest report period in the node's averaged own CPU (about 10 reports)
 NODE_CPU_ALPHA = 0.1
 
+
 class Outbound:
     """The driver's outputs (mixed into ``NodeRuntime``)."""
 

@@ -35,7 +35,7 @@ from typing import Any, Callable
 
 import msgspec
 
-from ramps.core.cost import NetworkEstimate, nice_weight
+from ramps.core.cost import NetworkEstimate, nice_weight, program_cores
 from ramps.core.events import (CheckpointSaved, Deliver, Note, PeerAlive, PeerLost, ProgramFinished, PublishReport,
                                Received, Send, StartProgram, StopProgram, Submit)
 from ramps.core.messages import wire_size
@@ -195,7 +195,7 @@ class Simulator:
         r.alive, r.net_up, r.frozen = True, True, False
         r.epoch += 1
         weight = nice_weight(spec.worker_nice)
-        r.cpu = CPU(spec.cores - spec.node_cpu, spec.speed, spec.background, now, weight=weight)
+        r.cpu = CPU(program_cores(spec.cores, spec.node_cpu), spec.speed, spec.background, now, weight=weight)
         r.node = Node(
             spec.name, cores=spec.cores, speed=spec.measured_speed or spec.speed, policy=self.policy, config=self.sc.config,
             rng=random.Random(self.rng.getrandbits(64)), incarnation=r.incarnation,

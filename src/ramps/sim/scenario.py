@@ -18,6 +18,7 @@ from typing import Literal
 import msgspec
 
 from ramps.core.config import RampsConfig
+from ramps.core.cost import NODE_CPU_MAX
 
 POLICIES = ("ramps", "paper", "round_robin", "random", "local_only")
 FAULT_KINDS = ("crash", "network", "freeze", "recover", "load")
@@ -168,7 +169,7 @@ class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
                 raise ScenarioError(f"{p}.measured_speed", f"must be > 0, got {r.measured_speed}")
             if r.background < 0:
                 raise ScenarioError(f"{p}.background", f"must be >= 0, got {r.background}")
-            if not 0.0 <= r.node_cpu <= 0.5 * r.cores:
+            if not 0.0 <= r.node_cpu <= NODE_CPU_MAX * r.cores:
                 raise ScenarioError(f"{p}.node_cpu", f"must be between 0 and half the robot's cores, got {r.node_cpu}")
             if not -20 <= r.worker_nice <= 19:
                 raise ScenarioError(f"{p}.worker_nice", f"must be -20..19 (a Linux niceness), got {r.worker_nice}")

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import msgspec
 
-from ramps.core.cost import nice_weight, program_share
+from ramps.core.cost import nice_weight, program_cores, program_share
 from ramps.runtime.measure import cgroup_usage, proc_stat_fields
 from ramps.runtime.settings import NodeSettings
 
@@ -155,7 +155,7 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
             calib = quota / (cores * speed)  # CPU seconds of a unit when the speed was measured
             mc = m * unit / calib
             # the cost model's own time: the cores the node reports using itself taken off (LoadView.scan)
-            cm = model_time(work, speed, cores - min(node_cores, 0.5 * cores), k, b, weight)
+            cm = model_time(work, speed, program_cores(cores, node_cores), k, b, weight)
             case = FidelityCase(programs=k, busy=b, model=round(m, 2), mean=round(mean, 2), first=round(min(took), 2),
                                 last=round(max(took), 2), error=round((mean - m) / m, 3), cpu=round(cpu, 3),
                                 cpu_model=round(cpu_m, 3), unit_cpu=round(unit, 3),
