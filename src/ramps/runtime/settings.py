@@ -102,6 +102,12 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     #: false alarm on a link with 20% loss and sub-second dropouts, 1500 ms
     #: 2-4 a minute (ramps.testbed.detect --flap); 1000 ms suits wired teams
     lease_ms: int = 2000
+    #: Zenoh's shared memory for large messages (over 3 KB) between processes
+    #: of one host: a robot's node and its local clients. Robots on separate
+    #: hosts never share it. The testbed turns it off: its emulated robots
+    #: share one host, and shared memory carried their large messages past
+    #: the emulated network (a link slowed with tc never saw them)
+    shared_memory: bool = True
     #: what the load publisher measures: host, cgroup, or auto (cgroup when
     #: the node runs in a cpu cgroup with a quota)
     load_scope: str = "auto"
@@ -191,6 +197,7 @@ _ENV = {
     "RAMPS_PROGRAMS": ("programs", "list"),
     "RAMPS_COMMANDS": ("commands", "commands"),
     "RAMPS_LEASE_MS": ("lease_ms", int),
+    "RAMPS_SHARED_MEMORY": ("shared_memory", "bool"),
     "RAMPS_SECURE": ("secure", "bool"),
     "RAMPS_CREDENTIALS": ("credentials", str),
     "RAMPS_MEMBERS": ("members", "list"),
@@ -285,6 +292,8 @@ def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credential
         c.insert_json5(f"scouting/{how}/autoconnect_strategy", strategy)
     c.insert_json5("transport/link/tx/lease", str(s.lease_ms))
     c.insert_json5("transport/link/tx/keep_alive", "4")
+    if not s.shared_memory:
+        c.insert_json5("transport/shared_memory/enabled", "false")
     if s.secure:
         from ramps.runtime.security import secure_zenoh_json
 

@@ -289,7 +289,9 @@ class Testbed(Faults):
         rb = self.robots[robot]
         cg = _cgroup(rb["cgroup"], self.mode)
         full = cg.wrap(["nsenter", f"--net={net.NETNS_DIR / rb['ns']}", *argv])
-        env = dict(_clean_env(), RAMPS_ROBOT=robot)
+        # no Zenoh shared memory between robots that share this host: it carried their
+        # large messages around the emulated network (NodeSettings.shared_memory)
+        env = dict(_clean_env(), RAMPS_ROBOT=robot, RAMPS_SHARED_MEMORY="0")
         out = open(log, "ab") if log else subprocess.DEVNULL
         try:
             p = subprocess.Popen(full, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, env=env,
@@ -384,7 +386,8 @@ class Testbed(Faults):
         from ramps.runtime.settings import load_settings
 
         self._robot(robot)
-        flags = {"team": self.team, "connect": self.endpoints(), "multicast": False, "listen": []}
+        flags = {"team": self.team, "connect": self.endpoints(), "multicast": False, "listen": [],
+                 "shared_memory": False}
         if lease_ms is not None:
             flags["lease_ms"] = lease_ms
         s = load_settings(flags=flags, default_robot=False, environ={})
@@ -402,6 +405,7 @@ class Testbed(Faults):
         c.insert_json5("listen/endpoints", "[]")
         c.insert_json5("connect/endpoints", json.dumps(self.endpoints()))
         c.insert_json5("scouting/multicast/enabled", "false")
+        c.insert_json5("transport/shared_memory/enabled", "false")  # as the robots (_spawn)
         return c
 
     # ------------------------------------------------------------ looking
