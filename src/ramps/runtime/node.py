@@ -50,6 +50,7 @@ from ramps.core.relink import Stalled
 from ramps.core.speed import REMEASURE_PERIOD
 from ramps.errors import ConfigError, NotAdmitted, TransportError
 from ramps.runtime import keys, revocation
+from ramps.runtime.bulk import OrderedSender
 from ramps.runtime.measure import LoadSampler, cgroup_dirs, cgroup_quota, detect_cores, measure_speed
 from ramps.runtime.heap import HeapTrimmer
 from ramps.runtime.registry import Registry, default_registry
@@ -126,6 +127,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._progress: dict[str, tuple[float, str]] = {}
         self._seq = 0
         self._pubs: dict[str, Any] = {}
+        #: large messages to teammates: sent whole, in order, off the driver's thread
+        self._bulk = OrderedSender(self._bulk_put, name=self.robot)
         self._stopped = threading.Event()
         self._started = False
         self.bad_messages = 0

@@ -2,7 +2,8 @@
 
 How this works: ``_apply`` turns each action of the core into its effect:
 ``Send`` is published to the teammate's inbox (DROP under congestion: the
-core survives lost messages), ``StartProgram``/``StopProgram`` go to the
+core survives lost messages; a message over 60 KB waits for room instead, on
+a thread of its own destination, ``ramps.runtime.bulk``), ``StartProgram``/``StopProgram`` go to the
 worker pool, ``Deliver`` becomes the client's outcome
 (``ramps.runtime.node_clients``), ``Note`` a client update, a trace line and
 a log line. ``_publish`` builds the periodic load report from the sampler
@@ -61,7 +62,9 @@ class Outbound:
             if self.metrics is not None:
                 self.metrics.on_action(a, self.node, mnow)
             if isinstance(a, Send):
-                self._put(keys.inbox(self.team, a.to), encode(self.robot, a.msg))
+                key, data = keys.inbox(self.team, a.to), encode(self.robot, a.msg)
+                if not self._bulk.send(key, data):  # large (or behind a large one): its thread sends it
+                    self._put(key, data)
                 if self._trace_wire:
                     self._write_trace("tx", getattr(a.msg, "program_id", ""), a.to, getattr(a.msg, "attempt", 0),
                                       type(a.msg).__name__)
@@ -121,6 +124,12 @@ class Outbound:
             self._publisher(key, block).put(data)
         except Exception as exc:
             log.warning("node %s could not publish on %s: %s", self.robot, key, exc)
+
+    def _bulk_put(self, key: str, data: bytes, block: bool) -> None:
+        """The sender thread's publish (``ramps.runtime.bulk``): a large message
+        waits for room on the link instead of being dropped."""
+        if self.transport is not None:
+            self.transport.put(key, data, block=block)
 
     def _publisher(self, key: str, block: bool) -> Publisher:
         """The declared publisher of ``key`` (declared on first use; at most
