@@ -289,6 +289,7 @@ def testbed_experiment_slow_link(
     programs: int = typer.Option(6, "--programs", min=1, max=100, help="programs per run, submitted one after another"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
     out_file: Path | None = typer.Option(None, "--out", help="also save the JSON here"),
+    keep_logs: Path | None = typer.Option(None, "--keep-logs", help="copy the nodes' logs and decision traces here (one folder per run)"),
 ) -> None:
     """T_comm measured per teammate: r1 (loaded) places programs with large parameters on idle r2
     and r3, first with every link at full speed, then with r3's link slowed (tc tbf, both directions);
@@ -299,7 +300,7 @@ def testbed_experiment_slow_link(
 
     try:
         rep = run_slow_link(rate=rate * 1e6, payload=payload, units=units, programs=programs,
-                            log=lambda m: err.print(m, highlight=False))
+                            log=lambda m: err.print(m, highlight=False), keep_logs=keep_logs)
     except (PermissionError, RampsError, RuntimeError, TimeoutError) as exc:
         fail(str(exc))
     emit([rep], lambda r, console: console.print(format_report(r), highlight=False), as_json=as_json,

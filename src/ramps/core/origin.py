@@ -411,7 +411,12 @@ class Origin:
         self._by_host.setdefault(host, {})[ap.program_id] = None
         self.view.book(host, ap.program_id, ap.attempt)
         self.placements += 1
-        out.append(Note(what="placed", program_id=ap.program_id, robot=host, attempt=ap.attempt))
+        detail = ""
+        if placement is not None and placement.expected_time is not None:  # why there, for traces
+            detail = f"expected {placement.expected_time:.2f} s"
+            if placement.time_budget is not None:
+                detail += f", budget {placement.time_budget:.2f} s"
+        out.append(Note(what="placed", program_id=ap.program_id, robot=host, attempt=ap.attempt, detail=detail))
         out.append(Send(to=host, msg=OffloadRequest(
             program_id=ap.program_id, attempt=ap.attempt, origin=self.me, host=host,
             program=sub.program, args=sub.args, payload_size=sub.payload_size, work=work,

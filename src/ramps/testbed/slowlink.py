@@ -28,6 +28,7 @@ import shutil
 import subprocess
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import msgspec
@@ -62,6 +63,10 @@ class SlowLinkRun(msgspec.Struct, kw_only=True):
     links: dict[str, list[float | None]]
     #: r1's estimate of the slowed robot's link over time (shaped runs only)
     convergence: list[LinkSample] = []
+    #: at each submission (while r1 is loaded): r1's measured links to r2 and r3, and
+    #: r2's and r3's to r1 ("r2>r1"), as [latency, bandwidth]; and r1's node's cores
+    at_placement: list[dict[str, list[float | None]]] = []
+    node_cpu: list[float | None] = []
 
 
 class SlowLinkReport(msgspec.Struct, kw_only=True):
@@ -97,15 +102,23 @@ def slow_link(tb, robot: str, rate: float) -> None:
     tbf(rb["veth"], rate)
 
 
-def _links(obs, robots: list[str]) -> dict[str, list[float | None]]:
-    rep = obs.report("r1")
+def _links(obs, robots: list[str], of: str = "r1") -> dict[str, list[float | None]]:
+    rep = obs.report(of)
     seen = {link.robot: [link.latency, link.bandwidth] for link in (rep.links if rep else [])}
     return {r: seen.get(r, [None, None]) for r in robots}
 
 
+def _both_ways(obs) -> dict[str, list[float | None]]:
+    """r1's links to r2 and r3, and theirs to r1 (keys "r2>r1", "r3>r1")."""
+    out = _links(obs, ["r2", "r3"])
+    for r in ("r2", "r3"):
+        out[f"{r}>r1"] = _links(obs, ["r1"], of=r)["r1"]
+    return out
+
+
 def run_once(*, shaped: bool, slow: str = "r3", rate: float = 1e6, payload: int = 1_000_000, units: float = 0.3,
              programs: int = 6, stress: int = 8, quota: float = 0.3, converge: float = 60.0,
-             log: Callable[[str], None] | None = None) -> SlowLinkRun:
+             log: Callable[[str], None] | None = None, keep_logs: Path | None = None) -> SlowLinkRun:
     from ramps.testbed import Testbed
     from ramps.testbed.bed import watch_team
     from ramps.testbed.experiments import SETTLE, identical_speed
@@ -139,7 +152,12 @@ def run_once(*, shaped: bool, slow: str = "r3", rate: float = 1e6, payload: int 
         time.sleep(SETTLE)
         data = b"\x5a" * payload
         hosts, durations = [], []
+        at_placement: list[dict[str, list[float | None]]] = []
+        node_cpu: list[float | None] = []
         for i in range(programs):
+            at_placement.append(_both_ways(obs))
+            rep = obs.report("r1")
+            node_cpu.append(rep.node_cpu if rep is not None else None)
             t = time.monotonic()
             fut = team.options(work=units).submit("crunch", data=data, units=units)
             res = fut.result(timeout=300)
@@ -147,9 +165,16 @@ def run_once(*, shaped: bool, slow: str = "r3", rate: float = 1e6, payload: int 
                 raise RuntimeError(f"crunch returned {res!r}")
             hosts.append(fut.host)
             durations.append(round(time.monotonic() - t, 2))
-            log(f"  program {i + 1}: {fut.host} in {durations[-1]:.1f} s")
+            lk = at_placement[-1]
+            log(f"  program {i + 1}: {fut.host} in {durations[-1]:.1f} s; r1 measured r2 "
+                f"{_fmt(lk['r2'][1], 1e-6, 'MB/s')}, r3 {_fmt(lk['r3'][1], 1e-6, 'MB/s')} "
+                f"(r3 measured r1 {_fmt(lk['r3>r1'][1], 1e-6, 'MB/s')})")
+        if keep_logs is not None and tb.log_dir is not None:  # the nodes' logs and traces outlive the testbed
+            dest = keep_logs / ("shaped" if shaped else "full-speed")
+            shutil.copytree(tb.log_dir, dest, dirs_exist_ok=True)
+            log(f"  logs and traces kept in {dest}")
     return SlowLinkRun(shaped=shaped, distribution=[hosts.count(r) for r in names], durations=durations,
-                       links=links, convergence=convergence)
+                       links=links, convergence=convergence, at_placement=at_placement, node_cpu=node_cpu)
 
 
 def _fmt(x: float | None, scale: float, unit: str) -> str:
@@ -157,12 +182,13 @@ def _fmt(x: float | None, scale: float, unit: str) -> str:
 
 
 def run_slow_link(*, rate: float = 1e6, payload: int = 1_000_000, units: float = 0.3, programs: int = 6,
-                  log: Callable[[str], None] | None = None) -> SlowLinkReport:
+                  log: Callable[[str], None] | None = None, keep_logs: Path | None = None) -> SlowLinkReport:
     log = log or (lambda _m: None)
     runs = []
     for shaped in (False, True):
         log(f"{'r3 slowed' if shaped else 'every link at full speed'}: {programs} programs of {payload} bytes")
-        runs.append(run_once(shaped=shaped, rate=rate, payload=payload, units=units, programs=programs, log=log))
+        runs.append(run_once(shaped=shaped, rate=rate, payload=payload, units=units, programs=programs, log=log,
+                             keep_logs=keep_logs))
     return SlowLinkReport(rate=rate, payload=payload, units=units, slow="r3", runs=runs)
 
 
