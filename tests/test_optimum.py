@@ -10,7 +10,7 @@ import pytest
 
 from ramps.experiments.metrics import Machine, finish_time
 from ramps.experiments.optimum import (exact_optimum, finish, improve, makespan_of, online_limit, simple_bound, solve,
-                                       window_bound, window_end)
+                                       shared_window_end, window_bound, window_end)
 from ramps.experiments.sweep import generate, lower_bound, machines, oracle, oracle_schedule, releases
 
 W = 53.0
@@ -112,6 +112,37 @@ def test_a_window_end_is_never_after_the_robot_ends():
         x = sum(1 for r in rel if t1 <= r < t2)
         y = sum(1 for r in rel if r >= t2)
         assert window_end(m, x, W - (t2 - t1) * m.speed, y, t2, W) <= finish(m, rel, W) + 1e-6
+
+
+def test_a_shared_window_end_is_never_after_the_robot_ends_and_never_below_window_end():
+    """The same robot, knowing also that the window's programs shared it: together
+    they did at most x * rate(m, x) a second (see ``shared_window_end``)."""
+    rng = random.Random(12)
+    stronger = 0
+    for _ in range(3000):
+        m = _random_machine(rng)
+        rel = sorted(rng.choice((rng.uniform(0, 12), rng.uniform(0, 1), 5.0)) for _ in range(rng.randint(1, 12)))
+        t1, t2 = sorted(rng.sample([0.0] + rel, 2))
+        x = sum(1 for r in rel if t1 <= r < t2)
+        y = sum(1 for r in rel if r >= t2)
+        new = shared_window_end(m, x, t2 - t1, y, t2, W)
+        assert new <= finish(m, rel, W) + 1e-6
+        old = window_end(m, x, W - (t2 - t1) * m.speed, y, t2, W)
+        assert new >= old - 1e-9
+        stronger += new > old + 1e-6
+    assert stronger > 1000  # crowded and loaded robots: most of them
+
+
+def test_a_shared_window_end_by_hand():
+    m = Machine(cores=2, speed=1.0, background=0)
+    # 4 programs in the 8 s before t2 = 8: together at most 2 cores x 8 s = 16 units done, 4 each
+    assert shared_window_end(m, 4, 8.0, 0, 8.0, W) == pytest.approx(8.0 + (W - 4.0) / 0.5)
+    # with one more at 8: each has at least W - 8 = 45 left, and the other 16 units spread as
+    # flat as can be over levels [45, 53) are 2 of the 4 programs: all 5 share to 45, then 3 to 53
+    assert shared_window_end(m, 4, 8.0, 1, 8.0, W) == pytest.approx(8.0 + 45 / 0.4 + 8 / (2 / 3))
+    assert shared_window_end(m, 4, 8.0, 1, 8.0, W) <= finish(m, [0.0] * 4 + [8.0], W) + 1e-9
+    # two on two cores did not share: as window_end
+    assert shared_window_end(m, 2, 8.0, 1, 8.0, W) == pytest.approx(window_end(m, 2, W - 8.0, 1, 8.0, W))
 
 
 def test_window_end_is_processor_sharing_from_t2():

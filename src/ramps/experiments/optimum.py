@@ -37,9 +37,11 @@ not time, bound it, so a sweep gives the same answer on any machine.
 - a lower bound stronger than the sweep's (``window_bound``): for two release
   times t1 < t2, the programs released in [t1, t2) have run for at most
   t2 - t1 seconds at t2, so at least ``work - (t2 - t1) * speed`` of each is
-  left; a robot given x of them and y of those released at or after t2 ends
-  no earlier than processor sharing of x such programs and y whole ones from
-  t2 (``window_end``, exact for two sizes). Whether the team can split the
+  left, and together they did at most ``(t2 - t1) * x * rate(m, x)`` (they
+  shared the robot); a robot given x of them and y of those released at or
+  after t2 ends no earlier than processor sharing from t2 of y whole programs
+  and x programs left as favourably as those two limits allow
+  (``shared_window_end``; ``window_end`` is the first limit alone). Whether the team can split the
   two kinds so that every robot ends by T is a two-dimensional knapsack over
   robots (exact, by dynamic programming); the smallest feasible T is the
   bound. Besides the two properties above it assumes a third, checked the
@@ -249,6 +251,36 @@ def window_end(m: Machine, x: int, left: float, y: int, at: float, work: float) 
     return at + left / rate(m, x + y) + (work - left) / rate(m, y)
 
 
+def shared_window_end(m: Machine, x: int, span: float, y: int, at: float, work: float) -> float:
+    """No earlier than ``m`` ends if ``x`` programs were released within the
+    ``span`` seconds before ``at`` and ``y`` more at ``at`` (processor sharing,
+    nothing else after). Stronger than ``window_end`` with ``work - span *
+    speed`` left: the x programs also *shared* the robot during the span.
+
+    Each ran at most at one core (``done <= span * speed``) and together at
+    most ``x * rate(m, x)`` (a robot's programs progress fastest all
+    present, and ``n * rate(m, n)`` grows with n). Of the ways to leave that
+    much work, the one that ends first is taken: with processor sharing the
+    robot ends ``∫ du / rate(m, n(u))`` after ``at``, n(u) the programs with
+    more than u left. Without y, ``1 / rate(m, n) / n`` falls with n, so
+    equal work left ends first; with y >= 1, ``1 / rate(m, y + k)`` is convex
+    in k, so the x programs' work left spread as evenly as the floor
+    allows over the levels the y alone span ends first (Jensen)."""
+    if x == 0 or span <= 0.0:
+        return window_end(m, x, work, y, at, work) if x else (at + work / rate(m, y) if y else 0.0)
+    cap = min(work, span * m.speed)  # the most one program did
+    done = min(x * cap, span * x * rate(m, x))  # the most they all did
+    if y == 0:
+        left = work - done / x
+        return at + left / rate(m, x) if left > _EPS else 0.0
+    floor_left = work - cap  # every program has at least this left
+    level = (x * cap - done) / cap if cap > 0 else float(x)  # programs above the floor, on average
+    k = min(x, int(level))
+    f = level - k
+    above = (1.0 - f) / rate(m, y + k) + (f / rate(m, y + k + 1) if f > _EPS else 0.0)
+    return at + floor_left / rate(m, x + y) + cap * above
+
+
 def _split_fits(team: Sequence[Machine], t1: float, t2: float, nx: int, ny: int, work: float,
                 target: float) -> bool:
     """Can the team take nx programs released in [t1, t2) and ny released at
@@ -260,13 +292,13 @@ def _split_fits(team: Sequence[Machine], t1: float, t2: float, nx: int, ny: int,
     for m in team:
         tab = tables.get(m)
         if tab is None:
-            left = work - (t2 - t1) * m.speed
+            span = t2 - t1
             tab = []
-            x = nx
             for y in range(ny + 1):
-                if window_end(m, 0, left, y, t2, work) > target:
+                if shared_window_end(m, 0, span, y, t2, work) > target:
                     break
-                while x > 0 and window_end(m, x, left, y, t2, work) > target:
+                x = nx  # the most that fit (the bound need not grow with x: every x is tried)
+                while x > 0 and shared_window_end(m, x, span, y, t2, work) > target:
                     x -= 1
                 tab.append(x)
             tables[m] = tab
