@@ -146,7 +146,9 @@ def test_rclpy_client_runs_programs_sees_feedback_and_cancels(team, user):
     assert names
     last = user.diagnostics[-1]
     r2 = next(s for s in last.status if s.name == "ramps: r2")
-    assert {kv.key for kv in r2.values} >= {"cores", "cpu busy", "run queue", "programs running"}
+    assert {kv.key for kv in r2.values} >= {"cores", "cpu busy", "run queue", "programs running", "programs moved",
+                                            "node cores"}
+    assert 0.0 <= float(dict((kv.key, kv.value) for kv in r2.values)["node cores"]) <= 1.0
     assert dict((kv.key, kv.value) for kv in r2.values)["cores"] == "1"
     # goals: every one gets its result, with feedback naming host and progress
     for i in range(4):

@@ -442,7 +442,7 @@ def robot_status(r, team_size: int, *, stale_after: float) -> DiagnosticStatus:
         s.message = f"{r.cpu_busy:.1f}/{r.cores} cores busy, {r.ramps_running} program(s)"
     vals = {"cores": r.cores, "speed": f"{r.speed:g}", "cpu busy": f"{r.cpu_busy:.2f}", "run queue": f"{r.runnable:.2f}",
             "load avg": f"{r.load_avg:.2f}", "programs running": r.ramps_running, "programs done": r.finished_total,
-            "programs moved": r.moves, "mem free MiB": r.mem_free // 2**20, "sees": "-" if r.sees is None else r.sees,
+            "programs moved": r.moves, "node cores": f"{r.node_cpu:.2f}", "mem free MiB": r.mem_free // 2**20, "sees": "-" if r.sees is None else r.sees,
             "blacklisted": ",".join(r.blacklisted), "dropped messages": r.bad_messages,
             "report age s": "-" if r.report_age is None else f"{r.report_age:.1f}"}
     s.values = [KeyValue(key=k, value=str(v)) for k, v in vals.items()]
