@@ -130,6 +130,30 @@ def test_sweep_command_prints_and_saves_a_row_per_family(tmp_path) -> None:
     assert bad.exit_code != 0 and "max_rejections" in bad.output
 
 
+def test_sweep_runs_named_scenarios_and_shows_what_no_online_placement_can_reach(tmp_path) -> None:
+    """mixed-staggered-0 (3 robots, 7 programs): ramps 1.051 above the optimum, where no
+    placement deciding each program at its release does better (online_limit, 1.0511)."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from ramps.cli import app
+
+    out = tmp_path / "sweep.json"
+    res = CliRunner().invoke(app, ["sim", "sweep", "--only", "mixed-staggered-0", "--seeds", "1", "--exact-seconds",
+                                   "5", "--online-seconds", "5", "-o", str(out)], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    data = json.loads(out.read_text())
+    [sc] = data["scenarios"]
+    assert sc["name"] == "mixed-staggered-0" and sc["ratio_best_bound"] > 1.05
+    assert sc["online_ratio"] == pytest.approx(1.0511, abs=1e-3)
+    [row] = data["families"]
+    assert (row["scenarios"], row["above_5pct"], row["online_impossible"]) == (1, 1, 1)
+    assert "no online placement within 1.051" in " ".join(res.output.split())
+    bad = CliRunner().invoke(app, ["sim", "sweep", "--only", "mixed-staggered-99"])
+    assert bad.exit_code != 0 and "no scenario mixed-staggered-99" in bad.output
+
+
 # ---------------------------------------------------------------- work left
 def test_host_estimates_the_work_its_programs_have_left() -> None:
     from ramps.core.messages import OffloadRequest

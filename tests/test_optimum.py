@@ -9,7 +9,8 @@ import random
 import pytest
 
 from ramps.experiments.metrics import Machine, finish_time
-from ramps.experiments.optimum import (anneal, exact_optimum, finish, improve, makespan_of, online_limit, simple_bound, solve,
+from ramps.experiments.optimum import (anneal, exact_optimum, finish, improve, makespan_of, online_bound, online_limit,
+                                       simple_bound, solve,
                                        shared_window_end, window_bound, window_end)
 from ramps.experiments.sweep import generate, lower_bound, machines, oracle, oracle_schedule, releases
 
@@ -190,6 +191,7 @@ def test_improve_keeps_a_real_schedule_and_never_gets_worse():
         assert makespan_of(team, rel, W, better) == pytest.approx(got)
 
 
+@pytest.mark.slow  # a few seconds of annealing
 def test_annealing_climbs_out_of_the_oracle_s_local_optimum():
     """mixed-staggered-1 (12 robots, 87 programs): the oracle's placement is a local optimum
     of ``improve``; annealing finds a schedule at least 7% shorter, a real one, and never
@@ -243,6 +245,33 @@ def test_the_online_limit_is_what_brute_force_finds():
         found = online_limit(team, rel, W)
         assert found is not None and found.ratio == pytest.approx(_brute_online(team, rel))
         assert found.ratio >= 1.0 - 1e-9 and len(found.assignment) == len(rel)
+
+
+def test_the_online_bound_never_claims_more_than_the_exhaustive_limit():
+    """online_bound shows without a search what online_limit finds by one: never more."""
+    rng = random.Random(7)
+    shown = 0
+    for _ in range(25):
+        team = [_random_machine(rng) for _ in range(rng.randint(2, 4))]
+        rel = sorted(rng.choice((0.0, rng.uniform(0, 10), rng.uniform(0, 1))) for _ in range(rng.randint(1, 7)))
+        exact = online_limit(team, rel, W)
+        assert exact is not None
+        bound = online_bound(team, rel, W, steps=2_000, time_limit=10.0)
+        assert 1.0 <= bound.ratio <= exact.ratio + 1e-3, (team, rel, bound, exact.ratio)
+        shown += bound.ratio > 1.0
+    assert shown > 0  # and it does show something on some of them
+
+
+@pytest.mark.slow  # about 10 s: a fixed number of annealing steps per prefix, not a time limit
+def test_no_online_placement_is_within_five_percent_of_mixed_staggered_29():
+    """6 robots, 27 programs, too many for online_limit: the clairvoyant optimum (at most
+    54.9 s) parks early programs on robots that a placement deciding at their release
+    cannot use without being far above the optimum of what was released so far."""
+    sc = generate("mixed", "staggered", 29, 0)
+    orc, placed = oracle_schedule(sc)
+    found = online_bound(machines(sc), releases(sc), W, placed, time_limit=600.0)
+    assert found.ratio > 1.05 and found.optimum_at_most < orc
+    assert found.unusable and found.prefix_optima[-1] == found.optimum_at_most
 
 
 def test_no_online_placement_is_within_five_percent_of_mixed_staggered_0_and_its_prefixes():

@@ -106,6 +106,13 @@ def sim_sweep(
     exact_nodes: int = typer.Option(0, "--exact-nodes", min=0,
                                     help="also stop each search after this many placements (0: no limit), so "
                                          "that the result does not depend on the machine's speed"),
+    online_seconds: float = typer.Option(0.0, "--online-seconds", min=0.0,
+                                         help="where the policy ends more than 5% above the best bound, seconds "
+                                              "to show how close any placement deciding each program at its "
+                                              "release can get (the clairvoyant optimum knows the future; "
+                                              "column \"online\"). 0: not shown"),
+    only: list[str] = typer.Option([], "--only", help="run only this scenario (repeatable), e.g. --only "
+                                                      "mixed-staggered-1"),
     as_json: bool = typer.Option(False, "--json", help="write the results as JSON to stdout instead of tables"),
     out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
 ) -> None:
@@ -129,13 +136,17 @@ def sim_sweep(
         fail(f"unknown family {family!r}; choose multi-origin or one of "
              + ", ".join(f"{t}-{s}" for t in TEAMS for s in TIMINGS))
     config = _config_with(settings) if settings else None
-    total = scenarios * len(FAMILIES[family])
+    total = len(only) or scenarios * len(FAMILIES[family])
     with Progress(TextColumn(f"sweep {family} / {policy}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err, transient=True) as progress:
         task = progress.add_task("sweep", total=total)
-        rep = run_sweep(family, per_family=scenarios, seeds=seeds, seed=seed, policy=policy, config=config,
-                        progress=lambda done, total: progress.update(task, completed=done), exact_nodes=exact_nodes,
-                        exact_seconds=exact_seconds)
+        try:
+            rep = run_sweep(family, per_family=scenarios, seeds=seeds, seed=seed, policy=policy, config=config,
+                            progress=lambda done, total: progress.update(task, completed=done),
+                            exact_nodes=exact_nodes, exact_seconds=exact_seconds, online_seconds=online_seconds,
+                            only=only)
+        except ValueError as exc:
+            fail(str(exc))
     emit([rep], print_sweep, as_json=as_json, out_file=out_file)
 
 

@@ -58,7 +58,7 @@ from __future__ import annotations
 import heapq
 import math
 import time as _wallclock
-from typing import Sequence
+from typing import Callable, Sequence
 
 import msgspec
 
@@ -360,26 +360,29 @@ def shared_window_end(m: Machine, x: int, span: float, y: int, at: float, work: 
 
 
 def _split_fits(team: Sequence[Machine], t1: float, t2: float, nx: int, ny: int, work: float,
-                target: float) -> bool:
+                target: float, x_ok: Sequence[bool] | None = None, y_ok: Sequence[bool] | None = None) -> bool:
     """Can the team take nx programs released in [t1, t2) and ny released at
     or after t2 with every robot's ``window_end`` at most ``target``?
-    dp[y] = the most window programs the robots so far take beside y late ones."""
+    dp[y] = the most window programs the robots so far take beside y late ones.
+    ``x_ok[i]`` / ``y_ok[i]`` False: robot i may take none of that kind."""
     none = -1
     dp = [0] + [none] * ny
-    tables: dict[Machine, list[int]] = {}
-    for m in team:
-        tab = tables.get(m)
+    tables: dict[tuple[Machine, bool, bool], list[int]] = {}
+    for i, m in enumerate(team):
+        xo = x_ok is None or x_ok[i]
+        yo = y_ok is None or y_ok[i]
+        tab = tables.get((m, xo, yo))
         if tab is None:
             span = t2 - t1
             tab = []
-            for y in range(ny + 1):
+            for y in range(ny + 1 if yo else 1):
                 if shared_window_end(m, 0, span, y, t2, work) > target:
                     break
-                x = nx  # the most that fit (the bound need not grow with x: every x is tried)
+                x = nx if xo else 0  # the most that fit (the bound need not grow with x: every x is tried)
                 while x > 0 and shared_window_end(m, x, span, y, t2, work) > target:
                     x -= 1
                 tab.append(x)
-            tables[m] = tab
+            tables[(m, xo, yo)] = tab
         new = [none] * (ny + 1)
         for y, got in enumerate(dp):
             if got == none:
@@ -390,6 +393,34 @@ def _split_fits(team: Sequence[Machine], t1: float, t2: float, nx: int, ny: int,
                     new[y + extra] = v
         dp = new
     return dp[ny] >= nx
+
+
+#: which robots may take programs released in [a, b), and which those released at or after b
+Allowed = Callable[[float, float], tuple[Sequence[bool], Sequence[bool]]]
+
+
+def _window_pairs(rel: Sequence[float], single: bool) -> list[tuple[float, float, int, int]]:
+    """(a, b, programs in [a, b), programs at or after b) for wave starts a < b,
+    and with ``single`` also (b, b, 0, programs at or after b)."""
+    starts = _windows(rel)
+    pairs = [(a, b, sum(1 for r in rel if a <= r < b), sum(1 for r in rel if r >= b))
+             for ia, a in enumerate(starts) for b in starts[ia + 1:]]
+    if single:
+        pairs += [(b, b, 0, sum(1 for r in rel if r >= b)) for b in starts]
+    return pairs
+
+
+def _unreachable(team: Sequence[Machine], pairs: Sequence[tuple[float, float, int, int]], work: float,
+                 target: float, deadline: float | None, allowed: Allowed | None) -> bool:
+    """Some pair of windows shows that no schedule ends by ``target`` (False
+    when the deadline passes first: not shown)."""
+    for a, b, nx, ny in pairs:
+        if deadline is not None and _wallclock.perf_counter() > deadline:
+            return False
+        x_ok, y_ok = allowed(a, b) if allowed is not None else (None, None)
+        if not _split_fits(team, a, b, nx, ny, work, target, x_ok, y_ok):
+            return True
+    return False
 
 
 def _windows(releases: Sequence[float]) -> list[float]:
@@ -411,23 +442,17 @@ def simple_bound(team: Sequence[Machine], releases: Sequence[float], work: float
 
 
 def window_bound(team: Sequence[Machine], releases: Sequence[float], work: float, low: float, high: float,
-                 deadline: float | None = None, tolerance: float = 1e-6) -> float:
+                 deadline: float | None = None, tolerance: float = 1e-6, allowed: Allowed | None = None) -> float:
     """The largest T in [low, high] (to ``tolerance``, relative) such that no
     schedule ends by T, as some pair of windows shows; ``low`` if none does.
     ``high`` is a schedule's makespan, so the bound stays below it: a bound
-    within the tolerance of it proves that schedule optimal."""
+    within the tolerance of it proves that schedule optimal. With ``allowed``,
+    of the schedules that keep each kind of program off the robots it names."""
     rel = sorted(releases)
-    starts = _windows(rel)
-    pairs = [(a, b, sum(1 for r in rel if a <= r < b), sum(1 for r in rel if r >= b))
-             for ia, a in enumerate(starts) for b in starts[ia + 1:]]
+    pairs = _window_pairs(rel, single=allowed is not None)
 
     def unreachable(target: float) -> bool:
-        for a, b, nx, ny in pairs:
-            if deadline is not None and _wallclock.perf_counter() > deadline:
-                return False  # not shown: the bound stays where it is
-            if not _split_fits(team, a, b, nx, ny, work, target):
-                return True
-        return False
+        return _unreachable(team, pairs, work, target, deadline, allowed)
 
     if not pairs:
         return low
@@ -585,3 +610,115 @@ def online_limit(team: Sequence[Machine], releases: Sequence[float], work: float
     if not dfs(1.0):
         return None
     return OnlineLimit(ratio=best_ratio, assignment=best_assignment, prefix_optima=optima, nodes=nodes)
+
+
+class OnlineBound(msgspec.Struct, kw_only=True, frozen=True):
+    """A lower bound on what any online placement can guarantee, for teams too big for
+    ``online_limit`` (``online_bound``)."""
+
+    #: no placement deciding each program at its release is within this ratio of the
+    #: optimum on every one of the scenario and its prefixes (1.0: nothing shown)
+    ratio: float
+    #: an upper bound on the scenario's optimum (the best schedule found)
+    optimum_at_most: float
+    #: robots such a placement (within ``ratio``) may not use at all
+    unusable: list[int]
+    #: an upper bound on the optimum of each wave's prefix (programs up to its end)
+    prefix_optima: list[float]
+    seconds: float
+
+
+def online_bound(team: Sequence[Machine], releases: Sequence[float], work: float,
+                 assignment: Sequence[int] | None = None, *, upper: float | None = None, steps: int = 100_000,
+                 time_limit: float = 60.0, tolerance: float = 1e-4) -> OnlineBound:
+    """How far above the optimum every online placement must be, on the scenario or
+    one of its prefixes, shown without searching placements (``online_limit`` does,
+    and cannot beyond a few programs).
+
+    The argument. A placement that decides program j at its release cannot tell the
+    scenario from its prefix P(j) (the programs released up to r_j; its wave's end is
+    used, whose optimum is no smaller). On P(j), program j placed on robot i ends no
+    earlier than ``r_j + work / rate(m_i, 1)``; so a placement within ``rho`` of every
+    optimum puts j on i only if that is at most ``rho * OPT(P(j))``, and ``OPT(P(j))``
+    is at most the schedule ``anneal`` finds for P(j). The two-window bound then runs
+    with each kind of program (released in a window, or after it) kept off the robots
+    none of them may use (``window_bound``'s ``allowed``). Where no schedule so kept
+    ends by ``rho`` times a schedule of the whole scenario, no online placement is
+    within ``rho`` of the optimum on the scenario and all its prefixes; ``ratio`` is
+    the largest such ``rho``, by bisection (1.0 when none is shown). It rests on the
+    same properties of processor sharing as the bounds above.
+
+    Where it shows most: the clairvoyant optimum parks the first programs on slow
+    robots, to end when the last wave does and leave the fast robots to the later
+    programs; on its prefix, a placement doing that is several times the optimum."""
+    started = _wallclock.perf_counter()
+    deadline = started + time_limit
+    rel = sorted(releases)
+    n = len(rel)
+    if n == 0 or not team:
+        return OnlineBound(ratio=1.0, optimum_at_most=0.0, unusable=[], prefix_optima=[], seconds=0.0)
+    starts = _windows(rel)
+    wave_end = [max(k for k in range(n) if rel[k] < min((s for s in starts if s > rel[j]), default=math.inf))
+                for j in range(n)]
+
+    def schedule(k: int, start: Sequence[int] | None, until: float) -> float:
+        """A short schedule of the first k programs: greedy (each program on the robot
+        that ends first with it), or ``start``, improved and annealed (until ``until``)."""
+        pre = rel[:k]
+        if start is None:
+            per: list[list[float]] = [[] for _ in team]
+            start = []
+            for r in pre:
+                i = min(range(len(team)), key=lambda i: finish(team[i], per[i] + [r], work))
+                per[i].append(r)
+                start = [*start, i]
+        up, placed = improve(team, pre, work, start, until)
+        return min(up, anneal(team, pre, work, placed, steps=min(steps, 500 * k * len(team)), deadline=until)[0])
+
+    # a third of the time for the prefixes' schedules, a third for the whole one's, a third to bisect
+    waves_ends = sorted(set(wave_end))
+    ub: dict[int, float] = {}
+    for e in waves_ends:
+        share = time_limit / 3 / len(waves_ends)
+        ub[e] = schedule(e + 1, None, min(deadline, _wallclock.perf_counter() + share))
+    full = ub[n - 1]
+    if assignment is not None:
+        full = min(full, schedule(n, assignment, min(deadline, _wallclock.perf_counter() + time_limit / 3)))
+    if upper is not None:
+        full = min(full, upper)
+    ub[n - 1] = full
+    # program j may go to robot i within rho from rho = beta[i][j] on
+    beta = [[(rel[j] + work / rate(m, 1)) / ub[wave_end[j]] for j in range(n)] for m in team]
+    index = {r: k for k, r in reversed(list(enumerate(rel)))}  # a release time -> its first program
+
+    def allowed_at(rho: float) -> Allowed:
+        cache: dict[tuple[float, float], tuple[list[bool], list[bool]]] = {}
+
+        def allowed(a: float, b: float) -> tuple[list[bool], list[bool]]:
+            got = cache.get((a, b))
+            if got is None:
+                ia, ib = index[a], index[b]
+                got = cache[(a, b)] = ([min(row[ia:ib], default=math.inf) <= rho for row in beta],
+                                       [min(row[ib:], default=math.inf) <= rho for row in beta])
+            return got
+        return allowed
+
+    pairs = _window_pairs(rel, single=True)
+
+    def impossible(rho: float) -> bool:
+        return _unreachable(team, pairs, work, rho * full, deadline, allowed_at(rho))
+
+    low, high = 1.0, 1.0
+    if impossible(1.0):
+        high = 2.0
+        while impossible(high) and high < 64:
+            low, high = high, high * 2
+        while high - low > tolerance and _wallclock.perf_counter() < deadline:
+            mid = (low + high) / 2
+            if impossible(mid):
+                low = mid
+            else:
+                high = mid
+    return OnlineBound(ratio=low, optimum_at_most=full,
+                       unusable=[i for i, row in enumerate(beta) if min(row) > low],
+                       prefix_optima=[ub[e] for e in sorted(ub)], seconds=_wallclock.perf_counter() - started)

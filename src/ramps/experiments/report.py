@@ -233,7 +233,7 @@ def print_sweep(rep, console: Console) -> None:
     table = Table(title=f"several origins at once: policy {rep.policy}{changed}, {rep.seeds_per_scenario} seed(s) "
                         f"per scenario, seed {rep.seed}", title_justify="left")
     for name in ("family", "scenarios", "runs", "median", "p90", "worst", "<=2%", "<=5%", "vs oracle",
-                 "optimum known", "vs optimum", "at most", "open gap", "round robin median",
+                 "optimum known", "vs optimum", "at most", "open gap", ">5%: online can't", "round robin median",
                  "round robin worst", "lost", "dup"):
         table.add_column(name, justify="left" if name == "family" else "right", no_wrap=name == "family")
 
@@ -247,6 +247,8 @@ def print_sweep(rep, console: Console) -> None:
                       f"{ratio(r.median_ratio_optimum)}/{ratio(r.worst_ratio_optimum)}",
                       f"{ratio(r.median_ratio_best_bound)}/{ratio(r.worst_ratio_best_bound)}",
                       f"{100 * r.worst_gap:.1f}%" if r.searched else "-",
+                      f"{r.online_impossible}/{r.above_5pct}" if any(s.online_ratio is not None for s in rep.scenarios)
+                      else (f"?/{r.above_5pct}" if r.searched else "-"),
                       f"{r.median_round_robin_ratio:.3f}", f"{r.worst_round_robin_ratio:.3f}", str(r.lost),
                       str(r.duplicated))
     console.print(table)
@@ -256,8 +258,15 @@ def print_sweep(rep, console: Console) -> None:
                   "a search proved it within --exact-seconds; \"at most\" (median/worst) divides by the optimum "
                   "where it is known and by the best bound where it is open (an upper limit on the ratio to "
                   "the optimum), and the open gap is the widest of how far the best schedule found lies above "
-                  "that bound. "
+                  "that bound. \">5%: online can't\" counts the scenarios where the policy is more than 5% above "
+                  "the best bound, and of them those where no placement deciding each program at its release "
+                  "can be within 5% of the optimum on the scenario and its prefixes (--online-seconds). "
                   + f"{rep.wall_seconds:.1f} s.")
+    shown = [s for s in rep.scenarios if s.online_ratio is not None]
+    if shown:
+        console.print("More than 5% above the best bound: " + "; ".join(
+            f"{s.name}: {s.ratio_best_bound:.3f} of the bound, optimum at most {s.best_schedule:.2f} s, "
+            f"no online placement within {s.online_ratio:.3f}" for s in shown))
     worst = sorted(rep.scenarios, key=lambda s: -s.ratio_lower_bound)[:5]
     if worst:
         console.print("Worst scenarios: " + "; ".join(

@@ -40,7 +40,7 @@ import msgspec
 
 from ramps.core.config import RampsConfig
 from ramps.experiments.metrics import Machine, rate
-from ramps.experiments.optimum import simple_bound, solve
+from ramps.experiments.optimum import online_bound, online_limit, simple_bound, solve
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario
 
@@ -91,6 +91,11 @@ class SweepScenario(msgspec.Struct, kw_only=True):
     #: the optimum (equal when it is proven)
     ratio_best_bound: float | None = None
     search_seconds: float = 0.0
+    #: where the policy is more than ``ONLINE_ABOVE`` above the best bound and
+    #: --online-seconds asks: no placement that decides each program at its
+    #: release is within this ratio of the optimum on the scenario and all its
+    #: prefixes (``ramps.experiments.optimum.online_bound``; 1.0: nothing shown)
+    online_ratio: float | None = None
 
 
 class FamilyRow(msgspec.Struct, kw_only=True):
@@ -119,6 +124,10 @@ class FamilyRow(msgspec.Struct, kw_only=True):
     worst_ratio_best_bound: float | None = None
     #: the widest open interval (best schedule / best bound - 1), 0 if none
     worst_gap: float = 0.0
+    #: scenarios more than 5% above the best bound, and of those the ones where no
+    #: online placement can be within 5% (online_ratio > 1.05)
+    above_5pct: int = 0
+    online_impossible: int = 0
 
 
 class SweepReport(msgspec.Struct, kw_only=True):
@@ -241,8 +250,14 @@ def oracle_schedule(sc: Scenario, work: float = WORK) -> tuple[float, list[int]]
 
 
 # ---------------------------------------------------------------- running
+#: a scenario this far above its best bound gets ``online_bound`` (with --online-seconds),
+#: and ``online_limit`` too when it has at most this many programs
+ONLINE_ABOVE = 1.05
+ONLINE_EXACT_PROGRAMS = 12
+
+
 def run_scenario(sc: Scenario, *, policy: str, seeds: int, seed: int, exact_nodes: int = 0,
-                 exact_seconds: float = 0.0) -> SweepScenario:
+                 exact_seconds: float = 0.0, online_seconds: float = 0.0) -> SweepScenario:
     """``exact_seconds`` > 0 or ``exact_nodes`` > 0 searches for the exact
     optimum where the lower bound and the oracle differ, for at most that
     long or that many placements (both when both are given)."""
@@ -269,6 +284,14 @@ def run_scenario(sc: Scenario, *, policy: str, seeds: int, seed: int, exact_node
                       max_nodes=exact_nodes if exact_nodes > 0 else 10**12)
         optimum = found.best if found.proven else None
         bound, schedule, seconds = max(lb, found.bound), found.best, found.seconds
+    online = None
+    if online_seconds > 0 and bound is not None and med > ONLINE_ABOVE * bound:
+        online = online_bound(machines(sc), releases(sc), WORK, oracle_schedule(sc)[1], upper=schedule,
+                              time_limit=online_seconds).ratio
+        if len(releases(sc)) <= ONLINE_EXACT_PROGRAMS:  # small: the exhaustive limit, which is exact
+            exact = online_limit(machines(sc), releases(sc), WORK, max_nodes=200_000)
+            if exact is not None:
+                online = max(online, exact.ratio)
     return SweepScenario(
         name=sc.name, team=sc.name.split("-")[0], timing=sc.name.split("-")[1], robots=len(names),
         origins=len(sc.programs), programs=sum(p.count for p in sc.programs), lower_bound=lb, oracle=orc,
@@ -276,7 +299,7 @@ def run_scenario(sc: Scenario, *, policy: str, seeds: int, seed: int, exact_node
         ratio_round_robin=statistics.median(r.round_robin for r in runs) / lb,
         optimum=optimum, ratio_optimum=None if optimum is None else med / optimum,
         best_bound=bound, best_schedule=schedule, ratio_best_bound=None if bound is None else med / bound,
-        search_seconds=seconds,
+        search_seconds=seconds, online_ratio=online,
     )
 
 
@@ -299,37 +322,51 @@ def _row(name: str, scs: Sequence[SweepScenario]) -> FamilyRow:
         worst_ratio_optimum=max(opt) if opt else None, searched=len(upto),
         median_ratio_best_bound=statistics.median(upto) if upto else None,
         worst_ratio_best_bound=max(upto) if upto else None, worst_gap=max(gaps, default=0.0),
+        above_5pct=sum(1 for x in upto if x > ONLINE_ABOVE),
+        online_impossible=sum(1 for s in scs if s.ratio_best_bound is not None and s.ratio_best_bound > ONLINE_ABOVE
+                              and s.online_ratio is not None and s.online_ratio > ONLINE_ABOVE),
     )
 
 
 def run_sweep(family: str = "multi-origin", *, per_family: int = 36, seeds: int = 3, seed: int = 0,
               policy: str = "ramps", config: RampsConfig | None = None,
               progress: Callable[[int, int], None] | None = None, exact_nodes: int = 0,
-              exact_seconds: float = 0.0) -> SweepReport:
+              exact_seconds: float = 0.0, online_seconds: float = 0.0,
+              only: Sequence[str] = ()) -> SweepReport:
     """``config`` replaces the default settings in every scenario (to measure
-    what one mechanism is worth, e.g. ``RampsConfig(prompt_reports=False)``)."""
+    what one mechanism is worth, e.g. ``RampsConfig(prompt_reports=False)``).
+    ``only``: run just the scenarios of these names (e.g. ``mixed-staggered-1``)."""
     if family not in FAMILIES:
         raise ValueError(f"unknown family {family!r}; choose one of {', '.join(FAMILIES)}")
     import time as _wallclock
 
     started = _wallclock.perf_counter()
     kinds = FAMILIES[family]
-    total = len(kinds) * per_family
+    wanted = set(only)
+    names = {f"{t}-{s}-{i}" for t, s in kinds for i in range(per_family)}
+    if wanted - names:
+        raise ValueError(f"no scenario {', '.join(sorted(wanted - names))} in {family} with {per_family} per family "
+                         "(names are TEAM-TIMING-INDEX, e.g. mixed-staggered-1)")
+    total = len(wanted) if wanted else len(kinds) * per_family
     scenarios: list[SweepScenario] = []
     rows: list[FamilyRow] = []
     for team_kind, timing in kinds:
         group = []
         for i in range(per_family):
+            if wanted and f"{team_kind}-{timing}-{i}" not in wanted:
+                continue
             sc = generate(team_kind, timing, i, seed)
             if config is not None:
                 sc = msgspec.structs.replace(sc, config=config)
             group.append(run_scenario(sc, policy=policy, seeds=seeds, seed=seed + i, exact_nodes=exact_nodes,
-                                      exact_seconds=exact_seconds))
+                                      exact_seconds=exact_seconds, online_seconds=online_seconds))
             if progress:
                 progress(len(scenarios) + len(group), total)
+        if not group:
+            continue
         scenarios.extend(group)
         rows.append(_row(f"{team_kind}-{timing}", group))
-    if len(kinds) > 1:
+    if len(rows) > 1:
         rows.append(_row("all", scenarios))
     changed = {} if config is None else {k: getattr(config, k) for k in config.__struct_fields__
                                          if getattr(config, k) != getattr(RampsConfig(), k)}
