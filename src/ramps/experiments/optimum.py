@@ -360,29 +360,30 @@ def shared_window_end(m: Machine, x: int, span: float, y: int, at: float, work: 
 
 
 def _split_fits(team: Sequence[Machine], t1: float, t2: float, nx: int, ny: int, work: float,
-                target: float, x_ok: Sequence[bool] | None = None, y_ok: Sequence[bool] | None = None) -> bool:
+                target: float, x_cap: Sequence[int] | None = None, y_ok: Sequence[bool] | None = None) -> bool:
     """Can the team take nx programs released in [t1, t2) and ny released at
     or after t2 with every robot's ``window_end`` at most ``target``?
     dp[y] = the most window programs the robots so far take beside y late ones.
-    ``x_ok[i]`` / ``y_ok[i]`` False: robot i may take none of that kind."""
+    ``x_cap[i]``: robot i takes at most that many window programs;
+    ``y_ok[i]`` False: none of the late ones."""
     none = -1
     dp = [0] + [none] * ny
-    tables: dict[tuple[Machine, bool, bool], list[int]] = {}
+    tables: dict[tuple[Machine, int, bool], list[int]] = {}
     for i, m in enumerate(team):
-        xo = x_ok is None or x_ok[i]
+        xc = nx if x_cap is None else min(nx, x_cap[i])
         yo = y_ok is None or y_ok[i]
-        tab = tables.get((m, xo, yo))
+        tab = tables.get((m, xc, yo))
         if tab is None:
             span = t2 - t1
             tab = []
             for y in range(ny + 1 if yo else 1):
                 if shared_window_end(m, 0, span, y, t2, work) > target:
                     break
-                x = nx if xo else 0  # the most that fit (the bound need not grow with x: every x is tried)
+                x = xc  # the most that fit (the bound need not grow with x: every x is tried)
                 while x > 0 and shared_window_end(m, x, span, y, t2, work) > target:
                     x -= 1
                 tab.append(x)
-            tables[(m, xo, yo)] = tab
+            tables[(m, xc, yo)] = tab
         new = [none] * (ny + 1)
         for y, got in enumerate(dp):
             if got == none:
@@ -395,8 +396,9 @@ def _split_fits(team: Sequence[Machine], t1: float, t2: float, nx: int, ny: int,
     return dp[ny] >= nx
 
 
-#: which robots may take programs released in [a, b), and which those released at or after b
-Allowed = Callable[[float, float], tuple[Sequence[bool], Sequence[bool]]]
+#: how many programs released in [a, b) each robot may take, and whether it may take those
+#: released at or after b
+Allowed = Callable[[float, float], tuple[Sequence[int], Sequence[bool]]]
 
 
 def _window_pairs(rel: Sequence[float], single: bool) -> list[tuple[float, float, int, int]]:
@@ -417,8 +419,8 @@ def _unreachable(team: Sequence[Machine], pairs: Sequence[tuple[float, float, in
     for a, b, nx, ny in pairs:
         if deadline is not None and _wallclock.perf_counter() > deadline:
             return False
-        x_ok, y_ok = allowed(a, b) if allowed is not None else (None, None)
-        if not _split_fits(team, a, b, nx, ny, work, target, x_ok, y_ok):
+        x_cap, y_ok = allowed(a, b) if allowed is not None else (None, None)
+        if not _split_fits(team, a, b, nx, ny, work, target, x_cap, y_ok):
             return True
     return False
 
@@ -692,14 +694,23 @@ def online_bound(team: Sequence[Machine], releases: Sequence[float], work: float
     index = {r: k for k, r in reversed(list(enumerate(rel)))}  # a release time -> its first program
 
     def allowed_at(rho: float) -> Allowed:
-        cache: dict[tuple[float, float], tuple[list[bool], list[bool]]] = {}
+        """Within rho, robot i takes a program of [a, b) only if it alone would end by
+        rho * OPT(P), P the prefix up to b, and q of them only if q released together
+        at a would (the first of their releases; processor sharing, as the bounds)."""
+        cache: dict[tuple[float, float], tuple[list[int], list[bool]]] = {}
 
-        def allowed(a: float, b: float) -> tuple[list[bool], list[bool]]:
+        def allowed(a: float, b: float) -> tuple[list[int], list[bool]]:
             got = cache.get((a, b))
             if got is None:
                 ia, ib = index[a], index[b]
-                got = cache[(a, b)] = ([min(row[ia:ib], default=math.inf) <= rho for row in beta],
-                                       [min(row[ib:], default=math.inf) <= rho for row in beta])
+                limit = rho * ub[ib - 1] if ib > ia else math.inf
+                caps = []
+                for m, row in zip(team, beta):
+                    q = sum(1 for x in row[ia:ib] if x <= rho)
+                    while q > 0 and a + work / rate(m, q) > limit:
+                        q -= 1
+                    caps.append(q)
+                got = cache[(a, b)] = (caps, [min(row[ib:], default=math.inf) <= rho for row in beta])
             return got
         return allowed
 
