@@ -286,8 +286,9 @@ def run_scenario(sc: Scenario, *, policy: str, seeds: int, seed: int, exact_node
         bound, schedule, seconds = max(lb, found.bound), found.best, found.seconds
     online = None
     if online_seconds > 0 and bound is not None and med > ONLINE_ABOVE * bound:
+        # the annealing of the prefixes' schedules decides how much it shows: more steps with more time
         online = online_bound(machines(sc), releases(sc), WORK, oracle_schedule(sc)[1], upper=schedule,
-                              time_limit=online_seconds).ratio
+                              time_limit=online_seconds, steps=max(100_000, int(2_000 * online_seconds))).ratio
         if len(releases(sc)) <= ONLINE_EXACT_PROGRAMS:  # small: the exhaustive limit, which is exact
             exact = online_limit(machines(sc), releases(sc), WORK, max_nodes=200_000)
             if exact is not None:
