@@ -271,7 +271,9 @@ def run_scenario(sc: Scenario, *, policy: str, seeds: int, seed: int, exact_node
                              completed=res.completed, lost=res.lost, duplicated=res.duplicated,
                              distribution=[res.distribution.get(n, 0) for n in names]))
     lb = lower_bound(sc)
-    orc, orc_dist = oracle(sc)
+    team, rel = machines(sc), releases(sc)
+    orc, placed = oracle_schedule(sc)  # once: the search and the online bound start from it too
+    orc_dist = [placed.count(i) for i in range(len(names))]
     med = statistics.median(r.makespan for r in runs)
     optimum: float | None = None
     bound = schedule = None
@@ -279,7 +281,7 @@ def run_scenario(sc: Scenario, *, policy: str, seeds: int, seed: int, exact_node
     if orc <= lb * (1 + 1e-9):
         optimum = bound = schedule = lb  # a schedule reaches the bound: it is the optimum
     elif exact_nodes > 0 or exact_seconds > 0:
-        found = solve(machines(sc), releases(sc), WORK, oracle_schedule(sc)[1],
+        found = solve(team, rel, WORK, placed,
                       time_limit=exact_seconds if exact_seconds > 0 else math.inf,
                       max_nodes=exact_nodes if exact_nodes > 0 else 10**12)
         optimum = found.best if found.proven else None
@@ -287,10 +289,10 @@ def run_scenario(sc: Scenario, *, policy: str, seeds: int, seed: int, exact_node
     online = None
     if online_seconds > 0 and bound is not None and med > ONLINE_ABOVE * bound:
         # the annealing of the prefixes' schedules decides how much it shows: more steps with more time
-        online = online_bound(machines(sc), releases(sc), WORK, oracle_schedule(sc)[1], upper=schedule,
+        online = online_bound(team, rel, WORK, placed, upper=schedule,
                               time_limit=online_seconds, steps=max(100_000, int(2_000 * online_seconds))).ratio
-        if len(releases(sc)) <= ONLINE_EXACT_PROGRAMS:  # small: the exhaustive limit, which is exact
-            exact = online_limit(machines(sc), releases(sc), WORK, max_nodes=200_000)
+        if len(rel) <= ONLINE_EXACT_PROGRAMS:  # small: the exhaustive limit, which is exact
+            exact = online_limit(team, rel, WORK, max_nodes=200_000)
             if exact is not None:
                 online = max(online, exact.ratio)
     return SweepScenario(
