@@ -156,9 +156,13 @@ def test_strays_left_behind_by_a_finished_program_are_killed(tmp_path):
 
 
 def test_a_killed_worker_takes_its_executable_group_along(tmp_path):
-    """The guardian: the worker (here a child python) is SIGKILLed mid-program."""
+    """The guardian: the worker (here a child python) is SIGKILLed mid-program.
+
+    The script reads its input first: the worker tells the guardian the
+    group's id before it writes the input, so the guardian is armed when
+    the marks appear."""
     marks = tmp_path / "pids"
-    p = script(tmp_path, f"#!/bin/sh\nsleep 300 &\necho $$ $! > {marks}\nwait\n")
+    p = script(tmp_path, f"#!/bin/sh\ncat >/dev/null\nsleep 300 &\necho $$ $! > {marks}\nwait\n")
     import subprocess
 
     worker = subprocess.Popen([sys.executable, "-c", "import sys; from ramps.runtime.command import CommandProgram; "

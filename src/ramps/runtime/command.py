@@ -49,6 +49,7 @@ import math
 import os
 import selectors
 import signal
+import struct
 import subprocess
 import tempfile
 import time
@@ -180,15 +181,24 @@ class CommandProgram:
     def _run(self, stdin: bytes, env: dict[str, str], on_progress: Callable[[float, str], None],
              on_checkpoint: Callable[[Any], Any], max_result: int) -> Any:
         guard_r, guard_w = os.pipe()
+        # The guardian is forked first: a worker killed while the executable
+        # starts must not leave it behind. It learns the group's id (the
+        # executable's pid, as it leads its own session) before the
+        # executable is given its input.
+        guardian = _start_guardian(guard_r)
+        os.close(guard_r)
         try:
             proc = subprocess.Popen([self.path, *self.args], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                     stderr=subprocess.PIPE, env=env, start_new_session=True, close_fds=True)
         except OSError as exc:
-            os.close(guard_r)
-            os.close(guard_w)
+            os.close(guard_w)  # end of input before a group id: the guardian leaves
+            if guardian:
+                os.waitpid(guardian, 0)
             raise CommandFailed(f"{self.name}: cannot start {self.path}: {exc.strerror or exc}") from None
-        guardian = _start_guardian(proc.pid, guard_r, guard_w)
-        os.close(guard_r)
+        try:
+            os.write(guard_w, _GROUP.pack(proc.pid))
+        except OSError:
+            pass
         deadline = time.monotonic() + self.timeout
         try:
             out, err_tail, timed_out, too_big, bad_checkpoint = _communicate(
@@ -253,13 +263,19 @@ def _kill_group(pgid: int) -> None:
         pass
 
 
-def _start_guardian(pgid: int, read_fd: int, write_fd: int) -> int:
-    """Fork a process that kills group ``pgid`` when the worker dies.
+#: how the worker tells its guardian the executable's process group
+_GROUP = struct.Struct("!q")
+
+
+def _start_guardian(read_fd: int) -> int:
+    """Fork a process that kills the executable's group when the worker dies.
 
     It leaves the worker's process group (a crash that kills the node's
-    whole group must not take the guardian along) and blocks on ``read_fd``:
-    a byte means the worker finished the program itself; end of input
-    without one means the worker is gone: kill the group."""
+    whole group must not take the guardian along) and reads ``read_fd``:
+    first the group's id (``_GROUP``), then one byte if the worker finished
+    the program itself. End of input after the id and before the byte
+    means the worker is gone: kill the group. End of input before the id
+    means the executable never started."""
     try:
         pid = os.fork()
     except OSError:
@@ -270,12 +286,18 @@ def _start_guardian(pgid: int, read_fd: int, write_fd: int) -> int:
         os.closerange(0, read_fd)  # the worker's pipes too: the pool must see the worker's end at once
         os.closerange(read_fd + 1, os.sysconf("SC_OPEN_MAX") if hasattr(os, "sysconf") else 1024)
         os.setsid()
+        head = b""
         try:
-            got = os.read(read_fd, 1)
+            while len(head) < _GROUP.size:
+                got = os.read(read_fd, _GROUP.size - len(head))
+                if not got:
+                    break
+                head += got
+            done = os.read(read_fd, 1) if len(head) == _GROUP.size else b"d"
         except OSError:
-            got = b""
-        if not got:
-            _kill_group(pgid)
+            done = b""
+        if not done and len(head) == _GROUP.size:
+            _kill_group(_GROUP.unpack(head)[0])
     finally:
         os._exit(0)
 
