@@ -70,7 +70,7 @@ def test_arguments_checked_against_the_signature_and_encoded_without_pickle():
         encode_args(spec_py, {"seconds": 1.0, "units": None} | {}, max_bytes=4)
     with pytest.raises(BadArguments, match="mapping"):
         decode_args(b"\x93\x01\x02\x03")  # a msgpack list, not a mapping
-    assert spec.name == "sleep" and MAX_ARGS_BYTES == 1024 * 1024
+    assert spec.name == "sleep" and 5_000_000 < MAX_ARGS_BYTES < 8 * 1024 * 1024  # 5 MB fits, one message holds it
 
 
 @pytest.mark.slow
@@ -107,3 +107,19 @@ def test_a_local_team_keeps_its_node_logs_when_it_ends_in_an_error():
         assert (team.log_dir / "r1.log").exists()
     finally:
         shutil.rmtree(team.log_dir, ignore_errors=True)
+
+
+def test_five_megabytes_of_parameters_fit_and_a_node_limit_beyond_one_message_is_refused(tmp_path):
+    from ramps.runtime.settings import load_settings
+
+    spec = Registry().add_target("ramps.testbed.slowlink:crunch")  # data: bytes, units: float
+    assert len(encode_args(spec, {"data": b"\x00" * 5_000_000})) > 5_000_000
+    with pytest.raises(BadArguments, match="limit"):
+        encode_args(spec, {"data": b"\x00" * MAX_ARGS_BYTES})
+    assert load_settings(environ={}, default_robot=False).max_args_bytes == MAX_ARGS_BYTES
+    cfg = tmp_path / "node.toml"
+    cfg.write_text("max_args_bytes = 9000000\n")
+    with pytest.raises(ConfigError, match="max_args_bytes must be 1..8323072"):
+        load_settings(config_file=cfg, environ={}, default_robot=False)
+    cfg.write_text("max_args_bytes = 100000\n")
+    assert load_settings(config_file=cfg, environ={}, default_robot=False).max_args_bytes == 100_000

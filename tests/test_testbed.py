@@ -245,6 +245,46 @@ def test_exception_in_with_block_cleans_up():
 
 
 @needs_testbed
+def test_a_start_whose_robots_do_not_join_is_made_again_and_leaves_nothing(monkeypatch, capfd):
+    """The first start gives up at once (the real wait_alive with no time left,
+    as on a host too busy for the nodes to join): that testbed goes, a fresh
+    one comes up and runs programs, and with tries=1 the error is the caller's."""
+    from ramps.testbed import Testbed, net
+    from ramps.testbed.bed import DidNotJoin
+
+    real = Testbed.wait_alive
+    starts: list[tuple[str, list[int]]] = []
+
+    def impatient_once(self, robots=None, timeout=60.0):
+        starts.append((self.tb, [self.robots[r]["pid"] for r in self.names]))
+        return real(self, robots, 0.0 if len(starts) == 1 else timeout)
+
+    monkeypatch.setattr(Testbed, "wait_alive", impatient_once)
+    team = f"tbretry-{os.getpid()}"
+    with Testbed(2, team=team, quota=0.5) as tb, tb.client("r1") as client:
+        assert len(starts) == 2  # the id may be the same again: the first testbed's files are gone
+        first_pids = starts[0][1]
+        assert all(_dead(p) for p in first_pids) and not set(first_pids) & set(starts[1][1])
+        assert len([n for n in net.namespaces() if n.startswith(f"ramps-{tb.tb}-")]) == 2
+        assert client.options(work=0.1).submit("echo", x=1).result(timeout=60) == {"x": 1}
+        pids = [tb.robots[r]["pid"] for r in tb.names]
+    assert "did not all join" in capfd.readouterr().err
+    assert_clean(tb.tb, team, pids)
+    starts.clear()
+    with pytest.raises(DidNotJoin, match="did not all join"):
+        Testbed(2, team=team, quota=0.5).up(tries=1)
+    assert len(starts) == 1
+    assert others_leftovers() == []
+
+
+def _dead(pid: int) -> bool:
+    from ramps.testbed.bed import _proc_stat
+
+    st = _proc_stat(pid)
+    return st is None or st[0] == "Z"
+
+
+@needs_testbed
 def test_sigterm_of_the_owner_cleans_up(tmp_path):
     team = f"tbsig-{os.getpid()}"
     code = ("import sys, time\nfrom ramps.testbed import Testbed\n"

@@ -1,4 +1,4 @@
-"""A program's megabyte of parameters crosses a slow link whole, on real
+"""A program's 5 MB of parameters cross a slow link whole, on real
 node processes in the testbed (ramps.runtime.bulk; tc tbf at 1 MB/s).
 
 Zenoh's DROP congestion control dropped such a message whenever the link
@@ -20,7 +20,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.serial,  # busy processes and a shap
                                  reason=REASON or "the testbed's caps need cgroup v1")]
 
 
-def test_a_megabyte_offer_over_a_1_mb_s_link_is_accepted_at_the_first_attempt():
+def test_a_5_mb_offer_over_a_1_mb_s_link_is_accepted_at_the_first_attempt():
     from ramps.testbed import Testbed
     from ramps.testbed.experiments import identical_speed
     from ramps.testbed.slowlink import TARGET, slow_link
@@ -32,8 +32,8 @@ def test_a_megabyte_offer_over_a_1_mb_s_link_is_accepted_at_the_first_attempt():
         slow_link(tb, "r2", 1e6)
         tb.add_load("r1", 8)  # r1 is busy: its program is worth sending to r2, slow link and all
         assert wait_until(lambda: any(r.robot == "r1" and r.runnable >= 6 for r in team.status().robots), 30)
-        fut = team.options(work=0.3).submit("crunch", data=b"\x5a" * 1_000_000, units=0.3)
-        assert fut.result(timeout=120) == {"bytes": 1_000_000}
+        fut = team.options(work=0.3).submit("crunch", data=b"\x5a" * 5_000_000, units=0.3)
+        assert fut.result(timeout=120) == {"bytes": 5_000_000}
         assert tb.log_dir is not None
         trace = [json.loads(line) for line in (tb.log_dir / "r1.trace.jsonl").read_text().splitlines()]
         placed = [(e["what"], e["other"], e["detail"]) for e in trace if e["what"] in ("placed", "failed")]

@@ -284,7 +284,7 @@ def testbed_experiment_sweep(
 @experiment_app.command("slow-link")
 def testbed_experiment_slow_link(
     rate: float = typer.Option(1.0, "--rate", min=0.01, max=1000.0, help="MB/s of the slowed robot's link (tbf; this kernel has no netem, so no added delay)"),
-    payload: int = typer.Option(1_000_000, "--payload", min=1, max=1_000_000, help="bytes of parameters of each program (a client sends at most 1 MB)"),
+    payload: int = typer.Option(5_000_000, "--payload", min=1, max=8_000_000, help="bytes of parameters of each program (a client sends at most 8 MB less 64 KiB)"),
     units: float = typer.Option(0.3, "--units", min=0.01, max=10.0, help="work units of each program"),
     programs: int = typer.Option(6, "--programs", min=1, max=100, help="programs per run, submitted one after another"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),

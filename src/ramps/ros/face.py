@@ -72,6 +72,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import String
 from unique_identifier_msgs.msg import UUID
 
+from ramps.runtime.registry import MAX_ARGS_BYTES
+
 try:  # the RunProgram action, once built (ramps ros --build-interfaces)
     from ramps_interfaces.action import RunProgram
 except ImportError:
@@ -79,8 +81,9 @@ except ImportError:
 
 #: seconds a finished goal stays in the status array
 KEEP_FINISHED = 60.0
-#: longest goal message accepted, bytes (ramps' own argument limit is 1 MiB)
-MAX_GOAL_BYTES = 1024 * 1024 + 4096
+#: longest goal message accepted, bytes: ramps' own argument limit and room
+#: for the goal's other fields
+MAX_GOAL_BYTES = MAX_ARGS_BYTES + 4096
 #: seconds between two looks at the goals without news (expiry, status)
 HOUSEKEEPING_PERIOD = 0.5
 

@@ -29,13 +29,15 @@ from typing import Any, Callable
 
 import msgspec
 
+from ramps.core.messages import MAX_MESSAGE_BYTES
 from ramps.errors import BadArguments, ConfigError, ProgramNotFound
 
-#: largest encoded arguments a client will send, bytes
-MAX_ARGS_BYTES = 1024 * 1024
-#: largest encoded result a program may return: it must fit in one wire
-#: message (ramps.core.messages.MAX_MESSAGE_BYTES) with room for the envelope
-MAX_RESULT_BYTES = 8 * 1024 * 1024 - 64 * 1024
+#: largest encoded arguments a client will send, bytes: they must fit in one
+#: wire message (ramps.core.messages.MAX_MESSAGE_BYTES, 8 MiB) with room for
+#: the offer around them. A node may accept less (``max_args_bytes``).
+MAX_ARGS_BYTES = MAX_MESSAGE_BYTES - 64 * 1024
+#: largest encoded result a program may return: the same bound
+MAX_RESULT_BYTES = MAX_MESSAGE_BYTES - 64 * 1024
 
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder()

@@ -43,6 +43,7 @@ import msgspec
 from ramps.core.config import RampsConfig
 from ramps.errors import ConfigError
 from ramps.runtime import keys
+from ramps.runtime.registry import MAX_ARGS_BYTES as _MAX_ARGS
 
 
 class CommandEntry(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -117,8 +118,11 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     #: Load reports carry its CFS weight, so origins know that a program here
     #: gets what the robot's busy software leaves (0: equal shares)
     worker_nice: int = 10
-    #: largest encoded arguments accepted from a client, bytes
-    max_args_bytes: int = 1024 * 1024
+    #: largest encoded arguments accepted from a client, bytes (at most
+    #: ramps.runtime.registry.MAX_ARGS_BYTES, just under 8 MiB: one message).
+    #: The origin keeps each program's arguments until its result is in, to
+    #: restart it elsewhere, so this times the programs in flight is memory
+    max_args_bytes: int = _MAX_ARGS
     #: write every decision of the core (placed, accepted, failed,
     #: blacklisted, delivered, ...) to this file as JSON lines ("" = off)
     trace: str = ""
@@ -157,6 +161,9 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
             raise ValueError(f"worker_nice must be 0..19, got {self.worker_nice}")
         if self.load_scope not in ("auto", "host", "cgroup"):
             raise ValueError(f"load_scope must be auto, host or cgroup, got {self.load_scope!r}")
+        if not 1 <= self.max_args_bytes <= _MAX_ARGS:
+            raise ValueError(f"max_args_bytes must be 1..{_MAX_ARGS} (arguments travel in one message), "
+                             f"got {self.max_args_bytes}")
         if self.metrics:
             from ramps.observe.metrics import parse_address
 

@@ -106,18 +106,6 @@ def simulate_variant(variant: str, *, robots: int, cores: int, programs: int, se
     return runs[len(runs) // 2]
 
 
-def _up(tb, log: Callable[[str], None]):
-    """The testbed up, trying once more when its robots do not all join (seen once in
-    six testbeds started one after another here: the observer never saw one robot)."""
-    from ramps.errors import NoTeam
-
-    try:
-        return tb.__enter__()
-    except NoTeam as exc:
-        log(f"  the testbed did not come up ({str(exc).splitlines()[0]}); starting it again")
-        return type(tb)(len(tb.names), cores=tb.cores, quota=tb.quota, speed=tb.speed, config=tb.config).__enter__()
-
-
 def run_testbed_relocation(*, robots: int = 3, cores: int = 4, quota: float = 0.2, programs: int = 8,
                            seconds: float = 30.0, load_at: float = 6.0, busy: int = 8,
                            checkpoint_every: float = 2.0, seeds: int = 3, timeout: float = 600.0,
@@ -148,7 +136,7 @@ def run_testbed_relocation(*, robots: int = 3, cores: int = 4, quota: float = 0.
                                                     seconds=seconds, busy=busy, load_at=load_at,
                                                     checkpoint_every=checkpoint_every, seeds=seeds)
         config = {"worker_nice": 0, "core": {"relocate": variant != "relocation off"}}
-        with _up(Testbed(robots, cores=cores, quota=quota, speed=speed, config=config), log) as tb:
+        with Testbed(robots, cores=cores, quota=quota, speed=speed, config=config) as tb:
             team = tb.client("r1", timeout=30.0)
             try:
                 time.sleep(SETTLE)  # every robot has reported
