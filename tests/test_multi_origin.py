@@ -196,6 +196,36 @@ def test_a_host_whose_programs_are_nearly_done_beats_an_idle_slow_robot() -> Non
     assert choose(RampsPolicy(), view, work=50.0, now=0.5) == "s"
 
 
+def test_a_robot_keeps_its_program_only_when_a_teammate_is_not_clearly_faster() -> None:
+    """mixed-staggered-26: the last program of origin o (2 cores, 2 programs
+    with 46 units left) stayed on o, 77.3 s, where teammate b (2 cores, 2
+    programs with 44.5 left) finished it 0.8% sooner: within the old 2% tie,
+    broken by equal utilisation towards this robot, and the team's makespan
+    was that 0.6 s longer on 14 seeds of 20. Ties are now within 0.5%."""
+    from ramps.core.loadview import LoadView
+    from ramps.core.policy import PlacementRequest, RampsPolicy
+
+    from corehelpers import NET, report
+
+    view = LoadView("o", cores=2, speed=1.0)
+    view.on_report(report("o", cores=2, ramps_running=2, runnable=2.0, ramps_avg=2.0, cpu_busy=2.0,
+                          accepted_total=2, remaining=[46.0] * 2), 0.5)
+    view.on_report(report("b", cores=2, ramps_running=2, runnable=2.0, ramps_avg=2.0, cpu_busy=2.0,
+                          accepted_total=2, remaining=[44.5] * 2), 0.5)
+    req = PlacementRequest(program_id="x", work=53.0, payload_size=1000, result_size=1000)
+
+    def pick(cfg: RampsConfig) -> tuple[str, float]:
+        p = RampsPolicy().choose(req, view, 0.5, random.Random(0), net=NET, config=cfg)
+        return p.host, p.expected_time or 0.0
+
+    assert pick(RampsConfig()) == ("b", pytest.approx(44.5 * 1.5 + 8.5, abs=0.1))
+    assert pick(RampsConfig(tie_tolerance=0.02))[0] == "o"  # the old margin: o, 76 s against b's 75.3
+    # a real tie still goes to the least utilised robot, then this one
+    view.on_report(report("b", seq=2, cores=2, ramps_running=2, runnable=2.0, ramps_avg=2.0, cpu_busy=2.0,
+                          accepted_total=2, remaining=[46.0] * 2), 0.5)
+    assert pick(RampsConfig())[0] == "o"
+
+
 # ---------------------------------------------------------------- learned work
 def test_work_declared_4x_too_small_is_learned_within_20_percent_in_5_runs() -> None:
     # three origins; route plans take 53 units but declare 13.25; each origin

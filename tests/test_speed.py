@@ -176,12 +176,13 @@ def test_robots_that_measured_themselves_slow_get_their_share_after_re_measuring
 @pytest.mark.parametrize("seed", [1, 2])
 def test_a_robot_that_measured_itself_fast_is_corrected_by_its_results(seed):
     """r3 believes itself 1.5x faster than its four identical teammates:
-    it takes five programs of twenty where four each is the optimum, until
-    its results, next to the same program's elsewhere, show its real speed."""
+    it takes five or six programs of twenty where four each is the optimum,
+    until its results, next to the same program's elsewhere, show its real
+    speed."""
     over = {"r3": 1.5}
     before = simulate(scenario_from_dict(_team(over, origins={"r1": 20}, learning=False)), seed=seed)
     after = simulate(scenario_from_dict(_team(over, origins={"r1": 20}, learning=True)), seed=seed)
-    assert all(w["r3"] == 5 for w in _waves(before))
+    assert all(w["r3"] in (5, 6) for w in _waves(before))
     assert [dict(w) for w in _waves(after)[1:]] == [{f"r{i}": 4 for i in range(1, 6)}] * 3
     assert after.makespan < 300 + 53 * 1.02 < before.makespan
     assert after.lost == after.duplicated == 0

@@ -31,8 +31,14 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: load reports older than this are ignored when placing (robot gone quiet)
     max_report_age: float = 10.0
     #: costs within this relative margin count as equal; ties are then broken
-    #: towards the least utilised robot (ramps policy only)
-    tie_tolerance: float = 0.02
+    #: towards the least utilised robot, then this one (ramps policy only).
+    #: 0.005 (was 0.02): a 2% margin kept programs on their origin where a
+    #: teammate was 1% faster (docs/2026-11-23-several-origins.md, "Ties")
+    tie_tolerance: float = 0.005
+    #: a host busier than the origin expected still takes a program that
+    #: computes there within its time budget plus this relative margin
+    #: (ramps negotiation)
+    admission_tolerance: float = 0.02
     #: how many times in a row a program may be turned away by busy hosts
     #: before the next host is asked to take it regardless (ramps negotiation)
     max_rejections: int = 8

@@ -187,7 +187,7 @@ class Executor:
             return False
         others = [max(0.0, job.work - job.done) for job in self.running.values()]
         t_here = shared_finish_time(req.work, others, self.cores, self.speed, self.background, self.program_weight)
-        return t_here <= req.time_budget * (1.0 + self.config.tie_tolerance)
+        return t_here <= req.time_budget * (1.0 + self.config.admission_tolerance)
 
     def on_finished(self, ev: ProgramFinished, now: float, out: list[Action]) -> None:
         self._advance(now)
