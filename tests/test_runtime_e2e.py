@@ -32,6 +32,7 @@ from runtime_team import LocalTeam, assert_no_leftovers, cgroup_support, wait_fo
 import ramps
 from ramps.core.messages import ProgramOutcome, SubmitProgram, decode, encode
 from ramps.errors import BadArguments, ProgramFailed, ProgramNotFound, ProgramRefused
+from ramps.runtime.registry import MAX_ARGS_BYTES
 
 pytestmark = pytest.mark.slow
 
@@ -182,7 +183,7 @@ def test_bad_arguments_fail_at_the_caller(team3, clients):
 
 def test_oversized_arguments_fail_at_submit(team3, clients):
     with pytest.raises(BadArguments) as ei:
-        clients["r1"].submit("where", x=b"\0" * (1024 * 1024 + 10))
+        clients["r1"].submit("where", x=b"\0" * (MAX_ARGS_BYTES + 10))
     assert "limit" in str(ei.value)
     assert clients["r1"].pending() == 0
     assert_team_healthy(team3, clients)
@@ -335,11 +336,12 @@ def test_pickled_message_is_dropped_and_counted(team3, clients, tmp_path):
 
 
 def test_node_checks_argument_size_itself(team3, clients):
-    """A client that skips the size check (a raw SubmitProgram with 1 MiB + 100
-    bytes of arguments) gets a bad_arguments outcome from the node."""
+    """A client that skips the size check (a raw SubmitProgram with 100 bytes
+    more arguments than the limit, still one message) gets a bad_arguments
+    outcome from the node."""
     client_id = "raw-e2e-client"
     got = []
-    args = msgspec.msgpack.encode({"x": "a" * (1024 * 1024 + 100)})
+    args = msgspec.msgpack.encode({"x": "a" * (MAX_ARGS_BYTES + 100)})
     with _raw_session(team3) as s:
         sub = s.declare_subscriber(f"ramps/{team3.team}/client/{client_id}",
                                    lambda smp: got.append(decode(smp.payload.to_bytes()).msg))
