@@ -69,7 +69,7 @@ def our_processes(team: str) -> list[str]:
 
 def assert_clean(tb: str, team: str, pids: list[int]) -> None:
     from ramps.testbed import net
-    from ramps.testbed.bed import STATE_DIR, _proc_stat
+    from ramps.testbed.bed import STATE_DIR
 
     assert not [n for n in net.namespaces() if n.startswith(f"ramps-{tb}-")]
     assert not [n for n in net.links() if n == f"rb-{tb}" or n.startswith(f"rb-{tb}-")]
@@ -79,8 +79,7 @@ def assert_clean(tb: str, team: str, pids: list[int]) -> None:
     assert not (STATE_DIR / f"testbed-{tb}.json").exists()
     assert not our_processes(team)
     for pid in pids:
-        st = _proc_stat(pid)
-        assert st is None or st[0] == "Z", f"process {pid} of the testbed is still there"
+        assert _dead(pid), f"process {pid} of the testbed is still there"
     # and nothing else with our names, apart from other testbeds that are up right now
     assert others_leftovers() == []
 

@@ -293,10 +293,10 @@ def _start_guardian(read_fd: int) -> int:
                 if not got:
                     break
                 head += got
-            done = os.read(read_fd, 1) if len(head) == _GROUP.size else b"d"
+            gone = len(head) == _GROUP.size and not os.read(read_fd, 1)
         except OSError:
-            done = b""
-        if not done and len(head) == _GROUP.size:
+            gone = len(head) == _GROUP.size
+        if gone:
             _kill_group(_GROUP.unpack(head)[0])
     finally:
         os._exit(0)

@@ -139,18 +139,12 @@ class Testbed(Faults):
         self.discovery = discovery
         #: per-program CPU caps (ramps.testbed.caps; cgroup v1 only for now)
         self.caps = caps and self.mode == "v1"
-        self.caps_pid: list[int | None] = [None, None]  # pid, start time
         self.python = python or sys.executable
         self.state_dir = Path(state_dir or STATE_DIR)
-        self.tb: str | None = None
-        self.x = 0
-        self.robots: dict[str, dict[str, Any]] = {}
         self.loaded = dict(loaded or {})
-        self.log_dir: Path | None = None
         self._popen: dict[int, subprocess.Popen] = {}
         self._lock = threading.RLock()
-        self._created = False
-        self._down = False
+        self._not_made()
         self._attached = False
         self._old_handlers: dict[int, Any] = {}
         self._atexit = False
@@ -232,10 +226,18 @@ class Testbed(Faults):
                     raise
                 print(f"testbed: {str(exc).splitlines()[0]}; starting it again ({attempt + 1} of {tries})",
                       file=sys.stderr, flush=True)
-                self._created = self._down = False
-                self.tb, self.x, self.robots, self.log_dir = None, 0, {}, None
-                self.caps_pid = [None, None]
+                self._not_made()
         raise AssertionError("unreachable")
+
+    def _not_made(self) -> None:
+        """What a testbed not made yet holds (at construction, and before ``up`` tries again)."""
+        self.tb: str | None = None
+        self.x = 0
+        self.robots: dict[str, dict[str, Any]] = {}
+        self.log_dir: Path | None = None
+        self.caps_pid: list[int | None] = [None, None]  # the capper: pid, start time
+        self._created = False
+        self._down = False
 
     def _up_once(self, timeout: float) -> "Testbed":
         self._install_handlers()
