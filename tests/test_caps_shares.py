@@ -1,104 +1,182 @@
 """How the testbed's capper shares a robot among its programs
-(``ramps.testbed.caps.RobotCaps.tick``), on a cgroup tree made of plain files:
-no root, no kernel. The kernel's side (quotas enforced) is in
-``tests/test_testbed_caps.py``."""
+(``ramps.testbed.caps.RobotCaps.tick``), on a cgroup tree made of plain files
+that moves processes between cgroups as the kernel does: no root, no kernel.
+The kernel's side (quotas enforced) is in ``tests/test_testbed_caps.py``."""
 
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from ramps.testbed.caps import CFS_PERIOD_US, NODE_MARGIN, RobotCaps
+from ramps.testbed.caps import CFS_PERIOD_US, NODE_MARGIN, QUOTA_SHORT, RobotCaps
 
 QUOTA, CORES = 0.32, 4
+CORE = QUOTA / CORES
+
+
+class FakeCaps(RobotCaps):
+    """The real capper on a plain-file cgroup tree: joining a cgroup takes the
+    process out of its old one, a cgroup with processes cannot be removed, and
+    a process's CPU and run state are what the test says."""
+
+    def __init__(self, robot: FakeRobot) -> None:
+        super().__init__(robot.cpu, robot.acct, QUOTA, CORES)
+        self.robot = robot
+
+    def _join(self, cgroup: Path, pid: int) -> None:
+        base = self.cpu if cgroup.is_relative_to(self.cpu) else self.acct
+        for d in [base, *(c for c in base.iterdir() if c.is_dir())]:
+            procs = (d / "cgroup.procs").read_text().split() if (d / "cgroup.procs").exists() else []
+            (d / "cgroup.procs").write_text("".join(f"{p}\n" for p in procs if p != str(pid)))
+        procs = (cgroup / "cgroup.procs").read_text() if (cgroup / "cgroup.procs").exists() else ""
+        (cgroup / "cgroup.procs").write_text(procs + f"{pid}\n")
+        self.robot.since[pid] = self.robot.used[pid]  # a new cgroup counts CPU from now
+
+    def _remove(self, cgroup: Path) -> None:
+        if not (cgroup / "cgroup.procs").read_text().split():
+            shutil.rmtree(cgroup)
+
+    def _proc_cpu(self, pid: int) -> tuple[float, bool] | None:
+        return self.robot.used[pid], pid in self.robot.runnable
 
 
 class FakeRobot:
-    """A robot's cpu and cpuacct cgroups (v1 layout) whose CPU use the test sets."""
+    """A robot's cpu and cpuacct cgroups (v1 layout) holding ``pids``, whose
+    CPU use the test sets."""
 
-    def __init__(self, root: Path) -> None:
+    def __init__(self, root: Path, pids: list[int]) -> None:
         self.cpu, self.acct = root / "cpu" / "robot", root / "cpuacct" / "robot"
         for d in (self.cpu, self.acct):
             d.mkdir(parents=True)
-        (self.cpu / "cgroup.procs").write_text("")
-        self.used = {"": 0.0}
-        self.caps = RobotCaps(self.cpu, self.acct, QUOTA, CORES)
-
-    def child(self, pid: int) -> str:
-        name = f"p{pid}"
-        for d in (self.cpu, self.acct):
-            (d / name).mkdir()
-        (self.cpu / name / "cgroup.procs").write_text(f"{pid}\n")
-        (self.cpu / name / "cpu.cfs_quota_us").write_text("-1")
-        self.used[name] = 0.0
+            (d / "cgroup.procs").write_text("".join(f"{p}\n" for p in pids))
+        self.node = 0.0
+        self.used = {pid: 0.0 for pid in pids}
+        self.since = dict(self.used)
+        self.runnable: set[int] = set()
+        self.caps = FakeCaps(self)
         self._write()
-        return name
+        self.caps.adopt(None)  # every process into a child of its own, as the testbed starts
 
-    def run(self, seconds: float, node: float, per_child: dict[str, float]) -> None:
-        """``seconds`` pass: the node uses ``node`` host cores, each child what it is given."""
-        for name, cores in per_child.items():
-            self.used[name] += cores * seconds
-        self.used[""] += node * seconds
+    def run(self, seconds: float, node: float, per_pid: dict[int, float]) -> None:
+        """``seconds`` pass: the node uses ``node`` host cores, each process what it is given."""
+        for pid, cores in per_pid.items():
+            self.used[pid] += cores * seconds
+        self.node += node * seconds
         self._write()
+        self.caps.adopt(None)
         self.caps.tick(seconds)
 
     def _write(self) -> None:
-        children = sum(v for k, v in self.used.items() if k)
-        (self.acct / "cpuacct.usage").write_text(str(int((self.used[""] + children) * 1e9)))
-        for name, v in self.used.items():
-            if name:
-                (self.acct / name / "cpuacct.usage").write_text(str(int(v * 1e9)))
+        (self.acct / "cpuacct.usage").write_text(str(int((self.node + sum(self.used.values())) * 1e9)))
+        for pid, v in self.used.items():
+            if (self.acct / f"p{pid}").is_dir():
+                (self.acct / f"p{pid}" / "cpuacct.usage").write_text(str(int((v - self.since[pid]) * 1e9)))
 
-    def quota(self, name: str) -> float:
-        return int((self.cpu / name / "cpu.cfs_quota_us").read_text()) / CFS_PERIOD_US
+    def children(self) -> list[str]:
+        return sorted(c.name for c in self.cpu.iterdir() if c.is_dir())
+
+    def in_robot(self) -> list[int]:
+        return sorted(int(p) for p in (self.cpu / "cgroup.procs").read_text().split())
+
+    def quota(self, pid: int) -> float:
+        return int((self.cpu / f"p{pid}" / "cpu.cfs_quota_us").read_text()) / CFS_PERIOD_US
+
+
+def _sleepers(n: int, nice: int = 0) -> list[subprocess.Popen]:
+    return [subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"],
+                             preexec_fn=(lambda: os.nice(nice)) if nice else None) for _ in range(n)]
 
 
 @pytest.fixture
 def sleepers():
-    procs = [subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"]) for _ in range(15)]
+    procs = _sleepers(15)
     yield [p.pid for p in procs]
     for p in procs:
         p.kill()
         p.wait()
 
 
-def test_fifteen_busy_programs_share_what_the_node_leaves(tmp_path, sleepers):
-    robot = FakeRobot(tmp_path)
-    kids = [robot.child(pid) for pid in sleepers]
+@pytest.fixture
+def heavy_and_light():
+    """Two processes at nice 0 (background load) and four at nice 10 (programs)."""
+    heavy, light = _sleepers(2), _sleepers(4, nice=10)
+    yield [p.pid for p in heavy], [p.pid for p in light]
+    for p in heavy + light:
+        p.kill()
+        p.wait()
+
+
+def test_a_full_robot_has_no_caps_and_is_capped_again_when_a_share_reaches_a_core(tmp_path, sleepers):
+    robot = FakeRobot(tmp_path, sleepers)
+    assert robot.children() == [f"p{pid}" for pid in sorted(sleepers)] and robot.in_robot() == []
+    for _ in range(3):  # fifteen busy programs on 4 cores: nobody's share reaches a core
+        robot.run(0.2, node=0.01, per_pid={p: QUOTA / 15 for p in sleepers})
+    # no cap binds: every program back in the robot's own cgroup, shared by the kernel
+    assert robot.caps.pooled and robot.children() == [] and robot.in_robot() == sorted(sleepers)
+    for _ in range(3):  # still full: pooled it stays (the node's averaged use is not touched)
+        robot.run(0.2, node=0.01, per_pid={p: QUOTA / 15 for p in sleepers})
+    assert robot.caps.pooled and robot.children() == []
+    # twelve finish (idle now), three run on: each would reach a whole core, so caps again,
+    # at one emulated core each
+    busy = sleepers[:3]
+    robot.run(0.2, node=0.01, per_pid={p: QUOTA / 4 for p in busy})
+    assert not robot.caps.pooled and robot.in_robot() == []
+    assert robot.children() == [f"p{pid}" for pid in sorted(sleepers)]
+    robot.run(0.2, node=0.01, per_pid={p: CORE for p in busy})
+    assert [robot.quota(p) for p in busy] == [pytest.approx(CORE, rel=0.01)] * 3
+
+
+def test_a_program_the_kernel_starved_keeps_the_robot_full(tmp_path, sleepers):
+    # four programs use their share, the kernel gives the fifth nothing: it is runnable all the
+    # same, so five programs fill the 4 cores (0.8 of a core each) and the robot stays pooled
+    # (counted idle, the four would be capped at a core each, the fifth waiting for a tick)
+    robot = FakeRobot(tmp_path, sleepers[:5])
+    for _ in range(3):
+        robot.run(0.2, node=0.0, per_pid={p: QUOTA / 5 for p in sleepers[:5]})
+    assert robot.caps.pooled
+    robot.runnable = {sleepers[4]}
+    for _ in range(3):
+        robot.run(0.2, node=0.0, per_pid={p: QUOTA / 4 for p in sleepers[:4]})
+    assert robot.caps.pooled and robot.children() == []
+    robot.runnable = set()  # it exited meanwhile, say: four on four cores are capped, a core each
+    robot.run(0.2, node=0.0, per_pid={p: QUOTA / 4 for p in sleepers[:4]})
+    assert not robot.caps.pooled
+    robot.run(0.2, node=0.0, per_pid={p: QUOTA / 4 for p in sleepers[:4]})
+    assert [robot.quota(p) for p in sleepers[:4]] == [pytest.approx(CORE, rel=0.01)] * 4
+
+
+def test_capped_shares_follow_cfs_weights_and_leave_the_node_its_use(tmp_path, heavy_and_light):
+    heavy, light = heavy_and_light
+    robot = FakeRobot(tmp_path, heavy + light)
+    # two busy processes at nice 0 and four programs at nice 10 on 4 cores: the two would have
+    # more than a core each by weight, so they are capped at one, and the four share the other
+    # two; all six together what the node leaves of the robot's quota
     for _ in range(30):  # 6 s: the node's average use settles
-        robot.run(0.2, node=0.01, per_child={k: QUOTA / 15 for k in kids})
-    quotas = [robot.quota(k) for k in kids]
-    assert max(quotas) == pytest.approx(min(quotas), rel=0.01)  # processor sharing: equal shares
-    # together what the node leaves (its 0.01 host cores), less at most the margin of slack:
-    # never over the robot's quota, where the kernel would starve some programs
-    assert QUOTA - 0.01 - NODE_MARGIN * QUOTA - 1e-5 <= sum(quotas) <= QUOTA - 0.01 + 1e-5
+        robot.run(0.2, node=0.01, per_pid={p: CORE for p in heavy} | {p: CORE / 2 for p in light})
+    assert not robot.caps.pooled
+    h, lt = [robot.quota(p) for p in heavy], [robot.quota(p) for p in light]
+    assert max(h) == pytest.approx(min(h), rel=0.01) and max(lt) == pytest.approx(min(lt), rel=0.01)
+    assert h[0] == pytest.approx(2 * lt[0], rel=0.02)  # a core each against half a core each
+    room = QUOTA - 0.01  # less a margin, and quotas are rewritten once they fall short by 1%
+    assert (room - NODE_MARGIN * QUOTA) * (1 - QUOTA_SHORT) - 1e-5 <= sum(h + lt) <= room + 1e-5
 
 
-def test_a_program_the_kernel_starved_is_still_busy(tmp_path, sleepers):
-    robot = FakeRobot(tmp_path)
-    kids = [robot.child(pid) for pid in sleepers[:4]]
-    starved = robot.child(os.getpid())  # this process: running now, so runnable
-    for _ in range(10):  # it gets nothing; the others use their whole share
-        robot.run(0.2, node=0.0, per_child={k: QUOTA / 5 for k in kids})
-    # five busy programs on 4 cores: each gets 4/5 of an emulated core, the starved one too,
-    # and together no more than the robot's quota (over it, the kernel starves some further)
-    assert robot.quota(starved) == pytest.approx(robot.quota(kids[0]), rel=0.01)
-    assert sum(robot.quota(k) for k in kids + [starved]) <= QUOTA
-
-
-def test_small_moves_of_a_share_leave_the_quota_alone(tmp_path, sleepers):
+def test_small_moves_of_a_share_leave_the_quota_alone(tmp_path, heavy_and_light):
     # writing a quota refills the child's runtime at once: rewritten every tick, programs overran
-    robot = FakeRobot(tmp_path)
-    kids = [robot.child(pid) for pid in sleepers]
-    for _ in range(10):
-        robot.run(0.2, node=0.01, per_child={k: QUOTA / 15 for k in kids})
-    (robot.cpu / kids[0] / "cpu.cfs_quota_us").write_text(str(int(robot.quota(kids[0]) * CFS_PERIOD_US) + 7))
-    before = robot.quota(kids[0])
-    robot.run(0.2, node=0.012, per_child={k: QUOTA / 15 for k in kids})  # the node's use moves a little
-    assert robot.quota(kids[0]) == before
-    robot.run(0.2, node=0.0, per_child={k: QUOTA / 15 for k in kids[:7]})  # 8 stop: the rest get more
-    assert robot.quota(kids[0]) > before * 1.5
+    heavy, light = heavy_and_light
+    robot = FakeRobot(tmp_path, heavy + light)
+    busy = {p: CORE for p in heavy} | {p: CORE / 2 for p in light}
+    for _ in range(30):  # the node's average use settles
+        robot.run(0.2, node=0.01, per_pid=busy)
+    p0 = light[0]
+    (robot.cpu / f"p{p0}" / "cpu.cfs_quota_us").write_text(str(int(robot.quota(p0) * CFS_PERIOD_US) + 7))
+    before = robot.quota(p0)
+    robot.run(0.2, node=0.009, per_pid=busy)  # the node's use moves a little (down: not over the quota)
+    assert robot.quota(p0) == before
+    robot.run(0.2, node=0.0, per_pid={p: CORE for p in heavy + light[:1]})  # 3 stop: the rest get more
+    assert robot.quota(p0) > before * 1.5
