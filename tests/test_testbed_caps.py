@@ -13,6 +13,7 @@ import pytest
 from test_testbed import REASON, others_leftovers, wait_until
 
 from ramps.runtime.localteam import cgroup_mode
+from ramps.core.cost import nice_weight
 from ramps.testbed.caps import CFS_PERIOD_US, niceness, shares
 
 pytestmark = [pytest.mark.slow, pytest.mark.serial,  # measures CPU shares: run alone
@@ -77,16 +78,33 @@ def test_a_lone_program_runs_at_one_emulated_core_and_busy_processes_share():
         rate = robot_rate(tb, 2.0)
         # capped at one emulated core (0.2), not the robot's 0.4 a lone process would take
         assert 0.12 < rate < 0.3, rate
-        # two busy processes (nice 0) join: 3 runnable on 2 cores, and no one's share by CFS weight
-        # (the worker at nice 10 weighs 110/1024 of a busy process) reaches a whole core: no cap
-        # binds, so every process goes back into the robot's own cgroup, where the kernel shares
-        # the robot's whole quota by weight as on a robot
+        # two busy processes (nice 0) join: 3 runnable on 2 cores, shared by CFS weight as on a robot;
+        # the workers at nice 10 (the busy one and the idle one) weigh 110/1024 of a busy process
+        tb.add_load("r1", 2)
+        w = nice_weight(10)
+        want = [core * x * CFS_PERIOD_US for x in (2 * w / (2 + w),) * 2 + (2 / (2 + w),) * 2]
+
+        def weighted() -> bool:
+            # the busy ones (the burn's worker and the two loads) share what the node leaves of
+            # the robot (its own use, a few percent, and a 0.5% margin): the same proportions,
+            # scaled by at most 10% (ramps.testbed.caps); the idle worker keeps its share
+            got = sorted(c["quota"] for c in children(tb).values())
+            if len(got) != 4:
+                return False
+            scale = got[3] / want[3]
+            return 0.9 <= scale <= 1.0 and abs(got[2] - want[2] * scale) <= 2 and \
+                any(abs(g - want[0] * k) <= 2 for g in got[:2] for k in (1.0, scale))
+
+        assert wait_until(weighted, 10), (children(tb), want)
+        # two more: 5 runnable on 2 cores, and no one's share by weight comes near a whole core
+        # (0.49 each): no cap binds, so every process goes back into the robot's own cgroup,
+        # where the kernel shares the robot's whole quota by weight as on a robot
         tb.add_load("r1", 2)
         cpu = Path(tb.robots["r1"]["cgroup"][0])
 
         def pooled() -> bool:
             procs = (cpu / "cgroup.procs").read_text().split()
-            return children(tb) == {} and len(procs) >= 4  # node, the two loads, the burn's worker
+            return children(tb) == {} and len(procs) >= 6  # node, four loads, the burn's worker
         assert wait_until(pooled, 10), (children(tb), (cpu / "cgroup.procs").read_text())
         tb.remove_load("r1")  # alone again: capped again, at one emulated core
         assert wait_until(lambda: any(c["quota"] == int(core * CFS_PERIOD_US) and c["usage"] > 2e8

@@ -294,7 +294,7 @@ def testbed_experiment_slow_link(
     """T_comm measured per teammate: r1 (loaded) places programs with large parameters on idle r2
     and r3, first with every link at full speed, then with r3's link slowed (tc tbf, both directions);
     prints r1's measured link to each teammate (what `ramps status` shows), how its estimate of r3's
-    bandwidth converges, and where the programs ran. About 3 minutes."""
+    bandwidth converges, and where the programs ran. About 4 minutes (5 MB programs over a 1 MB/s link)."""
     from ramps.errors import RampsError
     from ramps.testbed.slowlink import format_report, run_slow_link
 
@@ -355,7 +355,7 @@ def testbed_fidelity(
 ) -> None:
     """How closely a testbed robot follows processor sharing: k programs next to b busy
     processes, completion times and the robot's CPU against the model, and the CPU the robot
-    spent outside its programs (node, fork server) (about 3 minutes)."""
+    spent outside its programs (node, fork server) (about 5 minutes for the 8 default cases, less with --case)."""
     from ramps.errors import RampsError
     from ramps.testbed.fidelity import run_fidelity
 

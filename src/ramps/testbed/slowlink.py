@@ -19,7 +19,7 @@ speed (r2 and r3 tie, so programs go to either), then with r3's link slowed:
 r1's measured link to r3 (``LoadReport.links``, the same figures ``ramps
 status`` shows) converges towards the shaped rate, and the programs avoid r3.
 
-Run ``ramps testbed experiment slow-link`` (root; about 3 minutes).
+Run ``ramps testbed experiment slow-link`` (root; about 4 minutes).
 """
 
 from __future__ import annotations
