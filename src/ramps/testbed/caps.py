@@ -36,7 +36,7 @@ programs next to eight busy processes), no cap binds, and the
 kernel shares one cgroup by CFS weight as it shares a real robot's cores. So
 then the capper moves every process back into the robot's own cgroup and
 removes the children ("pooled"), and caps again (the next period) when a share
-reaches a whole core. Capped, fifteen programs got 0.30-0.31 of the robot's
+exceeds that (programs end, a load stops). Capped, fifteen programs got 0.30-0.31 of the robot's
 0.32 host cores (each child's quota a few percent off its share, the node's
 reserve an estimate); pooled, the kernel gives the robot its whole quota, the
 node takes what it uses and the programs share the rest fairly (measured:
@@ -258,7 +258,7 @@ class RobotCaps:
             if _full(self.cores, weights):
                 self._robot_used = None  # the node's use is not measured while pooled
                 return
-            self.pooled = False  # a share reaches a whole core: caps again, from now
+            self.pooled = False  # a share exceeds POOL_SHARE of a core: caps again, from now
             _, level = weighted_shares(self.cores, weights)
             self.share = self.core * min(1.0, level) if weights else self.core
             self.adopt(self._node_pid)
