@@ -135,6 +135,18 @@ def proc_stat_fields(pid: int) -> list[str] | None:
     return raw[raw.rindex(")") + 2:].split()
 
 
+_CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def proc_cpu(pid: int) -> tuple[float, str] | None:
+    """(CPU seconds a process has used, user and system, and its state: ``R``
+    running or runnable, ``S`` sleeping, ...), or None if it is gone."""
+    rest = proc_stat_fields(pid)
+    if rest is None:
+        return None
+    return (int(rest[11]) + int(rest[12])) / _CLOCK_TICKS, rest[0]
+
+
 def cgroup_tree(d: Path | str) -> list[Path]:
     """A cgroup and every cgroup below it (the testbed caps each program in a
     child of its robot's), deepest first, so they can be removed in order."""

@@ -60,7 +60,7 @@ import time
 from pathlib import Path
 
 from ramps.core.cost import nice_weight, weighted_shares
-from ramps.runtime.measure import cgroup_usage, proc_stat_fields
+from ramps.runtime.measure import cgroup_usage, proc_cpu, proc_stat_fields
 
 #: seconds between two share updates
 PERIOD = 0.2
@@ -83,7 +83,6 @@ QUOTA_SHORT = 0.01
 #: programs on four cores (0.8 each), not four (pooled, one that the kernel favoured ran
 #: faster than a core, ended early, and left the other three capped at a core each)
 POOL_SHARE = 0.9
-_TICKS = os.sysconf("SC_CLK_TCK")
 
 
 def _is_node(pid: int) -> bool:
@@ -200,10 +199,8 @@ class RobotCaps:
 
     def _proc_cpu(self, pid: int) -> tuple[float, bool] | None:
         """(CPU seconds a process has used, whether it is runnable now), or None if gone."""
-        rest = proc_stat_fields(pid)
-        if rest is None:
-            return None
-        return (int(rest[11]) + int(rest[12])) / _TICKS, rest[0] == "R"
+        got = proc_cpu(pid)
+        return None if got is None else (got[0], got[1] == "R")
 
     def _runnable(self, pid: int) -> bool:
         """Whether the process is running or waiting for a CPU now: a program the

@@ -37,7 +37,7 @@ from pathlib import Path
 import msgspec
 
 from ramps.core.cost import nice_weight, program_cores, program_share
-from ramps.runtime.measure import cgroup_usage, proc_stat_fields
+from ramps.runtime.measure import cgroup_usage, proc_cpu, proc_stat_fields
 from ramps.runtime.settings import NodeSettings
 
 CASES = [(1, 0), (2, 0), (4, 0), (6, 0), (8, 0), (1, 2), (4, 2), (6, 2)]
@@ -216,21 +216,18 @@ def merge_cpu(seen: dict[int, tuple[str, float]], new: dict[int, tuple[str, floa
 def robot_cpu(tb, robot: str = "r1") -> dict[int, tuple[str, float]]:
     """CPU seconds so far (utime + stime) of every process in the robot's
     cgroup tree, with its kind (``_kind``)."""
-    import os
-
     from ramps.testbed.bed import _cgroup_pids
 
     rb = tb.robots[robot]
     load = {p for p, _ in rb["load_pids"]}
-    tick = os.sysconf("SC_CLK_TCK")
     out = {}
     for pid in _cgroup_pids(rb["cgroup"][:1]):
         try:
             cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
         except OSError:
             continue
-        f = proc_stat_fields(pid)
-        if f is None:
+        got = proc_cpu(pid)
+        if got is None:
             continue
-        out[pid] = (_kind(pid, cmd, load), (int(f[11]) + int(f[12])) / tick)
+        out[pid] = (_kind(pid, cmd, load), got[0])
     return out
