@@ -20,6 +20,7 @@ from ramps.core.messages import (
     encode,
 )
 from ramps.core.program import ProgramState
+from ramps.core.relink import Stalled
 from corehelpers import Team, submit
 
 
@@ -169,12 +170,14 @@ def test_new_host_failing_during_a_move_keeps_the_old_copy():
 
 def test_a_move_the_new_host_refuses_keeps_the_old_copy():
     team, first, other = loaded_host_team()
-    # the other host got busy too, but the origin has not heard yet: it offers,
-    # and the host's admission turns the program away with its true load
-    team.nodes[other].executor.background = 12.0
+    # the other host gets busy too, each time just after its report: the
+    # origin offers, and the host's admission turns the program away with its
+    # true load
     for t in range(2, 10):
         team.advance(float(t))
-        team.publish(first, "o")
+        team.nodes[other].executor.background = 0.0
+        team.publish()
+        team.nodes[other].executor.background = 12.0
         if team.notes("move_aborted"):
             break
     ap = team.program("p")
@@ -270,3 +273,132 @@ def test_the_new_copys_worker_dying_keeps_the_old_copy():
     team.finish(first, "p", 1, ok=True, value=b"old")
     team.advance(30.0)
     assert [d.value for d in team.delivered("p")] == [b"old"]
+
+
+# ---------------------------------------------------------------- calm relocation (issue 23)
+def moved_by(team: Team, until: float, start: float | None = None, pid: str = "p", every=None) -> bool:
+    """Advance second by second to ``until`` with fresh reports (``every(t)``
+    first, if given); whether ``pid`` has started a move by then."""
+    t = float(int(team.now) + 1) if start is None else start
+    while t <= until:
+        if every is not None:
+            every(t)
+        team.advance(t)
+        team.publish()
+        t += 1.0
+    return bool([n for n in team.notes("moving") if n.program_id == pid])
+
+
+def test_a_program_never_moves_back_to_a_robot_it_ran_on():
+    team, first, other = loaded_host_team(relocate_max_moves=3, relocate_settle=1.0)
+    assert moved_by(team, 6.0) and team.program("p").host == other
+    team.deliver()
+    # now the new host is loaded and the first one free again: going back is
+    # what the estimate says, and what made programs go back and forth
+    team.nodes[other].executor.background = 8.0
+    team.nodes[first].executor.background = 0.0
+    moved_by(team, 40.0)
+    ap = team.program("p")
+    assert ap.host == other and ap.moves == 1 and list(ap.ran_on) == [first, other]
+
+
+def test_a_program_without_checkpoints_is_not_moved_past_half_its_work():
+    # 60 units alone on a core of speed 1: half done at 30 s. The load comes at 31 s
+    team, first, other = loaded_host_team()
+    team.nodes[first].executor.background = 0.0
+    team.publish()
+    moved_by(team, 31.0)
+    team.nodes[first].executor.background = 20.0  # 29 units left at 4/21 of a core: 152 s here, 60 s there
+    assert not moved_by(team, 60.0)
+    assert team.program("p").host == first and team.program("p").moves == 0
+
+
+def test_past_half_its_work_a_program_with_a_checkpoint_still_moves():
+    team, first, other = loaded_host_team()
+    team.nodes[first].executor.background = 0.0
+    team.publish()
+    moved_by(team, 31.0)
+    team.handle(first, CheckpointSaved(program_id="p", attempt=1, state=b"at-31", fraction=0.51))
+    team.deliver()
+    team.nodes[first].executor.background = 20.0
+    assert moved_by(team, 60.0) and team.program("p").host == other
+
+
+def test_the_origins_own_stall_counts_as_time_the_program_ran():
+    # a 25 s stall of the origin is not in its clock, but the program ran on:
+    # by the origin's clock it is 8 s in, in fact 33 s, over half its work
+    team, first, other = loaded_host_team()
+    team.advance(2.0)
+    team.handle("o", Stalled(seconds=25.0))
+    assert not moved_by(team, 30.0)
+    assert team.program("p").host == first
+
+
+def test_no_move_right_after_the_origin_stalled():
+    team, first, other = loaded_host_team()
+    assert moved_by(team, 9.0), "without a stall it moves by 9 s"
+    team, first, other = loaded_host_team()
+    moved_by(team, 6.0)
+    team.handle("o", Stalled(seconds=1.0))  # its view and clock were behind: wait relocate_calm, then persist again
+    assert not moved_by(team, 13.0)
+    assert team.nodes["o"].origin.withheld.get("stalled", 0) > 0
+    assert moved_by(team, 16.0) and team.program("p").host == other
+
+
+def test_no_move_while_the_hosts_speed_correction_keeps_changing():
+    # the host is not loaded, but the origin's correction of its speed swings
+    # (as corrections learned from short programs did, 0.56-1.87x): each
+    # change makes it look 2.5x slower than it reports, then less
+    team, first, other = loaded_host_team()
+    team.nodes[first].executor.background = 0.0
+    factors = {5.0: 0.4, 9.0: 0.45, 13.0: 0.4, 17.0: 0.42}
+    view = team.nodes["o"].view  # read by the origin's relocation; set here as HostSpeeds would
+    assert not moved_by(team, 21.0, every=lambda t: factors.get(t) and view.speed_factor.__setitem__(first,
+                                                                                                 factors[t]))
+    assert team.nodes["o"].origin.withheld.get("host speed changed", 0) > 0
+    assert moved_by(team, 30.0), "once the correction holds, the estimate is acted on"
+
+
+def test_no_move_onto_a_robot_whose_speed_correction_just_changed():
+    team, first, other = loaded_host_team()
+    view = team.nodes["o"].view
+    assert not moved_by(team, 12.0, every=lambda t: view.speed_factor.__setitem__(other, 1.0 + t / 100))
+    assert moved_by(team, 20.0) and team.program("p").host == other
+
+
+def test_no_move_on_a_stale_report_of_its_host():
+    # the host's report (of 3 s) still says loaded, but when the move would be
+    # due (8 s) it is 5 s old: its heartbeats say the program runs, nothing
+    # says how fast
+    team, first, other = loaded_host_team()
+    for t in range(2, 4):
+        team.advance(float(t))
+        team.publish()
+    for t in range(4, 13):
+        team.advance(float(t))
+        team.publish("o", other)
+    assert not team.notes("moving") and team.program("p").host == first
+    assert team.nodes["o"].origin.withheld.get("host report stale", 0) > 0
+
+
+def test_no_move_while_the_programs_learned_work_is_scattered():
+    team = Team({"o": (1, 1.0), "a": (4, 1.0), "b": (4, 1.0)})
+    team.nodes["o"].executor.background = 10.0
+    team.publish()
+    for pid, took in (("q1", 20.0), ("q2", 60.0)):  # the same program took 20 and 60 units
+        submit(team, pid, work=60.0)
+        team.deliver()
+        start = team.now
+        team.advance(start + took)
+        team.publish()
+        ap = team.program(pid)
+        team.finish(ap.host, pid, ap.attempt, ok=True)
+    assert sorted(team.nodes["o"].origin._learned["route_plan"]) == pytest.approx([20 / 60, 1.0], rel=0.05)
+    submit(team, "p", work=60.0)
+    team.deliver()
+    first = team.program("p").host
+    t0 = team.now
+    team.advance(t0 + 1.0)
+    team.nodes[first].executor.background = 8.0
+    assert not moved_by(team, t0 + 20.0)
+    assert team.nodes["o"].origin.withheld.get("work scattered", 0) > 0

@@ -4,6 +4,7 @@
     ramps testbed status
     ramps testbed crash r3           # also cut, freeze, recover, lossy (one table: FAULTS)
     ramps testbed experiment faults  # the paper's Tables 5-10 on real processes
+    ramps testbed experiment peers   # ramps beside round robin, Ray and Dask
     ramps testbed down
 
 The work is done by ``ramps.testbed``; this module parses and prints (rules
@@ -340,6 +341,42 @@ def testbed_experiment_relocation(
     except (PermissionError, RampsError, RuntimeError, TimeoutError) as exc:
         fail(str(exc))
     emit([rep], lambda r, console: console.print(format_report(r), highlight=False), as_json=as_json,
+         out_file=out_file)
+
+
+@experiment_app.command("peers")
+def testbed_experiment_peers(
+    scenario: Optional[list[str]] = typer.Option(None, "--scenario", "-s", help="run only these (repeatable): idle, busy-1, busy-2, busy-4, origins, crash (default: all)"),
+    engine: Optional[list[str]] = typer.Option(None, "--engine", "-e", help="run only these (repeatable): ramps, round-robin, ray, dask (default: all)"),
+    programs: Optional[int] = typer.Option(None, "--programs", min=1, max=500, help="programs in every scenario, split between its origins (default: 30, 15 with the crash)"),
+    work: float = typer.Option(1.5, "--work", min=0.05, max=20.0, help="work units of each burn program (1.5: about 19-28 s alone on an emulated core)"),
+    quota: float = typer.Option(0.32, "--quota", min=0.05, max=4.0, help="host cores of each robot"),
+    cores: int = typer.Option(4, "--cores", min=1, max=16, help="emulated cores of each robot (Ray's --num-cpus, Dask's --nworkers)"),
+    as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
+) -> None:
+    """ramps beside round robin, Ray and Dask on the same emulated robots (5 robots of 4 cores,
+    burn programs from r1): idle, 1/2/4 robots busy, several origins, and a robot crashed at 10 s;
+    prints every engine's makespan, distribution and lost programs beside the ideal. Each engine
+    runs each scenario on a fresh testbed; Ray and Dask need the peers extra, `pip install -e
+    '.\\[peers]'` (skipped without it). About 2-3 minutes per scenario and engine with the defaults (Ray's start-up is
+    the longest), so 45-70 minutes for all 24 runs."""
+    from ramps.errors import RampsError
+    from ramps.testbed.peers import ENGINES, SCENARIOS, Setup, format_report, run_peers
+
+    for name, known, what in ((scenario, SCENARIOS, "scenario"), (engine, ENGINES, "engine")):
+        bad = [n for n in name or [] if n not in known]
+        if bad:
+            fail(f"unknown {what} {bad[0]!r}: choose from {', '.join(known)}")
+    chosen = [SCENARIOS[s].with_programs(programs) for s in (scenario or SCENARIOS)]
+    engines = list(engine or ENGINES)
+    err.print(f"{len(chosen)} scenario(s) x {len(engines)} engine(s), each run on a fresh testbed ...")
+    try:
+        rep = run_peers(chosen, engines, Setup(cores=cores, quota=quota, work=work),
+                        log=lambda m: err.print(m, highlight=False, markup=False))
+    except (PermissionError, RampsError, RuntimeError, ValueError) as exc:
+        fail(str(exc))
+    emit([rep], lambda r, console: console.print(format_report(r), highlight=False, markup=False), as_json=as_json,
          out_file=out_file)
 
 

@@ -92,6 +92,21 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     relocate_max_moves: int = 2
     relocate_settle: float = 5.0
     relocate_persist: float = 3.0
+    #: calm relocation (issue 23; docs/2026-11-23-relocation.md, "Calm"): a
+    #: program that does not checkpoint is never moved once the origin's
+    #: upper estimate of its work done (its time there at one whole core of
+    #: the host's speed, or its own progress if further) passes this fraction
+    #: of its work; it is never moved back to a robot it already ran on
+    relocate_max_done: float = 0.5
+    #: no move off or onto a robot within this many seconds of a change of
+    #: that robot's speed correction, nor any within it of this origin's own
+    #: stall (its view and clock were behind): the estimate is uncertain
+    relocate_calm: float = 5.0
+    #: no move off or onto a robot whose latest load report is older than this
+    relocate_stale: float = 4.0
+    #: no move of a program whose learned work is scattered: its latest runs'
+    #: largest per declared unit over their smallest above this
+    relocate_max_spread: float = 1.5
 
     def __post_init__(self) -> None:
         for name in self.__struct_fields__:
@@ -105,6 +120,10 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             )
         if self.relocate and self.relocate_period <= 0:
             raise ValueError("relocate_period must be > 0 when relocate is on")
+        if not self.relocate_max_done <= 1:
+            raise ValueError(f"relocate_max_done must be 0..1, got {self.relocate_max_done}")
+        if self.relocate_max_spread < 1:
+            raise ValueError(f"relocate_max_spread must be >= 1, got {self.relocate_max_spread}")
         if self.speed_max_correction < 1:
             raise ValueError(f"speed_max_correction must be >= 1, got {self.speed_max_correction}")
 

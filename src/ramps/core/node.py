@@ -161,7 +161,11 @@ class Node:
         self._dispatch(event, now, out)
         return self._prompt_report(self._loopback(out, now), now)
 
-    def tick(self, now: float) -> list[Action]:
+    def tick(self, now: float, *, origin: bool = True) -> list[Action]:
+        """Fire due timers. ``origin=False``: only what this robot owes its
+        teammates (its programs' heartbeats, prompt reports), not the origin's
+        timeouts nor link probes: the driver still has messages queued, maybe
+        the very heartbeats those timeouts wait for (issue 23)."""
         # the executor first: the heartbeats of programs running here reach
         # this robot's origin before it checks for silent hosts, so a node
         # that was stalled (busy robot, GC pause, SIGSTOP) does not write off
@@ -170,6 +174,8 @@ class Node:
         out: list[Action] = []
         self.executor.tick(now, out)
         out = self._loopback(out, now)
+        if not origin:
+            return self._prompt_report(out, now)
         more: list[Action] = []
         self.origin.tick(now, more)
         out.extend(self._loopback(more, now))
@@ -250,6 +256,9 @@ class Node:
                 self.origin.relinked(event.robot, now)
                 out.append(Note(what="relinked", robot=event.robot, detail="its link is back after this robot's stall"))
         elif isinstance(event, Stalled):  # this robot's links may be down for a while (ramps.core.relink)
+            self.origin.on_stalled(event.seconds, now, links=event.links)
+            if not event.links:
+                return
             self.origin.relink.stalled(now)
             out.append(Note(what="relinking", robot=self.robot, detail=f"stalled {event.seconds:.3f} s: teammates' "
                             f"silence counts once their links are back (at most {self.origin.relink.timeout} s)"))

@@ -117,6 +117,17 @@ class Origin:
         self._reloc_rng = random.Random(f"{me}/relocate")
         self.moves = 0
         self.moves_aborted = 0
+        #: this robot's own stalls (``Stalled``, every one the driver saw): the
+        #: seconds taken out of the core's clock in all, and the latest wake
+        self.stalled_s = 0.0
+        self.woke_at = -math.inf
+        #: a host's silence counts from ``woke_at + wake_grace`` (see on_stalled)
+        self.wake_grace = 0.0
+        #: each host's speed correction as relocation last saw it, and since
+        #: when (``ramps.core.relocation``: no move right after a change)
+        self.factor_seen: dict[str, tuple[float, float]] = {}
+        #: relocation checks that withheld a move on an uncertain estimate, by reason
+        self.withheld: dict[str, int] = {}
         #: after this robot's own stall, the hosts whose links are not back yet
         self.relink = Relink(me)
         # statistics
@@ -237,6 +248,21 @@ class Origin:
     def on_peer_alive(self, robot: str) -> None:
         self.view.set_lost(robot, False)
 
+    def on_stalled(self, seconds: float, now: float, *, links: bool = False) -> None:
+        """This robot's driver did not run for ``seconds`` (taken out of the
+        core's clock, so ``now`` is about when it stopped) and woke at ``now``.
+        What its hosts sent meanwhile is still on its way in, read by a node
+        that runs again at the pace it was starved at: a host's silence counts
+        only from the wake plus the stall's length (at most a heartbeat
+        timeout), so a stall of this origin's never writes off a healthy host
+        (issue 23); and relocation waits ``relocate_calm``. After a stall
+        that may have closed links (``links``) ``ramps.core.relink`` waits
+        for each host's link instead."""
+        seconds = max(0.0, seconds)
+        self.stalled_s += seconds
+        self.woke_at = now
+        self.wake_grace = 0.0 if links else min(seconds, self.config.heartbeat_timeout)
+
     # ================================================================ timers
     def next_deadline(self) -> float | None:
         while self._timers:
@@ -287,9 +313,16 @@ class Origin:
             if self.relink.waiting(ap.host, now) and kind in (E.HEARTBEAT_TIMEOUT, E.CONNECT_TIMEOUT):
                 self._set_timer(ap, self.relink.until, kind)  # its link is not back since this robot stalled
                 continue
+            heard_from = self.woke_at + self.wake_grace  # after this robot's stall (on_stalled)
+            if kind == E.CONNECT_TIMEOUT and heard_from + self.config.connect_timeout > now:
+                # this robot stalled meanwhile: the acceptance may be behind the stall
+                self._set_timer(ap, heard_from + self.config.connect_timeout, kind)
+                continue
             if kind == E.HEARTBEAT_TIMEOUT:
-                due = ap.last_heard + self.config.heartbeat_timeout
-                if due > now:  # heard from the host since the timer was set
+                # silence counts from the last word of the host, or from this
+                # robot's latest stall, whichever is later
+                due = max(ap.last_heard, heard_from) + self.config.heartbeat_timeout
+                if due > now:  # heard from the host since the timer was set, or this robot stalled
                     self._set_timer(ap, due, kind)
                     continue
             if kind is not None:
@@ -407,6 +440,7 @@ class Origin:
         ap.state = S.OFFERED
         ap.last_heard = now
         ap.work, ap.done, ap.done_at = work, 0.0, now
+        ap.placed_at, ap.stall_base = now, self.stalled_s
         ap.resumed_from = fraction if resume is not None else None
         self._by_host.setdefault(host, {})[ap.program_id] = None
         self.view.book(host, ap.program_id, ap.attempt)
@@ -441,6 +475,7 @@ class Origin:
         ap.rejections = 0
         ap.excluded.clear()
         ap.accepted_at = ap.done_at = now
+        ap.ran_on[ap.placed_host] = None
         out.append(Note(what="accepted", program_id=ap.program_id, robot=ap.placed_host, attempt=ap.attempt))
         self._set_timer(ap, now + self.config.heartbeat_timeout, E.HEARTBEAT_TIMEOUT)
         if self._relocate_due is None and self._relocating():
@@ -614,7 +649,8 @@ class Origin:
 
     def _relocate(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Placement, event: Event) -> None:
         """Offer the program to its new host; the old copy runs on meanwhile."""
-        old = [ap.attempt, ap.host, ap.last_heard, ap.done, ap.done_at, ap.work, ap.resumed_from, ap.accepted_at]
+        old = [ap.attempt, ap.host, ap.last_heard, ap.done, ap.done_at, ap.work, ap.resumed_from, ap.accepted_at,
+               ap.placed_at, ap.stall_base]
         ap.moves += 1
         self.moves += 1
         ap.move_wanted_since = None
@@ -679,7 +715,7 @@ class Origin:
         ap.deadline = None
         if old is not None and ap.live.get(old[0]) == old[1]:
             (ap.attempt, ap.host, ap.last_heard, ap.done, ap.done_at, ap.work, ap.resumed_from,
-             ap.accepted_at) = old
+             ap.accepted_at, ap.placed_at, ap.stall_base) = old
             ap.state = S.RUNNING
             self._set_timer(ap, max(now, ap.last_heard + self.config.heartbeat_timeout), E.HEARTBEAT_TIMEOUT)
             return

@@ -194,7 +194,7 @@ class AutonomousProgram:
         "program_id", "submit", "state", "attempt", "host", "live", "deadline", "timer",
         "last_heard", "rejections", "excluded", "submitted_at", "failures", "written_off",
         "made", "moves", "moving_from", "accepted_at", "done", "done_at", "work", "checkpoint",
-        "checkpoint_fraction", "resumed_from", "move_wanted_since",
+        "checkpoint_fraction", "resumed_from", "move_wanted_since", "ran_on", "placed_at", "stall_base",
     )
 
     def __init__(self, submit: Submit, now: float) -> None:
@@ -238,6 +238,14 @@ class AutonomousProgram:
         self.resumed_from: float | None = None
         #: since when relocation checks have found a move worth it (None: not now)
         self.move_wanted_since: float | None = None
+        #: robots an attempt of this program ran on (accepted it), in order:
+        #: relocation never moves it back to one of them
+        self.ran_on: dict[str, None] = {}
+        #: when the current attempt was offered, and the origin's stalled
+        #: seconds then (``Origin.stalled_s``): how long the attempt can have
+        #: run at most, stalls of the origin's own clock included
+        self.placed_at = now
+        self.stall_base = 0.0
 
     @property
     def placed_host(self) -> str:

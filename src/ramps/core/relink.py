@@ -41,9 +41,13 @@ RELINK_SETTLE = 0.25
 
 
 class Stalled(msgspec.Struct, frozen=True, kw_only=True):
-    """The driver did not run for ``seconds`` (driver -> core, at the wake)."""
+    """The driver did not run for ``seconds`` (driver -> core, at the wake).
+    Every stall is told (the origin counts a host's silence from the wake,
+    ``Origin.on_stalled``); ``links``: long enough that teammates' links may
+    have closed, so they relink as above."""
 
     seconds: float
+    links: bool = True
 
 
 class Relink:

@@ -19,6 +19,30 @@ placement's draws unchanged. A move found worth it is the ``relocate``
 event of the program's state machine; the move itself (``MOVING``, the old
 copy running until the new host accepts) is the origin's.
 
+Calm (issue 23: corrections of robots' speeds swung 0.56-1.87x within
+minutes and moves followed them, back and forth, restarting programs from
+zero). On top of the thresholds:
+
+- **never back**: a program never moves to a robot it already ran on
+  (``AutonomousProgram.ran_on``), so it cannot go back and forth;
+- **the work a restart loses**: a program without a checkpoint is priced
+  from scratch there (T_there is its whole work, so what it did here is
+  lost in the price), and it never moves once an *upper* estimate of what
+  it has done (``done_bound``: its time there, the origin's own stalls
+  included, at one whole core of the host's faster speed, reported or
+  corrected, or its own progress if further) passes ``relocate_max_done``
+  (half) of its work. The price itself keeps the processor-sharing
+  estimate: priced with the bound, the campaign comparison's median went
+  from 0.835 to 0.913 (the bound counts a whole core on a loaded host);
+- **no move on an uncertain estimate** (``uncertain``, counted by reason in
+  ``Origin.withheld``): within ``relocate_calm`` of this origin's own stall
+  (its view and clock were behind), or of a change of the host's or the
+  target's speed correction (``Origin.factor_seen``, read from the view); a
+  host or target whose latest report is older than ``relocate_stale``; a
+  program whose learned work is scattered (its latest runs more than
+  ``relocate_max_spread`` apart per declared unit). The gain must then last
+  ``relocate_persist`` again once the doubt is gone.
+
 Rules: functions of the ``Origin`` they decide for (they read its view,
 policies and programs, and step programs through its table); no clock, no
 I/O.
@@ -26,6 +50,7 @@ I/O.
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 import msgspec
@@ -50,6 +75,8 @@ def relocation_check(origin: Origin, now: float, out: list[Action]) -> bool:
     rows = {row[0]: row for row in origin.view.scan(now, frozenset())}
     cfg = origin.config
     keep = False
+    see_factors(origin, now)
+    stalled = now - origin.woke_at < cfg.relocate_calm  # this robot's view and clock were behind
     # the fastest a new program could run anywhere by the count of tasks
     # (the policy's first estimate): a program that would not gain by the
     # thresholds even at that rate is not priced (most checks in a
@@ -78,6 +105,14 @@ def relocation_check(origin: Origin, now: float, out: list[Action]) -> bool:
         age = origin.view.report_age(ap.placed_host, now)
         if ap.host != origin.me and (age is None or now - age < ap.accepted_at):
             continue  # no report of its host since it started there
+        if ap.checkpoint is None and done_bound(origin, ap, now, speed) > cfg.relocate_max_done * ap.work:
+            ap.move_wanted_since = None
+            continue  # a restart would lose what it did, and it may have done over half its work
+        doubt = "stalled" if stalled else uncertain(origin, ap, now)
+        if doubt is not None:
+            origin.withheld[doubt] = origin.withheld.get(doubt, 0) + 1
+            ap.move_wanted_since = None
+            continue
         left = max(0.0, ap.work - ap.done)
         t_floor = origin.work_estimate(ap.submit) * (
             1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0)) / best_rate
@@ -111,16 +146,18 @@ def price_move(origin: Origin, ap: AutonomousProgram, t_here: float, now: float)
     sub = ap.submit
     work = origin.work_estimate(sub) * (1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0))
     policy = origin._policies[sub.policy] if sub.policy else origin.policy
+    # never back where it ran, nor onto a robot whose figures are in doubt
+    never = frozenset({ap.host or ""}) | frozenset(ap.ran_on) | unsettled(origin, now)
     placement = policy.choose(
         PlacementRequest(program_id=ap.program_id, work=work,
                          payload_size=sub.payload_size + len(ap.checkpoint or b""), result_size=sub.result_size),
         origin.view, now, origin._reloc_rng, net=origin.net, config=origin.config,
-        exclude=frozenset({ap.host or ""}) | origin.view.short_of_memory(sub.memory)
-        | origin.relink.excluded(origin.view.robots(), now),
+        exclude=never | origin.view.short_of_memory(sub.memory) | origin.relink.excluded(origin.view.robots(), now),
         links=origin.links.estimate if origin.links is not None else None,
     )
     t_there = placement.expected_time
-    if placement.host == ap.host or t_there is None or not worth_moving(origin, t_here, t_there):
+    # (a view that has only those robots left ignores the exclusion: nothing moves then)
+    if placement.host in never or t_there is None or not worth_moving(origin, t_here, t_there):
         return None
     cfg = origin.config
     # the new host takes it if it finishes there within what staying costs
@@ -134,3 +171,58 @@ def worth_moving(origin: Origin, t_here: float, t_there: float) -> bool:
     """Eq. (1) with hysteresis: the relative AND the absolute gain."""
     cfg = origin.config
     return t_here > t_there * (1.0 + cfg.relocate_gain) and t_here - t_there > cfg.relocate_min_gain
+
+
+def done_bound(origin: Origin, ap: AutonomousProgram, now: float, speed: float) -> float:
+    """The most work ``ap``'s current attempt can have done: its time since
+    it was offered (the origin's stalls, taken out of its clock, put back)
+    at one whole core of its host's speed, corrected or as it reports it,
+    whichever is faster; its own progress or the estimate if further."""
+    host = ap.placed_host
+    rep = origin.view.report_of(host)
+    reported = origin.view.speed if host == origin.me or rep is None else rep.speed
+    elapsed = max(0.0, now - ap.placed_at) + max(0.0, origin.stalled_s - ap.stall_base)
+    return min(ap.work, max(ap.done, elapsed * max(speed, reported)))
+
+
+def see_factors(origin: Origin, now: float) -> None:
+    """Note when each host's speed correction changed (read from the view;
+    one first seen away from 1 counts as changed now)."""
+    for host, factor in origin.view.speed_factor.items():
+        seen = origin.factor_seen.get(host)
+        if seen is None or seen[0] != factor:
+            origin.factor_seen[host] = (factor, now if seen is not None or factor != 1.0 else -math.inf)
+
+
+def factor_settled(origin: Origin, robot: str, now: float) -> bool:
+    seen = origin.factor_seen.get(robot)
+    return seen is None or now - seen[1] >= origin.config.relocate_calm
+
+
+def uncertain(origin: Origin, ap: AutonomousProgram, now: float) -> str | None:
+    """Why the estimate of moving ``ap`` is too uncertain to act on now, or None."""
+    cfg = origin.config
+    host = ap.placed_host
+    if not factor_settled(origin, host, now):
+        return "host speed changed"
+    age = origin.view.report_age(host, now)
+    if host != origin.me and (age is None or age > cfg.relocate_stale):
+        return "host report stale"
+    runs = origin._learned.get(ap.submit.program)
+    if runs and len(runs) >= 2 and max(runs) > cfg.relocate_max_spread * min(runs):
+        return "work scattered"
+    return None
+
+
+def unsettled(origin: Origin, now: float) -> frozenset[str]:
+    """Robots no program moves to now: their speed correction changed within
+    ``relocate_calm``, or their latest report is older than ``relocate_stale``."""
+    cfg = origin.config
+    out = set()
+    for robot in origin.view.robots():
+        if robot == origin.me:
+            continue
+        age = origin.view.report_age(robot, now)
+        if age is None or age > cfg.relocate_stale or not factor_settled(origin, robot, now):
+            out.add(robot)
+    return frozenset(out)

@@ -7,7 +7,8 @@ than one emulated core, and the processor-sharing model the simulator and the
 cost model use would not hold. So one small process per testbed (``python -m
 ramps.testbed.caps STATE_FILE``, started by ``Testbed.up``) moves every
 process of a robot except its node (the node's workers, background load)
-into its own child cgroup, and every ``PERIOD`` seconds sets each child's
+into its own child cgroup (and every process born in a child: Ray's and Dask's
+workers, ``ramps testbed experiment peers``), and every ``PERIOD`` seconds sets each child's
 quota to its share of the robot under weighted processor sharing, as Linux
 shares a real robot's cores::
 
@@ -161,7 +162,7 @@ class RobotCaps:
         if self.pooled:
             return 0
         moved = 0
-        for pid in self._programs():
+        for pid in self._programs() + self._strays():
             name = f"{CHILD_PREFIX}{pid}"
             try:
                 for base in (self.cpu, self.acct):
@@ -186,6 +187,20 @@ class RobotCaps:
         except OSError:
             return []
         return [pid for pid in pids if pid != self._node_pid and not _is_node(pid)]
+
+    def _strays(self) -> list[int]:
+        """Processes born in another process's child cgroup: the workers a Ray raylet
+        forks, the worker a Dask nanny spawns, a program's own subprocesses. Each is a
+        busy process of its own on a robot, so each gets a child (and a cap) of its
+        own too, as the workers ramps' fork server starts in the robot's cgroup do."""
+        out = []
+        for name in self.children():
+            try:
+                pids = (self.cpu / name / "cgroup.procs").read_text().split()
+            except OSError:
+                continue
+            out += [int(p) for p in pids if f"{CHILD_PREFIX}{p}" != name]
+        return out
 
     def _join(self, cgroup: Path, pid: int) -> None:
         """Move a process into a cgroup (the kernel takes it out of its old one)."""

@@ -1,0 +1,140 @@
+"""``ramps testbed experiment peers`` (ramps.testbed.peers): ramps beside round
+robin, Ray and Dask on the same emulated robots. The pure parts (scenarios, the
+ideal, distributions, the crash's victim, the report) run anywhere; one small
+real run of ramps and round robin needs root and cgroups (skipped otherwise).
+Ray and Dask are the ``peers`` extra, which ``make test`` does not install:
+their real run is for ``ramps testbed experiment peers`` itself."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+
+import msgspec
+import pytest
+from typer.testing import CliRunner
+
+from test_testbed import REASON, others_leftovers
+
+from ramps.cli import app
+from ramps.experiments.metrics import Machine, model_makespan
+from ramps.testbed.peers import (
+    ENGINES, SCENARIOS, SPACING, ClusterEngine, EngineRun, PeersReport, ScenarioResult, Setup, _running,
+    distribution, format_report, ideal, releases, run_peers, victim,
+)
+
+runner = CliRunner()
+
+
+def test_the_issue_scenarios_are_there():
+    assert list(SCENARIOS) == ["idle", "busy-1", "busy-2", "busy-4", "origins", "crash"]
+    assert [SCENARIOS[s].loaded for s in ("busy-1", "busy-2", "busy-4")] == [("r5",), ("r4", "r5"),
+                                                                              ("r2", "r3", "r4", "r5")]
+    assert SCENARIOS["origins"].origins == ("r1", "r2") and SCENARIOS["origins"].per_origin() == 15
+    assert SCENARIOS["crash"].crash_at == 10.0 and SCENARIOS["crash"].programs == 15
+    assert all(s.robots == 5 for s in SCENARIOS.values())
+    assert SCENARIOS["idle"].with_programs(10).programs == 10 and SCENARIOS["idle"].with_programs(None).programs == 30
+    assert set(ENGINES) == {"ramps", "round-robin", "ray", "dask"}
+
+
+def test_releases_follow_the_origins_submitting_together():
+    sc = SCENARIOS["origins"].with_programs(4)
+    assert releases(sc) == pytest.approx([0.0, 0.0, SPACING, SPACING])
+
+
+def test_distribution_counts_where_programs_completed():
+    assert distribution(["r1", "r3", None, "r3", "r9"], ["r1", "r2", "r3"]) == [1, 0, 2]
+
+
+def test_the_ideal_of_idle_robots_spreads_evenly():
+    span, dist = ideal(SCENARIOS["idle"], cores=4, speed=0.05, work=1.5, time_limit=1.0)
+    assert dist == [6, 6, 6, 6, 6]
+    # six programs on four cores, all released within 1.5 s: processor sharing ends them together
+    assert model_makespan([6], [Machine(4, 0.05)], 1.5) <= span <= model_makespan([6], [Machine(4, 0.05)], 1.5) + 1.5
+
+
+def test_the_ideal_keeps_nice_workers_off_busy_robots_and_leaves_out_the_crashed_one():
+    _, dist = ideal(SCENARIOS["busy-2"], cores=4, speed=0.05, work=1.5, time_limit=1.0)
+    assert dist[3:] == [0, 0] and sum(dist) == 30  # beside 8 busy processes a nice-10 program gets a tenth
+    # at nice 0 a busy robot is worth a little: a program there gets 4/9 of a core
+    _, dist0 = ideal(SCENARIOS["busy-4"].with_programs(60), cores=4, speed=0.05, work=1.5, worker_nice=0,
+                     time_limit=1.0)
+    assert sum(dist0[1:]) > 0
+    span, dist = ideal(SCENARIOS["crash"], cores=4, speed=0.05, work=1.5, without=["r5"], time_limit=1.0)
+    assert dist[4] == 0 and sum(dist) == 15
+    assert span == pytest.approx(1.5 / 0.05, rel=0.05)  # 15 programs on 16 cores: one round
+
+
+def test_the_crash_hits_the_busiest_robot_that_is_not_an_origin():
+    assert victim({"r1": 4, "r2": 2, "r4": 3, "r5": 3}, ["r1"]) == "r5"
+    assert victim({"r1": 4, "r2": 2}, ["r1", "r2"]) is None
+    assert victim({}, ["r1"]) is None
+
+
+def test_running_programs_are_read_from_the_marks(tmp_path):
+    for name in ("start-r1_0_r2_11", "start-r1_1_r2_12", "end-r1_1_r2_12", "start-r2_0_r5_13"):
+        (tmp_path / name).touch()
+    assert _running(tmp_path) == {"r2": 1, "r5": 1}
+    assert _running(tmp_path / "missing") == {}
+
+
+def test_a_missing_engine_says_which_extra_to_install():
+    assert ClusterEngine("nothing", "no_such_module_for_ramps").missing().startswith("no_such_module_for_ramps is not installed: pip install -e '.[peers]'")
+    assert ENGINES["ramps"]().missing() is None
+
+
+def test_the_report_prints_every_engine_and_reads_back_from_json():
+    sc = SCENARIOS["crash"]
+    runs = [EngineRun(engine="ramps", makespan=52.7, distribution=[4, 3, 4, 4, 0], completed=15, crashed="r5",
+                      crashed_running=3, speed=0.05, ideal=45.0, ratio=1.171),
+            EngineRun(engine="round-robin", makespan=40.0, distribution=[3, 3, 3, 3, 0], completed=12, lost=3,
+                      speed=0.05, ideal=45.0, ratio=0.889),
+            EngineRun(engine="ray", error="skipped: ray is not installed: pip install -e '.[peers]'")]
+    rep = PeersReport(cores=4, quota=0.32, work=1.5, worker_nice=10,
+                      scenarios=[ScenarioResult(scenario=sc, ideal=45.0, ideal_distribution=[4, 4, 4, 3, 0],
+                                                sim=None, runs=runs)])
+    text = format_report(rep)
+    assert "ideal 45.0 s (4-4-4-3-0)" in text
+    assert "52.7 s" in text and "4-3-4-4-0" in text and "crashed r5 with 3 running" in text
+    assert "skipped: ray is not installed" in text
+    assert [line.split()[5] for line in text.splitlines() if line.strip().startswith("round-robin")] == ["3"]
+    back = msgspec.json.decode(msgspec.json.encode(rep), type=PeersReport)
+    assert back == rep and back.scenarios[0].scenario.crash_at == 10.0
+
+
+def test_the_command_rejects_unknown_scenarios_and_engines():
+    for args in (["-s", "nope"], ["-e", "spark"]):
+        res = runner.invoke(app, ["testbed", "experiment", "peers", *args])
+        assert res.exit_code == 2 and "choose from" in res.output
+
+
+@pytest.mark.skipif(importlib.util.find_spec("ray") is not None and importlib.util.find_spec("distributed") is not None,
+                    reason="the peers extra is installed")
+def test_without_the_extra_ray_and_dask_are_skipped_and_say_why():
+    rep = run_peers([], ["ray", "dask"])
+    assert rep.scenarios == []
+    assert ENGINES["ray"]().missing() or ENGINES["dask"]().missing()
+
+
+@pytest.mark.slow
+@pytest.mark.serial  # real robots: times depend on the host's CPU
+@pytest.mark.skipif(REASON is not None, reason=REASON or "")
+def test_ramps_and_round_robin_run_a_crash_end_to_end():
+    """Two robots, eight short programs from r1 (more than its four cores), r2 crashed at 1.5 s
+    while it runs some: ramps runs them again, every figure is filled in."""
+    sc = msgspec.structs.replace(SCENARIOS["crash"], robots=2, programs=8, crash_at=1.5)
+    rep = run_peers([sc], ["ramps", "round-robin"], Setup(work=0.15, timeout=60.0))
+    (s,) = rep.scenarios
+    assert [r.engine for r in s.runs] == ["ramps", "round-robin"]
+    assert s.ideal and s.ideal_distribution == [8, 0]  # r2 left out: it crashes
+    for r in s.runs:
+        assert r.error is None, r.error
+        assert r.speed > 0 and r.ideal and r.makespan and r.makespan > 1.5
+        assert sum(r.distribution) == r.completed
+        if r.crashed is not None:  # it had programs at 2 s: ramps runs them again
+            assert r.crashed == "r2" and r.crashed_running >= 1
+    assert s.runs[1].crashed == "r2"  # round robin had programs there
+    ramps = s.runs[0]
+    assert ramps.completed == 8 and ramps.lost == 0
+    json.loads(msgspec.json.encode(rep))
+    assert others_leftovers() == []
