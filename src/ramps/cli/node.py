@@ -49,6 +49,9 @@ def node(
                                                 "process group when withdrawn or after 600 s ([commands.NAME] timeout in --config)"),
     config_file: Optional[Path] = typer.Option(None, "--config", help="TOML config file (env RAMPS_CONFIG)"),
     lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh session lease: how fast a frozen or cut-off peer is noticed"),
+    node_nice: Optional[int] = typer.Option(None, "--node-nice", min=-20, max=19,
+                                            help="niceness of this node's process, above its programs' (default -5; "
+                                                 "below 0 needs root, else it stays as it is; env RAMPS_NODE_NICE)"),
     trace: Optional[Path] = typer.Option(None, "--trace", help="write every placement, failure and delivery decision to this file (JSON lines)"),
     secure: SecureOption = False,
     credentials: CredentialsOption = None,
@@ -67,7 +70,7 @@ def node(
     from rich.logging import RichHandler
 
     from ramps.errors import RampsError
-    from ramps.runtime.node import NodeRuntime
+    from ramps.runtime.node import NodeRuntime, prioritize
 
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s",
                         handlers=[RichHandler(console=err, show_path=False)])
@@ -85,13 +88,14 @@ def node(
     s = node_settings(robot=robot, commands=commands, team=team, listen=listen or None, connect=connect or None, multicast=multicast,
                   cores=cores, speed=speed, policy=policy, programs=program or None, config_file=config_file,
                   lease_ms=lease_ms, trace=str(trace) if trace else None, secure=secure or None,
-                  credentials=str(credentials) if credentials else None, metrics=metrics)
+                  credentials=str(credentials) if credentials else None, metrics=metrics, node_nice=node_nice)
     import signal
     import threading
 
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
+    prioritize(s.node_nice)  # before the node starts its threads and workers: they inherit it
     try:
         rt = NodeRuntime(s).start()
     except RampsError as exc:

@@ -75,6 +75,12 @@ STALL_MIN = 0.5
 RELINK_LEASE_FRACTION = 0.75
 #: queued items handled before the timers fire (the rest after them)
 MAX_ITEMS_PER_ROUND = 10_000
+#: seconds of queued items one round handles before this robot's own duties
+#: that are due (its load report, its programs' heartbeats) go out; the
+#: origin's timeouts wait until the queue is drained, as it may hold the
+#: heartbeats they wait for (issue 23: a saturated robot's node)
+ROUND_SECONDS = 0.1
+
 
 INSECURE_WARNING = (
     "INSECURE: team {team!r} runs without authentication or encryption: anyone who can reach this network "
@@ -150,8 +156,11 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._stall_offset = 0.0
         self._stalled_at = 0.0
         self._remeasure_at: float | None = None
-        #: a stall long enough to close links, not yet told to the core (seconds)
+        #: stalls not yet told to the core (seconds), and whether one was long enough to close links
         self._stall_pending = 0.0
+        self._stall_links = False
+        #: rounds that stopped handling queued items to send what was due (ROUND_SECONDS)
+        self.rounds_cut = 0
         self._relink_after = settings.lease_ms / 1000.0 * RELINK_LEASE_FRACTION
         self._last_read = 0.0
         self._sleep_until = 0.0
@@ -195,7 +204,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=s.core,
                          rng=random.Random(self.incarnation), incarnation=self.incarnation,
                          registry=self.registry.names(), program_weight=nice_weight(s.worker_nice))
-        self.pool = self._worker_pool(self.cores, self.registry.targets(), self._finished, nice=s.worker_nice,
+        self.pool = self._worker_pool(self.cores, self.registry.targets(), self._finished, nice=worker_increment(s.worker_nice),
                                on_progress=self._progress_reported, on_checkpoint=self._checkpoint_saved)
         self.pool.start()
         self.sampler = self._load_sampler(lambda: self.pool.busy() + self.pool.queued(), window=s.window,
@@ -392,8 +401,9 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             self.stalls += 1
             self.stalled_s += late
             self._stalled_at = t
+            self._stall_pending += late
             if late >= self._relink_after:
-                self._stall_pending += late
+                self._stall_links = True
             if self._trace is not None:
                 self._write_trace("stalled", "", "", 0, f"{late:.3f}", at=t)
             log.warning("node %s: driver stalled for %.1f s (frozen, starved of CPU or paused); "
@@ -403,10 +413,12 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         return t - self._stall_offset
 
     def _stall_told(self, now: float) -> list:
-        """Tell the core about a stall that may have closed links (see
-        ``ramps.core.relink``), before anything that arrived meanwhile."""
+        """Tell the core about stalls, before anything that arrived meanwhile:
+        a host's silence counts from the wake (``Origin.on_stalled``), and after
+        one that may have closed links, teammates relink (``ramps.core.relink``)."""
         seconds, self._stall_pending = self._stall_pending, 0.0
-        return self.node.handle(Stalled(seconds=seconds), now)
+        links, self._stall_links = self._stall_links, False
+        return self.node.handle(Stalled(seconds=seconds, links=links), now)
 
     def _drive(self) -> None:
         while self._round(block=True):
@@ -444,6 +456,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         # results that piled up while the node stalled count first
         actions: list = []
         budget = MAX_ITEMS_PER_ROUND
+        until = self.clock.monotonic() + ROUND_SECONDS
+        behind = False  # items left queued: this robot's duties first, the origin's timeouts after them
         while item is not None:
             now = clock()
             if self._stall_pending:
@@ -462,8 +476,12 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
                 self._apply(actions)
                 actions = []
             budget -= 1
+            if budget <= 0 or self.clock.monotonic() >= until:
+                behind = not q.empty()
+                self.rounds_cut += behind
+                break
             try:
-                item = q.get_nowait() if budget > 0 else None
+                item = q.get_nowait()
             except queue.Empty:
                 item = None
         now = clock()
@@ -478,7 +496,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             self._next_pub = now + period if now - next_pub > period else next_pub + period
         deadline = node.next_deadline()
         if deadline is not None and deadline <= now:
-            actions.extend(node.tick(now))
+            actions.extend(node.tick(now, origin=not behind))
         self._apply(actions)
         if self._held_outcomes:
             self._flush_outcomes()
@@ -490,6 +508,39 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             wake = min(wake, now + OUTCOME_RETRY) if self._held_outcomes else wake
             self._sleep_until = self.clock.monotonic() + max(0.0, wake - now)
         return True
+
+def prioritize(nice: int) -> bool:
+    """Give this process niceness ``nice``: every thread it has, and those it
+    starts later (they inherit it). Call it before the node starts. Below 0
+    needs root (or CAP_SYS_NICE): without, one log line, and it stays as it
+    is. True if the process runs at ``nice`` now."""
+    try:
+        current = os.getpriority(os.PRIO_PROCESS, 0)
+        tids = [int(t) for t in os.listdir("/proc/self/task")] if os.path.isdir("/proc/self/task") else [0]
+    except (OSError, AttributeError):
+        return False
+    if current == nice:
+        return True
+    for tid in tids:
+        try:
+            os.setpriority(os.PRIO_PROCESS, tid, nice)
+        except ProcessLookupError:
+            continue  # that thread ended meanwhile
+        except PermissionError:
+            log.warning("node: cannot give itself niceness %d (needs root or CAP_SYS_NICE); it stays at %d",
+                        nice, current)
+            return False
+    return True
+
+
+def worker_increment(worker_nice: int) -> int:
+    """The niceness a worker adds to this thread's (it inherits the node's,
+    ``prioritize``, then adds this) so that it runs at ``worker_nice``."""
+    try:
+        return max(0, worker_nice - os.getpriority(os.PRIO_PROCESS, 0))
+    except (OSError, AttributeError):
+        return worker_nice
+
 
 def return_freed_memory(threshold: int = 256 * 1024) -> None:
     """Make glibc hand large freed blocks back to the system at once.
@@ -514,6 +565,7 @@ def run_node(settings: NodeSettings, *, install_signals: bool = True) -> NodeRun
     """Start a node and block until SIGINT/SIGTERM, then shut it down cleanly."""
     import signal
 
+    prioritize(settings.node_nice)
     rt = NodeRuntime(settings).start()
     stop = threading.Event()
     if install_signals:
@@ -527,4 +579,4 @@ def run_node(settings: NodeSettings, *, install_signals: bool = True) -> NodeRun
     return rt
 
 
-__all__ = ["DROP_LOG_PERIOD", "OUTCOME_HOLD", "STALL_GRACE", "NodeRuntime", "run_node"]
+__all__ = ["DROP_LOG_PERIOD", "OUTCOME_HOLD", "STALL_GRACE", "NodeRuntime", "prioritize", "run_node"]

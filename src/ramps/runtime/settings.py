@@ -118,6 +118,13 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     #: Load reports carry its CFS weight, so origins know that a program here
     #: gets what the robot's busy software leaves (0: equal shares)
     worker_nice: int = 10
+    #: niceness the ``ramps node`` process gives itself (-20..19; below 0
+    #: needs root or CAP_SYS_NICE, else one log line and it stays as it is):
+    #: on a robot saturated by its own software the node's driver still gets
+    #: the CPU to hear heartbeats and send its own (issue 23: a node at nice 0
+    #: beside 8 programs in a 0.32-core cgroup stalled 14 times, 0.6-3.8 s).
+    #: Its workers still run at ``worker_nice``
+    node_nice: int = -5
     #: largest encoded arguments accepted from a client, bytes (at most
     #: ramps.runtime.registry.MAX_ARGS_BYTES, just under 8 MiB: one message).
     #: The origin keeps each program's arguments until its result is in, to
@@ -159,6 +166,8 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
             raise ValueError(f"lease_ms must be >= 100, got {self.lease_ms}")
         if not 0 <= self.worker_nice <= 19:
             raise ValueError(f"worker_nice must be 0..19, got {self.worker_nice}")
+        if not -20 <= self.node_nice <= 19:
+            raise ValueError(f"node_nice must be -20..19, got {self.node_nice}")
         if self.load_scope not in ("auto", "host", "cgroup"):
             raise ValueError(f"load_scope must be auto, host or cgroup, got {self.load_scope!r}")
         if not 1 <= self.max_args_bytes <= _MAX_ARGS:
@@ -204,6 +213,7 @@ _ENV = {
     "RAMPS_PROGRAMS": ("programs", "list"),
     "RAMPS_COMMANDS": ("commands", "commands"),
     "RAMPS_LEASE_MS": ("lease_ms", int),
+    "RAMPS_NODE_NICE": ("node_nice", int),
     "RAMPS_SHARED_MEMORY": ("shared_memory", "bool"),
     "RAMPS_SECURE": ("secure", "bool"),
     "RAMPS_CREDENTIALS": ("credentials", str),
