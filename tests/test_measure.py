@@ -83,3 +83,28 @@ def test_speed_is_scaled_to_the_quota_of_a_core():
     full = measure.measure_speed(0.1)
     assert 0.05 < full < 20
     assert measure.measure_speed(0.1, quota=0.25, cores=1) < full
+
+
+def test_the_cpu_limit_is_the_smallest_quota_on_the_cgroups_path(tmp_path):
+    """A container's limit is often set on a parent (a pod, a slice): the
+    node reads every cgroup from its own up, v2 (cpu.max) or v1 files."""
+    pod = tmp_path / "pod"
+    own = pod / "container"
+    own.mkdir(parents=True)
+    (pod / "cpu.max").write_text("150000 100000\n")
+    (own / "cpu.max").write_text("max 100000\n")
+    assert measure.cpu_limit(own) == pytest.approx(1.5)
+    (own / "cpu.max").write_text("50000 100000\n")
+    assert measure.cpu_limit(own) == pytest.approx(0.5)
+    v1 = tmp_path / "v1" / "robot"
+    v1.mkdir(parents=True)
+    (v1 / "cpu.cfs_quota_us").write_text("32000\n")
+    (v1 / "cpu.cfs_period_us").write_text("100000\n")
+    assert measure.cpu_limit(v1) == pytest.approx(0.32)
+    (v1 / "cpu.cfs_quota_us").write_text("-1\n")
+    assert measure.cpu_limit(v1) is None and measure.cpu_limit(None) is None
+
+
+def test_a_core_under_a_quota_is_its_share_of_a_cpu():
+    assert measure.core_fraction(0.32, 4) == pytest.approx(0.08)
+    assert measure.core_fraction(None, 4) == measure.core_fraction(8.0, 4) == 1.0

@@ -369,8 +369,10 @@ def test_node_joining_mid_run_gets_later_programs(tmp_path):
         first = results([team.submit("sleepy", seconds=0.5) for _ in range(6)])
         assert {r["robot"] for r in first} <= {"r1", "r2", "r3"}
         t.start_node("r4")  # waits until r4's token and load reports are seen
-        # eight programs for eight free cores: the least utilised robots get them
-        second = Counter(r["robot"] for r in results([team.submit("sleepy", seconds=1.5) for _ in range(8)]))
+        # eight programs for eight free cores: the least utilised robots get them (a program
+        # that computes: sleepy's runs used next to no CPU, so r1 learned that it costs
+        # nothing and would keep it, rightly)
+        second = Counter(results([team.submit("spin", seconds=1.5) for _ in range(8)]))
         assert sum(second.values()) == 8
         assert second["r4"] >= 1, f"the new robot r4 got none of the second wave: {dict(second)}"
 

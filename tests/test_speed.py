@@ -13,7 +13,7 @@ from ramps.core.config import RampsConfig
 from ramps.core.events import Note, Received, Submit
 from ramps.core.messages import ProgramResult
 from ramps.core.node import Node
-from ramps.core.speed import HostSpeeds, SpeedEstimate, SpeedMeasured
+from ramps.core.speed import REMEASURE_PERIOD, HostSpeeds, SpeedEstimate, SpeedMeasured, remeasure_after
 from ramps.sim.engine import simulate
 from ramps.sim.scenario_file import scenario_from_dict
 from ramps.testing import FakeTeam
@@ -21,12 +21,32 @@ from ramps.testing import FakeTeam
 CFG = RampsConfig()
 
 
-def test_only_a_faster_re_measurement_counts():
+def test_a_re_measurement_that_moved_replaces_the_estimate():
+    """The driver's figure is already robust (the fastest cluster of every
+    piece it timed): the core takes it when it moved by more than 1%, up or
+    down (a throttled CPU), and ignores nonsense."""
     est = SpeedEstimate(0.7, CFG)
-    assert not est.measured(0.6)  # interference only ever slows a measurement
-    assert not est.measured(float("nan"))
+    assert not est.measured(0.705)
+    assert not est.measured(float("nan")) and not est.measured(0.0) and not est.measured(-1.0)
     assert est.measured(1.0) and est.value == 1.0
-    assert not est.measured(0.9) and est.value == 1.0
+    assert est.measured(0.9) and est.value == 0.9
+
+
+def test_speed_samples_take_the_fastest_cluster_not_one_odd_piece():
+    from ramps.runtime.measure import SpeedSamples
+
+    s = SpeedSamples()
+    assert s.rate() == 0.0
+    # a busy host: most pieces ran beside a busy SMT sibling (0.43), a few alone (0.57)
+    s.add([0.43, 0.42, 0.44, 0.43] * 10 + [0.56, 0.57, 0.58])
+    assert s.rate() == pytest.approx(0.57)
+    s.add([0.95])  # one odd piece moves nothing
+    assert s.rate() == pytest.approx(0.57)
+    assert s.speed(quota=0.32, cores=4) == pytest.approx(0.57 * 0.08, abs=1e-4)
+    # a robot that only ever ran beside a busy neighbour reports that
+    busy = SpeedSamples()
+    busy.add([0.43, 0.42, 0.44, 0.41, float("nan"), -1.0])
+    assert busy.rate() == pytest.approx(0.43, abs=0.011)
 
 
 def test_a_host_slower_than_it_says_on_the_same_program_gets_a_factor():
@@ -88,6 +108,25 @@ def test_one_odd_result_does_not_move_a_factor_and_nonsense_is_ignored():
     for bad in (0.0, -1.0, float("nan"), float("inf")):
         assert not speeds.on_result("plan", "h", bad)
     assert speeds.factor.get("h", 1.0) == 1.0
+
+
+def test_a_run_too_short_to_measure_says_nothing_of_its_host():
+    """Warm-up calls of a few milliseconds measure their start-up, not the
+    host: they neither set a reference nor move a factor."""
+    speeds = HostSpeeds(CFG)
+    speeds.on_result("plan", "a", 0.05)
+    for _ in range(5):
+        assert not speeds.on_result("plan", "h", 0.02)
+    assert speeds.samples == 0 and speeds.factor == {}
+    # long enough, the same comparison corrects h
+    speeds.on_result("plan", "a", 5.0)
+    assert [speeds.on_result("plan", "h", 3.0) for _ in range(2)] == [False, True]
+
+
+def test_the_first_re_measurements_come_soon_after_boot_then_settle():
+    delays = [remeasure_after(n) for n in range(8)]
+    assert delays[0] <= 1.0 and sum(delays[:5]) <= 30.0  # several within the first half minute
+    assert delays == sorted(delays) and delays[-1] == REMEASURE_PERIOD
 
 
 def test_speed_learning_off_keeps_every_measurement():
@@ -209,3 +248,28 @@ def test_several_origins_and_a_crash_with_mis_measured_robots():
         assert result.lost == result.duplicated == 0 and result.completed == 80
         assert all(max(w.values()) <= 4 for w in _waves(result)[2:])
         assert result.makespan < 300 + 53 * 1.05
+
+
+def _host_result(core_fraction: float, **finished) -> ProgramResult:
+    """A host of 4 cores at speed 0.04 (each core 0.08 of a CPU under its
+    quota, or whole) runs a program declared 1 unit for 10 s and reports it."""
+    from ramps.core.events import ProgramFinished
+    from ramps.core.executor import Executor
+    from ramps.core.messages import OffloadRequest
+
+    ex = Executor("h", config=CFG, cores=4, speed=0.04, core_fraction=core_fraction)
+    out: list = []
+    ex.on_offload(OffloadRequest(program_id="p", attempt=1, origin="o", host="h", program="burn", work=1.0), 0.0, out)
+    out.clear()
+    ex.on_finished(ProgramFinished(program_id="p", attempt=1, ok=True, **finished), 10.0, out)
+    return next(a.msg for a in out if isinstance(getattr(a, "msg", None), ProgramResult))
+
+
+def test_a_host_counts_a_programs_work_from_the_cpu_seconds_it_used():
+    # 0.4 units by processor sharing (10 s at 0.04); 1.0 CPU s at 0.5 units per CPU s is 0.5 units
+    assert _host_result(0.08).work_done == pytest.approx(0.4)
+    assert _host_result(0.08, cpu_s=1.0).work_done == pytest.approx(0.5)
+    assert _host_result(1.0, cpu_s=1.0).work_done == pytest.approx(0.04)
+    # a program that slept through its 10 s did next to no work, whatever its share
+    assert _host_result(0.08, cpu_s=0.001).work_done == pytest.approx(0.0005)
+    assert _host_result(0.08, cpu_s=float("nan")).work_done == pytest.approx(0.4)

@@ -18,7 +18,8 @@ from ramps.runtime.workers import WorkerPool
 pytestmark = pytest.mark.slow
 
 TESTS = str(Path(__file__).parent)
-TARGETS = {"sleepy": "e2eprogs:sleepy", "where": "e2eprogs:where", "stamp": "e2eprogs:stamp"}
+TARGETS = {"sleepy": "e2eprogs:sleepy", "where": "e2eprogs:where", "stamp": "e2eprogs:stamp",
+           "burn": "ramps.programs.burn:burn"}
 
 
 def wait_until(pred, timeout: float, step: float = 0.02) -> bool:
@@ -30,11 +31,13 @@ def wait_until(pred, timeout: float, step: float = 0.02) -> bool:
     return pred()
 
 
-def make_pool(size: int, max_size: int | None = None):
+def make_pool(size: int, max_size: int | None = None, cpu: dict | None = None):
     done: dict = {}
     ev = threading.Event()
 
-    def finished(key, ok, value, error, retryable):
+    def finished(key, ok, value, error, retryable, cpu_s=None):
+        if cpu is not None:
+            cpu[key] = cpu_s
         done[key] = (ok, msgspec.msgpack.decode(value) if ok else error, retryable)
         ev.set()
 
@@ -46,6 +49,23 @@ def make_pool(size: int, max_size: int | None = None):
 
 def args(**kw) -> bytes:
     return msgspec.msgpack.encode(kw)
+
+
+def test_a_finished_program_reports_the_cpu_seconds_it_used_not_the_time_it_slept():
+    """What a host counts a program's work from (``ProgramFinished.cpu_s``):
+    a burn's CPU seconds, a sleeper's next to none, measured in one run."""
+    cpu: dict = {}
+    pool, done = make_pool(2, cpu=cpu)
+    try:
+        pool.run(("b", 1), "burn", args(units=0.3))
+        pool.run(("s", 1), "sleepy", args(seconds=1.0, tag="s"))
+        assert wait_until(lambda: len(done) == 2, 30), done
+        assert all(ok for ok, _, _ in done.values())
+        burned, slept = cpu[("b", 1)], cpu[("s", 1)]
+        assert burned > 0.05 and slept is not None
+        assert slept < burned / 5, (burned, slept)
+    finally:
+        pool.stop()
 
 
 def test_more_programs_than_cores_all_run_at_once_then_extra_workers_retire():

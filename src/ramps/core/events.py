@@ -57,6 +57,11 @@ class ProgramFinished(_Rec, frozen=True, kw_only=True):
     result_size: int = 0
     #: the worker died (killed, out of memory) rather than the program failing
     retryable: bool = False
+    #: CPU seconds the program used (its worker's own clock, executables
+    #: included), or None where the driver cannot tell (the simulator): the
+    #: work it reports is then what processor sharing at this robot's
+    #: speed and load says it did
+    cpu_s: float | None = None
 
 
 class ProgressReported(_Rec, frozen=True, kw_only=True):

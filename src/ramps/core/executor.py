@@ -26,6 +26,8 @@ puts them in every report so origins can tell what a report includes.
 
 from __future__ import annotations
 
+import math
+
 from collections.abc import Callable
 
 from ramps.core.config import RampsConfig
@@ -83,9 +85,14 @@ class Executor:
         cores: float = float("inf"),
         speed: float = 1.0,
         program_weight: float = 1.0,
+        core_fraction: float = 1.0,
     ) -> None:
         self.me = me
         self.config = config
+        #: the share of a CPU each of this robot's cores is (a quota shared by
+        #: its cores; 1 without one): a program's CPU second is this robot's
+        #: ``speed / core_fraction`` work units
+        self.core_fraction = core_fraction
         #: names of the programs installed here; None accepts any name
         self.registry = registry
         self.incarnation = incarnation
@@ -199,12 +206,22 @@ class Executor:
         result = ProgramResult(
             program_id=ev.program_id, attempt=ev.attempt, host=self.me, ok=ev.ok, value=ev.value,
             error=ev.error, result_size=ev.result_size, retryable=ev.retryable, finish_seq=self.finished_total,
-            work_done=job.done if ev.ok else None,
+            work_done=self._work_done(job, ev) if ev.ok else None,
         )
         self._outbox[key] = (job.origin, result, now + self.config.result_resend, now + self.config.result_retention)
         out.append(Send(to=job.origin, msg=result))
         if self._next_tick is None:
             self._next_tick = now + self.config.result_resend
+
+    def _work_done(self, job: _Job, ev: ProgramFinished) -> float:
+        """The work a finished program took, in units at this robot's speed:
+        from the CPU seconds it used where the driver measured them (exact
+        whatever its share of the robot was, however long it slept),
+        else from processor sharing at this robot's speed and load."""
+        cpu = ev.cpu_s
+        if cpu is None or not (math.isfinite(cpu) and cpu >= 0.0) or self.core_fraction <= 0.0:
+            return job.done
+        return cpu * self.speed / self.core_fraction
 
     def on_cancel(self, msg: CancelProgram, now: float, out: list[Action]) -> None:
         self._advance(now)

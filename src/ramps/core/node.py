@@ -109,6 +109,7 @@ class Node:
         registry: frozenset[str] | None = None,
         net: NetworkEstimate | None = None,
         program_weight: float = 1.0,
+        core_fraction: float = 1.0,
     ) -> None:
         self.robot = robot
         self.cores = cores
@@ -133,7 +134,8 @@ class Node:
             self.origin.links = self.links
         self._probe_due: float | None = 0.0 if self.config.probe_period > 0 else None
         self.executor = Executor(robot, config=self.config, registry=registry, incarnation=incarnation,
-                                 cores=cores, speed=speed, program_weight=program_weight)
+                                 cores=cores, speed=speed, program_weight=program_weight,
+                                 core_fraction=core_fraction)
         #: this robot's speed (re-measured) and its teammates' as their results
         #: show (policies that share load only; ``ramps.core.speed``)
         self.own_speed = SpeedEstimate(speed, self.config) if self.policy.shares_load else None

@@ -1,37 +1,45 @@
-"""Robots' speeds: re-measured while idle, and corrected from the results
-of programs that ran on several robots.
+"""Robots' speeds: measured at boot, re-measured while idle, and corrected
+from the results of programs that ran on several robots.
 
 How this works: a node starts from the speed it measured at boot (work
-units per second of one core, 1.0 = the reference core). Robots booting
-together on a busy machine measured speeds up to 1.5x apart for identical
-hardware, and placement followed the error. Two corrections, one per side:
+units per second of one of its cores, 1.0 = the reference core): what a CPU
+second computes here, timed on the measuring thread's own CPU clock, times
+the share of a CPU each core is under the kernel's quota
+(``ramps.runtime.measure.measure_speed``). Two corrections, one per side:
 
 - **Re-measurement, on the host** (``SpeedEstimate``): the driver measures
-  again now and then while no program runs there (``REMEASURE_PERIOD``).
-  Interference (other processes, a busy machine) only ever slows a
-  measurement down, so the fastest one is the robot's own speed: a faster
-  re-measurement replaces the estimate, a slower one is ignored. This is
-  what fixes a robot that measured itself slow: it gets no programs, so no
-  result could ever say it is faster.
+  again while no program runs there, soon after boot and then every
+  ``REMEASURE_PERIOD`` (``remeasure_after``), and hands the core its figure
+  from every piece it has timed so far. On a CPU clock, interference (an
+  SMT sibling or another tenant busy on the same physical core, a
+  neighbour's cache traffic) only ever slows a piece down, while a quota's
+  throttling and a run queue do not count at all, so the fastest cluster
+  of pieces is the robot's own speed (``ramps.runtime.measure.SpeedSamples``).
+  This is what fixes a robot that measured itself slow: it gets no
+  programs, so no result could ever say it is faster. Measured on a wall
+  clock instead, a burst that fits in one quota period runs faster than
+  the robot's sustained rate.
 - **Results, at the origin** (``HostSpeeds``): a host reports the work a
-  program took (``ProgramResult.work_done``) counted at the speed it
-  believes, and the origin divides it by the work the call declared, so
-  calls of different sizes compare (a call declared twice as big counts
-  half). The same program on another robot tells the origin what that
-  work is in the team's terms (the median of its recent runs elsewhere,
-  each corrected as below): ``elsewhere / work_done`` is how much faster
-  (> 1) or slower the host really is than it says. The origin keeps the
-  median of each host's last ``SAMPLES`` such figures once it has
-  ``MIN_FIGURES`` of them and they are off by more than ``speed_deadband``;
-  its view multiplies the host's reported speed by it.
+  program took (``ProgramResult.work_done``): its CPU seconds at the speed
+  the host believes (``Executor``), and the origin divides it by the work
+  the call declared, so calls of different sizes compare (a call declared
+  twice as big counts half). The same program on another robot tells the
+  origin what that work is in the team's terms (the median of its recent
+  runs elsewhere, each corrected as below): ``elsewhere / work_done`` is
+  how much faster (> 1) or slower the host really is than it says. Only
+  runs of at least ``MIN_RUN_WORK`` units count (a call of a few
+  milliseconds measures its start-up). The origin keeps the median of each
+  host's last ``SAMPLES`` figures once it has ``MIN_FIGURES`` of them and
+  they are off by more than ``speed_deadband``; its view multiplies the
+  host's reported speed by it.
 - A run beyond ``speed_max_correction`` either way of another is not a
   robot's speed but a different instance under the same name and
   declaration (a route plan of 4 picks next to one of 14 measured 4-8x
   apart on identical robots): a run is compared only with the runs
-  elsewhere within that bound of it, and dropped if there are none. One figure alone (a single short run
-  on a busy machine measured 0.71 of an identical robot) does not move a
-  factor either: ``ramps demo`` placed 4-3-3-3-2 on five identical robots
-  from such figures, and lost to round robin by 40%.
+  elsewhere within that bound of it, and dropped if there are none. One
+  figure alone does not move a factor either: CPU seconds of identical
+  robots differ by up to 1.35x with what shares their physical cores at
+  the moment (docs/lab/2026-11-26-self-measured-speed.md).
 
 Why the comparison, and not a host comparing a program's estimated work
 with the time it took: a program that takes twice as long as declared on
@@ -41,7 +49,7 @@ slower than the others *on the same program* is slow. What this cannot
 see: robots that are all wrong by the same factor (harmless: placement
 compares them) and a robot that overestimated itself when every run of a
 program went to robots as wrong as it (nothing to compare with; a
-measurement is hardly ever too fast).
+measurement on a CPU clock is hardly ever too fast).
 """
 
 from __future__ import annotations
@@ -60,29 +68,53 @@ SAMPLES = 5
 RUNS = 8
 #: figures of a host before its factor may change
 MIN_FIGURES = 2
-#: seconds between two re-measurements by the driver (the runtime, and the
-#: simulator for robots whose boot measurement was wrong)
+#: the least work (units, about CPU seconds of the reference core) a run
+#: must have taken to say anything about its host's speed
+MIN_RUN_WORK = 0.1
+#: seconds between two re-measurements by the driver once settled (the
+#: runtime, and the simulator for robots whose boot measurement was wrong)
 REMEASURE_PERIOD = 30.0
+#: the first re-measurements after boot: robots booting together measured
+#: each other's start-up, and a few seconds later most of them are idle
+REMEASURE_FIRST = (1.0, 2.0, 4.0, 8.0, 15.0)
+#: CPU seconds one re-measurement spends (``measure_speed``'s ``seconds``)
+REMEASURE_CPU = 0.1
+
+
+def remeasure_after(count: int) -> float:
+    """Seconds from the ``count``-th re-measurement (0: boot) to the next."""
+    return REMEASURE_FIRST[count] if 0 <= count < len(REMEASURE_FIRST) else REMEASURE_PERIOD
+
+
+#: a re-measured speed within this fraction of the estimate changes nothing
+SPEED_STEP = 0.01
 
 
 class SpeedMeasured(msgspec.Struct, frozen=True, kw_only=True):
     """The driver measured this robot's speed again (driver -> core), while
-    no program ran here; see ``SpeedEstimate.measured``."""
+    no program ran here: its figure from every measurement so far (on a
+    robot, ``ramps.runtime.measure.SpeedSamples``); see
+    ``SpeedEstimate.measured``."""
 
     speed: float
 
 
 class SpeedEstimate:
-    """This robot's own speed: the fastest measurement so far."""
+    """This robot's own speed: the driver's latest figure."""
 
     def __init__(self, measured: float, config: RampsConfig) -> None:
         self.value = measured
         self.config = config
 
     def measured(self, speed: float) -> bool:
-        """A re-measurement; True if the estimate changed (only a faster one
-        counts; ``speed_learning = False`` keeps the boot figure)."""
-        if not self.config.speed_learning or not (math.isfinite(speed) and speed > self.value):
+        """A re-measurement; True if the estimate changed (by more than
+        ``SPEED_STEP``; ``speed_learning = False`` keeps the boot figure).
+        Either way: the driver's figure is already robust to interference
+        (the fastest cluster of everything it timed), and a robot that
+        really got slower (a throttled CPU) must say so."""
+        if not self.config.speed_learning or not (math.isfinite(speed) and speed > 0):
+            return False
+        if abs(math.log(speed / self.value)) <= math.log1p(SPEED_STEP):
             return False
         self.value = speed
         return True
@@ -109,7 +141,7 @@ class HostSpeeds:
         ``declared`` units (0: compare the raw work); True if the host's
         factor changed."""
         cfg = self.config
-        if not cfg.speed_learning or not (math.isfinite(work_done) and work_done > 0):
+        if not cfg.speed_learning or not (math.isfinite(work_done) and work_done >= MIN_RUN_WORK):
             return False
         if math.isfinite(declared) and declared > 0:
             work_done /= declared  # per declared unit: calls of different sizes compare

@@ -11,9 +11,10 @@ ramps programs. Two scopes:
 * ``cgroup``: only the processes of this node's cpu cgroup (v1 or v2), for
   emulated robots that share one host (the testbed, ``ramps demo``).
 
-``detect_cores`` respects CPU affinity and a cgroup CPU quota;
-``measure_speed`` times a fixed amount of work against the burn program's
-calibration, so speed 1.0 means "as fast as the reference core".
+``detect_cores`` respects CPU affinity and the cgroup CPU quotas
+(``cpu_limit``: the smallest along the cgroup's path); ``measure_speed``
+times a fixed amount of work on the thread's own CPU clock against the burn
+program's calibration, so speed 1.0 means "as fast as the reference core".
 """
 
 from __future__ import annotations
@@ -70,7 +71,8 @@ def cgroup_cpu_dir() -> Path | None:
 
 
 def cgroup_quota(d: Path | None) -> float | None:
-    """CPU quota of a cgroup in cores, or None when unlimited."""
+    """CPU quota of one cgroup in cores (``cpu.max`` on v2, ``cpu.cfs_quota_us``
+    / ``cpu.cfs_period_us`` on v1), or None when it sets none."""
     if d is None:
         return None
     try:
@@ -84,34 +86,152 @@ def cgroup_quota(d: Path | None) -> float | None:
         return None
 
 
+def cpu_limit(d: Path | None) -> float | None:
+    """The CPU this process may use, in cores, as the kernel states it: the
+    smallest quota of its cgroup and every cgroup above it (a container's
+    limit is often set on a parent: a pod, a slice), or None when none
+    sets one. Affinity is ``detect_cores``' business."""
+    if d is None:
+        return None
+    root = Path("/sys/fs/cgroup")
+    limits = []
+    here = d
+    while True:
+        q = cgroup_quota(here)
+        if q is not None:
+            limits.append(q)
+        if here == here.parent or here.parent == root or here == root:
+            break
+        here = here.parent
+    return min(limits) if limits else None
+
+
 def detect_cores() -> int:
     n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    quota = cgroup_quota(cgroup_cpu_dir())
+    quota = cpu_limit(cgroup_cpu_dir())
     if quota is not None:
         n = min(n, max(1, math.floor(quota + 0.5)))
     return max(1, n)
 
 
-def measure_speed(seconds: float = 0.2, *, quota: float | None = None, cores: int = 1) -> float:
-    """Work units per second of one core now (1.0 = the reference core).
+#: work units of one timed piece of a speed measurement (~5 ms of CPU on a
+#: reference core): short enough that many fit in one quota period, so some
+#: run on a core nothing else shares at that moment
+SPEED_CHUNK = 0.005
+#: wall seconds a measurement may take at most (a robot starved of CPU by its
+#: own software measures what it got in that time)
+SPEED_MAX_WALL = 5.0
+#: pieces kept from every measurement of a node's life (the newest)
+SPEED_PIECES = 600
+#: pieces within this fraction of the fastest but one are the top cluster
+SPEED_BAND = 0.08
 
-    Under a cgroup quota smaller than ``cores`` a core only runs part of the
-    time, so the speed is scaled by ``quota / cores``."""
-    from ramps.programs.burn import burn
 
-    # the best of several short runs: a core shared with another (an SMT
-    # sibling, a busy start-up) only ever makes a run slower, so the fastest
-    # run is the core's own speed; one long run measured whatever else ran
-    runs = 5
-    used = float("inf")
-    for _ in range(runs):
-        start = time.process_time()
-        burn(units=seconds / runs)
-        used = min(used, max(time.process_time() - start, 1e-6))
-    speed = seconds / runs / used
-    if quota is not None and quota < cores:
-        speed *= quota / cores
-    return round(speed, 3)
+def chunk_rates(seconds: float) -> list[float]:
+    """What a CPU second computes here, piece by piece: work units per CPU
+    second of ``SPEED_CHUNK`` units of the burn loop each, timed on this
+    thread's own CPU clock (``time.thread_time``), so neither waiting for
+    the CPU (a quota's throttling, a run queue) nor the node's other
+    threads count, until ``seconds`` of CPU are spent (over several quota
+    periods under a quota) or ``SPEED_MAX_WALL`` have passed. The pieces
+    run on each CPU this robot may use in turn (the measuring thread is
+    pinned to one at a time): a thread stays on one CPU for a while, and
+    the development VM's two vCPUs ran the same loop at 0.36 and 0.57 units
+    per CPU second for seconds on end, so a measurement that stayed on one
+    said which vCPU it had landed on."""
+    from ramps.programs.burn import ITERATIONS_PER_UNIT, _spin
+
+    iterations = max(1, round(SPEED_CHUNK * ITERATIONS_PER_UNIT))
+    rates: list[float] = []
+    allowed = _affinity()
+    cpus = sorted(allowed)
+    cpu0, wall0 = time.thread_time(), time.monotonic()
+    try:
+        while len(rates) < 4 or (time.thread_time() - cpu0 < seconds and time.monotonic() - wall0 < SPEED_MAX_WALL):
+            if len(cpus) > 1:  # piece by piece on each CPU this robot may use, in turn
+                _pin({cpus[len(rates) % len(cpus)]})
+            start = time.thread_time()
+            _spin(iterations)
+            rates.append(SPEED_CHUNK / max(time.thread_time() - start, 1e-6))
+    finally:
+        if len(cpus) > 1:
+            _pin(allowed)
+    return rates
+
+
+def _affinity() -> set[int]:
+    try:
+        return set(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return set()
+
+
+def _pin(cpus: set[int]) -> None:
+    """Run the calling thread (pid 0: this thread, not the process) on ``cpus``."""
+    try:
+        os.sched_setaffinity(0, cpus)
+    except (AttributeError, OSError):
+        pass
+
+
+class SpeedSamples:
+    """Every piece a node timed in its life (the newest ``SPEED_PIECES``), and
+    the speed they show.
+
+    Interference (an SMT sibling or another tenant busy on the same physical
+    core, caches shared with a busy neighbour) only ever slows a piece down:
+    on the 2-vCPU development VM pieces ran at two speeds, about 0.57 units
+    per CPU second while nothing else ran on the other vCPU and 0.43 while
+    something did, so a measurement's median or mean said how busy the host
+    was, not how fast the robot is. The figure is the median of the top
+    cluster: the pieces within ``SPEED_BAND`` of the fastest but one (a
+    single odd piece moves nothing). Pieces add up over the boot measurement
+    and every re-measurement, so a robot that booted while its neighbours'
+    start-up kept the host busy finds the top cluster later, as the others
+    did; identical robots then agree however they booted."""
+
+    def __init__(self) -> None:
+        self._rates: deque[float] = deque(maxlen=SPEED_PIECES)
+
+    def add(self, rates: list[float]) -> None:
+        self._rates.extend(r for r in rates if math.isfinite(r) and r > 0)
+
+    def rate(self) -> float:
+        """Work units per CPU second of this robot's CPU (0.0 before any piece)."""
+        if not self._rates:
+            return 0.0
+        ranked = sorted(self._rates, reverse=True)
+        ref = ranked[1] if len(ranked) > 1 else ranked[0]
+        top = [r for r in ranked if r >= ref * (1.0 - SPEED_BAND)]
+        return top[len(top) // 2]
+
+    def speed(self, *, quota: float | None = None, cores: int = 1) -> float:
+        """Work units per second of one of this robot's cores."""
+        return round(self.rate() * core_fraction(quota, cores), 4)
+
+
+def measure_speed(seconds: float = 0.2, *, quota: float | None = None, cores: int = 1,
+                  samples: SpeedSamples | None = None) -> float:
+    """Work units per second of one of this robot's cores (1.0 = the reference core).
+
+    Two parts, measured apart: what a CPU second computes here
+    (``chunk_rates`` for ``seconds`` of CPU, added to ``samples`` when given,
+    the figure as ``SpeedSamples`` explains), and how much of a CPU each of
+    the robot's cores is (the kernel's ``quota`` shared by ``cores``).
+    Identical robots booting together on one host measured 1.02-1.04x apart
+    this way once each had spent 0.8 s of CPU, where the best of five 40 ms
+    runs of process CPU time measured up to 1.8x apart
+    (docs/lab/2026-11-26-self-measured-speed.md)."""
+    samples = samples if samples is not None else SpeedSamples()
+    samples.add(chunk_rates(seconds))
+    return samples.speed(quota=quota, cores=cores)
+
+
+def core_fraction(quota: float | None, cores: int) -> float:
+    """The share of a host core each of ``cores`` is under a quota of ``quota``
+    cores (1.0 without one): a CPU second of a program is worth 1 / this
+    seconds of one of the robot's cores."""
+    return quota / cores if quota is not None and quota < cores else 1.0
 
 
 def _procs_running() -> int:

@@ -39,7 +39,7 @@ from ramps.core.messages import (
     RunningProgram,
     encode,
 )
-from ramps.core.speed import REMEASURE_PERIOD, SpeedMeasured
+from ramps.core.speed import REMEASURE_CPU, SpeedMeasured, remeasure_after
 from ramps.runtime import keys
 from ramps.runtime.measure import measure_speed
 from ramps.runtime.transport import Publisher
@@ -145,9 +145,12 @@ class Outbound:
 
     def _remeasure(self) -> None:
         """Measure this robot's speed again, off the driver's thread (briefly:
-        0.05 s of CPU); the core keeps the figure if it is faster."""
+        ``REMEASURE_CPU`` s of CPU), with every piece timed so far
+        (``SpeedSamples``); the core takes the figure if it moved."""
         try:
-            speed = measure_speed(0.05, quota=self._quota, cores=self.cores)
+            with self._remeasuring:  # one at a time: the samples are this thread's while it measures
+                speed = measure_speed(REMEASURE_CPU, quota=self._quota, cores=self.cores,
+                                      samples=self._speed_samples)
         except Exception:  # never worth a node
             log.exception("node %s: measuring its speed again failed", self.robot)
             return
@@ -155,8 +158,10 @@ class Outbound:
 
     def _publish(self, now: float) -> None:
         due = self._remeasure_at
-        if due is not None and self.clock.monotonic() >= due and not self.pool.busy() and not self.pool.queued():
-            self._remeasure_at = self.clock.monotonic() + REMEASURE_PERIOD
+        if (due is not None and self.clock.monotonic() >= due and not self.pool.busy() and not self.pool.queued()
+                and not self._remeasuring.locked()):
+            self._remeasures += 1
+            self._remeasure_at = self.clock.monotonic() + remeasure_after(self._remeasures)
             threading.Thread(target=self._remeasure, name=f"ramps-speed-{self.robot}", daemon=True).start()
         busy, runnable, ramps_avg = self.sampler.averages()
         per_core, load1, mem_free = self.sampler.extras()

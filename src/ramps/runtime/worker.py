@@ -8,7 +8,9 @@ frame is a 4-byte big-endian length and a msgpack body:
 
     first frame in:   {"targets": {name: "module:function", ...}, "nice": n}
     each job in:      [program, args_bytes] or [program, args_bytes, resume_bytes]
-    each reply out:   [ok, value_bytes, error_text]
+    each reply out:   [ok, value_bytes, error_text, cpu_seconds] (the CPU the
+                      program used: the worker's own, threads and waited-for
+                      children such as an executable included)
     progress out:     {"progress": fraction, "detail": text}  (any number
                       before the reply; from ``ramps.progress`` or an
                       executable's ``RAMPS_PROGRESS`` stderr lines)
@@ -161,6 +163,12 @@ def resume_state() -> Any:
     return None if data is None else _dec.decode(data)
 
 
+def _cpu_seconds() -> float:
+    """CPU seconds this worker and its waited-for children have used."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
 def run(inp: BinaryIO, out: BinaryIO) -> None:
     # progress state lives in the importable module that ``ramps.progress``
     # reaches, also when this file runs as ``__main__`` (python -m)
@@ -186,11 +194,14 @@ def run(inp: BinaryIO, out: BinaryIO) -> None:
             this._progress_out, this._progress_sent = out, 0.0
             this._checkpoint_sent, this._progress_last = -float("inf"), None
             this._resume = job[2] if len(job) > 2 else None
+        cpu0: float | None = None
         try:
             fn = fns.get(program)
             if fn is None:
                 fn = fns[program] = resolve(targets[program])
-            value = fn(**decode_args(args))
+            kwargs = decode_args(args)
+            cpu0 = _cpu_seconds()
+            value = fn(**kwargs)
             try:
                 data = _enc.encode(value)
                 reply = [True, data, ""]
@@ -204,6 +215,7 @@ def run(inp: BinaryIO, out: BinaryIO) -> None:
         except Exception as exc:  # the program's own failure, reported to its origin
             tb = traceback.format_exception(type(exc), exc, exc.__traceback__)
             reply = [False, b"", "".join(tb[-6:])[-3000:]]
+        reply.append(None if cpu0 is None else round(max(0.0, _cpu_seconds() - cpu0), 6))
         with this._progress_lock:
             this._progress_out = this._resume = None
             out.write(frame(_enc.encode(reply)))

@@ -50,8 +50,8 @@ import msgspec
 from ramps.runtime.worker import frame
 
 Key = tuple[str, int]
-#: on_finished(key, ok, value_bytes, error_text, retryable)
-Finished = Callable[[Key, bool, bytes, str, bool], None]
+#: on_finished(key, ok, value_bytes, error_text, retryable, cpu_seconds or None)
+Finished = Callable[[Key, bool, bytes, str, bool, "float | None"], None]
 #: on_progress(key, fraction, detail): a running program reported progress
 Progress = Callable[[Key, float, str], None]
 #: on_checkpoint(key, state_bytes, fraction): a running program saved its state
@@ -399,9 +399,10 @@ class WorkerPool:
                                 if w.job is not None and not w.cancelled:
                                     progress.append((w.job, reply.get("progress", 0.0), reply.get("detail", "")))
                                 continue
-                            ok, value, error = reply
+                            ok, value, error = reply[:3]
+                            cpu = reply[3] if len(reply) > 3 and isinstance(reply[3], (int, float)) else None
                             if w.job is not None and not w.cancelled:
-                                finished.append((w.job, ok, value, error, False))
+                                finished.append((w.job, ok, value, error, False, cpu))
                             w.job = None
                             w.idle_since = self._last_progress = time.monotonic()
                         continue
@@ -418,7 +419,7 @@ class WorkerPool:
                         self.died += 1
                         how = f"exit code {code}" if isinstance(w.proc, subprocess.Popen) else "killed or crashed"
                         finished.append((w.job, False, b"", f"worker process died under the program "
-                                                             f"({how})", True))
+                                                             f"({how})", True, None))
                     if len(self._workers) < self.size:
                         self._add_worker()
                 self._dispatch_locked()  # idle extra workers retire at the top of the loop

@@ -150,9 +150,10 @@ def _inject(tb, robot: str, kind: str) -> None:
 
 def run_plan(plan: FaultPlan, *, seed: int = 0, policy: str = "ramps", work: float | None = None,
              quota: float | None = None, lease_ms: int | None = None, finish_timeout: float = 1800.0,
-             keep_logs: Path | None = None, discovery: str = "both",
+             keep_logs: Path | None = None, discovery: str = "both", told_speed: bool = False,
              log: Callable[[str], None] | None = None) -> FaultRun:
-    """One plan on a fresh five-robot testbed (see the module docstring)."""
+    """One plan on a fresh five-robot testbed (see the module docstring); the nodes measure
+    their own speeds (``told_speed``: each is handed the one measured here, an ablation)."""
     from ramps.testbed import Testbed
 
     log = log or (lambda _m: None)
@@ -163,7 +164,8 @@ def run_plan(plan: FaultPlan, *, seed: int = 0, policy: str = "ramps", work: flo
     units = float(work if work is not None else 0.9 * gap)
     expected = burn(units=units)["checksum"] if units <= 2 else None
     speed = identical_speed(len(NAMES), 4, quota)
-    with Testbed(list(NAMES.values()), cores=4, quota=quota, speed=speed, policy=policy, lease_ms=lease_ms,
+    with Testbed(list(NAMES.values()), cores=4, quota=quota, speed=speed if told_speed else None, policy=policy,
+                 lease_ms=lease_ms,
                  discovery=discovery) as tb, \
             tb.client("r1", timeout=30.0) as team:
         time.sleep(SETTLE)  # every node has had a load report from every other
@@ -334,7 +336,8 @@ def _unexplained(trace: list[TraceEntry], spans: dict[str, list[tuple[float, flo
 
 def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, duration: float = 20.0,
                       lease_ms: int | None = None, discovery: str = "both", keep_logs: Path | None = None,
-                      log: Callable[[str], None] | None = None, stress: bool = False) -> CampaignRun:
+                      log: Callable[[str], None] | None = None, stress: bool = False,
+                      told_speed: bool = False) -> CampaignRun:
     """One seeded run: a testbed of ``robots``, programs from r1 for about
     ``duration`` seconds under random faults, then the invariants. With
     ``keep_logs``, a failed run's node logs and traces are kept in
@@ -364,7 +367,8 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
     spans: dict[str, list[tuple[float, float]]] = {}  # robot -> (fault began, recovered + EXPLAINED_AFTER)
     began: dict[str, float] = {}
     speed = identical_speed(robots, 2)
-    with Testbed(names, cores=2, speed=speed, policy=policy, lease_ms=lease_ms, discovery=discovery) as tb, \
+    with Testbed(names, cores=2, speed=speed if told_speed else None, policy=policy, lease_ms=lease_ms,
+                 discovery=discovery) as tb, \
             watch_team(tb) as obs, \
             tb.client("r1", timeout=30.0) as team:
         teams = [team] + [tb.client(o, timeout=30.0) for o in origins[1:]]
@@ -480,7 +484,8 @@ def _wait_resubmitting(futures: list, teams: list, log, timeout: float = 600.0) 
 
 def run_campaign(runs: int, seed: int = 0, *, policy: str = "ramps", robots: int = 4, duration: float = 20.0,
                  lease_ms: int | None = None, discovery: str = "both", keep_logs: Path | None = None,
-                 only_seed: int | None = None, progress=None, log=None, stress: bool = False) -> TestbedCampaignReport:
+                 only_seed: int | None = None, progress=None, log=None, stress: bool = False,
+                 told_speed: bool = False) -> TestbedCampaignReport:
     """``runs`` runs with seeds ``seed*1000000 + i``; with ``only_seed``, that
     one run seed ``runs`` times (to chase a failure a campaign printed)."""
     started = time.perf_counter()
@@ -493,7 +498,7 @@ def run_campaign(runs: int, seed: int = 0, *, policy: str = "ramps", robots: int
                 try:
                     results.append(run_campaign_once(run_seed, policy=policy, robots=robots, duration=duration,
                                                      lease_ms=lease_ms, discovery=discovery, keep_logs=keep_logs,
-                                                     log=log, stress=stress))
+                                                     log=log, stress=stress, told_speed=told_speed))
                     break
                 except NoTeam as exc:  # the fresh testbed did not come up (a busy host): up to 3 tries
                     if attempt == 3:

@@ -105,7 +105,7 @@ def _unit_cpu() -> float:
 
 
 def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work: float = 2.0,
-                 cases: list[tuple[int, int]] | None = None,
+                 cases: list[tuple[int, int]] | None = None, told_speed: bool = False,
                  log: Callable[[str], None] | None = None) -> FidelityReport:
     from ramps.testbed import Testbed
     from ramps.testbed.experiments import SETTLE, identical_speed, wait_futures
@@ -115,7 +115,7 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
     unit0 = _unit_cpu()
     speed = identical_speed(1, cores, quota)
     out: list[FidelityCase] = []
-    with Testbed(["r1"], cores=cores, quota=quota, speed=speed, caps=caps) as tb, \
+    with Testbed(["r1"], cores=cores, quota=quota, speed=speed if told_speed else None, caps=caps) as tb, \
             tb.client("r1", timeout=30.0) as team:
         time.sleep(SETTLE)
         dirs = [Path(d) for d in tb.robots["r1"]["cgroup"]]

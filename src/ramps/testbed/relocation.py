@@ -110,6 +110,7 @@ def run_testbed_relocation(*, robots: int = 3, cores: int = 4, quota: float = 0.
                            seconds: float = 30.0, load_at: float = 6.0, busy: int = 8,
                            checkpoint_every: float = 2.0, seeds: int = 3, timeout: float = 600.0,
                            variants: tuple[str, ...] = VARIANTS, keep_logs: Path | None = None,
+                           told_speed: bool = False,
                            log: Callable[[str], None] | None = None) -> RelocationReport:
     """Each variant on a fresh testbed and in the simulator (module docstring)."""
     from ramps.programs.burn import burn
@@ -136,7 +137,7 @@ def run_testbed_relocation(*, robots: int = 3, cores: int = 4, quota: float = 0.
                                                     seconds=seconds, busy=busy, load_at=load_at,
                                                     checkpoint_every=checkpoint_every, seeds=seeds)
         config = {"worker_nice": 0, "core": {"relocate": variant != "relocation off"}}
-        with Testbed(robots, cores=cores, quota=quota, speed=speed, config=config) as tb:
+        with Testbed(robots, cores=cores, quota=quota, speed=speed if told_speed else None, config=config) as tb:
             team = tb.client("r1", timeout=30.0)
             try:
                 time.sleep(SETTLE)  # every robot has reported

@@ -118,7 +118,8 @@ def _both_ways(obs) -> dict[str, list[float | None]]:
 
 def run_once(*, shaped: bool, slow: str = "r3", rate: float = 1e6, payload: int = 1_000_000, units: float = 0.3,
              programs: int = 6, stress: int = 8, quota: float = 0.3, converge: float = 60.0,
-             log: Callable[[str], None] | None = None, keep_logs: Path | None = None) -> SlowLinkRun:
+             log: Callable[[str], None] | None = None, keep_logs: Path | None = None,
+             told_speed: bool = False) -> SlowLinkRun:
     from ramps.testbed import Testbed
     from ramps.testbed.bed import watch_team
     from ramps.testbed.experiments import SETTLE, identical_speed
@@ -126,7 +127,7 @@ def run_once(*, shaped: bool, slow: str = "r3", rate: float = 1e6, payload: int 
     log = log or (lambda _m: None)
     speed = identical_speed(1, 4, quota)
     names = ["r1", "r2", "r3"]
-    with Testbed(names, cores=4, quota=quota, speed=speed, programs=[TARGET]) as tb, \
+    with Testbed(names, cores=4, quota=quota, speed=speed if told_speed else None, programs=[TARGET]) as tb, \
             watch_team(tb) as obs, tb.client("r1", timeout=60.0) as team:
         t0 = time.monotonic()
         convergence: list[LinkSample] = []
@@ -182,13 +183,14 @@ def _fmt(x: float | None, scale: float, unit: str) -> str:
 
 
 def run_slow_link(*, rate: float = 1e6, payload: int = 1_000_000, units: float = 0.3, programs: int = 6,
-                  log: Callable[[str], None] | None = None, keep_logs: Path | None = None) -> SlowLinkReport:
+                  log: Callable[[str], None] | None = None, keep_logs: Path | None = None,
+                  told_speed: bool = False) -> SlowLinkReport:
     log = log or (lambda _m: None)
     runs = []
     for shaped in (False, True):
         log(f"{'r3 slowed' if shaped else 'every link at full speed'}: {programs} programs of {payload} bytes")
         runs.append(run_once(shaped=shaped, rate=rate, payload=payload, units=units, programs=programs, log=log,
-                             keep_logs=keep_logs))
+                             keep_logs=keep_logs, told_speed=told_speed))
     return SlowLinkReport(rate=rate, payload=payload, units=units, slow="r3", runs=runs)
 
 

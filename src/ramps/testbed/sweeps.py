@@ -107,6 +107,11 @@ class TestbedSweepReport(msgspec.Struct, kw_only=True):
     mean_abs_corrected_error: float
     wall_seconds: float = 0.0
     mean_abs_starved_error: float = 0.0
+    #: True: every node was handed ``speed`` (an ablation); False: each
+    #: measured itself, as on a robot, and said ``node_speeds``
+    told_speed: bool = False
+    #: team size -> robot -> the speed its node reported before the first configuration
+    node_speeds: dict[str, dict[str, float]] = {}
 
 
 def sim_scenario(robots: int, programs: int, loaded: int, origins: int, *, cores: int, speed: float, work: float,
@@ -204,6 +209,23 @@ def _run_on_testbed(tb, clients: dict, programs: int, origins: int, work: float,
                   failed=len(futures) - len(ok), spent=spent, obtained=min(shares, default=1.0))
 
 
+def reported_speeds(obs, robots: int, timeout: float = 10.0) -> dict[str, float]:
+    """robot -> the speed in its latest load report, once every robot has reported."""
+    names = [f"r{i}" for i in range(1, robots + 1)]
+    deadline = time.monotonic() + timeout
+    while True:
+        seen = {row["robot"]: float(row["speed"]) for row in obs.view() if "speed" in row}
+        if all(r in seen for r in names) or time.monotonic() > deadline:
+            return {r: seen.get(r, 0.0) for r in names}
+        time.sleep(0.2)
+
+
+def spread(speeds: dict[str, float]) -> float:
+    """The fastest robot's speed over the slowest's (inf if one has none)."""
+    values = list(speeds.values())
+    return max(values) / min(values) if values and min(values) > 0 else float("inf")
+
+
 def _wait_idle(obs, timeout: float = 30.0) -> None:
     """Until no robot reports a program running (the previous configuration's stragglers)."""
     deadline = time.monotonic() + timeout
@@ -215,10 +237,13 @@ def _wait_idle(obs, timeout: float = 30.0) -> None:
 
 def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None = None, *, cores: int = 4,
                       quota: float = 0.2, work: float = 0.3, seeds: int = 3, stress: int = 8,
-                      timeout: float = 300.0, keep_logs: Path | None = None,
+                      timeout: float = 300.0, keep_logs: Path | None = None, told_speed: bool = False,
                       log: Callable[[str], None] | None = None) -> TestbedSweepReport:
     """Every configuration on real processes and in the simulator (module docstring);
-    with ``keep_logs``, every node's log and decision trace go to ``keep_logs/sweep-<robots>``."""
+    with ``keep_logs``, every node's log and decision trace go to ``keep_logs/sweep-<robots>``.
+    The nodes measure their own speeds, as on robots; ``told_speed`` hands each the speed measured
+    here before the start instead (an ablation). The simulator runs at that speed either way: the
+    true configuration."""
     from ramps.testbed import Testbed
     from ramps.testbed.bed import watch_team
     from ramps.testbed.experiments import SETTLE, _keep, identical_speed
@@ -234,11 +259,17 @@ def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None =
     calibration = quota / (cores * speed)  # CPU seconds of a unit when the speed was measured
     log(f"one emulated core runs {speed:.4f} units/s ({calibration:.2f} CPU s a unit); {len(configs)} configurations")
     out: list[SweepCase] = []
+    node_speeds: dict[str, dict[str, float]] = {}
     for size in sorted({c[1] for c in configs}):
         group = [c for c in configs if c[1] == size]
-        with Testbed(size, cores=cores, quota=quota, speed=speed) as tb, watch_team(tb) as obs:
+        with Testbed(size, cores=cores, quota=quota, speed=speed if told_speed else None) as tb, \
+                watch_team(tb) as obs:
             clients = {f"r{o}": tb.client(f"r{o}", timeout=30.0) for o in range(1, max(c[4] for c in group) + 1)}
             try:
+                node_speeds[str(size)] = reported_speeds(obs, size)
+                log(f"  {size} robots: " + ("told " if told_speed else "measured themselves ")
+                    + " ".join(f"{r} {v:.4f}" for r, v in node_speeds[str(size)].items())
+                    + f" (spread {spread(node_speeds[str(size)]):.3f})")
                 for exp, n, k, loaded, origins in group:
                     for i in range(n - loaded + 1, n + 1):
                         tb.add_load(f"r{i}", stress)
@@ -274,7 +305,8 @@ def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None =
                     _keep(tb, Path(keep_logs) / f"sweep-{size}")
     good = [c for c in out if c.completed]
     return TestbedSweepReport(
-        cores=cores, quota=quota, speed=speed, work=work, seeds=seeds, cases=out,
+        cores=cores, quota=quota, speed=speed, work=work, seeds=seeds, cases=out, told_speed=told_speed,
+        node_speeds=node_speeds,
         mean_abs_ratio_error=round(statistics.fmean(abs(c.ratio - 1) for c in good), 3) if good else 0.0,
         mean_abs_corrected_error=round(statistics.fmean(abs(c.corrected_ratio - 1) for c in good), 3) if good else 0.0,
         mean_abs_starved_error=round(statistics.fmean(abs(c.starved_ratio - 1) for c in good), 3) if good else 0.0,
@@ -282,8 +314,12 @@ def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None =
 
 
 def format_report(rep: TestbedSweepReport) -> str:
+    told = (f"every node told {rep.speed:.4f}" if rep.told_speed else "nodes measured themselves: "
+            + "; ".join(f"{n} robots {min(v.values(), default=0):.4f}-{max(v.values(), default=0):.4f} "
+                        f"(spread {spread(v):.3f})" for n, v in rep.node_speeds.items()))
     lines = [(f"robots of {rep.cores} cores on {rep.quota:g} host cores, programs of {rep.work:g} units "
-              f"({rep.work / rep.speed:.1f} s alone on an emulated core), simulator median of {rep.seeds} seeds"),
+              f"({rep.work / rep.speed:.1f} s alone on an emulated core at {rep.speed:.4f}, measured here "
+              f"before the start), simulator median of {rep.seeds} seeds"), told,
              (f"{'experiment':12s} {'robots':>6s} {'origins x programs':>18s} {'loaded':>6s} {'testbed s':>9s} "
               f"{'simulator s':>11s} {'ratio':>6s} {'corrected':>9s} {'CPU got':>7s} {'starved':>7s}  "
               "testbed / simulator distribution")]

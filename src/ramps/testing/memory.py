@@ -304,9 +304,9 @@ class MemoryPool:
         for key, (program, args) in jobs.items():
             try:
                 value = resolve(self.targets[program])(**decode_args(args))
-                self.on_finished(key, True, _enc.encode(value), "", False)
+                self.on_finished(key, True, _enc.encode(value), "", False, None)
             except Exception as exc:
-                self.on_finished(key, False, b"", f"{type(exc).__name__}: {exc}", False)
+                self.on_finished(key, False, b"", f"{type(exc).__name__}: {exc}", False, None)
         return len(jobs)
 
 

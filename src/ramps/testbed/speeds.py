@@ -1,0 +1,102 @@
+"""Do identical robots measure themselves alike? Start an emulated team
+again and again and read the speed each node found, as a user's nodes do.
+
+How this works: each start is a fresh ``Testbed`` of identical robots (the
+same quota and cores, nothing handed in with ``--speed``: every node
+measures itself, as it does on a real robot), optionally with the robots'
+own busy processes starting beside the nodes. The speed each node measured
+at boot comes from its log's join line; the speed it reports later (after
+its first re-measurements, ``ramps.core.speed.remeasure_after``) from its
+load reports, read by a client in the root namespace. The figure of a start
+is the spread: the fastest robot's speed over the slowest's.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from typing import Callable
+
+import msgspec
+
+#: seconds after the team is up at which the reported speeds are read
+READ_AT = (2.0, 10.0, 20.0)
+_JOINED = re.compile(r"joined team \S+: \d+ cores, speed ([0-9.eE+-]+)")
+
+
+class SpeedStart(msgspec.Struct, kw_only=True):
+    #: robot -> the speed its node measured at boot
+    boot: dict[str, float]
+    #: seconds after the team was up -> robot -> the speed in its latest report
+    reported: dict[str, dict[str, float]]
+
+    @staticmethod
+    def spread(speeds: dict[str, float]) -> float:
+        """Fastest over slowest (inf if a robot has none)."""
+        values = [v for v in speeds.values() if v > 0]
+        if not values or len(values) < len(speeds):
+            return float("inf")
+        return max(values) / min(values)
+
+
+class SpeedsReport(msgspec.Struct, kw_only=True):
+    robots: int
+    cores: int
+    quota: float
+    loaded: int
+    starts: list[SpeedStart]
+
+    def table(self) -> str:
+        heads = ["start", "boot speeds", "boot spread"] + [f"spread at +{t:g} s" for t in READ_AT]
+        lines = [" | ".join(heads)]
+        for i, s in enumerate(self.starts, 1):
+            boot = " ".join(f"{s.boot.get(r, 0):.4f}" for r in sorted(s.boot))
+            cells = [str(i), boot, f"{SpeedStart.spread(s.boot):.3f}"]
+            cells += [f"{SpeedStart.spread(s.reported.get(str(t), {})):.3f}" for t in READ_AT]
+            lines.append(" | ".join(cells))
+        last = str(READ_AT[-1])
+        within = sum(1 for s in self.starts if SpeedStart.spread(s.boot) <= 1.05)
+        later = sum(1 for s in self.starts if SpeedStart.spread(s.reported.get(last, {})) <= 1.05)
+        lines.append(f"within 5% of each other: {within}/{len(self.starts)} at boot, "
+                     f"{later}/{len(self.starts)} at +{READ_AT[-1]:g} s")
+        return "\n".join(lines)
+
+
+def boot_speeds(log_dir, names: list[str]) -> dict[str, float]:
+    """robot -> the speed its node printed when it joined (0.0 if none yet)."""
+    out = {}
+    for r in names:
+        try:
+            text = (log_dir / f"{r}.log").read_text(errors="replace")
+        except OSError:
+            text = ""
+        m = _JOINED.search(text)
+        out[r] = float(m.group(1)) if m else 0.0
+    return out
+
+
+def run_speeds(*, starts: int = 10, robots: int = 5, cores: int = 4, quota: float = 0.32, loaded: int = 0,
+               log: Callable[[str], None] | None = None) -> SpeedsReport:
+    """``starts`` fresh testbeds of ``robots`` identical robots (see the module docstring)."""
+    from ramps.testbed import Testbed
+    from ramps.testbed.bed import watch_team
+
+    log = log or (lambda _m: None)
+    names = [f"r{i}" for i in range(1, robots + 1)]
+    out = []
+    for i in range(starts):
+        with Testbed(names, cores=cores, quota=quota, loaded={r: loaded for r in names} if loaded else None) as tb:
+            tb.up()
+            up = time.monotonic()
+            boot = boot_speeds(tb.log_dir, names)
+            reported: dict[str, dict[str, float]] = {}
+            with watch_team(tb) as obs:
+                for at in READ_AT:
+                    time.sleep(max(0.0, up + at - time.monotonic()))
+                    reported[str(at)] = {row["robot"]: float(row.get("speed", 0.0)) for row in obs.view()
+                                         if row["robot"] in names}
+        start = SpeedStart(boot=boot, reported=reported)
+        out.append(start)
+        log(f"start {i + 1}/{starts}: boot spread {SpeedStart.spread(boot):.3f}, "
+            f"+{READ_AT[-1]:g} s {SpeedStart.spread(reported[str(READ_AT[-1])]):.3f}")
+    return SpeedsReport(robots=robots, cores=cores, quota=quota, loaded=loaded, starts=out)
