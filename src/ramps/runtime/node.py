@@ -47,11 +47,12 @@ from ramps.core.events import (
 )
 from ramps.core.node import Node
 from ramps.core.relink import Stalled
-from ramps.core.speed import REMEASURE_PERIOD
+from ramps.core.speed import remeasure_after
 from ramps.errors import ConfigError, NotAdmitted, TransportError
 from ramps.runtime import keys, revocation
 from ramps.runtime.bulk import OrderedSender
-from ramps.runtime.measure import LoadSampler, cgroup_dirs, cgroup_quota, detect_cores, measure_speed
+from ramps.runtime.measure import (LoadSampler, SpeedSamples, cgroup_dirs, core_fraction, cpu_limit, detect_cores,
+                                   measure_speed)
 from ramps.runtime.heap import HeapTrimmer
 from ramps.runtime.registry import Registry, default_registry
 from ramps.runtime.security import admission, settings_credentials
@@ -80,7 +81,6 @@ MAX_ITEMS_PER_ROUND = 10_000
 #: origin's timeouts wait until the queue is drained, as it may hold the
 #: heartbeats they wait for (issue 23: a saturated robot's node)
 ROUND_SECONDS = 0.1
-
 
 INSECURE_WARNING = (
     "INSECURE: team {team!r} runs without authentication or encryption: anyone who can reach this network "
@@ -156,6 +156,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._stall_offset = 0.0
         self._stalled_at = 0.0
         self._remeasure_at: float | None = None
+        self._remeasures = 0
+        self._remeasuring = threading.Lock()
         #: stalls not yet told to the core (seconds), and whether one was long enough to close links
         self._stall_pending = 0.0
         self._stall_links = False
@@ -189,21 +191,25 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         if creds is not None:
             self._load_revocations(creds)
         cg, acct = cgroup_dirs()
-        quota = cgroup_quota(cg)
+        quota = cpu_limit(cg)
         scope = s.load_scope
         if scope == "auto":
             scope = "cgroup" if quota is not None else "host"
         self.cores = s.cores or detect_cores()
-        self.speed = s.speed or measure_speed(quota=quota, cores=self.cores)
-        # a speed measured at boot is measured again while no program runs
-        # (robots booting together measure each other's start-up; ramps.core.speed)
+        self._speed_samples = SpeedSamples()
+        self.speed = s.speed or measure_speed(quota=quota, cores=self.cores, samples=self._speed_samples)
+        # a speed measured at boot is measured again while no program runs, soon
+        # after boot and then now and then (robots booting together measure
+        # each other's start-up; ramps.core.speed)
         self._quota = quota
-        self._remeasure_at = None if s.speed else self.clock.monotonic() + REMEASURE_PERIOD
+        self._remeasures = 0
+        self._remeasure_at = None if s.speed else self.clock.monotonic() + remeasure_after(0)
         self.incarnation = self._incarnation or int.from_bytes(os.urandom(6), "big")
         return_freed_memory()
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=s.core,
                          rng=random.Random(self.incarnation), incarnation=self.incarnation,
-                         registry=self.registry.names(), program_weight=nice_weight(s.worker_nice))
+                         registry=self.registry.names(), program_weight=nice_weight(s.worker_nice),
+                         core_fraction=core_fraction(quota, self.cores))
         self.pool = self._worker_pool(self.cores, self.registry.targets(), self._finished, nice=worker_increment(s.worker_nice),
                                on_progress=self._progress_reported, on_checkpoint=self._checkpoint_saved)
         self.pool.start()
@@ -370,9 +376,9 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._backlog_bytes += len(data)
         self._q.put(("wire", data, self.clock.monotonic()))
 
-    def _finished(self, key, ok: bool, value: bytes, error: str, retryable: bool) -> None:
+    def _finished(self, key, ok: bool, value: bytes, error: str, retryable: bool, cpu_s: float | None = None) -> None:
         self._q.put(("finished", ProgramFinished(program_id=key[0], attempt=key[1], ok=ok, value=value, error=error,
-                                                 result_size=len(value), retryable=retryable)))
+                                                 result_size=len(value), retryable=retryable, cpu_s=cpu_s)))
 
     def _checkpoint_saved(self, key, state: bytes, fraction: float | None) -> None:
         self._q.put(("progress", CheckpointSaved(program_id=key[0], attempt=key[1], state=state,
