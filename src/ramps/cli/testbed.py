@@ -352,6 +352,7 @@ def testbed_experiment_peers(
     work: float = typer.Option(1.5, "--work", min=0.05, max=20.0, help="work units of each burn program (1.5: about 19-28 s alone on an emulated core)"),
     quota: float = typer.Option(0.32, "--quota", min=0.05, max=4.0, help="host cores of each robot"),
     cores: int = typer.Option(4, "--cores", min=1, max=16, help="emulated cores of each robot (Ray's --num-cpus, Dask's --nworkers)"),
+    peer_nice: int = typer.Option(10, "--peer-nice", min=0, max=19, help="niceness of Ray's and Dask's processes (10: as ramps' workers, fair to a busy robot's own software; 0: as they run out of the box)"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
 ) -> None:
@@ -359,8 +360,9 @@ def testbed_experiment_peers(
     burn programs from r1): idle, 1/2/4 robots busy, several origins, and a robot crashed at 10 s;
     prints every engine's makespan, distribution and lost programs beside the ideal. Each engine
     runs each scenario on a fresh testbed; Ray and Dask need the peers extra, `pip install -e
-    '.\\[peers]'` (skipped without it). About 2-3 minutes per scenario and engine with the defaults (Ray's start-up is
-    the longest), so 45-70 minutes for all 24 runs."""
+    '.\\[peers]'` (skipped without it). 1-3 minutes per scenario and engine with the defaults, but 7-11 minutes where
+    nice-10 programs land beside a busy robot's load (round robin; Ray and Dask at --peer-nice 10),
+    so 1.5-2.5 hours for all 24 runs."""
     from ramps.errors import RampsError
     from ramps.testbed.peers import ENGINES, SCENARIOS, Setup, format_report, run_peers
 
@@ -372,7 +374,7 @@ def testbed_experiment_peers(
     engines = list(engine or ENGINES)
     err.print(f"{len(chosen)} scenario(s) x {len(engines)} engine(s), each run on a fresh testbed ...")
     try:
-        rep = run_peers(chosen, engines, Setup(cores=cores, quota=quota, work=work),
+        rep = run_peers(chosen, engines, Setup(cores=cores, quota=quota, work=work, peer_nice=peer_nice),
                         log=lambda m: err.print(m, highlight=False, markup=False))
     except (PermissionError, RampsError, RuntimeError, ValueError) as exc:
         fail(str(exc))

@@ -28,7 +28,11 @@ are ``peer_burn``: ``ramps.programs.burn`` plus a mark on the host's disk when
 it starts and ends (where it ran), so the crash picks a robot running programs
 for every engine alike. Ray's and Dask's program processes run at the niceness
 of ramps' workers (``worker_nice``, 10) so the capper and the kernel share a
-busy robot between them and its own software exactly as they do for ramps.
+busy robot between them and its own software exactly as they do for ramps
+(``Setup.peer_nice``, ``--peer-nice 0``: as Ray and Dask run out of the box; the
+ideal then counts busy robots at nice 0). Beside 8 busy processes a nice-10
+program gets about a twentieth of a core: two programs placed there (round
+robin) take 7 minutes, hence ``timeout``.
 
 What is printed per scenario and engine: the makespan (first submission to
 last result), the distribution (programs per robot, where each completed),
@@ -162,7 +166,10 @@ class Setup(msgspec.Struct, kw_only=True, frozen=True):
     cores: int = 4
     quota: float = 0.32
     work: float = 1.5
-    timeout: float = 600.0
+    #: seconds a burst may take (round robin's nice-10 programs beside 8 busy processes take 7-11 minutes)
+    timeout: float = 1500.0
+    #: niceness of Ray's and Dask's processes (ramps' workers keep the node's ``worker_nice``, 10)
+    peer_nice: int = WORKER_NICE
 
 
 # ====================================================================== pure parts
@@ -227,7 +234,8 @@ def victim(running: dict[str, int], origins: Sequence[str]) -> str | None:
 
 def format_report(rep: PeersReport) -> str:
     lines = [f"robots of {rep.cores} emulated cores on {rep.quota:g} host cores, programs of {rep.work:g} units "
-             f"of burn; Ray's and Dask's workers at nice {rep.worker_nice} as ramps'; busy robots run {BUSY} "
+             f"of burn; Ray's and Dask's processes at nice {rep.worker_nice} (ramps' workers at the node's "
+             f"worker_nice, 10); busy robots run {BUSY} "
              "busy processes"]
     for s in rep.scenarios:
         sc = s.scenario
@@ -379,15 +387,15 @@ class PeerBed(Testbed):
 
     __test__ = False
 
-    def __init__(self, engine: str, robots: int, **kw: Any) -> None:
+    def __init__(self, engine: str, robots: int, *, peer_nice: int = WORKER_NICE, **kw: Any) -> None:
         super().__init__(robots, **kw)
-        self.engine = engine
+        self.engine, self.peer_nice = engine, peer_nice
         self.work_dir = Path(tempfile.mkdtemp(prefix=f"ramps-peers-{engine}-"))
 
     def _node_cmd(self, robot: str) -> list[str]:
         head = self.robots[self.names[0]]["ip"]
         return [self.python, "-m", "ramps.testbed.peers", "node", self.engine, robot, self.robots[robot]["ip"], head,
-                str(self.cores), str(self.work_dir / robot)]
+                str(self.cores), str(self.work_dir / robot), str(self.peer_nice)]
 
     def wait_alive(self, robots: list[str] | None = None, timeout: float = 60.0) -> float:
         """The node processes run (the drivers wait until the engine sees every worker)."""
@@ -417,7 +425,8 @@ class ClusterEngine:
 
     def run(self, sc: PeerScenario, setup: Setup, log: Callable[[str], None]) -> EngineRun:
         burst = _Burst(sc)
-        tb = PeerBed(self.name, sc.robots, cores=setup.cores, quota=setup.quota, loaded={r: BUSY for r in sc.loaded})
+        tb = PeerBed(self.name, sc.robots, cores=setup.cores, quota=setup.quota, loaded={r: BUSY for r in sc.loaded},
+                     peer_nice=setup.peer_nice)
         with tb:
             marks = tb.work_dir / "marks"
             marks.mkdir()
@@ -521,7 +530,7 @@ def run_peers(scenarios: Sequence[PeerScenario], engines: Sequence[str], setup: 
                 continue
             speed = identical_speed(1, setup.cores, setup.quota)  # the host's speed now, before the robots start
             if first is None:
-                span, dist = ideal(sc, cores=setup.cores, speed=speed, work=setup.work,
+                span, dist = ideal(sc, cores=setup.cores, speed=speed, work=setup.work, worker_nice=setup.peer_nice,
                                    without=sc.names[-1:] if sc.crash_at is not None else ())
                 first = (speed, span, dist)
             t = time.monotonic()
@@ -541,7 +550,7 @@ def run_peers(scenarios: Sequence[PeerScenario], engines: Sequence[str], setup: 
         sim = simulated(sc, cores=setup.cores, speed=first[0], work=setup.work) if first else None
         out.append(ScenarioResult(scenario=sc, ideal=round(first[1], 2) if first else None,
                                   ideal_distribution=first[2] if first else [], sim=sim, runs=runs))
-    return PeersReport(cores=setup.cores, quota=setup.quota, work=setup.work, worker_nice=WORKER_NICE,
+    return PeersReport(cores=setup.cores, quota=setup.quota, work=setup.work, worker_nice=setup.peer_nice,
                        scenarios=out, wall=round(time.monotonic() - started, 1))
 
 
@@ -558,11 +567,11 @@ def peer_burn(units: float, origin: str, index: int, marks: str) -> dict[str, An
     return {"robot": robot, "checksum": out["checksum"]}
 
 
-def _node(engine: str, robot: str, ip: str, head: str, cores: int, work_dir: str) -> int:
-    """A robot's node of ``engine``: its processes run at ``WORKER_NICE`` (all of them: the engine's
+def _node(engine: str, robot: str, ip: str, head: str, cores: int, work_dir: str, niceness: int) -> int:
+    """A robot's node of ``engine``: its processes run at ``niceness`` (all of them: the engine's
     daemons are mostly idle); this process waits on them (the testbed's node pid)."""
     os.makedirs(work_dir, exist_ok=True)
-    nice = ["nice", "-n", str(WORKER_NICE)]
+    nice = ["nice", "-n", str(niceness)]
     exe = Path(sys.executable).parent
     cmds: list[list[str]] = []
     if engine == "ray":
@@ -664,8 +673,8 @@ def _drive(engine: str, origin: str, head: str, count: int, work: float, workers
 
 def main(argv: list[str] | None = None) -> None:
     args = sys.argv[1:] if argv is None else argv
-    if args[:1] == ["node"] and len(args) == 7:
-        raise SystemExit(_node(args[1], args[2], args[3], args[4], int(args[5]), args[6]))
+    if args[:1] == ["node"] and len(args) == 8:
+        raise SystemExit(_node(args[1], args[2], args[3], args[4], int(args[5]), args[6], int(args[7])))
     if args[:1] == ["drive"] and len(args) == 8:
         _drive(args[1], args[2], args[3], int(args[4]), float(args[5]), int(args[6]), args[7])
         os._exit(0)  # a client's threads must not hold the robot's process up
