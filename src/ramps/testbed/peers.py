@@ -28,8 +28,8 @@ are ``peer_burn``: ``ramps.programs.burn`` plus a mark on the host's disk when
 it starts and ends (where it ran), so the crash picks a robot running programs
 for every engine alike. Ray's and Dask's program processes run at the niceness
 of ramps' workers (``worker_nice``, 10) so the capper and the kernel share a
-busy robot between them and its own software exactly as they do for ramps
-(``Setup.peer_nice``, ``--peer-nice 0``: as Ray and Dask run out of the box; the
+busy robot between them and its own software exactly as they do for ramps;
+their daemons run at nice 0 as ``ramps node`` does (``Setup.peer_nice``, ``--peer-nice 0``: as Ray and Dask run out of the box; the
 ideal then counts busy robots at nice 0). Beside 8 busy processes a nice-10
 program gets about a twentieth of a core: two programs placed there (round
 robin) take 7 minutes, hence ``timeout``.
@@ -234,7 +234,7 @@ def victim(running: dict[str, int], origins: Sequence[str]) -> str | None:
 
 def format_report(rep: PeersReport) -> str:
     lines = [f"robots of {rep.cores} emulated cores on {rep.quota:g} host cores, programs of {rep.work:g} units "
-             f"of burn; Ray's and Dask's processes at nice {rep.worker_nice} (ramps' workers at the node's "
+             f"of burn; Ray's and Dask's programs at nice {rep.worker_nice} (ramps' workers at the node's "
              f"worker_nice, 10); busy robots run {BUSY} "
              "busy processes"]
     for s in rep.scenarios:
@@ -387,15 +387,15 @@ class PeerBed(Testbed):
 
     __test__ = False
 
-    def __init__(self, engine: str, robots: int, *, peer_nice: int = WORKER_NICE, **kw: Any) -> None:
+    def __init__(self, engine: str, robots: int, **kw: Any) -> None:
         super().__init__(robots, **kw)
-        self.engine, self.peer_nice = engine, peer_nice
+        self.engine = engine
         self.work_dir = Path(tempfile.mkdtemp(prefix=f"ramps-peers-{engine}-"))
 
     def _node_cmd(self, robot: str) -> list[str]:
         head = self.robots[self.names[0]]["ip"]
         return [self.python, "-m", "ramps.testbed.peers", "node", self.engine, robot, self.robots[robot]["ip"], head,
-                str(self.cores), str(self.work_dir / robot), str(self.peer_nice)]
+                str(self.cores), str(self.work_dir / robot)]
 
     def wait_alive(self, robots: list[str] | None = None, timeout: float = 60.0) -> float:
         """The node processes run (the drivers wait until the engine sees every worker)."""
@@ -425,23 +425,23 @@ class ClusterEngine:
 
     def run(self, sc: PeerScenario, setup: Setup, log: Callable[[str], None]) -> EngineRun:
         burst = _Burst(sc)
-        tb = PeerBed(self.name, sc.robots, cores=setup.cores, quota=setup.quota, loaded={r: BUSY for r in sc.loaded},
-                     peer_nice=setup.peer_nice)
+        tb = PeerBed(self.name, sc.robots, cores=setup.cores, quota=setup.quota, loaded={r: BUSY for r in sc.loaded})
         with tb:
             marks = tb.work_dir / "marks"
             marks.mkdir()
             head = tb.ip(tb.names[0])
             for o in sc.origins:
                 argv = [tb.python, "-m", "ramps.testbed.peers", "drive", self.name, o, head,
-                        str(sc.per_origin()), str(setup.work), str(sc.robots * setup.cores), str(tb.work_dir)]
+                        str(sc.per_origin()), str(setup.work), str(sc.robots * setup.cores), str(tb.work_dir),
+                        str(setup.peer_nice)]
                 tb._spawn(o, argv, tb.work_dir / f"driver-{o}.log")
             ready = [tb.work_dir / f"ready-{o}" for o in sc.origins]
-            deadline = time.monotonic() + 240.0
+            deadline = time.monotonic() + 300.0
             while not all(p.exists() for p in ready):
                 failed = [o for o in sc.origins if (tb.work_dir / f"result-{o}.json").exists()]
                 if failed or time.monotonic() > deadline:
                     tails = "\n".join(_tail(tb.work_dir / f"driver-{o}.log") for o in sc.origins)
-                    raise TestbedError(f"the {self.name} drivers did not see every worker within 240 s:\n{tails}")
+                    raise TestbedError(f"the {self.name} drivers did not see every worker within 300 s:\n{tails}")
                 time.sleep(0.2)
             log(f"    {self.name}: every worker up")
             stop = threading.Event()
@@ -555,10 +555,14 @@ def run_peers(scenarios: Sequence[PeerScenario], engines: Sequence[str], setup: 
 
 
 # ====================================================================== inside a robot
-def peer_burn(units: float, origin: str, index: int, marks: str) -> dict[str, Any]:
-    """``burn`` as Ray's and Dask's program: marks where it runs (start and end) on the host's disk."""
+def peer_burn(units: float, origin: str, index: int, marks: str, nice: int = WORKER_NICE) -> dict[str, Any]:
+    """``burn`` as Ray's and Dask's program: at niceness ``nice`` (as ramps' workers run theirs; the
+    worker process stays there, it only ever runs these), marking where it runs (start and end)
+    on the host's disk."""
     from ramps.programs.burn import burn
 
+    if os.getpriority(os.PRIO_PROCESS, 0) < nice:
+        os.setpriority(os.PRIO_PROCESS, 0, nice)
     robot = os.environ.get("RAMPS_ROBOT", socket.gethostname())
     key = f"{origin}_{index}_{robot}_{os.getpid()}"
     Path(marks, f"start-{key}").touch()
@@ -567,11 +571,10 @@ def peer_burn(units: float, origin: str, index: int, marks: str) -> dict[str, An
     return {"robot": robot, "checksum": out["checksum"]}
 
 
-def _node(engine: str, robot: str, ip: str, head: str, cores: int, work_dir: str, niceness: int) -> int:
-    """A robot's node of ``engine``: its processes run at ``niceness`` (all of them: the engine's
-    daemons are mostly idle); this process waits on them (the testbed's node pid)."""
+def _node(engine: str, robot: str, ip: str, head: str, cores: int, work_dir: str) -> int:
+    """A robot's node of ``engine``, at nice 0 as ``ramps node`` (its programs set their own
+    niceness: ``peer_burn``); this process waits on it (the testbed's node pid)."""
     os.makedirs(work_dir, exist_ok=True)
-    nice = ["nice", "-n", str(niceness)]
     exe = Path(sys.executable).parent
     cmds: list[list[str]] = []
     if engine == "ray":
@@ -579,15 +582,15 @@ def _node(engine: str, robot: str, ip: str, head: str, cores: int, work_dir: str
                   "--object-store-memory", str(100 * 2**20), "--disable-usage-stats",
                   "--temp-dir", f"{work_dir}/ray"]  # a robot's own: sockets named alike in one session dir
         if ip == head:
-            cmds.append(nice + [str(exe / "ray"), "start", "--head", "--port", str(RAY_PORT), "--include-dashboard",
+            cmds.append([str(exe / "ray"), "start", "--head", "--port", str(RAY_PORT), "--include-dashboard",
                                 "false", *common])
         else:
             _wait_port(head, RAY_PORT)
-            cmds.append(nice + [str(exe / "ray"), "start", "--address", f"{head}:{RAY_PORT}", *common])
+            cmds.append([str(exe / "ray"), "start", "--address", f"{head}:{RAY_PORT}", *common])
     elif engine == "dask":
         if ip == head:
             cmds.append([str(exe / "dask"), "scheduler", "--host", ip, "--port", str(DASK_PORT), "--no-dashboard"])
-        cmds.append(nice + [str(exe / "dask"), "worker", f"tcp://{head}:{DASK_PORT}", "--host", ip, "--nthreads", "1",
+        cmds.append([str(exe / "dask"), "worker", f"tcp://{head}:{DASK_PORT}", "--host", ip, "--nthreads", "1",
                             "--nworkers", str(cores), "--no-dashboard", "--name", robot,
                             "--local-directory", work_dir])
     else:
@@ -611,7 +614,8 @@ def _wait_port(host: str, port: int, timeout: float = 120.0) -> None:
             time.sleep(0.3)
 
 
-def _drive(engine: str, origin: str, head: str, count: int, work: float, workers: int, work_dir: str) -> None:
+def _drive(engine: str, origin: str, head: str, count: int, work: float, workers: int, work_dir: str,
+           nice: int) -> None:
     """One origin's programs through ``engine``: connect, wait for every worker, write ``ready-<origin>``,
     wait for ``go`` (the first submission's monotonic time), submit ``count`` programs ``SPACING``
     apart, and write ``result-<origin>.json``: per program ok, robot and end time."""
@@ -640,9 +644,10 @@ def _drive(engine: str, origin: str, head: str, count: int, work: float, workers
         refs: list[Any] = []
         for i in range(count):
             if engine == "ray":
-                refs.append(task.remote(work, origin, i, marks))
+                refs.append(task.remote(work, origin, i, marks, nice))
             else:
-                refs.append(client.submit(peer_burn, work, origin, i, marks, pure=False, key=f"burn-{origin}-{i}"))
+                refs.append(client.submit(peer_burn, work, origin, i, marks, nice, pure=False,
+                                          key=f"burn-{origin}-{i}"))
             time.sleep(max(0.0, t0 + (i + 1) * SPACING - time.monotonic()))
         programs = [{"ok": False} for _ in refs]
         if engine == "ray":
@@ -673,10 +678,10 @@ def _drive(engine: str, origin: str, head: str, count: int, work: float, workers
 
 def main(argv: list[str] | None = None) -> None:
     args = sys.argv[1:] if argv is None else argv
-    if args[:1] == ["node"] and len(args) == 8:
-        raise SystemExit(_node(args[1], args[2], args[3], args[4], int(args[5]), args[6], int(args[7])))
-    if args[:1] == ["drive"] and len(args) == 8:
-        _drive(args[1], args[2], args[3], int(args[4]), float(args[5]), int(args[6]), args[7])
+    if args[:1] == ["node"] and len(args) == 7:
+        raise SystemExit(_node(args[1], args[2], args[3], args[4], int(args[5]), args[6]))
+    if args[:1] == ["drive"] and len(args) == 9:
+        _drive(args[1], args[2], args[3], int(args[4]), float(args[5]), int(args[6]), args[7], int(args[8]))
         os._exit(0)  # a client's threads must not hold the robot's process up
     print("usage: python -m ramps.testbed.peers node|drive ...  (started by ramps testbed experiment peers)",
           file=sys.stderr)
