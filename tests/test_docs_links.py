@@ -1,5 +1,5 @@
 """The README is a front page that links into docs/ and examples/: every
-relative link in it and in docs/*.md points at a file that exists, and no
+relative link in it and in docs/ (lab notes too) points at a file that exists, and no
 page reaches outside the repository."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-PAGES = [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted((ROOT / "docs").glob("*.md"))]
+PAGES = [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted((ROOT / "docs").glob("**/*.md"))]
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 
 

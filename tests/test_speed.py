@@ -13,7 +13,8 @@ from ramps.core.config import RampsConfig
 from ramps.core.events import Note, Received, Submit
 from ramps.core.messages import ProgramResult
 from ramps.core.node import Node
-from ramps.core.speed import REMEASURE_PERIOD, HostSpeeds, SpeedEstimate, SpeedMeasured, remeasure_after
+from ramps.core.speed import (REMEASURE_EARLY, REMEASURE_EARLY_COUNT, REMEASURE_PERIOD, HostSpeeds, SpeedEstimate,
+                              SpeedMeasured, next_remeasure)
 from ramps.sim.engine import simulate
 from ramps.sim.scenario_file import scenario_from_dict
 from ramps.testing import FakeTeam
@@ -32,21 +33,23 @@ def test_a_re_measurement_that_moved_replaces_the_estimate():
     assert est.measured(0.9) and est.value == 0.9
 
 
-def test_speed_samples_take_the_fastest_cluster_not_one_odd_piece():
+def test_speed_samples_average_the_cpus_and_outvote_an_odd_measurement():
     from ramps.runtime.measure import SpeedSamples
 
     s = SpeedSamples()
     assert s.rate() == 0.0
-    # a busy host: most pieces ran beside a busy SMT sibling (0.43), a few alone (0.57)
-    s.add([0.43, 0.42, 0.44, 0.43] * 10 + [0.56, 0.57, 0.58])
-    assert s.rate() == pytest.approx(0.57)
-    s.add([0.95])  # one odd piece moves nothing
-    assert s.rate() == pytest.approx(0.57)
-    assert s.speed(quota=0.32, cores=4) == pytest.approx(0.57 * 0.08, abs=1e-4)
-    # a robot that only ever ran beside a busy neighbour reports that
-    busy = SpeedSamples()
-    busy.add([0.43, 0.42, 0.44, 0.41, float("nan"), -1.0])
-    assert busy.rate() == pytest.approx(0.43, abs=0.011)
+    # one CPU ran at 0.40 (a busy neighbour on its physical core), the other at 0.58;
+    # a piece interrupted now and then (0.1) moves no median
+    s.add({0: [0.40, 0.41, 0.39, 0.1, 0.40], 1: [0.58, 0.57, 0.59, 0.58, 0.95]})
+    assert s.rate() == pytest.approx(0.49)
+    assert s.speed(quota=0.32, cores=4) == pytest.approx(0.49 * 0.08, abs=1e-4)
+    # measured while the neighbours' start-up kept the machine busy, then twice calmly:
+    # the odd one is outvoted
+    s.add({0: [0.30, 0.31], 1: [0.30, 0.29]})
+    s.add({0: [0.50, 0.50], 1: [0.56, 0.56]})
+    assert s.rate() == pytest.approx(0.49)
+    s.add({-1: [float("nan"), -1.0]})  # nothing measurable: no figure
+    assert s.rate() == pytest.approx(0.49)
 
 
 def test_a_host_slower_than_it_says_on_the_same_program_gets_a_factor():
@@ -123,10 +126,20 @@ def test_a_run_too_short_to_measure_says_nothing_of_its_host():
     assert [speeds.on_result("plan", "h", 3.0) for _ in range(2)] == [False, True]
 
 
-def test_the_first_re_measurements_come_soon_after_boot_then_settle():
-    delays = [remeasure_after(n) for n in range(8)]
-    assert delays[0] <= 1.0 and sum(delays[:5]) <= 30.0  # several within the first half minute
-    assert delays == sorted(delays) and delays[-1] == REMEASURE_PERIOD
+def test_robots_re_measure_on_one_wall_clock_grid_often_at_first_then_settle():
+    """Robots that booted 0.3 s apart measure again at the same moments."""
+    a, b = 1000.2, 1000.5
+    assert next_remeasure(a, 0) == next_remeasure(b, 0) == pytest.approx(1002.0)
+    t, count = a, 0
+    times = []
+    while count < REMEASURE_EARLY_COUNT + 2:
+        t = next_remeasure(t, count)
+        times.append(t)
+        count += 1
+    gaps = [y - x for x, y in zip(times, times[1:])]
+    assert all(g == pytest.approx(REMEASURE_EARLY) for g in gaps[:REMEASURE_EARLY_COUNT - 1])
+    assert gaps[-1] == pytest.approx(REMEASURE_PERIOD) and times[-1] % REMEASURE_PERIOD == pytest.approx(0.0)
+    assert all(next_remeasure(x, 0) >= x + 1.0 for x in (0.0, 2.0, 2.5, 2.99, 1e9 + 0.1))
 
 
 def test_speed_learning_off_keeps_every_measurement():
@@ -227,13 +240,28 @@ def test_a_robot_that_measured_itself_fast_is_corrected_by_its_results(seed):
     assert after.lost == after.duplicated == 0
 
 
-def test_robots_all_wrong_together_are_left_alone():
-    """Three of five believe themselves 1.5x faster and every run goes to
-    them: nothing to compare with, so nothing changes (and nothing breaks)."""
+def test_robots_all_wrong_together_are_set_right_by_measuring_again():
+    """Three of five believe themselves 1.5x faster and every run of the first
+    wave goes to them: the results have nothing to compare with, but their
+    next measurements outvote the boot figure, and the next waves spread."""
     over = {"r3": 1.5, "r4": 1.5, "r5": 1.5}
     result = simulate(scenario_from_dict(_team(over, origins={"r1": 15}, learning=True)), seed=1)
-    assert all(max(w.values()) == 5 for w in _waves(result))
+    waves = _waves(result)
+    assert max(waves[0].values()) == 5
+    assert all(dict(w) == {f"r{i}": 3 for i in range(1, 6)} for w in waves[1:])
     assert result.lost == result.duplicated == 0
+
+
+def test_a_host_that_measured_itself_again_starts_its_correction_over():
+    """A factor learned against a boot figure 1.5x too fast must not scale the
+    host's re-measured true speed down too."""
+    speeds = HostSpeeds(CFG)
+    assert not speeds.on_reported_speed("h", 1.5)
+    speeds.on_result("plan", "a", 53.0)
+    speeds.on_result("plan", "h", 79.5)
+    assert speeds.on_result("plan", "h", 79.5) and speeds.factor["h"] == pytest.approx(2 / 3)
+    assert not speeds.on_reported_speed("h", 1.505)  # within 1%: the same measurement
+    assert speeds.on_reported_speed("h", 1.0) and "h" not in speeds.factor
 
 
 def test_several_origins_and_a_crash_with_mis_measured_robots():

@@ -206,6 +206,7 @@ def testbed_experiment_faults(
     lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh lease of every node, ms (default: the node's)"),
     keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="copy every node's log and decision trace here"),
     discovery: DiscoveryOption = "both",
+    told_speed: bool = typer.Option(False, "--told-speed", help="ablation: hand every node the speed measured before the start (--speed) instead of letting each measure itself, as robots do"),
     as_json: bool = typer.Option(False, "--json", help="write the results as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
 ) -> None:
@@ -224,7 +225,7 @@ def testbed_experiment_faults(
     total = sum(len(plans(m, k, first=gap, gap=gap)) for m in modes for k in kinds) * runs
     err.print(f"{total} testbed run(s); each takes {gap * 5:g}+ s plus the time the survivors need to finish")
     check_discovery(discovery)
-    runner = partial(run_plan, work=work, lease_ms=lease_ms, keep_logs=keep_logs, discovery=discovery,
+    runner = partial(run_plan, told_speed=told_speed, work=work, lease_ms=lease_ms, keep_logs=keep_logs, discovery=discovery,
                      log=lambda m: err.print(m, highlight=False))
     reports = []
     try:
@@ -256,6 +257,7 @@ def testbed_experiment_sweep(
     work: float = typer.Option(0.3, "--work", min=0.05, max=10.0, help="work units of each program (0.3: about 9 s alone on an emulated core of 0.05 host cores)"),
     seeds: int = typer.Option(3, "--seeds", min=1, max=20, help="simulator runs per configuration (the median is compared)"),
     keep_logs: Path | None = typer.Option(None, "--keep-logs", help="copy every node's log and decision trace here (one folder per team size)"),
+    told_speed: bool = typer.Option(False, "--told-speed", help="ablation: hand every node the speed measured before the start (--speed) instead of letting each measure itself, as robots do"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
 ) -> None:
@@ -263,7 +265,8 @@ def testbed_experiment_sweep(
     processes, each beside the simulator's makespan and distribution for the same configuration:
     the simulator's fidelity per configuration (ratio = testbed / simulator; corrected = with the
     simulator scaled by what a work unit cost the host during the run; starved = also by the least
-    share of its due CPU a robot obtained from the host). About 2-4 minutes."""
+    share of its due CPU a robot obtained from the host). The nodes measure their own speeds, as
+    on robots (--told-speed hands them one, an ablation). About 2-4 minutes."""
     from ramps.errors import RampsError
     from ramps.testbed.sweeps import DEFAULT_CONFIGS, EXPERIMENTS, FULL_CONFIGS, format_report, run_testbed_sweep
 
@@ -273,7 +276,7 @@ def testbed_experiment_sweep(
     err.print(f"{len(configs)} configuration(s) on the testbed and in the simulator ...")
     try:
         rep = run_testbed_sweep(configs, cores=cores, quota=quota, work=work, seeds=seeds, keep_logs=keep_logs,
-                                log=lambda m: err.print(m, highlight=False))
+                                told_speed=told_speed, log=lambda m: err.print(m, highlight=False))
     except (PermissionError, RampsError, RuntimeError, ValueError) as exc:
         fail(str(exc))
     emit([rep], lambda r, console: console.print(format_report(r), highlight=False), as_json=as_json,
@@ -288,6 +291,7 @@ def testbed_experiment_slow_link(
     payload: int = typer.Option(5_000_000, "--payload", min=1, max=8_000_000, help="bytes of parameters of each program (a client sends at most 8 MB less 64 KiB)"),
     units: float = typer.Option(0.3, "--units", min=0.01, max=10.0, help="work units of each program"),
     programs: int = typer.Option(6, "--programs", min=1, max=100, help="programs per run, submitted one after another"),
+    told_speed: bool = typer.Option(False, "--told-speed", help="ablation: hand every node the speed measured before the start (--speed) instead of letting each measure itself, as robots do"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
     out_file: Path | None = typer.Option(None, "--out", help="also save the JSON here"),
     keep_logs: Path | None = typer.Option(None, "--keep-logs", help="copy the nodes' logs and decision traces here (one folder per run)"),
@@ -300,7 +304,7 @@ def testbed_experiment_slow_link(
     from ramps.testbed.slowlink import format_report, run_slow_link
 
     try:
-        rep = run_slow_link(rate=rate * 1e6, payload=payload, units=units, programs=programs,
+        rep = run_slow_link(told_speed=told_speed, rate=rate * 1e6, payload=payload, units=units, programs=programs,
                             log=lambda m: err.print(m, highlight=False), keep_logs=keep_logs)
     except (PermissionError, RampsError, RuntimeError, TimeoutError) as exc:
         fail(str(exc))
@@ -316,6 +320,7 @@ def testbed_experiment_relocation(
     load_at: float = typer.Option(6.0, "--load-at", min=0.5, help="seconds after the first submission when r1 gets busy"),
     busy: int = typer.Option(8, "--busy", min=1, max=64, help="busy processes r1's own software starts"),
     variant: Optional[list[str]] = typer.Option(None, "--variant", help="run only these (repeatable): relocation off, relocation, relocation + checkpoints"),
+    told_speed: bool = typer.Option(False, "--told-speed", help="ablation: hand every node the speed measured before the start (--speed) instead of letting each measure itself, as robots do"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
     keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="copy every node's log and decision trace here"),
@@ -335,12 +340,38 @@ def testbed_experiment_relocation(
     if unknown:
         fail(f"unknown variant {unknown[0]!r}: choose from {', '.join(VARIANTS)}")
     try:
-        rep = run_testbed_relocation(robots=robots, programs=programs, seconds=seconds, load_at=load_at, busy=busy,
+        rep = run_testbed_relocation(told_speed=told_speed, robots=robots, programs=programs, seconds=seconds, load_at=load_at, busy=busy,
                                      variants=chosen, keep_logs=keep_logs,
                                      log=lambda m: err.print(m, highlight=False))
     except (PermissionError, RampsError, RuntimeError, TimeoutError) as exc:
         fail(str(exc))
     emit([rep], lambda r, console: console.print(format_report(r), highlight=False), as_json=as_json,
+         out_file=out_file)
+
+
+@experiment_app.command("speeds")
+def testbed_experiment_speeds(
+    starts: int = typer.Option(10, "--starts", min=1, max=100, help="fresh testbeds to start, one after another"),
+    robots: int = typer.Option(5, "--robots", min=2, max=20, help="identical robots in each"),
+    cores: int = typer.Option(4, "--cores", min=1, max=16, help="emulated cores of each robot"),
+    quota: float = typer.Option(0.32, "--quota", min=0.05, max=4.0, help="host cores of each robot"),
+    loaded: int = typer.Option(0, "--loaded", min=0, max=32, help="busy processes each robot's own software starts beside its node"),
+    as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
+) -> None:
+    """Do identical robots measure themselves alike? Starts a team of identical robots again and
+    again, every node measuring its own speed (nothing handed in, as on real robots), and prints each
+    node's boot speed and the speeds they report 2, 10 and 20 s later, with the spread (fastest over
+    slowest) of each start. About 35 s per start."""
+    from ramps.errors import RampsError
+    from ramps.testbed.speeds import run_speeds
+
+    try:
+        rep = run_speeds(starts=starts, robots=robots, cores=cores, quota=quota, loaded=loaded,
+                         log=lambda m: err.print(m, highlight=False))
+    except (PermissionError, RampsError, RuntimeError, TimeoutError) as exc:
+        fail(str(exc))
+    emit([rep], lambda r, console: console.print(r.table(), highlight=False, markup=False), as_json=as_json,
          out_file=out_file)
 
 
@@ -389,6 +420,7 @@ def testbed_fidelity(
     quota: float = typer.Option(0.8, "--quota", min=0.05, help="host cores of the robot"),
     work: float = typer.Option(2.0, "--work", min=0.1, help="work units per program"),
     case: Optional[list[str]] = typer.Option(None, "--case", help="PROGRAMS,BUSY: run only these cases (repeatable), e.g. --case 15,0 --case 4,0 (default: 8 cases from 1 to 8 programs, 0 or 2 busy)"),
+    told_speed: bool = typer.Option(False, "--told-speed", help="ablation: hand every node the speed measured before the start (--speed) instead of letting each measure itself, as robots do"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
 ) -> None:
@@ -431,7 +463,7 @@ def testbed_fidelity(
 
     err.print(f"fidelity of one testbed robot, caps {'on' if caps else 'off'} ...")
     try:
-        rep = run_fidelity(caps=caps, cores=cores, quota=quota, work=work, cases=cases or None,
+        rep = run_fidelity(told_speed=told_speed, caps=caps, cores=cores, quota=quota, work=work, cases=cases or None,
                            log=lambda m: err.print(m, highlight=False))
     except (PermissionError, RampsError, RuntimeError) as exc:
         fail(str(exc))
@@ -450,6 +482,7 @@ def testbed_campaign(
     keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="keep the node logs and traces of failed runs here"),
     only_seed: Optional[int] = typer.Option(None, "--only-seed", help="re-run just this run seed (as printed by a failed run)"),
     stress: bool = typer.Option(True, "--stress/--no-stress", help="also stall nodes alone (0.5-5 s, the origin too), kill nodes alone, crash origins (robot or node; the application submits lost programs again), and put CPU pressure on robots; then check nothing was restarted without cause or left running (--no-stress: crashes, cuts and freezes only, as before 2026-11-23)"),
+    told_speed: bool = typer.Option(False, "--told-speed", help="ablation: hand every node the speed measured before the start (--speed) instead of letting each measure itself, as robots do"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
 ) -> None:
@@ -476,7 +509,7 @@ def testbed_campaign(
                   highlight=False)
 
     try:
-        rep = run_campaign(runs, seed, policy=policy, robots=robots, duration=duration, lease_ms=lease_ms,
+        rep = run_campaign(runs, seed, told_speed=told_speed, policy=policy, robots=robots, duration=duration, lease_ms=lease_ms,
                            discovery=discovery, keep_logs=keep_logs, only_seed=only_seed, progress=progress,
                            stress=stress)
     except (PermissionError, RampsError) as exc:

@@ -276,8 +276,12 @@ class Node:
             if problem is not None:
                 self.origin.anomalies += 1
                 out.append(Note(what="anomaly", robot=sender, detail=problem))
-            elif self.view.on_report(msg, now):
-                out.append(Note(what="unblacklisted", robot=msg.robot))
+            else:
+                if self.host_speeds is not None and self.host_speeds.on_reported_speed(msg.robot, msg.speed):
+                    out.append(Note(what="speed", robot=msg.robot, detail=f"measured itself again ({msg.speed:.4g}): "
+                                                                          f"its results' correction starts over"))
+                if self.view.on_report(msg, now):
+                    out.append(Note(what="unblacklisted", robot=msg.robot))
         elif isinstance(msg, OffloadRequest):
             self.executor.on_offload(msg, now, out, report_now=self.current_report)
         elif isinstance(msg, OffloadAccepted):

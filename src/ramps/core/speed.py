@@ -9,7 +9,8 @@ the share of a CPU each core is under the kernel's quota
 
 - **Re-measurement, on the host** (``SpeedEstimate``): the driver measures
   again while no program runs there, soon after boot and then every
-  ``REMEASURE_PERIOD`` (``remeasure_after``), and hands the core its figure
+  ``REMEASURE_PERIOD``, on one wall-clock grid for the whole team
+  (``next_remeasure``), and hands the core its figure
   from every piece it has timed so far. On a CPU clock, interference (an
   SMT sibling or another tenant busy on the same physical core, a
   neighbour's cache traffic) only ever slows a piece down, while a quota's
@@ -74,16 +75,26 @@ MIN_RUN_WORK = 0.1
 #: seconds between two re-measurements by the driver once settled (the
 #: runtime, and the simulator for robots whose boot measurement was wrong)
 REMEASURE_PERIOD = 30.0
-#: the first re-measurements after boot: robots booting together measured
-#: each other's start-up, and a few seconds later most of them are idle
-REMEASURE_FIRST = (1.0, 2.0, 4.0, 8.0, 15.0)
+#: the first re-measurements after boot come this often, so that a boot
+#: measurement taken during the neighbours' start-up is soon outvoted
+REMEASURE_EARLY = 3.0
+REMEASURE_EARLY_COUNT = 6
 #: CPU seconds one re-measurement spends (``measure_speed``'s ``seconds``)
 REMEASURE_CPU = 0.1
 
 
-def remeasure_after(count: int) -> float:
-    """Seconds from the ``count``-th re-measurement (0: boot) to the next."""
-    return REMEASURE_FIRST[count] if 0 <= count < len(REMEASURE_FIRST) else REMEASURE_PERIOD
+def next_remeasure(wall: float, count: int) -> float:
+    """The wall-clock time of a node's next re-measurement after its
+    ``count``-th (0: boot), at ``wall`` now: the next multiple of the period
+    (``REMEASURE_EARLY`` for the first ``REMEASURE_EARLY_COUNT``, then
+    ``REMEASURE_PERIOD``) at least a second away. On one wall-clock grid,
+    robots measure at the same moments and so under the same conditions:
+    identical robots on one busy host, re-measuring each on its own
+    schedule, drifted 1.02-1.22x apart within 20 s as the host's load came
+    and went, where their simultaneous boot measurements had agreed
+    (docs/lab/2026-11-26-self-measured-speed.md)."""
+    period = REMEASURE_EARLY if count < REMEASURE_EARLY_COUNT else REMEASURE_PERIOD
+    return math.floor((wall + 1.0) / period + 1.0) * period
 
 
 #: a re-measured speed within this fraction of the estimate changes nothing
@@ -134,6 +145,25 @@ class HostSpeeds:
         #: results compared, and changes of a factor they made
         self.samples = 0
         self.corrections = 0
+        #: host -> the speed its reports said when its figures began
+        self._reported: dict[str, float] = {}
+
+    def on_reported_speed(self, host: str, speed: float) -> bool:
+        """A load report of ``host`` says it runs at ``speed``; True if that
+        moved by more than ``SPEED_STEP`` since its figures began, which are
+        then dropped with its factor: they corrected the speed it measured
+        before, and its new measurement is the fresher word. (Kept, a factor
+        of 0.67 against a boot figure 1.5x too fast went on to scale the
+        robot's re-measured true speed down to 0.67 of it, and it got no
+        programs.)"""
+        if not (math.isfinite(speed) and speed > 0):
+            return False
+        before = self._reported.setdefault(host, speed)
+        if abs(math.log(speed / before)) <= math.log1p(SPEED_STEP):
+            return False
+        self._reported[host] = speed
+        self._figures.pop(host, None)
+        return self.factor.pop(host, None) is not None
 
     def on_result(self, program: str, host: str, work_done: float, declared: float = 0.0) -> bool:
         """A first, wanted result of ``program`` from ``host``, which counted

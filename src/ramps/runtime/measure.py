@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import os
+import statistics
 import threading
 import time
 from collections import deque
@@ -121,42 +122,45 @@ SPEED_CHUNK = 0.005
 #: wall seconds a measurement may take at most (a robot starved of CPU by its
 #: own software measures what it got in that time)
 SPEED_MAX_WALL = 5.0
-#: pieces kept from every measurement of a node's life (the newest)
-SPEED_PIECES = 600
-#: pieces within this fraction of the fastest but one are the top cluster
-SPEED_BAND = 0.08
+#: measurements of a node's life its figure is the median of (the newest)
+SPEED_MEASUREMENTS = 9
 
 
-def chunk_rates(seconds: float) -> list[float]:
-    """What a CPU second computes here, piece by piece: work units per CPU
-    second of ``SPEED_CHUNK`` units of the burn loop each, timed on this
-    thread's own CPU clock (``time.thread_time``), so neither waiting for
-    the CPU (a quota's throttling, a run queue) nor the node's other
+def chunk_rates(seconds: float) -> dict[int, list[float]]:
+    """What a CPU second computes here, piece by piece, per CPU: work units
+    per CPU second of ``SPEED_CHUNK`` units of the burn loop each, timed on
+    this thread's own CPU clock (``time.thread_time``), so neither waiting
+    for the CPU (a quota's throttling, a run queue) nor the node's other
     threads count, until ``seconds`` of CPU are spent (over several quota
     periods under a quota) or ``SPEED_MAX_WALL`` have passed. The pieces
     run on each CPU this robot may use in turn (the measuring thread is
-    pinned to one at a time): a thread stays on one CPU for a while, and
-    the development VM's two vCPUs ran the same loop at 0.36 and 0.57 units
-    per CPU second for seconds on end, so a measurement that stayed on one
-    said which vCPU it had landed on."""
+    pinned to one at a time; -1: the one it ran on where it cannot be
+    pinned): a thread stays on one CPU for a while, and the development
+    VM's two vCPUs ran the same loop at 0.36 and 0.57 units per CPU second
+    for seconds on end, so a measurement that stayed on one said which vCPU
+    it had landed on."""
     from ramps.programs.burn import ITERATIONS_PER_UNIT, _spin
 
     iterations = max(1, round(SPEED_CHUNK * ITERATIONS_PER_UNIT))
-    rates: list[float] = []
+    pieces: dict[int, list[float]] = {}
     allowed = _affinity()
-    cpus = sorted(allowed)
+    cpus = sorted(allowed) if len(allowed) > 1 else [-1]
     cpu0, wall0 = time.thread_time(), time.monotonic()
+    n = 0
     try:
-        while len(rates) < 4 or (time.thread_time() - cpu0 < seconds and time.monotonic() - wall0 < SPEED_MAX_WALL):
-            if len(cpus) > 1:  # piece by piece on each CPU this robot may use, in turn
-                _pin({cpus[len(rates) % len(cpus)]})
+        while n < 2 * len(cpus) or (time.thread_time() - cpu0 < seconds
+                                    and time.monotonic() - wall0 < SPEED_MAX_WALL):
+            cpu = cpus[n % len(cpus)]
+            if cpu >= 0:
+                _pin({cpu})
             start = time.thread_time()
             _spin(iterations)
-            rates.append(SPEED_CHUNK / max(time.thread_time() - start, 1e-6))
+            pieces.setdefault(cpu, []).append(SPEED_CHUNK / max(time.thread_time() - start, 1e-6))
+            n += 1
     finally:
-        if len(cpus) > 1:
+        if cpus[0] >= 0:
             _pin(allowed)
-    return rates
+    return pieces
 
 
 def _affinity() -> set[int]:
@@ -175,35 +179,33 @@ def _pin(cpus: set[int]) -> None:
 
 
 class SpeedSamples:
-    """Every piece a node timed in its life (the newest ``SPEED_PIECES``), and
-    the speed they show.
+    """A node's measurements of what a CPU second computes, and the figure
+    they give.
 
-    Interference (an SMT sibling or another tenant busy on the same physical
-    core, caches shared with a busy neighbour) only ever slows a piece down:
-    on the 2-vCPU development VM pieces ran at two speeds, about 0.57 units
-    per CPU second while nothing else ran on the other vCPU and 0.43 while
-    something did, so a measurement's median or mean said how busy the host
-    was, not how fast the robot is. The figure is the median of the top
-    cluster: the pieces within ``SPEED_BAND`` of the fastest but one (a
-    single odd piece moves nothing). Pieces add up over the boot measurement
-    and every re-measurement, so a robot that booted while its neighbours'
-    start-up kept the host busy finds the top cluster later, as the others
-    did; identical robots then agree however they booted."""
+    One measurement's figure is the mean over the CPUs of the median piece
+    on each: what a CPU second of this machine computes at that moment,
+    whichever CPU a program lands on, with a piece interrupted or sped up
+    now and then left out. The node's figure is the median of its latest
+    ``SPEED_MEASUREMENTS`` (boot and every re-measurement): one taken while
+    the robot's neighbours kept the machine busy (their start-up, a burst
+    of their own) moves nothing once there are three. The fastest piece or
+    the fastest cluster of pieces, the rule before, said how lucky a robot
+    had been: identical robots booting together on one host settled 1.02 to
+    1.08 apart that way, as the phases of the host's vCPUs came and went
+    (docs/lab/2026-11-26-self-measured-speed.md)."""
 
     def __init__(self) -> None:
-        self._rates: deque[float] = deque(maxlen=SPEED_PIECES)
+        self._figures: deque[float] = deque(maxlen=SPEED_MEASUREMENTS)
 
-    def add(self, rates: list[float]) -> None:
-        self._rates.extend(r for r in rates if math.isfinite(r) and r > 0)
+    def add(self, pieces: dict[int, list[float]]) -> None:
+        medians = [statistics.median(good) for v in pieces.values()
+                   if (good := [r for r in v if math.isfinite(r) and r > 0])]
+        if medians:
+            self._figures.append(statistics.fmean(medians))
 
     def rate(self) -> float:
-        """Work units per CPU second of this robot's CPU (0.0 before any piece)."""
-        if not self._rates:
-            return 0.0
-        ranked = sorted(self._rates, reverse=True)
-        ref = ranked[1] if len(ranked) > 1 else ranked[0]
-        top = [r for r in ranked if r >= ref * (1.0 - SPEED_BAND)]
-        return top[len(top) // 2]
+        """Work units per CPU second of this robot's CPUs (0.0 before any measurement)."""
+        return statistics.median(self._figures) if self._figures else 0.0
 
     def speed(self, *, quota: float | None = None, cores: int = 1) -> float:
         """Work units per second of one of this robot's cores."""
@@ -217,11 +219,7 @@ def measure_speed(seconds: float = 0.2, *, quota: float | None = None, cores: in
     Two parts, measured apart: what a CPU second computes here
     (``chunk_rates`` for ``seconds`` of CPU, added to ``samples`` when given,
     the figure as ``SpeedSamples`` explains), and how much of a CPU each of
-    the robot's cores is (the kernel's ``quota`` shared by ``cores``).
-    Identical robots booting together on one host measured 1.02-1.04x apart
-    this way once each had spent 0.8 s of CPU, where the best of five 40 ms
-    runs of process CPU time measured up to 1.8x apart
-    (docs/lab/2026-11-26-self-measured-speed.md)."""
+    the robot's cores is (the kernel's ``quota`` shared by ``cores``)."""
     samples = samples if samples is not None else SpeedSamples()
     samples.add(chunk_rates(seconds))
     return samples.speed(quota=quota, cores=cores)

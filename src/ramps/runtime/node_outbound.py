@@ -39,12 +39,14 @@ from ramps.core.messages import (
     RunningProgram,
     encode,
 )
-from ramps.core.speed import REMEASURE_CPU, SpeedMeasured, remeasure_after
+from ramps.core.speed import REMEASURE_CPU, SpeedMeasured
 from ramps.runtime import keys
 from ramps.runtime.measure import measure_speed
 from ramps.runtime.transport import Publisher
 
 log = logging.getLogger("ramps.node")
+#: how long before its moment a re-measurement's thread starts (more than a report period)
+REMEASURE_LEAD = 1.5
 #: core notes a client hears about (ProgramUpdate.state), as placed/running/host_failed
 _CLIENT_STATES = {"placed": "placed", "accepted": "running", "failed": "host_failed"}
 
@@ -143,26 +145,34 @@ class Outbound:
                 self._pubs.pop(next(iter(self._pubs))).undeclare()
         return pub
 
-    def _remeasure(self) -> None:
-        """Measure this robot's speed again, off the driver's thread (briefly:
+    def _remeasure(self, at: float) -> None:
+        """Measure this robot's speed again at monotonic time ``at`` (the
+        team's grid, ``next_remeasure``), off the driver's thread (briefly:
         ``REMEASURE_CPU`` s of CPU), with every piece timed so far
-        (``SpeedSamples``); the core takes the figure if it moved."""
+        (``SpeedSamples``), unless a program started meanwhile; the core
+        takes the figure if it moved. The caller holds ``_remeasuring``."""
         try:
-            with self._remeasuring:  # one at a time: the samples are this thread's while it measures
-                speed = measure_speed(REMEASURE_CPU, quota=self._quota, cores=self.cores,
-                                      samples=self._speed_samples)
+            self.clock.sleep(max(0.0, at - self.clock.monotonic()))
+            if self.pool.busy() or self.pool.queued():
+                return
+            speed = measure_speed(REMEASURE_CPU, quota=self._quota, cores=self.cores, samples=self._speed_samples)
         except Exception:  # never worth a node
             log.exception("node %s: measuring its speed again failed", self.robot)
             return
+        finally:
+            self._remeasuring.release()
         self._q.put(("speed", SpeedMeasured(speed=speed)))
 
     def _publish(self, now: float) -> None:
         due = self._remeasure_at
-        if (due is not None and self.clock.monotonic() >= due and not self.pool.busy() and not self.pool.queued()
-                and not self._remeasuring.locked()):
+        # the thread starts up to REMEASURE_LEAD early and waits for the grid's moment, so every
+        # robot measures then, whatever the phase of its reports
+        if (due is not None and self.clock.monotonic() >= due - REMEASURE_LEAD and not self.pool.busy()
+                and not self.pool.queued() and self._remeasuring.acquire(blocking=False)):
             self._remeasures += 1
-            self._remeasure_at = self.clock.monotonic() + remeasure_after(self._remeasures)
-            threading.Thread(target=self._remeasure, name=f"ramps-speed-{self.robot}", daemon=True).start()
+            self._remeasure_at = self._remeasure_due(self._remeasures)
+            threading.Thread(target=self._remeasure, args=(due,), name=f"ramps-speed-{self.robot}",
+                             daemon=True).start()
         busy, runnable, ramps_avg = self.sampler.averages()
         per_core, load1, mem_free = self.sampler.extras()
         self.node.executor.background = max(0.0, runnable - ramps_avg)

@@ -302,12 +302,11 @@ class Simulator:
         busy, runnable, ramps_avg = r.cpu.averages(self.now, pub.window)
         if r.spec.measured_speed is not None and self.now >= r.remeasure_at and not r.cpu.jobs:
             # a robot that mis-measured at boot measures again while idle, as a
-            # node does (ramps.runtime.node); idle, it times pieces at its true
-            # speed, and its figure is the fastest cluster of every piece it
-            # timed (ramps.runtime.measure.SpeedSamples): a boot figure that was
-            # too fast stays (the results correct it, ramps.core.speed)
+            # node does (ramps.runtime.node); idle, it measures its true speed
+            # (a node's figure is the median of its measurements,
+            # ramps.runtime.measure.SpeedSamples: the odd boot figure is outvoted)
             r.remeasure_at = self.now + REMEASURE_PERIOD
-            self._handle(r, SpeedMeasured(speed=max(r.spec.speed, r.spec.measured_speed)))
+            self._handle(r, SpeedMeasured(speed=r.spec.speed))
         report = r.node.make_report(cpu_busy=busy, runnable=runnable, ramps_avg=ramps_avg, window=pub.window,
                                     mem_free=r.spec.memory, node_cpu=r.spec.node_cpu)
         if r.spec.name in self.subscribers:

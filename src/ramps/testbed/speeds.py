@@ -6,7 +6,7 @@ same quota and cores, nothing handed in with ``--speed``: every node
 measures itself, as it does on a real robot), optionally with the robots'
 own busy processes starting beside the nodes. The speed each node measured
 at boot comes from its log's join line; the speed it reports later (after
-its first re-measurements, ``ramps.core.speed.remeasure_after``) from its
+its first re-measurements, ``ramps.core.speed.next_remeasure``) from its
 load reports, read by a client in the root namespace. The figure of a start
 is the spread: the fastest robot's speed over the slowest's.
 """
