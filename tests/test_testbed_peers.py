@@ -138,3 +138,17 @@ def test_ramps_and_round_robin_run_a_crash_end_to_end():
     assert ramps.completed == 8 and ramps.lost == 0
     json.loads(msgspec.json.encode(rep))
     assert others_leftovers() == []
+
+
+def test_dasks_orphaned_semaphores_are_removed_not_older_ones(tmp_path):
+    import os
+    import time
+
+    from ramps.testbed.peers import _orphan_semaphores
+
+    old, new, other = tmp_path / "sem.mp-old", tmp_path / "sem.mp-new", tmp_path / "zenoh.shm"
+    for p in (old, new, other):
+        p.touch()
+    os.utime(old, (time.time() - 600, time.time() - 600))
+    assert _orphan_semaphores(time.time() - 60, tmp_path) == 1
+    assert not new.exists() and old.exists() and other.exists()

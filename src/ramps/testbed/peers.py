@@ -403,6 +403,7 @@ class PeerBed(Testbed):
         super().__init__(robots, **kw)
         self.engine = engine
         self.work_dir = Path(tempfile.mkdtemp(prefix=f"ramps-peers-{engine}-"))
+        self._born = time.time()
 
     def _node_cmd(self, robot: str) -> list[str]:
         head = self.robots[self.names[0]]["ip"]
@@ -420,6 +421,8 @@ class PeerBed(Testbed):
     def down(self) -> None:
         super().down()
         shutil.rmtree(self.work_dir, ignore_errors=True)
+        _orphan_semaphores(self._born)
+
 
 
 class ClusterEngine:
@@ -490,6 +493,29 @@ class ClusterEngine:
         run = burst.result(self.name)
         run.error = "; ".join(errors) or None
         return run
+
+
+def _orphan_semaphores(since: float, shm: Path = Path("/dev/shm")) -> int:
+    """Remove the named semaphores (``sem.mp-*``) made since ``since`` that no process maps any
+    more: Dask's worker processes, SIGKILLed with their robot, leave about 24 a robot behind."""
+    try:
+        mine = [p for p in shm.glob("sem.mp-*") if p.stat().st_mtime >= since - 1.0]
+    except OSError:
+        return 0
+    if not mine:
+        return 0
+    mapped: set[str] = set()
+    for maps in Path("/proc").glob("[0-9]*/maps"):
+        try:
+            mapped.update(line.rsplit("/", 1)[-1] for line in maps.read_text().splitlines() if "/sem.mp-" in line)
+        except OSError:
+            continue
+    gone = 0
+    for p in mine:
+        if p.name not in mapped:
+            p.unlink(missing_ok=True)
+            gone += 1
+    return gone
 
 
 def _tail(path: Path, lines: int = 15) -> str:
