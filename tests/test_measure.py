@@ -108,3 +108,23 @@ def test_the_cpu_limit_is_the_smallest_quota_on_the_cgroups_path(tmp_path):
 def test_a_core_under_a_quota_is_its_share_of_a_cpu():
     assert measure.core_fraction(0.32, 4) == pytest.approx(0.08)
     assert measure.core_fraction(None, 4) == measure.core_fraction(8.0, 4) == 1.0
+
+
+def test_a_measurement_apart_runs_in_a_child_and_brings_its_pieces_back():
+    """Re-measured in a forked child (no GIL shared with the node's threads):
+    the pieces come back per CPU this process may use, and the child is gone."""
+    import os
+
+    busy = threading.Event()
+    t = threading.Thread(target=lambda: busy.wait(5), daemon=True)  # a node has other threads
+    t.start()
+    try:
+        pieces = measure.chunk_rates_apart(0.05)
+    finally:
+        busy.set()
+    allowed = os.sched_getaffinity(0)
+    assert set(pieces) <= (allowed if len(allowed) > 1 else {-1}) and pieces
+    assert all(r > 0 for rates in pieces.values() for r in rates)
+    assert sum(len(v) for v in pieces.values()) >= 2 * len(pieces)
+    with pytest.raises(ChildProcessError):
+        os.waitpid(-1, os.WNOHANG)  # no child left behind

@@ -80,7 +80,7 @@ REMEASURE_PERIOD = 30.0
 REMEASURE_EARLY = 3.0
 REMEASURE_EARLY_COUNT = 6
 #: CPU seconds one re-measurement spends (``measure_speed``'s ``seconds``)
-REMEASURE_CPU = 0.1
+REMEASURE_CPU = 0.2
 
 
 def next_remeasure(wall: float, count: int) -> float:

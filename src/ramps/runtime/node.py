@@ -155,6 +155,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self.stalled_s = 0.0
         self._stall_offset = 0.0
         self._stalled_at = 0.0
+        #: the wall-clock time of the next re-measurement (None: told its speed)
         self._remeasure_at: float | None = None
         self._remeasures = 0
         self._remeasuring = threading.Lock()
@@ -203,7 +204,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         # each other's start-up; ramps.core.speed)
         self._quota = quota
         self._remeasures = 0
-        self._remeasure_at = None if s.speed else self._remeasure_due(0)
+        self._remeasure_at = None if s.speed else next_remeasure(self.clock.time(), 0)
         self.incarnation = self._incarnation or int.from_bytes(os.urandom(6), "big")
         return_freed_memory()
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=s.core,
@@ -267,12 +268,6 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         log.info("node %s joined team %s: %d cores, speed %.2f, load scope %s", self.robot, self.team,
                  self.cores, self.speed, scope)
         return self
-
-    def _remeasure_due(self, count: int) -> float:
-        """The monotonic time of the next re-measurement (``next_remeasure``'s
-        wall-clock grid, which the team shares)."""
-        wall = self.clock.time()
-        return self.clock.monotonic() + (next_remeasure(wall, count) - wall)
 
     def _serve_metrics(self, address: str) -> None:
         from ramps.observe.metrics import NodeMetrics

@@ -39,7 +39,7 @@ from ramps.core.messages import (
     RunningProgram,
     encode,
 )
-from ramps.core.speed import REMEASURE_CPU, SpeedMeasured
+from ramps.core.speed import REMEASURE_CPU, SpeedMeasured, next_remeasure
 from ramps.runtime import keys
 from ramps.runtime.measure import measure_speed
 from ramps.runtime.transport import Publisher
@@ -146,16 +146,17 @@ class Outbound:
         return pub
 
     def _remeasure(self, at: float) -> None:
-        """Measure this robot's speed again at monotonic time ``at`` (the
+        """Measure this robot's speed again at wall-clock time ``at`` (the
         team's grid, ``next_remeasure``), off the driver's thread (briefly:
         ``REMEASURE_CPU`` s of CPU), with every piece timed so far
         (``SpeedSamples``), unless a program started meanwhile; the core
         takes the figure if it moved. The caller holds ``_remeasuring``."""
         try:
-            self.clock.sleep(max(0.0, at - self.clock.monotonic()))
+            self.clock.sleep(max(0.0, at - self.clock.time()))
             if self.pool.busy() or self.pool.queued():
                 return
-            speed = measure_speed(REMEASURE_CPU, quota=self._quota, cores=self.cores, samples=self._speed_samples)
+            speed = measure_speed(REMEASURE_CPU, quota=self._quota, cores=self.cores, samples=self._speed_samples,
+                                  apart=True)
         except Exception:  # never worth a node
             log.exception("node %s: measuring its speed again failed", self.robot)
             return
@@ -166,13 +167,16 @@ class Outbound:
     def _publish(self, now: float) -> None:
         due = self._remeasure_at
         # the thread starts up to REMEASURE_LEAD early and waits for the grid's moment, so every
-        # robot measures then, whatever the phase of its reports
-        if (due is not None and self.clock.monotonic() >= due - REMEASURE_LEAD and not self.pool.busy()
-                and not self.pool.queued() and self._remeasuring.acquire(blocking=False)):
+        # robot measures then, whatever the phase of its reports; a moment missed (a program ran,
+        # a stall) is skipped for the next on the grid
+        wall = self.clock.time()
+        if due is not None and wall >= due - REMEASURE_LEAD:
+            if due > wall - 0.5 and not self.pool.busy() and not self.pool.queued() \
+                    and self._remeasuring.acquire(blocking=False):
+                threading.Thread(target=self._remeasure, args=(due,), name=f"ramps-speed-{self.robot}",
+                                 daemon=True).start()
             self._remeasures += 1
-            self._remeasure_at = self._remeasure_due(self._remeasures)
-            threading.Thread(target=self._remeasure, args=(due,), name=f"ramps-speed-{self.robot}",
-                             daemon=True).start()
+            self._remeasure_at = next_remeasure(due, self._remeasures)
         busy, runnable, ramps_avg = self.sampler.averages()
         per_core, load1, mem_free = self.sampler.extras()
         self.node.executor.background = max(0.0, runnable - ramps_avg)
