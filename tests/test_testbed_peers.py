@@ -116,8 +116,7 @@ def test_without_the_extra_ray_and_dask_are_skipped_and_say_why():
     assert ENGINES["ray"]().missing() or ENGINES["dask"]().missing()
 
 
-@pytest.mark.slow
-@pytest.mark.serial  # real robots: times depend on the host's CPU
+@pytest.mark.slow  # not serial: it checks what ran where and that nothing was lost, no time or CPU share
 @pytest.mark.skipif(REASON is not None, reason=REASON or "")
 def test_ramps_and_round_robin_run_a_crash_end_to_end():
     """Two robots, eight short programs from r1 (more than its four cores), r2 crashed at 1.5 s
