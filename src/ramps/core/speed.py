@@ -11,15 +11,14 @@ the share of a CPU each core is under the kernel's quota
   again while no program runs there, soon after boot and then every
   ``REMEASURE_PERIOD``, on one wall-clock grid for the whole team
   (``next_remeasure``), and hands the core its figure
-  from every piece it has timed so far. On a CPU clock, interference (an
-  SMT sibling or another tenant busy on the same physical core, a
-  neighbour's cache traffic) only ever slows a piece down, while a quota's
-  throttling and a run queue do not count at all, so the fastest cluster
-  of pieces is the robot's own speed (``ramps.runtime.measure.SpeedSamples``).
-  This is what fixes a robot that measured itself slow: it gets no
-  programs, so no result could ever say it is faster. Measured on a wall
-  clock instead, a burst that fits in one quota period runs faster than
-  the robot's sustained rate.
+  from its latest measurements: each the mean over the CPUs of each CPU's
+  median piece, timed on a CPU clock, so a quota's throttling and a run
+  queue do not count (``ramps.runtime.measure.SpeedSamples``); the median
+  of the latest measurements outvotes one taken while the neighbours kept
+  the machine busy. This is what fixes a robot that measured itself slow:
+  it gets no programs, so no result could ever say it is faster. Measured
+  on a wall clock instead, a burst that fits in one quota period runs
+  faster than the robot's sustained rate.
 - **Results, at the origin** (``HostSpeeds``): a host reports the work a
   program took (``ProgramResult.work_done``): its CPU seconds at the speed
   the host believes (``Executor``), and the origin divides it by the work
@@ -101,6 +100,11 @@ def next_remeasure(wall: float, count: int) -> float:
 SPEED_STEP = 0.01
 
 
+def _moved(speed: float, before: float) -> bool:
+    """``speed`` is a figure and differs from ``before`` by more than ``SPEED_STEP``."""
+    return math.isfinite(speed) and speed > 0 and abs(math.log(speed / before)) > math.log1p(SPEED_STEP)
+
+
 class SpeedMeasured(msgspec.Struct, frozen=True, kw_only=True):
     """The driver measured this robot's speed again (driver -> core), while
     no program ran here: its figure from every measurement so far (on a
@@ -121,11 +125,9 @@ class SpeedEstimate:
         """A re-measurement; True if the estimate changed (by more than
         ``SPEED_STEP``; ``speed_learning = False`` keeps the boot figure).
         Either way: the driver's figure is already robust to interference
-        (the fastest cluster of everything it timed), and a robot that
-        really got slower (a throttled CPU) must say so."""
-        if not self.config.speed_learning or not (math.isfinite(speed) and speed > 0):
-            return False
-        if abs(math.log(speed / self.value)) <= math.log1p(SPEED_STEP):
+        (the median of its latest measurements), and a robot that really
+        got slower (a throttled CPU) must say so."""
+        if not self.config.speed_learning or not _moved(speed, self.value):
             return False
         self.value = speed
         return True
@@ -156,10 +158,7 @@ class HostSpeeds:
         of 0.67 against a boot figure 1.5x too fast went on to scale the
         robot's re-measured true speed down to 0.67 of it, and it got no
         programs.)"""
-        if not (math.isfinite(speed) and speed > 0):
-            return False
-        before = self._reported.setdefault(host, speed)
-        if abs(math.log(speed / before)) <= math.log1p(SPEED_STEP):
+        if not (math.isfinite(speed) and speed > 0) or not _moved(speed, self._reported.setdefault(host, speed)):
             return False
         self._reported[host] = speed
         self._figures.pop(host, None)

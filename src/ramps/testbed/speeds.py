@@ -24,19 +24,29 @@ READ_AT = (2.0, 10.0, 20.0)
 _JOINED = re.compile(r"joined team \S+: \d+ cores, speed ([0-9.eE+-]+)")
 
 
+def spread(speeds: dict[str, float]) -> float:
+    """The fastest robot's speed over the slowest's (inf if one has none)."""
+    values = list(speeds.values())
+    return max(values) / min(values) if values and min(values) > 0 else float("inf")
+
+
+def reported_speeds(obs, robots: int, timeout: float = 10.0) -> dict[str, float]:
+    """robot -> the speed in its latest load report (0.0: none yet), once every
+    robot has reported or ``timeout`` seconds have passed."""
+    names = [f"r{i}" for i in range(1, robots + 1)]
+    deadline = time.monotonic() + timeout
+    while True:
+        seen = {row["robot"]: float(row["speed"]) for row in obs.view() if "speed" in row}
+        if all(r in seen for r in names) or time.monotonic() >= deadline:
+            return {r: seen.get(r, 0.0) for r in names}
+        time.sleep(0.2)
+
+
 class SpeedStart(msgspec.Struct, kw_only=True):
     #: robot -> the speed its node measured at boot
     boot: dict[str, float]
     #: seconds after the team was up -> robot -> the speed in its latest report
     reported: dict[str, dict[str, float]]
-
-    @staticmethod
-    def spread(speeds: dict[str, float]) -> float:
-        """Fastest over slowest (inf if a robot has none)."""
-        values = [v for v in speeds.values() if v > 0]
-        if not values or len(values) < len(speeds):
-            return float("inf")
-        return max(values) / min(values)
 
 
 class SpeedsReport(msgspec.Struct, kw_only=True):
@@ -51,12 +61,12 @@ class SpeedsReport(msgspec.Struct, kw_only=True):
         lines = [" | ".join(heads)]
         for i, s in enumerate(self.starts, 1):
             boot = " ".join(f"{s.boot.get(r, 0):.4f}" for r in sorted(s.boot))
-            cells = [str(i), boot, f"{SpeedStart.spread(s.boot):.3f}"]
-            cells += [f"{SpeedStart.spread(s.reported.get(str(t), {})):.3f}" for t in READ_AT]
+            cells = [str(i), boot, f"{spread(s.boot):.3f}"]
+            cells += [f"{spread(s.reported.get(str(t), {})):.3f}" for t in READ_AT]
             lines.append(" | ".join(cells))
         last = str(READ_AT[-1])
-        within = sum(1 for s in self.starts if SpeedStart.spread(s.boot) <= 1.05)
-        later = sum(1 for s in self.starts if SpeedStart.spread(s.reported.get(last, {})) <= 1.05)
+        within = sum(1 for s in self.starts if spread(s.boot) <= 1.05)
+        later = sum(1 for s in self.starts if spread(s.reported.get(last, {})) <= 1.05)
         lines.append(f"within 5% of each other: {within}/{len(self.starts)} at boot, "
                      f"{later}/{len(self.starts)} at +{READ_AT[-1]:g} s")
         return "\n".join(lines)
@@ -93,10 +103,9 @@ def run_speeds(*, starts: int = 10, robots: int = 5, cores: int = 4, quota: floa
             with watch_team(tb) as obs:
                 for at in READ_AT:
                     time.sleep(max(0.0, up + at - time.monotonic()))
-                    reported[str(at)] = {row["robot"]: float(row.get("speed", 0.0)) for row in obs.view()
-                                         if row["robot"] in names}
+                    reported[str(at)] = reported_speeds(obs, robots, timeout=0.0)
         start = SpeedStart(boot=boot, reported=reported)
         out.append(start)
-        log(f"start {i + 1}/{starts}: boot spread {SpeedStart.spread(boot):.3f}, "
-            f"+{READ_AT[-1]:g} s {SpeedStart.spread(reported[str(READ_AT[-1])]):.3f}")
+        log(f"start {i + 1}/{starts}: boot spread {spread(boot):.3f}, "
+            f"+{READ_AT[-1]:g} s {spread(reported[str(READ_AT[-1])]):.3f}")
     return SpeedsReport(robots=robots, cores=cores, quota=quota, loaded=loaded, starts=out)

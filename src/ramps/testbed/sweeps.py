@@ -44,6 +44,7 @@ import msgspec
 from ramps.core.config import RampsConfig
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import ProgramSpec, PublisherSpec, RobotSpec, Scenario
+from ramps.testbed.speeds import reported_speeds, spread
 
 EXPERIMENTS = ("unloaded", "loaded", "multi-origin")
 #: (experiment, robots, programs per origin, loaded robots, origins)
@@ -207,23 +208,6 @@ def _run_on_testbed(tb, clients: dict, programs: int, origins: int, work: float,
                 for r, procs in seen.items() for pid, (kind, secs) in procs.items() if kind == "worker")
     return _Burst(makespan=(max(ends) - t0) if ends else float("nan"), distribution=dist, completed=len(ok),
                   failed=len(futures) - len(ok), spent=spent, obtained=min(shares, default=1.0))
-
-
-def reported_speeds(obs, robots: int, timeout: float = 10.0) -> dict[str, float]:
-    """robot -> the speed in its latest load report, once every robot has reported."""
-    names = [f"r{i}" for i in range(1, robots + 1)]
-    deadline = time.monotonic() + timeout
-    while True:
-        seen = {row["robot"]: float(row["speed"]) for row in obs.view() if "speed" in row}
-        if all(r in seen for r in names) or time.monotonic() > deadline:
-            return {r: seen.get(r, 0.0) for r in names}
-        time.sleep(0.2)
-
-
-def spread(speeds: dict[str, float]) -> float:
-    """The fastest robot's speed over the slowest's (inf if one has none)."""
-    values = list(speeds.values())
-    return max(values) / min(values) if values and min(values) > 0 else float("inf")
 
 
 def _wait_idle(obs, timeout: float = 30.0) -> None:
