@@ -133,9 +133,9 @@ def _keep(tb, dest: Path) -> None:
 
 def identical_speed(robots: int, cores: int, quota: float | None = None) -> float:
     """The per-core speed of every robot, measured once here, before the nodes
-    start: the robots are identical by construction, and five nodes measuring
-    themselves at once under their quotas differ by 5-10%, which the cost
-    model would rightly read as faster and slower robots."""
+    start: the true configuration the simulator runs at, and what every node
+    is told with ``told_speed`` (an ablation; by default each node measures
+    itself, as on a robot)."""
     import os
 
     from ramps.runtime.measure import measure_speed
