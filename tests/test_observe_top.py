@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import pty
+import re
 import select
 import signal
 import subprocess
@@ -52,9 +53,12 @@ def top_cmd(t: LocalTeam, *extra: str, secure: bool = True) -> list[str]:
             *sum((["--connect", e] for e in t.endpoints()), []), *creds, *extra]
 
 
-def top_in_a_terminal(cmd: list[str], shown: bytes = b"robots alive", timeout: float = 30.0) -> tuple[str, str, int]:
+def top_in_a_terminal(cmd: list[str], shown: bytes = rb"[1-9]\d* of \d+ robots alive",
+                      timeout: float = 30.0) -> tuple[str, str, int]:
     """Run ``ramps top`` with a pseudo-terminal as its output, press Ctrl-C
-    (SIGINT) a second after it first shows ``shown``, and return what it
+    (SIGINT) a second after it first shows a match of the pattern ``shown``
+    (by default: a frame with at least one robot heard; the first frame may
+    come before any liveliness token on a loaded host), and return what it
     showed, its stderr and its exit status."""
     master, slave = pty.openpty()
     p = subprocess.Popen(cmd, stdout=slave, stderr=subprocess.PIPE, text=True, start_new_session=True,
@@ -71,7 +75,7 @@ def top_in_a_terminal(cmd: list[str], shown: bytes = b"robots alive", timeout: f
                 except OSError:
                     break
             now = time.monotonic()
-            if sent_at is None and shown in buf and now > deadline - timeout + 1:
+            if sent_at is None and re.search(shown, buf) and now > deadline - timeout + 1:
                 time.sleep(1)
                 p.send_signal(signal.SIGINT)
                 sent_at = now
