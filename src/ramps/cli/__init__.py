@@ -56,6 +56,7 @@ app.command()(node)
 app.command()(submit)
 app.command()(status)
 app.command()(demo)
+app.command()(__import__("ramps.cli.router", fromlist=["router"]).router)  # ramps router (sites)
 app.add_typer(testbed_app, name="testbed")
 
 

@@ -18,6 +18,7 @@ from typing import Optional
 import msgspec
 import typer
 
+from ramps.cli.router import ModeOption, ZenohOption, zenoh_flags
 from ramps.cli.common import (
     ConnectOption,
     CredentialsOption,
@@ -55,6 +56,8 @@ def node(
     trace: Optional[Path] = typer.Option(None, "--trace", help="write every placement, failure and delivery decision to this file (JSON lines)"),
     secure: SecureOption = False,
     credentials: CredentialsOption = None,
+    mode: ModeOption = None,
+    zenoh: ZenohOption = None,
     metrics: Optional[str] = typer.Option(None, "--metrics", help="serve Prometheus metrics on ADDR:PORT, e.g. "
                                           "127.0.0.1:9464 or 0.0.0.0:9464 for a Prometheus elsewhere (default off; "
                                           "env RAMPS_METRICS)"),
@@ -88,7 +91,8 @@ def node(
     s = node_settings(robot=robot, commands=commands, team=team, listen=listen or None, connect=connect or None, multicast=multicast,
                   cores=cores, speed=speed, policy=policy, programs=program or None, config_file=config_file,
                   lease_ms=lease_ms, trace=str(trace) if trace else None, secure=secure or None,
-                  credentials=str(credentials) if credentials else None, metrics=metrics, node_nice=node_nice)
+                  credentials=str(credentials) if credentials else None, metrics=metrics, node_nice=node_nice,
+                  mode=mode, zenoh=zenoh_flags(zenoh))
     import signal
     import threading
 
@@ -101,7 +105,8 @@ def node(
     except RampsError as exc:
         fail(str(exc))
     err.print(f"[bold]ramps node {rt.robot}[/] joined team [bold]{rt.team}[/]: {rt.cores} cores, speed {rt.speed:g}, "
-              f"policy {s.policy}, load measured on the {rt.load_scope}; listening on {', '.join(s.listen_endpoints())}"
+              f"policy {s.policy}, load measured on the {rt.load_scope}; "
+              + ("client of a router" if s.mode == "client" else f"listening on {', '.join(s.listen_endpoints())}")
               + (f"; connecting to {', '.join(s.connect)}" if s.connect else "")
               + ("; multicast discovery on" if s.multicast else "")
               + ("; secured: TLS with team certificates" if s.secure else "")
@@ -129,12 +134,14 @@ def _parse_arg(text: str) -> tuple[str, object]:
         return key, raw
 
 
-def _connect_team(team, robot, connect, multicast, timeout, config_file=None, secure=None, credentials=None):
+def _connect_team(team, robot, connect, multicast, timeout, config_file=None, secure=None, credentials=None,
+                  mode=None):
     from ramps.errors import RampsError
     from ramps.runtime.client import Team
 
     s = node_settings(team=team, connect=connect or None, multicast=multicast, config_file=config_file,
-                  default_robot=False, secure=secure or None, credentials=str(credentials) if credentials else None)
+                  default_robot=False, secure=secure or None, credentials=str(credentials) if credentials else None,
+                  mode=mode)
     try:
         return Team(s, robot=robot, timeout=timeout)
     except RampsError as exc:
@@ -155,6 +162,7 @@ def submit(
                                   "on stderr as it changes"),
     secure: SecureOption = False,
     credentials: CredentialsOption = None,
+    mode: ModeOption = None,
 ) -> None:
     """Run a program on the team and print its result."""
     import time as _time
@@ -162,7 +170,7 @@ def submit(
     from ramps.errors import RampsError
 
     args = dict(_parse_arg(a) for a in arg or [])
-    t = _connect_team(team, robot, connect, multicast, 5.0, secure=secure, credentials=credentials)
+    t = _connect_team(team, robot, connect, multicast, 5.0, secure=secure, credentials=credentials, mode=mode)
     try:
         started = _time.perf_counter()
         try:
@@ -205,6 +213,7 @@ def status(
     secure: SecureOption = False,
     credentials: CredentialsOption = None,
     as_json: bool = typer.Option(False, "--json", help="print the team view as JSON"),
+    mode: ModeOption = None,
 ) -> None:
     """Show the team: robots, their load, running programs, blacklisted peers, the links
     each robot measured to its teammates and the work it learned of its programs.
@@ -223,7 +232,7 @@ def status(
 
     from rich.table import Table
 
-    t = _connect_team(team, None, connect, multicast, 5.0, secure=secure, credentials=credentials)
+    t = _connect_team(team, None, connect, multicast, 5.0, secure=secure, credentials=credentials, mode=mode)
     try:
         _time.sleep(wait)
         st = t.status()

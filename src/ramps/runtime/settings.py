@@ -14,6 +14,14 @@ The defaults work on a laptop: peer mode, listen on a free port of every
 interface, find teammates by multicast scouting. On a network without
 multicast, give each robot ``--connect`` endpoints of one or more others.
 
+Sites (docs/sites-and-routers.md): ``mode`` is Zenoh's mode, ``peer``
+(links straight to every teammate it finds) or ``client`` (links to one
+router only and reaches the team through it). ``ramps router`` opens a
+Zenoh router from the same settings (``router_config``). ``zenoh`` holds
+raw Zenoh settings applied last, by path (``[zenoh]`` table, ``--zenoh
+KEY=VALUE``); the keys ramps sets from its own settings and, on a secured
+team, the TLS and access-control keys are refused (``check_zenoh_overrides``).
+
 A config file looks like::
 
     robot = "r1"
@@ -28,6 +36,9 @@ A config file looks like::
 
     [core]              # ramps.core.config.RampsConfig
     heartbeat_timeout = 2.0
+
+    [zenoh]             # raw Zenoh settings, applied last (paths or nested tables)
+    "transport/link/tx/batch_size" = 8192
 """
 
 from __future__ import annotations
@@ -78,9 +89,85 @@ def parse_commands(items: list[str]) -> dict[str, CommandEntry]:
     return out
 
 
+#: Zenoh modes a node or client may take (a router is ``ramps router``)
+MODES = ("peer", "client")
+
+#: raw Zenoh keys ramps sets from its own settings: refused in ``zenoh`` (use the setting)
+OWN_ZENOH_KEYS = {"mode": "--mode", "listen/endpoints": "--listen", "connect/endpoints": "--connect",
+                  "scouting/multicast/enabled": "--multicast/--no-multicast", "transport/link/tx/lease": "--lease-ms",
+                  "transport/shared_memory/enabled": "shared_memory"}
+#: raw Zenoh keys a secured team's TLS and access control live under: refused when ``secure``
+SECURE_ZENOH_PREFIXES = ("access_control", "transport/link/tls", "transport/link/protocols", "transport/auth")
+
+
+def flatten_zenoh(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"transport": {"link": {"tx": {"batch_size": 8192}}}}`` or
+    ``{"transport/link/tx/batch_size": 8192}`` -> ``{"transport/link/tx/batch_size": 8192}``:
+    one entry per leaf, so an override replaces that value only, never a whole subtree."""
+    out: dict[str, Any] = {}
+    for k, v in table.items():
+        key = f"{prefix}/{k.strip('/')}" if prefix else k.strip("/")
+        if isinstance(v, dict) and v:
+            out.update(flatten_zenoh(v, key))
+        else:
+            out[key] = v
+    return out
+
+
+def parse_zenoh_overrides(items: list[str]) -> dict[str, Any]:
+    """``["transport/link/tx/batch_size=8192", ...]`` (``--zenoh``): the value is
+    JSON (a number, true, a list, a quoted string) or else taken as a plain string."""
+    import json
+
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, raw = item.partition("=")
+        if not sep or not key.strip() or not raw.strip():
+            raise ConfigError(f"--zenoh must look like KEY=VALUE, e.g. transport/link/tx/batch_size=8192, got {item!r}")
+        try:
+            out[key.strip().strip("/")] = json.loads(raw)
+        except json.JSONDecodeError:
+            out[key.strip().strip("/")] = raw.strip()
+    return out
+
+
+def check_zenoh_overrides(table: dict[str, Any], *, secure: bool) -> dict[str, Any]:
+    """The leaves of a ``zenoh`` table, checked: no key that ramps sets from its own
+    settings, none that would weaken a secured team, and each one accepted by
+    Zenoh itself (its key and value). Raises ValueError naming the key."""
+    import json
+
+    flat = flatten_zenoh(table)
+    if not flat:
+        return flat
+    import zenoh
+
+    probe = zenoh.Config()
+    for key, value in flat.items():
+        if key in OWN_ZENOH_KEYS:
+            raise ValueError(f"zenoh setting {key} is ramps's own: use {OWN_ZENOH_KEYS[key]} instead")
+        if secure and any(key == p or key.startswith(p + "/") for p in SECURE_ZENOH_PREFIXES):
+            raise ValueError(f"zenoh setting {key} is refused on a secured team: it would change the team's "
+                             "TLS or access control (ramps.runtime.admission sets them)")
+        try:
+            probe.insert_json5(key, json.dumps(value))
+        except (zenoh.ZError, TypeError, ValueError) as exc:
+            why = str(exc).split(" at /")[0].removeprefix('Str("').removesuffix('")')
+            raise ValueError(f"zenoh setting {key} = {json.dumps(value, default=str)}: Zenoh refused it "
+                             f"({why})") from None
+    return flat
+
+
 class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     robot: str = ""
     team: str = "lab"
+    #: Zenoh mode. "peer" (default): links straight to every teammate it finds
+    #: (multicast, gossip, --connect), the robots of one network. "client": links
+    #: to one router only (--connect tcp/ROUTER:7447, or found by multicast) and
+    #: reaches every teammate through it: robots that cannot or should not link
+    #: to each other (client-isolated WiFi, many robots, another site reached
+    #: only through routers). A client does not listen. See docs/sites-and-routers.md
+    mode: str = "peer"
     #: Zenoh endpoints to listen on and to connect to
     listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/0.0.0.0:0"])
     connect: list[str] = []
@@ -151,6 +238,9 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     #: secure mode: robots admitted by certificate common name (default: any
     #: holder of a certificate from the team CA)
     members: list[str] = []
+    #: raw Zenoh settings applied last, by path ("transport/link/tx/batch_size")
+    #: or as nested tables; see ``check_zenoh_overrides`` for what is refused
+    zenoh: dict[str, Any] = {}
 
     def __post_init__(self) -> None:
         if self.robot:
@@ -178,8 +268,24 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
 
             parse_address(self.metrics)  # raises ValueError with a message
         self._check_security()
+        self._check_mode()
+        check_zenoh_overrides(self.zenoh, secure=self.secure)
+
+    def _check_mode(self) -> None:
+        if self.mode not in MODES:
+            hint = " (a router is `ramps router`)" if self.mode == "router" else ""
+            raise ValueError(f"mode must be peer or client, got {self.mode!r}{hint}")
+        if self.mode == "client":
+            if [e for e in self.listen if e != DEFAULT_LISTEN]:
+                raise ValueError("client mode does not listen (it reaches the team through its router): "
+                                 "drop --listen, or use --mode peer")
+            if not self.connect and not self.multicast:
+                raise ValueError("client mode needs a router: --connect tcp/ROUTER:7447 (or multicast "
+                                 "scouting on, to find one on this network)")
 
     def _check_security(self) -> None:
+        for e in self.listen + self.connect:
+            check_endpoint(e)
         for m in self.members:
             keys.check_name("member", m)
         for e in self.connect + [e for e in self.listen if e != DEFAULT_LISTEN]:
@@ -199,6 +305,29 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:0"
 DEFAULT_TLS_LISTEN = "tls/0.0.0.0:0"
+
+#: Zenoh link protocols whose address is HOST:PORT
+_IP_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")
+_OTHER_PROTOCOLS = ("unixsock-stream", "unixpipe", "serial", "vsock")
+
+
+def check_endpoint(endpoint: str) -> None:
+    """A Zenoh endpoint looks like ``tcp/192.168.1.12:7447`` (or ``tls/``, ``udp/``,
+    ``quic/``, ``ws/``; ``[::1]`` for IPv6; ``#iface=eth0`` or ``?`` options after it).
+    Raise ValueError saying what is wrong, before Zenoh sees it."""
+    proto, sep, addr = endpoint.partition("/")
+    example = "e.g. tcp/192.168.1.12:7447"
+    if not sep or not addr:
+        raise ValueError(f"endpoint {endpoint!r} must look like PROTOCOL/HOST:PORT, {example}")
+    if proto in _OTHER_PROTOCOLS:
+        return
+    if proto not in _IP_PROTOCOLS:
+        raise ValueError(f"endpoint {endpoint!r}: unknown protocol {proto!r} "
+                         f"(use one of {', '.join(_IP_PROTOCOLS + _OTHER_PROTOCOLS)}), {example}")
+    hostport = addr.split("#", 1)[0].split("?", 1)[0]
+    host, colon, port = hostport.rpartition(":")
+    if not colon or not host.strip("[]") or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise ValueError(f"endpoint {endpoint!r} needs a host and a port 0-65535 after {proto}/, {example}")
 
 
 _ENV = {
@@ -221,6 +350,7 @@ _ENV = {
     "RAMPS_TRACE": ("trace", str),
     "RAMPS_TRACE_WIRE": ("trace_wire", "bool"),
     "RAMPS_METRICS": ("metrics", str),
+    "RAMPS_MODE": ("mode", str),
 }
 
 
@@ -268,6 +398,8 @@ def load_settings(*, config_file: str | os.PathLike | None = None, flags: dict[s
     flags = dict(flags or {})
     if flags.get("commands") is not None:  # --command adds to the config file's commands
         flags["commands"] = {**data.get("commands", {}), **flags["commands"]}
+    if flags.get("zenoh") is not None:  # --zenoh adds to (and overrides) the config file's [zenoh]
+        flags["zenoh"] = {**flatten_zenoh(data.get("zenoh", {})), **flatten_zenoh(flags["zenoh"])}
     data.update({k: v for k, v in flags.items() if v is not None})
     if default_robot and not data.get("robot"):
         data["robot"] = keys.keys_safe_id(socket.gethostname())
@@ -283,7 +415,7 @@ AUTOCONNECT_ALWAYS = '{peer: {to_router: "always", to_peer: "always"}}'
 
 def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credentials=None,
                  exit_on_failure: bool = False):
-    """A Zenoh peer configuration for these settings.
+    """A Zenoh peer or client configuration for these settings (``s.mode``).
 
     Secure mode needs the checked ``credentials``
     (``ramps.runtime.security.Credentials``); ``exit_on_failure`` then makes
@@ -294,8 +426,9 @@ def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credential
 
     zenoh_runtime_defaults()
     c = zenoh.Config()
-    c.insert_json5("mode", '"peer"')
-    listening = s.listen_endpoints(listen)
+    c.insert_json5("mode", json.dumps(s.mode))
+    # a client links to its router only: it never listens
+    listening = [] if s.mode == "client" else s.listen_endpoints(listen)
     c.insert_json5("listen/endpoints", json.dumps(listening))
     c.insert_json5("connect/endpoints", json.dumps(s.connect))
     c.insert_json5("scouting/multicast/enabled", "true" if s.multicast else "false")
@@ -321,6 +454,59 @@ def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credential
         if exit_on_failure and s.connect:
             c.insert_json5("connect/exit_on_failure", "true")
             c.insert_json5("connect/timeout_ms", str(CONNECT_TIMEOUT_MS))
+    _apply_overrides(c, s)
+    return c
+
+
+def _apply_overrides(c, s: NodeSettings) -> None:
+    """``s.zenoh``, last: what the operator wrote wins over ramps's defaults."""
+    import json
+
+    for key, value in flatten_zenoh(s.zenoh).items():
+        c.insert_json5(key, json.dumps(value))
+
+
+#: where a router listens unless told (Zenoh's usual router port)
+DEFAULT_ROUTER_LISTEN = "tcp/0.0.0.0:7447"
+DEFAULT_ROUTER_TLS_LISTEN = "tls/0.0.0.0:7447"
+
+
+def router_listen(s: NodeSettings) -> list[str]:
+    """A router's listen endpoints: ``s.listen``, the node default (any port)
+    made the router's port 7447 (TLS on a secured team)."""
+    default = DEFAULT_ROUTER_TLS_LISTEN if s.secure else DEFAULT_ROUTER_LISTEN
+    return [default if e in (DEFAULT_LISTEN, DEFAULT_TLS_LISTEN) else e for e in s.listen]
+
+
+def router_config(s: NodeSettings, *, credentials=None, exit_on_failure: bool = False):
+    """A Zenoh router configuration for these settings (``ramps router``):
+    listen on ``router_listen(s)``, link to the routers of ``s.connect``
+    (other sites), the team's lease, and on a secured team the same TLS and
+    access control as its robots (``credentials``: the router's own bundle
+    from ``ramps team add``). ``s.mode`` is not used: this is a router."""
+    import json
+
+    import zenoh
+
+    zenoh_runtime_defaults()
+    c = zenoh.Config()
+    c.insert_json5("mode", '"router"')
+    c.insert_json5("listen/endpoints", json.dumps(router_listen(s)))
+    c.insert_json5("connect/endpoints", json.dumps(s.connect))
+    c.insert_json5("scouting/multicast/enabled", "true" if s.multicast else "false")
+    c.insert_json5("transport/link/tx/lease", str(s.lease_ms))
+    c.insert_json5("transport/link/tx/keep_alive", "4")
+    if s.secure:
+        from ramps.runtime.security import secure_zenoh_json
+
+        if credentials is None:
+            raise ValueError("secure mode: router_config needs the checked credentials")
+        for key, value in secure_zenoh_json(s.team, credentials, members=s.members).items():
+            c.insert_json5(key, json.dumps(value))
+        if exit_on_failure and s.connect:
+            c.insert_json5("connect/exit_on_failure", "true")
+            c.insert_json5("connect/timeout_ms", str(CONNECT_TIMEOUT_MS))
+    _apply_overrides(c, s)
     return c
 
 

@@ -143,7 +143,7 @@ class ZenohTransport:
             else:
                 session = zenoh.open(zenoh_config(settings, **extra))
         except zenoh.ZError as exc:
-            raise TransportError(str(exc)) from exc
+            raise TransportError(explain_open_error(settings, exc)) from exc
         return cls(session)
 
     def subscribe(self, key: str, callback: OnSample) -> Declared:
@@ -190,5 +190,20 @@ class ZenohTransport:
         self.session.close()
 
 
+def explain_open_error(settings: "NodeSettings", exc: Exception) -> str:
+    """Zenoh's words for a session that did not open, with what to do when we know.
+
+    A client (``mode = "client"``) opens only once it has linked to a router:
+    with none reachable Zenoh says "Unable to connect to any of [...]"."""
+    text = str(exc).split(" at /")[0]
+    if getattr(settings, "mode", "peer") == "client" and "Unable to connect" in text:
+        where = ", ".join(settings.connect) or "any router found by multicast scouting"
+        return (f"client mode: no router reachable at {where} ({text}); is `ramps router` running there, "
+                "and is the endpoint right? A client reaches its team only through a router")
+    if "Address already in use" in text or "address already in use" in text.lower():
+        return f"{text}: another process (a node, a router) already listens on that endpoint"
+    return text
+
+
 __all__ = ["Clock", "Declared", "OnAlive", "OnSample", "Publisher", "REAL_CLOCK", "RealClock", "Transport",
-           "ZenohTransport"]
+           "ZenohTransport", "explain_open_error"]
