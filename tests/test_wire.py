@@ -158,8 +158,11 @@ def test_lists_up_to_their_limit_pass_and_one_more_is_refused() -> None:
     assert len(decode(encode("h", hb)).msg.programs) == m.MAX_REFS
     text = _refused(encode("h", msgspec.structs.replace(hb, programs=hb.programs + [m.ProgramRef("p", 2)])))
     assert "$.msg.programs" in text
-    # a reference is exactly [id, attempt]
-    _refused(_raw({"type": "heartbeat", "host": "h", "incarnation": 1, "programs": [["p", 1, "extra"]]}),
+    # a reference is [id, attempt]; an item after them (a later minor's) is ignored
+    # (docs/wire-compatibility.md), one short is refused
+    got = decode(_raw({"type": "heartbeat", "host": "h", "incarnation": 1, "programs": [["p", 1, "extra"]]}))
+    assert got.msg.programs == [m.ProgramRef("p", 1)]
+    _refused(_raw({"type": "heartbeat", "host": "h", "incarnation": 1, "programs": [["p"]]}),
              "malformed|out of bounds")
 
 

@@ -10,7 +10,7 @@ Layout:
     ramps.cli          the ``ramps`` command
 """
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 
 def connect(*args, **kwargs):

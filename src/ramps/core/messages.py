@@ -3,7 +3,7 @@
 How this works: every message is a frozen msgspec Struct, tagged by ``type``,
 carried in an ``Envelope`` that names the protocol version and the sender.
 ``encode`` / ``decode`` are the only way bytes become messages: the size is
-checked before anything is parsed, the version before the body, and every
+checked before anything is parsed, the major version before the body, and every
 field against the limits its type declares (name and text lengths, payload
 sizes, list lengths, non-negative counts, finite floats, the physical bounds
 of a load report), which msgspec enforces while decoding. Anything that does
@@ -12,6 +12,16 @@ receiver counts it and drops it; it never takes a node down). Nothing is ever
 unpickled; program arguments and results travel as opaque ``bytes`` that the
 program's own schema decodes. Limits bind the receiver only: ``encode`` does
 not check them, so a sender stays cheap.
+
+Versions (docs/wire-compatibility.md): the protocol is major.minor. Nodes of
+one major share a team whatever their minors: a decoder ignores fields it
+does not know, ``encode`` leaves out every field at its default (so a
+message that uses nothing newer decodes even on protocol 1.0, ramps 0.1.0,
+which refuses unknown fields), and a message type it does not know is
+``UnknownMessageType``, skipped and counted. A message of another major is
+``VersionRefused``, naming both versions; neither is "malformed". Fields
+and types are never renamed, removed, retyped or given new defaults within
+a major; tests/golden holds every message as each release encoded it.
 
 Message flow (origin = the robot that submitted the program, host = the
 robot that runs it; a robot is both at once for its local programs):
@@ -37,12 +47,23 @@ from __future__ import annotations
 
 import re
 import sys
-from typing import Annotated, Union
+from typing import Annotated, TypeVar, Union
 
 import msgspec
 from msgspec import Meta
 
-PROTOCOL_VERSION = 1
+from ramps import __version__
+
+#: the protocol this code speaks, major.minor. 1.0 is ramps 0.1.0 (strict:
+#: it refuses unknown fields and types); 1.1 (ramps 0.2.0) adds nothing to
+#: the wire and decodes tolerantly. The envelope's ``v`` carries the major
+#: only, since 1.0 checks ``v == 1`` and refuses any other envelope field.
+PROTOCOL_MAJOR = 1
+PROTOCOL_MINOR = 1
+#: the envelope's ``v`` (kept under its old name for the fuzzers and tests)
+PROTOCOL_VERSION = PROTOCOL_MAJOR
+#: what this node says it speaks, e.g. "1.1"
+PROTOCOL = f"{PROTOCOL_MAJOR}.{PROTOCOL_MINOR}"
 
 #: largest encoded message a node accepts, bytes (arguments included)
 MAX_MESSAGE_BYTES = 8 * 1024 * 1024
@@ -78,7 +99,32 @@ class WireError(ValueError):
     """Bytes from the network that are not a valid message of this protocol."""
 
 
-class _Msg(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True, tag_field="type"):
+class VersionRefused(WireError):
+    """A message of another major protocol version: not malformed, not
+    understood. ``version`` is its major, ``minor`` and ``release`` what its
+    envelope said of itself (a node of major 2 or later may say it), and
+    ``sender`` the robot it claims to come from (unchecked; "" if unusable)."""
+
+    def __init__(self, text: str, *, version: int, minor: int | None, release: str, sender: str) -> None:
+        super().__init__(text)
+        self.version, self.minor, self.release, self.sender = version, minor, release, sender
+
+    @property
+    def speaks(self) -> str:
+        """The other node's protocol, as far as its message says: "2" or "2.3"."""
+        return f"{self.version}" if self.minor is None else f"{self.version}.{self.minor}"
+
+
+class UnknownMessageType(WireError):
+    """A message of this major whose type this node does not know: a newer
+    minor's addition, which by the policy an older node may skip."""
+
+    def __init__(self, text: str, *, tag: str, sender: str) -> None:
+        super().__init__(text)
+        self.tag, self.sender = tag, sender
+
+
+class _Msg(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True, tag_field="type"):
     pass
 
 
@@ -114,7 +160,7 @@ ProgressText = Annotated[str, Meta(max_length=MAX_PROGRESS_TEXT)]
 CheckpointState = Annotated[bytes, Meta(max_length=MAX_CHECKPOINT_BYTES)]
 
 
-class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="load"):
+class LoadReport(_Msg, frozen=True, kw_only=True, tag="load"):
     """A robot's load, as published by its load publisher."""
 
     robot: RobotName
@@ -144,8 +190,8 @@ class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, ta
     load_avg: Load = 0.0
     #: robots this robot's load server has written off (for ``ramps status``)
     blacklisted: Annotated[list[RobotName], Meta(max_length=MAX_REFS)] = []
-    #: malformed messages this node dropped since it started (undecodable,
-    #: another protocol version, a load report about another robot)
+    #: messages this node dropped since it started (undecodable, another
+    #: major protocol version, an unknown type, a load report about another robot)
     bad_messages: Count = 0
     #: the scheduler weight of this robot's ramps programs against its own
     #: software (CFS: nice 10 workers weigh 110/1024 of a nice-0 process), so
@@ -176,7 +222,7 @@ class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, ta
     moves_aborted: Count = 0
 
 
-class LinkSeen(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
+class LinkSeen(msgspec.Struct, frozen=True, array_like=True):
     """A teammate as a load report lists it: [teammate, one-way latency in
     s, bandwidth in bytes/s, how fast it runs programs relative to the speed
     it reports, as this robot's results showed (``ramps.core.speed``)], None
@@ -188,14 +234,14 @@ class LinkSeen(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fiel
     speed_factor: Amount | None = None
 
 
-class LearnedWork(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
+class LearnedWork(msgspec.Struct, frozen=True, array_like=True):
     """A program's work as its origin learned it from completed runs: [program, work units]."""
 
     program: Name
     work: Amount
 
 
-class RunningProgram(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
+class RunningProgram(msgspec.Struct, frozen=True, array_like=True):
     """A program a host runs, as its load report lists it: [program, origin, progress]."""
 
     program: Name
@@ -204,7 +250,7 @@ class RunningProgram(msgspec.Struct, frozen=True, array_like=True, forbid_unknow
     progress: Fraction | None = None
 
 
-class OffloadRequest(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="offload"):
+class OffloadRequest(_Msg, frozen=True, kw_only=True, tag="offload"):
     program_id: Name
     attempt: Count
     origin: RobotName
@@ -232,7 +278,7 @@ class OffloadRequest(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True
     resume_fraction: Fraction = 0.0
 
 
-class OffloadAccepted(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="accept"):
+class OffloadAccepted(_Msg, frozen=True, kw_only=True, tag="accept"):
     program_id: Name
     attempt: Count
     host: RobotName
@@ -240,7 +286,7 @@ class OffloadAccepted(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=Tru
     accept_seq: Count
 
 
-class OffloadRejected(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="reject"):
+class OffloadRejected(_Msg, frozen=True, kw_only=True, tag="reject"):
     program_id: Name
     attempt: Count
     host: RobotName
@@ -252,18 +298,18 @@ class OffloadRejected(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=Tru
     report: LoadReport | None = None
 
 
-class ProgramRef(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
+class ProgramRef(msgspec.Struct, frozen=True, array_like=True):
     program_id: Name
     attempt: Count
 
 
-class Heartbeat(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="heartbeat"):
+class Heartbeat(_Msg, frozen=True, kw_only=True, tag="heartbeat"):
     host: RobotName
     incarnation: Count
     programs: Annotated[list[ProgramRef], Meta(max_length=MAX_REFS)]
 
 
-class ProgramResult(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="result"):
+class ProgramResult(_Msg, frozen=True, kw_only=True, tag="result"):
     program_id: Name
     attempt: Count
     host: RobotName
@@ -282,19 +328,19 @@ class ProgramResult(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True,
     work_done: Amount | None = None
 
 
-class ResultAck(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="ack"):
+class ResultAck(_Msg, frozen=True, kw_only=True, tag="ack"):
     program_id: Name
     attempt: Count
     origin: RobotName
 
 
-class CancelProgram(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="cancel"):
+class CancelProgram(_Msg, frozen=True, kw_only=True, tag="cancel"):
     program_id: Name
     attempt: Count
     origin: RobotName
 
 
-class SubmitProgram(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="submit"):
+class SubmitProgram(_Msg, frozen=True, kw_only=True, tag="submit"):
     """An application (client) asks its robot's node to run a program."""
 
     client: RobotName
@@ -309,12 +355,12 @@ class SubmitProgram(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True,
     policy: Word = ""
 
 
-class CancelSubmitted(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="withdraw"):
+class CancelSubmitted(_Msg, frozen=True, kw_only=True, tag="withdraw"):
     client: RobotName
     request_id: Count
 
 
-class ProgramOutcome(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="outcome"):
+class ProgramOutcome(_Msg, frozen=True, kw_only=True, tag="outcome"):
     """The one result (or error) of a submitted program, for its client."""
 
     request_id: Count
@@ -333,7 +379,7 @@ class ProgramOutcome(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True
     resumed_from: Fraction | None = None
 
 
-class ProgramProgress(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="progress"):
+class ProgramProgress(_Msg, frozen=True, kw_only=True, tag="progress"):
     """A running program said how far it is (host -> origin, at most once a
     heartbeat period per program; advisory: never resent)."""
 
@@ -344,7 +390,7 @@ class ProgramProgress(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=Tru
     detail: ProgressText = ""
 
 
-class ProgramCheckpoint(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="checkpoint"):
+class ProgramCheckpoint(_Msg, frozen=True, kw_only=True, tag="checkpoint"):
     """A running program saved its state (host -> origin): the origin keeps
     the latest and sends it with the program when it moves or restarts
     after a failure, so the program resumes instead of starting over."""
@@ -357,7 +403,7 @@ class ProgramCheckpoint(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=T
     fraction: Fraction | None = None
 
 
-class ProgramUpdate(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="update"):
+class ProgramUpdate(_Msg, frozen=True, kw_only=True, tag="update"):
     """Where a submitted program stands, for its client (node -> client;
     advisory, the one ``ProgramOutcome`` still ends it). ``state`` is
     "placed" (offered to ``host``), "running" (``host`` accepted it),
@@ -373,7 +419,7 @@ class ProgramUpdate(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True,
     detail: ProgressText = ""
 
 
-class LinkProbe(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="probe"):
+class LinkProbe(_Msg, frozen=True, kw_only=True, tag="probe"):
     """How long a message takes to a teammate and back (``ramps.core.links``);
     ``sent_at`` is the sender's own clock, echoed, and ``padding`` bytes
     (sometimes) measure the link's bandwidth."""
@@ -382,7 +428,7 @@ class LinkProbe(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag
     padding: Annotated[bytes, Meta(max_length=MAX_PROBE_BYTES)] = b""
 
 
-class LinkProbeReply(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="probe_reply"):
+class LinkProbeReply(_Msg, frozen=True, kw_only=True, tag="probe_reply"):
     sent_at: Amount
     #: padding bytes the probe carried
     size: Annotated[int, Meta(ge=0, le=MAX_PROBE_BYTES)] = 0
@@ -408,19 +454,47 @@ Message = Union[
 ]
 
 
-class Envelope(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+class Envelope(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
     v: int
     sender: RobotName
     msg: Message
 
 
-class _VersionOnly(msgspec.Struct):
-    v: int
+class _Head(msgspec.Struct):
+    """What decode reads before the body: the major version, and for a
+    message of another major whatever it says of its sender and itself
+    (raw, so a future envelope of any shape still gets its version named)."""
 
+    v: int
+    sender: msgspec.Raw = msgspec.Raw(b"")
+    minor: msgspec.Raw = msgspec.Raw(b"")
+    release: msgspec.Raw = msgspec.Raw(b"")
+
+
+class _TypeOnly(msgspec.Struct):
+    type: Annotated[str, Meta(max_length=MAX_NAME)]
+
+
+class _Unknown(msgspec.Struct):
+    """An envelope of this major whose message type is all that is read."""
+
+    v: int
+    sender: RobotName
+    msg: _TypeOnly
+
+
+#: every message type this node knows, by its tag
+KNOWN_TYPES: frozenset[str] = frozenset(
+    t.__struct_config__.tag for t in Message.__args__  # type: ignore[attr-defined]
+)
 
 _encoder = msgspec.msgpack.Encoder()
 _envelope_decoder = msgspec.msgpack.Decoder(Envelope)
-_version_decoder = msgspec.msgpack.Decoder(_VersionOnly)
+_head_decoder = msgspec.msgpack.Decoder(_Head)
+_unknown_decoder = msgspec.msgpack.Decoder(_Unknown)
+_name_decoder = msgspec.msgpack.Decoder(RobotName)
+_minor_decoder = msgspec.msgpack.Decoder(Annotated[int, Meta(ge=0, lt=1 << 16)])
+_release_decoder = msgspec.msgpack.Decoder(Annotated[str, Meta(max_length=32, pattern=r"\A[0-9A-Za-z.+-]*\Z")])
 #: how msgspec words a value outside its field's declared limits
 _CONSTRAINT = re.compile(r"Expected `[a-z]+` (of length|matching|[<>]=?)")
 #: every way msgspec says "not this schema": its own errors, and two it lets
@@ -430,33 +504,77 @@ _DECODE_ERRORS = (msgspec.DecodeError, msgspec.ValidationError, UnicodeDecodeErr
 
 
 def encode(sender: str, msg: Message) -> bytes:
-    """Encode a message for the wire."""
-    return _encoder.encode(Envelope(v=PROTOCOL_VERSION, sender=sender, msg=msg))
+    """Encode a message for the wire: ``v`` is the major, and fields at their
+    defaults are left out (what a 1.0 node can decode, docs/wire-compatibility.md)."""
+    return _encoder.encode(Envelope(v=PROTOCOL_MAJOR, sender=sender, msg=msg))
 
 
 def decode(data: bytes, *, max_bytes: int = MAX_MESSAGE_BYTES) -> Envelope:
     """Decode bytes from the network, or raise WireError saying why not.
 
-    In order: the size (before anything is parsed), the protocol version
-    (before the body, so another version's message is named as such), then
-    the body against the schema with every field's limits."""
+    In order: the size (before anything is parsed), the major version
+    (before the body, so another version's message is ``VersionRefused``
+    naming both), then the body against the schema with every field's
+    limits; fields this node does not know are ignored, and a type it does
+    not know is ``UnknownMessageType``."""
     if len(data) > max_bytes:
         raise WireError(f"message of {len(data)} bytes exceeds the limit of {max_bytes} bytes")
     try:
-        version = _version_decoder.decode(data).v
+        head = _head_decoder.decode(data)
     except _DECODE_ERRORS as exc:
         raise WireError(f"not a ramps message: {_why(exc)}") from exc
-    if version != PROTOCOL_VERSION:
-        raise WireError(
-            f"protocol version mismatch: message is version {version}, "
-            f"this node speaks version {PROTOCOL_VERSION}"
-        )
+    if head.v != PROTOCOL_MAJOR:
+        raise _refused(head)
     try:
         return _envelope_decoder.decode(data)
     except _DECODE_ERRORS as exc:
-        if isinstance(exc, msgspec.ValidationError) and _CONSTRAINT.match(str(exc)):
-            raise WireError(f"ramps message field out of bounds: {exc}") from exc
+        if isinstance(exc, msgspec.ValidationError):
+            if _CONSTRAINT.match(str(exc)):
+                raise WireError(f"ramps message field out of bounds: {exc}") from exc
+            unknown = _unknown_type(data)
+            if unknown is not None:
+                raise unknown from exc
         raise WireError(f"malformed ramps message: {_why(exc)}") from exc
+
+
+_T = TypeVar("_T")
+
+
+def _optional(decoder: msgspec.msgpack.Decoder[_T], raw: msgspec.Raw) -> _T | None:
+    """What ``raw`` holds if the decoder accepts it, else None (absent, or not sane)."""
+    if not len(raw):
+        return None
+    try:
+        return decoder.decode(raw)
+    except _DECODE_ERRORS:
+        return None
+
+
+def _refused(head: _Head) -> VersionRefused:
+    sender = _optional(_name_decoder, head.sender) or ""
+    minor = _optional(_minor_decoder, head.minor)
+    release = _optional(_release_decoder, head.release) or ""
+    speaks = f"{head.v}" if minor is None else f"{head.v}.{minor}"
+    whose = f"sent by {sender!r}" if sender else "from a node that gave no usable name"
+    rel = f" (ramps {release})" if release else ""
+    return VersionRefused(
+        f"protocol version mismatch: message is version {speaks}, {whose}{rel}; this node speaks version "
+        f"{PROTOCOL} (ramps {__version__}); another major version is refused (docs/wire-compatibility.md)",
+        version=head.v, minor=minor, release=release, sender=sender)
+
+
+def _unknown_type(data: bytes) -> UnknownMessageType | None:
+    """A well-formed envelope of this major whose message type is unknown
+    here (a newer minor's), or None if the failure was anything else."""
+    try:
+        env = _unknown_decoder.decode(data)
+    except _DECODE_ERRORS:
+        return None
+    if env.msg.type in KNOWN_TYPES:
+        return None
+    return UnknownMessageType(
+        f"unknown message type {env.msg.type!r} from {env.sender!r} (a newer protocol {PROTOCOL_MAJOR}.x "
+        f"node's, skipped; this node speaks {PROTOCOL})", tag=env.msg.type, sender=env.sender)
 
 
 def _why(exc: Exception) -> str:

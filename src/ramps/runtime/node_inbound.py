@@ -3,13 +3,16 @@
 How this works: ``NodeRuntime`` (``ramps.runtime.node``) takes each queued
 item on its driver thread and hands it to ``_handle`` here: bytes from the
 wire are decoded (a bad message is counted and dropped, one log line a
-period), a client's submission goes to ``ramps.runtime.node_clients``, a
-teammate's message, a program's end or progress to the core. A teammate's
-liveliness becomes ``PeerAlive``/``PeerLost`` for the core, except that
-just after this node stalled a loss is held for ``STALL_GRACE`` (it may be
-only the teammate's lease on this frozen node that ran out). On a secured
-team, a newer revocation list signed by the team CA shuts the robots it
-names out (or makes this robot leave).
+period; a message of another major protocol version is refused, counted
+apart too, and logged naming both versions the first time each robot sends
+one; a message type of a newer minor is skipped likewise), a client's
+submission goes to ``ramps.runtime.node_clients``, a teammate's message,
+a program's end or progress to the core. A teammate's liveliness becomes
+``PeerAlive``/``PeerLost`` for the core, except that just after this node
+stalled a loss is held for ``STALL_GRACE`` (it may be only the teammate's
+lease on this frozen node that ran out). On a secured team, a newer
+revocation list signed by the team CA shuts the robots it names out (or
+makes this robot leave).
 """
 
 from __future__ import annotations
@@ -29,6 +32,8 @@ from ramps.core.messages import (
     ProgramOutcome,
     ProgramUpdate,
     SubmitProgram,
+    UnknownMessageType,
+    VersionRefused,
     WireError,
     decode,
 )
@@ -43,10 +48,20 @@ DROP_LOG_PERIOD = 1.0
 #: in case it is only its lease on this stalled node that ran out (the core
 #: does not count a teammate's silence for as long: ramps.core.relink)
 STALL_GRACE = RELINK_TIMEOUT
+#: (robot, version) pairs of refused versions and unknown types, each logged
+#: once; more than this (a hostile sender inventing names) are only counted
+VERSION_LOG_KEYS = 64
 
 
 class Inbound:
     """The driver's inputs (mixed into ``NodeRuntime``)."""
+
+    #: of the messages dropped (``bad_messages``), those refused as another
+    #: major protocol version and those skipped as a message type of a newer
+    #: minor (docs/wire-compatibility.md): logged as such, not as malformed
+    version_refused = 0
+    unknown_types = 0
+    _version_logged: frozenset = frozenset()
 
     def _on_liveliness(self, robot: str, alive: bool, now: float) -> list:
         """A teammate's liveliness token came or went. Just after this node
@@ -146,6 +161,14 @@ class Inbound:
                 out.extend(self._peer_event(robot, False, now))
         return out
 
+    def _log_version(self, sender: str, what: str, line: str) -> None:
+        """Log a refused version or an unknown type the first time a robot sends it."""
+        key = (sender, what)
+        if key in self._version_logged or len(self._version_logged) >= VERSION_LOG_KEYS:
+            return
+        self._version_logged = self._version_logged | {key}
+        log.warning("%s", line)
+
     def _handle(self, item: tuple, now: float) -> list:
         kind = item[0]
         node = self.node
@@ -153,6 +176,18 @@ class Inbound:
             self._backlog_bytes -= len(item[1])
             try:
                 env = decode(item[1])  # the wire limit; client arguments are checked on submit
+            except VersionRefused as exc:
+                self.bad_messages += 1  # dropped (`ramps status`), but not logged as malformed
+                self.version_refused += 1
+                self._log_version(exc.sender, f"protocol {exc.speaks}",
+                                  f"node {self.robot} refuses the messages of {exc.sender or 'a robot'!r}: {exc}; "
+                                  f"run one major protocol version in a team")
+                return []
+            except UnknownMessageType as exc:
+                self.bad_messages += 1
+                self.unknown_types += 1
+                self._log_version(exc.sender, exc.tag, f"node {self.robot} skipped a message: {exc}")
+                return []
             except WireError as exc:
                 self.bad_messages += 1
                 if now - self._drop_logged_at < DROP_LOG_PERIOD:

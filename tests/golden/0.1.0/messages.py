@@ -1,0 +1,486 @@
+"""Wire messages: everything one robot says to another.
+
+How this works: every message is a frozen msgspec Struct, tagged by ``type``,
+carried in an ``Envelope`` that names the protocol version and the sender.
+``encode`` / ``decode`` are the only way bytes become messages: the size is
+checked before anything is parsed, the version before the body, and every
+field against the limits its type declares (name and text lengths, payload
+sizes, list lengths, non-negative counts, finite floats, the physical bounds
+of a load report), which msgspec enforces while decoding. Anything that does
+not fit raises ``WireError`` and nothing else (a remote-input error: the
+receiver counts it and drops it; it never takes a node down). Nothing is ever
+unpickled; program arguments and results travel as opaque ``bytes`` that the
+program's own schema decodes. Limits bind the receiver only: ``encode`` does
+not check them, so a sender stays cheap.
+
+Message flow (origin = the robot that submitted the program, host = the
+robot that runs it; a robot is both at once for its local programs):
+
+    every robot  --LoadReport-->      every load server   (periodic, broadcast)
+    origin       --OffloadRequest-->  host
+    host         --OffloadAccepted--> origin   or  --OffloadRejected--> origin
+    host         --Heartbeat-->       origin   (periodic while programs run)
+    host         --ProgramResult-->   origin   (resent until acknowledged)
+    origin       --ResultAck-->       host
+    origin       --CancelProgram-->   host     (program done elsewhere / moved)
+    host         --ProgramProgress--> origin   (what the program reported, with heartbeats)
+    host         --ProgramCheckpoint--> origin (the program's latest saved state, for a restart)
+    robot        --LinkProbe-->       teammate --LinkProbeReply--> robot  (T_comm: latency, bandwidth)
+
+and between an application (client) and its robot's node:
+
+    client       --SubmitProgram-->   node     --ProgramOutcome--> client  (exactly one)
+    client       --CancelSubmitted--> node     --ProgramUpdate-->  client  (placed, running, progress)
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from typing import Annotated, Union
+
+import msgspec
+from msgspec import Meta
+
+PROTOCOL_VERSION = 1
+
+#: largest encoded message a node accepts, bytes (arguments included)
+MAX_MESSAGE_BYTES = 8 * 1024 * 1024
+#: longest robot, client, program and program-id name
+MAX_NAME = 128
+#: longest free text (a rejection's detail, a program's error)
+MAX_TEXT = 4096
+#: longest error in an outcome: it may quote a host's detail and a registry listing
+MAX_OUTCOME_TEXT = 64 * 1024
+#: most program references in a heartbeat, robots in a blacklist
+MAX_REFS = 100_000
+#: physical bounds of a load report: the cost model divides work by
+#: ``speed * min(1, cores / (runnable + 1))``, which must stay a positive float
+MAX_CORES = 1 << 16
+MIN_SPEED = 1e-9
+MAX_SPEED = 1e9
+#: run-queue lengths, busy cores, load averages and windows (seconds)
+MAX_LOAD = 1e9
+#: scheduler weights of programs against nice 0 (CFS: nice 19 .. nice -20)
+MIN_WEIGHT = 15 / 1024
+MAX_WEIGHT = 88761 / 1024
+#: longest progress text a program may attach to a fraction
+MAX_PROGRESS_TEXT = 256
+#: most running programs a load report lists
+MAX_LISTED = 256
+#: largest state a program may checkpoint (``ramps.checkpoint``), bytes
+MAX_CHECKPOINT_BYTES = 256 * 1024
+#: most padding a link probe may carry (bandwidth probes use ramps.core.links.PADDED_BYTES)
+MAX_PROBE_BYTES = 64 * 1024
+
+
+class WireError(ValueError):
+    """Bytes from the network that are not a valid message of this protocol."""
+
+
+class _Msg(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True, tag_field="type"):
+    pass
+
+
+# ---------------------------------------------------------------- field types
+# msgspec checks these while it decodes (never when a message is built), so a
+# message that breaks one is a WireError at the receiver and never reaches the
+# core. Robot and client names become Zenoh key chunks (``ramps/<team>/msg/<host>``):
+# a wildcard in one would make an honest node publish to every robot's inbox.
+_KEY_SAFE = r"\A[^*$?#\x00-\x1f\x7f]*\Z"
+#: a robot or client name
+RobotName = Annotated[str, Meta(min_length=1, max_length=MAX_NAME, pattern=_KEY_SAFE)]
+#: a robot name that may be empty (an outcome refused before any placement)
+OptRobotName = Annotated[str, Meta(max_length=MAX_NAME, pattern=_KEY_SAFE)]
+#: a program's name or id
+Name = Annotated[str, Meta(min_length=1, max_length=MAX_NAME)]
+#: a short keyword ("busy", "program", a policy name), may be empty
+Word = Annotated[str, Meta(max_length=MAX_NAME)]
+Text = Annotated[str, Meta(max_length=MAX_TEXT)]
+Payload = Annotated[bytes, Meta(max_length=MAX_MESSAGE_BYTES)]
+#: counters, sequence numbers, attempts, sizes
+Count = Annotated[int, Meta(ge=0)]
+#: a finite, non-negative float (NaN and infinities refused)
+Amount = Annotated[float, Meta(ge=0.0, le=sys.float_info.max)]
+Load = Annotated[float, Meta(ge=0.0, le=MAX_LOAD)]
+#: a scheduler weight relative to nice 0 (the kernel's range is 15/1024 .. 88761/1024)
+Weight = Annotated[float, Meta(ge=MIN_WEIGHT, le=MAX_WEIGHT)]
+Cores = Annotated[int, Meta(ge=1, le=MAX_CORES)]
+Speed = Annotated[float, Meta(ge=MIN_SPEED, le=MAX_SPEED)]
+#: how far a program is, 0..1
+Fraction = Annotated[float, Meta(ge=0.0, le=1.0)]
+ProgressText = Annotated[str, Meta(max_length=MAX_PROGRESS_TEXT)]
+#: a program's saved state (``ramps.checkpoint``)
+CheckpointState = Annotated[bytes, Meta(max_length=MAX_CHECKPOINT_BYTES)]
+
+
+class LoadReport(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="load"):
+    """A robot's load, as published by its load publisher."""
+
+    robot: RobotName
+    #: changes whenever the node restarts, so a report from a new life of a
+    #: robot is recognised even though its sequence numbers start over
+    incarnation: Count
+    seq: Count
+    cores: Cores
+    #: work units per second per core when the core is free
+    speed: Speed
+    #: busy cores averaged over the window (0..cores): the paper's CPU load
+    cpu_busy: Load
+    #: runnable tasks averaged over the window (run-queue length, like loadavg)
+    runnable: Load
+    #: ramps programs running at the moment of the report, and averaged
+    ramps_running: Count
+    ramps_avg: Load
+    #: monotonic counts of programs this incarnation accepted / finished, so
+    #: an origin can tell which of its bookings a report already includes
+    accepted_total: Count
+    finished_total: Count
+    window: Load = 1.0
+    #: bytes of memory available to new programs
+    mem_free: Count = 0
+    #: CPU use of each core over the window (0..1), and the 1-minute load average
+    cpu_per_core: Annotated[list[Load], Meta(max_length=MAX_CORES)] = []
+    load_avg: Load = 0.0
+    #: robots this robot's load server has written off (for ``ramps status``)
+    blacklisted: Annotated[list[RobotName], Meta(max_length=MAX_REFS)] = []
+    #: malformed messages this node dropped since it started (undecodable,
+    #: another protocol version, a load report about another robot)
+    bad_messages: Count = 0
+    #: the scheduler weight of this robot's ramps programs against its own
+    #: software (CFS: nice 10 workers weigh 110/1024 of a nice-0 process), so
+    #: an origin knows what share a program gets next to a busy robot's work
+    program_weight: Weight = 1.0
+    #: teammates this robot could place a program on when it reported (a
+    #: fresh report, neither blacklisted nor lost), so ``ramps status`` shows
+    #: a robot that does not see the whole team; None where not counted
+    sees: Count | None = None
+    #: the programs running here (at most MAX_LISTED), with their progress,
+    #: for ``ramps status`` and the ROS face's diagnostics
+    running: Annotated[list["RunningProgram"], Meta(max_length=MAX_LISTED)] = []
+    #: work units each running program has left by the host's estimate
+    #: (processor sharing since it started), smallest first: an origin's
+    #: T_there counts the programs that will end before a new one does
+    remaining: Annotated[list[Amount], Meta(max_length=MAX_LISTED)] = []
+    #: what this robot measured of its links to teammates (``ramps.core.links``)
+    #: and learned of its programs' work (at most MAX_LISTED each), for ``ramps status``
+    links: Annotated[list["LinkSeen"], Meta(max_length=MAX_LISTED)] = []
+    learned: Annotated[list["LearnedWork"], Meta(max_length=MAX_LISTED)] = []
+    #: cores of this robot its node itself used (its threads, not its programs),
+    #: averaged over about 10 s: the cost model takes them off the cores a
+    #: full robot's programs share (``LoadView.scan``)
+    node_cpu: Load = 0.0
+    #: programs of this robot moved while running since it started, and moves
+    #: abandoned (the new host refused or failed), for ``ramps status``
+    moves: Count = 0
+    moves_aborted: Count = 0
+
+
+class LinkSeen(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
+    """A teammate as a load report lists it: [teammate, one-way latency in
+    s, bandwidth in bytes/s, how fast it runs programs relative to the speed
+    it reports, as this robot's results showed (``ramps.core.speed``)], None
+    where not measured (or not corrected) yet."""
+
+    robot: RobotName
+    latency: Amount | None = None
+    bandwidth: Amount | None = None
+    speed_factor: Amount | None = None
+
+
+class LearnedWork(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
+    """A program's work as its origin learned it from completed runs: [program, work units]."""
+
+    program: Name
+    work: Amount
+
+
+class RunningProgram(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
+    """A program a host runs, as its load report lists it: [program, origin, progress]."""
+
+    program: Name
+    origin: RobotName
+    #: the newest progress it reported, None before any
+    progress: Fraction | None = None
+
+
+class OffloadRequest(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="offload"):
+    program_id: Name
+    attempt: Count
+    origin: RobotName
+    host: RobotName
+    program: Name
+    args: Payload = b""
+    #: declared size of the parameters (equals len(args) on a real robot)
+    payload_size: Count = 0
+    #: the origin's estimate of the work, so the host can report progress
+    work: Amount = 0.0
+    #: ramps negotiation: runnable tasks the origin expects on the host when
+    #: the program arrives; None = no admission check (other policies)
+    expected_runnable: Amount | None = None
+    #: ramps negotiation: the longest computation here (seconds) that still
+    #: beats the best other robot the origin could use; a host busier than
+    #: expected still takes the program if it computes it within this time
+    #: (eq. 1 checked against the host's true load)
+    time_budget: Amount | None = None
+    #: set after too many rejections: the host must take it
+    force: bool = False
+    #: the program's last checkpoint (a move or a restart after a failure):
+    #: the program reads it with ``ramps.resume()``; None = a fresh start
+    resume: CheckpointState | None = None
+    #: how far the program was when it saved ``resume`` (``work`` is what is left)
+    resume_fraction: Fraction = 0.0
+
+
+class OffloadAccepted(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="accept"):
+    program_id: Name
+    attempt: Count
+    host: RobotName
+    #: the host's accepted_total after taking this program
+    accept_seq: Count
+
+
+class OffloadRejected(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="reject"):
+    program_id: Name
+    attempt: Count
+    host: RobotName
+    #: "busy" (try elsewhere now), "unknown_program", "bad_request" (permanent)
+    reason: Word
+    permanent: bool
+    detail: Text = ""
+    #: the host's load right now, so the origin can place with fresh data
+    report: LoadReport | None = None
+
+
+class ProgramRef(msgspec.Struct, frozen=True, array_like=True, forbid_unknown_fields=True):
+    program_id: Name
+    attempt: Count
+
+
+class Heartbeat(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="heartbeat"):
+    host: RobotName
+    incarnation: Count
+    programs: Annotated[list[ProgramRef], Meta(max_length=MAX_REFS)]
+
+
+class ProgramResult(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="result"):
+    program_id: Name
+    attempt: Count
+    host: RobotName
+    ok: bool
+    value: Payload = b""
+    error: Text = ""
+    result_size: Count = 0
+    #: the worker died under the program (killed, out of memory): not the
+    #: program's own error, so the origin places it again
+    retryable: bool = False
+    #: the host's finished_total after this program ended
+    finish_seq: Count = 0
+    #: the work the program took by the host's estimate (its run time times
+    #: the share of a core processor sharing gave it, in work units), which
+    #: the origin learns from; None where the host did not estimate it
+    work_done: Amount | None = None
+
+
+class ResultAck(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="ack"):
+    program_id: Name
+    attempt: Count
+    origin: RobotName
+
+
+class CancelProgram(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="cancel"):
+    program_id: Name
+    attempt: Count
+    origin: RobotName
+
+
+class SubmitProgram(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="submit"):
+    """An application (client) asks its robot's node to run a program."""
+
+    client: RobotName
+    request_id: Count
+    program: Name
+    args: Payload = b""
+    #: expected work in work units (from the program's profile), 0 = default
+    work: Amount = 0.0
+    result_size: Count = 0
+    local_only: bool = False
+    #: placement policy for this program ("" = the node's own)
+    policy: Word = ""
+
+
+class CancelSubmitted(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="withdraw"):
+    client: RobotName
+    request_id: Count
+
+
+class ProgramOutcome(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="outcome"):
+    """The one result (or error) of a submitted program, for its client."""
+
+    request_id: Count
+    ok: bool
+    value: Payload = b""
+    error: Annotated[str, Meta(max_length=MAX_OUTCOME_TEXT)] = ""
+    #: "program" (the program raised), "refused" (no robot will run it),
+    #: "cancelled", "failed" (gave up after failures), "shutdown"
+    error_kind: Word = ""
+    host: OptRobotName = ""
+    attempts: Count = 0
+    #: times the program was relocated while running (moves after placement)
+    moves: Count = 0
+    #: the progress of the checkpoint its last attempt resumed from (None:
+    #: it ran from the start)
+    resumed_from: Fraction | None = None
+
+
+class ProgramProgress(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="progress"):
+    """A running program said how far it is (host -> origin, at most once a
+    heartbeat period per program; advisory: never resent)."""
+
+    program_id: Name
+    attempt: Count
+    host: RobotName
+    fraction: Fraction
+    detail: ProgressText = ""
+
+
+class ProgramCheckpoint(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="checkpoint"):
+    """A running program saved its state (host -> origin): the origin keeps
+    the latest and sends it with the program when it moves or restarts
+    after a failure, so the program resumes instead of starting over."""
+
+    program_id: Name
+    attempt: Count
+    host: RobotName
+    state: CheckpointState
+    #: the program's progress when it saved, None if it never reported any
+    fraction: Fraction | None = None
+
+
+class ProgramUpdate(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="update"):
+    """Where a submitted program stands, for its client (node -> client;
+    advisory, the one ``ProgramOutcome`` still ends it). ``state`` is
+    "placed" (offered to ``host``), "running" (``host`` accepted it),
+    "replaced" (offered again after a failure or a refusal), "host_failed"
+    (``host`` was written off; it will be placed again) or "progress"."""
+
+    request_id: Count
+    state: Word
+    host: OptRobotName = ""
+    attempt: Count = 0
+    #: the latest progress the program reported (None: none yet)
+    fraction: Fraction | None = None
+    detail: ProgressText = ""
+
+
+class LinkProbe(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="probe"):
+    """How long a message takes to a teammate and back (``ramps.core.links``);
+    ``sent_at`` is the sender's own clock, echoed, and ``padding`` bytes
+    (sometimes) measure the link's bandwidth."""
+
+    sent_at: Amount
+    padding: Annotated[bytes, Meta(max_length=MAX_PROBE_BYTES)] = b""
+
+
+class LinkProbeReply(_Msg, frozen=True, kw_only=True, forbid_unknown_fields=True, tag="probe_reply"):
+    sent_at: Amount
+    #: padding bytes the probe carried
+    size: Annotated[int, Meta(ge=0, le=MAX_PROBE_BYTES)] = 0
+
+
+Message = Union[
+    LoadReport,
+    OffloadRequest,
+    OffloadAccepted,
+    OffloadRejected,
+    Heartbeat,
+    ProgramResult,
+    ResultAck,
+    CancelProgram,
+    SubmitProgram,
+    CancelSubmitted,
+    ProgramOutcome,
+    ProgramProgress,
+    ProgramUpdate,
+    LinkProbe,
+    LinkProbeReply,
+    ProgramCheckpoint,
+]
+
+
+class Envelope(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    v: int
+    sender: RobotName
+    msg: Message
+
+
+class _VersionOnly(msgspec.Struct):
+    v: int
+
+
+_encoder = msgspec.msgpack.Encoder()
+_envelope_decoder = msgspec.msgpack.Decoder(Envelope)
+_version_decoder = msgspec.msgpack.Decoder(_VersionOnly)
+#: how msgspec words a value outside its field's declared limits
+_CONSTRAINT = re.compile(r"Expected `[a-z]+` (of length|matching|[<>]=?)")
+#: every way msgspec says "not this schema": its own errors, and two it lets
+#: through (a string that is not UTF-8; absurdly deep nesting). Nothing else
+#: may escape ``decode`` (tests/test_fuzz.py, ``ramps bench fuzz``)
+_DECODE_ERRORS = (msgspec.DecodeError, msgspec.ValidationError, UnicodeDecodeError, RecursionError)
+
+
+def encode(sender: str, msg: Message) -> bytes:
+    """Encode a message for the wire."""
+    return _encoder.encode(Envelope(v=PROTOCOL_VERSION, sender=sender, msg=msg))
+
+
+def decode(data: bytes, *, max_bytes: int = MAX_MESSAGE_BYTES) -> Envelope:
+    """Decode bytes from the network, or raise WireError saying why not.
+
+    In order: the size (before anything is parsed), the protocol version
+    (before the body, so another version's message is named as such), then
+    the body against the schema with every field's limits."""
+    if len(data) > max_bytes:
+        raise WireError(f"message of {len(data)} bytes exceeds the limit of {max_bytes} bytes")
+    try:
+        version = _version_decoder.decode(data).v
+    except _DECODE_ERRORS as exc:
+        raise WireError(f"not a ramps message: {_why(exc)}") from exc
+    if version != PROTOCOL_VERSION:
+        raise WireError(
+            f"protocol version mismatch: message is version {version}, "
+            f"this node speaks version {PROTOCOL_VERSION}"
+        )
+    try:
+        return _envelope_decoder.decode(data)
+    except _DECODE_ERRORS as exc:
+        if isinstance(exc, msgspec.ValidationError) and _CONSTRAINT.match(str(exc)):
+            raise WireError(f"ramps message field out of bounds: {exc}") from exc
+        raise WireError(f"malformed ramps message: {_why(exc)}") from exc
+
+
+def _why(exc: Exception) -> str:
+    if isinstance(exc, RecursionError):
+        return "nested too deeply"
+    if isinstance(exc, UnicodeDecodeError):
+        return f"a string is not UTF-8 ({exc.reason})"
+    return str(exc)
+
+
+def wire_size(msg: Message) -> int:
+    """Bytes this message occupies on a link, counting declared payloads.
+
+    The simulator sends messages without encoding them; their declared
+    payload and result sizes stand in for the bytes a real robot would send.
+    """
+    if isinstance(msg, OffloadRequest):
+        return 120 + max(msg.payload_size, len(msg.args)) + len(msg.resume or b"")
+    if isinstance(msg, ProgramCheckpoint):
+        return 120 + len(msg.state)
+    if isinstance(msg, ProgramResult):
+        return 120 + max(msg.result_size, len(msg.value))
+    if isinstance(msg, Heartbeat):
+        return 40 + 24 * len(msg.programs)
+    if isinstance(msg, LinkProbe):
+        return 40 + len(msg.padding)
+    return 120

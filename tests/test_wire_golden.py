@@ -1,0 +1,127 @@
+"""Every message of the previous release decodes today, and what today sends
+decodes under the previous release's rules.
+
+How this works: ``tests/golden/<release>/`` holds one full and one minimal
+sample of every message type as that release's own encoder wrote them
+(``tests/golden/make_samples.py``, run against the release's tag), with their
+fields in ``manifest.json``. Today's decoder must read every sample, give
+every field the release set the same value, and leave every field added
+since at its default. ``tests/golden/0.1.0/messages.py`` is release 0.1.0's
+wire module itself (strict: exact version, no unknown field), kept so the
+other direction is checked with the previous release's real decoder: each
+sample decoded and re-encoded today must decode there to what 0.1.0's own
+bytes gave. docs/wire-compatibility.md is the policy these enforce.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+import typing
+from pathlib import Path
+
+import msgspec
+import pytest
+
+from ramps.core import messages as m
+
+GOLDEN = Path(__file__).resolve().parent / "golden"
+PREVIOUS = "0.1.0"
+
+
+def _manifest(release: str) -> dict:
+    return json.loads((GOLDEN / release / "manifest.json").read_text())
+
+
+def _old_wire(release: str):
+    """Release ``release``'s own wire module, loaded under a name of its own."""
+    name = "ramps_wire_" + release.replace(".", "_")
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, GOLDEN / release / "messages.py")
+        assert spec is not None and spec.loader is not None
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[name] = mod
+        spec.loader.exec_module(mod)
+    return sys.modules[name]
+
+
+MANIFEST = _manifest(PREVIOUS)
+NAMES = sorted(MANIFEST["samples"])
+
+
+def _plain(x):
+    """A message as JSON builtins with every field, defaults included (as
+    ``manifest.json`` has them; today's encoders leave defaults out)."""
+    if isinstance(x, msgspec.Struct):
+        cfg = x.__struct_config__
+        values = [_plain(getattr(x, f)) for f in x.__struct_fields__]
+        if cfg.array_like:
+            return values
+        d = dict(zip(x.__struct_fields__, values))
+        if cfg.tag_field is not None:
+            d[cfg.tag_field] = cfg.tag
+        return d
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    return json.loads(msgspec.json.encode(x))
+
+
+_fields = _plain
+
+
+def test_the_previous_release_is_what_its_samples_say() -> None:
+    assert (MANIFEST["release"], MANIFEST["protocol"]) == (PREVIOUS, "1.0")
+    assert (m.PROTOCOL_MAJOR, m.PROTOCOL) == (1, "1.1")  # a minor above it: the same team
+    old = _old_wire(PREVIOUS)
+    assert old.PROTOCOL_VERSION == m.PROTOCOL_MAJOR
+    # no message type was removed or renamed since, and each is sampled full and minimal
+    old_types = {t.__struct_config__.tag for t in typing.get_args(old.Message)}
+    assert old_types <= m.KNOWN_TYPES
+    assert {n.rsplit("-", 1)[0] for n in NAMES} == old_types and len(NAMES) == 2 * len(old_types)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_every_sample_of_the_previous_release_decodes_today(name: str) -> None:
+    data = (GOLDEN / PREVIOUS / f"{name}.msgpack").read_bytes()
+    env = m.decode(data)
+    assert env.sender == MANIFEST["sender"] and env.v == m.PROTOCOL_MAJOR
+    then = MANIFEST["samples"][name]
+    assert type(env.msg).__name__ == then["type"]
+    now = _fields(env.msg)
+    for key, value in then["fields"].items():
+        assert now.get(key) == value, f"{name}: field {key} was {value!r} in {PREVIOUS}, decodes as {now.get(key)!r}"
+    # fields added since the release are at their defaults (encode leaves them out)
+    added = set(now) - set(then["fields"])
+    assert _fields(type(env.msg)(**{k: getattr(env.msg, k) for k in env.msg.__struct_fields__
+                                    if k not in added})) == now
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_what_today_sends_decodes_under_the_previous_release(name: str) -> None:
+    old = _old_wire(PREVIOUS)
+    data = (GOLDEN / PREVIOUS / f"{name}.msgpack").read_bytes()
+    today = m.encode(MANIFEST["sender"], m.decode(data).msg)
+    assert old.decode(today) == old.decode(data)  # 0.1.0's strict decoder: no field it does not know
+    if name.endswith("-full"):
+        # every field set: today's bytes are 0.1.0's bytes exactly (new fields stay out at their defaults)
+        assert today == data
+
+
+def test_today_leaves_defaults_out_so_the_previous_release_fills_them_in() -> None:
+    old = _old_wire(PREVIOUS)
+    msg = m.OffloadRequest(program_id="p", attempt=1, origin="o", host="h", program="x")
+    body = msgspec.msgpack.decode(m.encode("o", msg))["msg"]
+    assert sorted(body) == ["attempt", "host", "origin", "program", "program_id", "type"]
+    assert _plain(old.decode(m.encode("o", msg)).msg) == _plain(msg)
+
+
+def test_the_previous_release_refuses_a_field_it_does_not_know() -> None:
+    """Why new fields must stay at their defaults while a team may hold a
+    0.1.0 node: it drops the whole message (the policy's one exception)."""
+    old = _old_wire(PREVIOUS)
+    raw = msgspec.msgpack.encode({"v": 1, "sender": "a", "msg": {"type": "ack", "program_id": "p", "attempt": 1,
+                                                                 "origin": "o", "since_1_1": 1}})
+    with pytest.raises(old.WireError, match="since_1_1"):
+        old.decode(raw)
+    assert m.decode(raw).msg == m.ResultAck(program_id="p", attempt=1, origin="o")
