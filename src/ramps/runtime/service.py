@@ -15,9 +15,9 @@ often it kills the node (SIGABRT) and, with ``Restart=``, starts it again.
 interval, so the node is restarted when its driver stalls (a deadlock, a
 callback that never returns, a loop that no longer turns), not only when the
 process dies. A small thread puts a no-op on the driver's queue when the loop
-has not turned for a quarter interval, so an idle node, whose loop sleeps
-until its next timer, still turns often enough; it never feeds the watchdog
-itself.
+has not turned for an eighth of the interval, so an idle node, whose loop
+sleeps until its next timer, still turns often enough; it never feeds the
+watchdog itself.
 
 Where no service manager listens (a container), ``$RAMPS_HEALTH_FILE`` names
 a file that the same driver loop touches every ``HEALTH_PERIOD`` seconds; the
@@ -139,11 +139,13 @@ class Watchdog:
 
     def start_waker(self, wake: Callable[[], None]) -> None:
         """A thread that calls ``wake()`` (put a no-op on the driver's queue)
-        when the loop has not turned for a quarter interval: an idle driver
-        sleeps until its next timer, possibly longer than the interval. It
-        never feeds the watchdog: a stalled driver leaves the no-ops queued."""
+        when the loop has not turned for an eighth of the interval: an idle
+        driver sleeps until its next timer, possibly longer than the interval.
+        So a healthy loop turns at least every quarter interval and is fed at
+        least every three quarters. It never feeds the watchdog: a stalled
+        driver leaves the no-ops queued."""
         def run() -> None:
-            step = self.interval / 4
+            step = self.interval / 8
             while not self._stop.wait(step):
                 if self.quiet_for() >= step:
                     try:
