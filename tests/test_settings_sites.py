@@ -138,6 +138,8 @@ def test_router_config_from_the_same_settings():
     assert get(c, "transport/link/tx/lease") == 1500 and get(c, "scouting/multicast/enabled") is False
     assert get(c, "transport/link/tx/batch_size") == 8192
     assert router_listen(settings(listen=["tcp/10.0.1.250:7000"])) == ["tcp/10.0.1.250:7000"]
+    # the testbed's routers share one host: large messages must cross their (slowed) link, not shared memory
+    assert get(router_config(settings(shared_memory=False)), "transport/shared_memory/enabled") is False
 
 
 def test_a_secured_router_holds_team_tls_and_the_acl(tmp_path: Path):

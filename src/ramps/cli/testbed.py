@@ -312,6 +312,9 @@ def testbed_experiment_slow_link(
          out_file=out_file)
 
 
+__import__("ramps.cli.sites", fromlist=["register"]).register(experiment_app)  # experiment sites
+
+
 @experiment_app.command("relocation")
 def testbed_experiment_relocation(
     robots: int = typer.Option(3, "--robots", min=2, max=10, help="emulated robots (r1 submits and gets busy)"),

@@ -496,6 +496,8 @@ def router_config(s: NodeSettings, *, credentials=None, exit_on_failure: bool = 
     c.insert_json5("scouting/multicast/enabled", "true" if s.multicast else "false")
     c.insert_json5("transport/link/tx/lease", str(s.lease_ms))
     c.insert_json5("transport/link/tx/keep_alive", "4")
+    if not s.shared_memory:  # two routers on one host (the testbed) would pass large messages around their link
+        c.insert_json5("transport/shared_memory/enabled", "false")
     if s.secure:
         from ramps.runtime.security import secure_zenoh_json
 
