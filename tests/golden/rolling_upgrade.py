@@ -45,11 +45,12 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--robots", type=int, default=4)
     ap.add_argument("--gap", type=float, default=4.0, help="seconds between two upgrades")
-    ap.add_argument("--spin", type=float, default=0.3, help="CPU seconds per program")
-    ap.add_argument("--rate", type=float, default=4.0, help="programs submitted per second")
+    ap.add_argument("--spin", type=float, default=0.2, help="CPU seconds per program")
+    ap.add_argument("--rate", type=float, default=1.0, help="programs submitted per second")
     ap.add_argument("--to", choices=("new", "old"), default="new",
                     help="restart the nodes as today's code (an upgrade) or as 0.1.0 again (the baseline)")
-    ap.add_argument("--timeout", type=float, default=60.0, help="each program's timeout, s")
+    ap.add_argument("--timeout", type=float, default=0.0, help="each program's timeout, s (0: none)")
+    ap.add_argument("--wait", type=float, default=600.0, help="longest wait for every outcome once the roll is over")
     a = ap.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="ramps-roll-"))
     data = subprocess.run(["git", "-C", str(REPO), "archive", "v0.1.0", "src", "tests/e2eprogs.py"],
@@ -67,14 +68,17 @@ def main() -> None:
             t.start_node(n, extra_env=old_env, wait=False)
         t.wait_visible(names)
         team = t.client("r1")
-        futs: list[tuple[str, object]] = []
+        futs: list[tuple[str, float, object]] = []
         phase = ["all 0.1.0"]
         stop = threading.Event()
+        done_at: dict[int, float] = {}
 
         def submit() -> None:
             i = 0
             while not stop.is_set():
-                futs.append((phase[0], team.options(policy="round_robin", timeout=a.timeout).submit("spin", seconds=a.spin)))
+                fut = team.options(policy="round_robin", timeout=a.timeout or None).submit("spin", seconds=a.spin)
+                fut.add_done_callback(lambda f: done_at.__setitem__(id(f), time.monotonic()))
+                futs.append((phase[0], time.monotonic(), fut))
                 i += 1
                 time.sleep(1.0 / a.rate)
 
@@ -96,14 +100,16 @@ def main() -> None:
         th.join()
         rolled = time.monotonic() - started
         results = []
-        for ph, f in futs:
+        deadline = time.monotonic() + a.wait
+        for ph, at, f in futs:
             try:
-                host = f.result(timeout=a.timeout + 30)
-                results.append((ph, host, release.get(host), None))
+                host = f.result(timeout=max(0.0, deadline - time.monotonic()))
+                # the host's release when every outcome was in
+                results.append((ph, host, release.get(host), None, done_at.get(id(f), time.monotonic()) - at))
             except Exception as exc:  # noqa: BLE001 - counted and printed
-                results.append((ph, None, None, f"{type(exc).__name__}: {exc}"[:200]))
+                results.append((ph, None, None, f"{type(exc).__name__}: {exc}"[:200], None))
         ran_on = Counter()
-        for ph, host, rel, err in results:
+        for ph, host, rel, err, _ in results:
             ran_on[(host, rel)] += 1
         # r1 last: its own programs are all in
         t0 = time.monotonic()
@@ -113,15 +119,19 @@ def main() -> None:
         release["r1"] = to_release
         upgrades.append({"robot": "r1", "seconds_out": round(time.monotonic() - t0, 2)})
         team = t.client("r1")
-        final = [team.options(policy="round_robin", timeout=a.timeout).submit("spin", seconds=a.spin) for _ in range(12)]
-        final_hosts = Counter(f.result(timeout=a.timeout + 30) for f in final)
+        rr = team.options(policy="round_robin", timeout=a.timeout or None)
+        final = [rr.submit("spin", seconds=a.spin) for _ in range(12)]
+        final_hosts = Counter(f.result(timeout=a.wait) for f in final)
         phases.append({"rolling": {"programs": len(results), "delivered": sum(1 for r in results if r[3] is None),
                                    "failed": dict(Counter(f"{r[0]}: {r[3]}" for r in results if r[3])),
                                    "seconds": round(rolled, 1),
                                    "per_second": round(len(results) / rolled, 2),
                                    "ran_on": {f"{h}@{rel}": c for (h, rel), c in sorted(ran_on.items(), key=str)},
                                    "by_phase": dict(Counter(r[0] for r in results))}})
-        phases.append({"all 0.2.0": {"programs": len(final), "delivered": sum(final_hosts.values()),
+        lat = sorted(r[4] for r in results if r[4] is not None)
+        q = (lambda p: round(lat[min(len(lat) - 1, int(p * len(lat)))], 2)) if lat else (lambda p: None)
+        phases[-1]["rolling"]["latency_s"] = {"median": q(0.5), "p90": q(0.9), "max": q(1.0)}
+        phases.append({f"all {to_release}": {"programs": len(final), "delivered": sum(final_hosts.values()),
                                      "ran_on": dict(final_hosts)}})
     finally:
         t.close()
