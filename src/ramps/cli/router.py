@@ -113,9 +113,9 @@ def router(
                 now = (len(links.routers), len(links.peers))
                 if now != seen:
                     err.print(f"linked to {now[0]} other router(s) and {now[1]} robot(s) in peer mode "
-                              "(robots in client mode are not counted)", highlight=False)
+                              "(robots in client mode are not counted)", highlight=False, soft_wrap=True)
                     seen = now
-        err.print("ramps router: stopped")
+        err.print("ramps router: stopped", highlight=False)
     finally:
         for sig, prev in old.items():
             signal.signal(sig, prev)
