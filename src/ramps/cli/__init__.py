@@ -8,6 +8,7 @@
     testbed.py   ramps testbed ...                  (the fault commands come from one table, FAULTS)
     team.py      ramps team init | add | show | revoke
     observe.py   ramps report | top, ramps bench metrics
+    config.py    ramps config check                 (a node's config file, with the node's own checks)
     ramps.ros.cli  ramps ros                         (rclpy only when it runs)
 
 Rules: the CLI parses, calls the library, prints. User mistakes (a bad
@@ -44,6 +45,7 @@ app.add_typer(bench_app, name="bench")
 app.add_typer(team_app, name="team")
 _register_observe(app)  # ramps report, ramps top
 _register_ros(app)  # ramps ros
+__import__("ramps.cli.config", fromlist=["register"]).register(app)  # ramps config check
 
 
 @app.command()

@@ -74,6 +74,7 @@ def node(
 
     from ramps.errors import RampsError
     from ramps.runtime.node import NodeRuntime, prioritize
+    from ramps.runtime.service import Service
 
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING, format="%(message)s",
                         handlers=[RichHandler(console=err, show_path=False)])
@@ -100,6 +101,7 @@ def node(
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     prioritize(s.node_nice)  # before the node starts its threads and workers: they inherit it
+    service = Service.from_environ()  # under systemd (Type=notify): readiness, status, watchdog
     try:
         rt = NodeRuntime(s).start()
     except RampsError as exc:
@@ -114,12 +116,16 @@ def node(
               highlight=False, soft_wrap=True)
     err.print(f"programs: {', '.join(sorted(rt.registry.names()))}. Ctrl-C to leave the team.", highlight=False,
               soft_wrap=True)
+    service.ready(f"robot {rt.robot} in team {rt.team}: {rt.cores} cores, speed {rt.speed:g}")
+    service.attach(rt)  # the watchdog is fed by the driver loop from now on
     try:
         while not stop.wait(0.5) and not rt.wait(0):
             pass
     finally:
+        service.stopping(f"robot {rt.robot} leaving team {rt.team}: handing running programs back")
         err.print(f"ramps node {rt.robot}: leaving the team, handing running programs back ...")
         rt.stop()
+        service.close()
     if rt.revoked_self:
         fail(f"robot {rt.robot} was revoked by team {rt.team} (revocation list {rt.revocations.seq if rt.revocations else '?'}): it left the team")
 

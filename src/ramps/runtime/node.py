@@ -182,6 +182,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self.revoked_self = False
         #: Prometheus metrics (``--metrics``), fed from the driver thread (ramps.observe.metrics)
         self.metrics = None
+        #: called on the driver thread after every round of its loop (systemd's watchdog, ramps.runtime.service)
+        self.on_turn: Callable[[], None] | None = None
 
     # ================================================================ lifecycle
     def start(self, *, threaded: bool = True) -> "NodeRuntime":
@@ -429,7 +431,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
 
     def _drive(self) -> None:
         while self._round(block=True):
-            pass
+            if self.on_turn is not None:
+                self.on_turn()
 
     def step(self) -> bool:
         """One round of the driver without waiting: every queued item, then
