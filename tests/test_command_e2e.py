@@ -277,7 +277,7 @@ def test_killed_robot_kills_its_executables_and_the_program_moves(team, client):
     victim = next(robot for _, _, robot in marks.values() if robot != "r1")
     doomed = [pid for shell, child, robot in marks.values() if robot == victim for pid in (shell, child)]
     # a client whose own node (the origin) dies is told so, not left waiting
-    orphan = t.client(victim).submit("hang", tag="orphan")
+    orphan = t.client(victim, origin_grace=5.0).submit("hang", tag="orphan")
     _marks(t, "orphan")
     for tag, (_, _, robot) in marks.items():
         if robot == victim:

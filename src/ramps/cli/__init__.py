@@ -24,6 +24,7 @@ import typer
 
 from ramps import __version__
 from ramps.cli.bench import bench_app
+from ramps.cli.config import register as _register_config
 from ramps.cli.common import out
 from ramps.cli.demo import demo
 from ramps.cli.node import node, status, submit
@@ -45,13 +46,15 @@ app.add_typer(bench_app, name="bench")
 app.add_typer(team_app, name="team")
 _register_observe(app)  # ramps report, ramps top
 _register_ros(app)  # ramps ros
-__import__("ramps.cli.config", fromlist=["register"]).register(app)  # ramps config check
+_register_config(app)  # ramps config check
 
 
 @app.command()
 def version() -> None:
-    """Print the ramps version."""
-    out.print(f"ramps {__version__}")
+    """Print the ramps version and the wire protocol it speaks (docs/wire-compatibility.md)."""
+    from ramps.core.messages import PROTOCOL
+
+    out.print(f"ramps {__version__} (protocol {PROTOCOL})")
 
 
 app.command()(node)

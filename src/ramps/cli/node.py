@@ -61,12 +61,18 @@ def node(
     metrics: Optional[str] = typer.Option(None, "--metrics", help="serve Prometheus metrics on ADDR:PORT, e.g. "
                                           "127.0.0.1:9464 or 0.0.0.0:9464 for a Prometheus elsewhere (default off; "
                                           "env RAMPS_METRICS)"),
+    state_dir: Optional[str] = typer.Option(None, "--state-dir", help="keep this robot's durable record of the "
+                                            "programs it submitted here, so a restarted node resumes them "
+                                            "(default: $STATE_DIRECTORY, else ~/.local/state/ramps; 'off': none; "
+                                            "env RAMPS_STATE_DIR)"),
     verbose: bool = typer.Option(False, "--verbose", "-v", help="log every blacklisting and failure"),
 ) -> None:
     """Run this robot's ramps node until Ctrl-C: load publisher, load server, program executor.
 
     On shutdown (Ctrl-C, SIGTERM) running programs are handed back to their origins, which
-    place them elsewhere at once.
+    place them elsewhere at once. Programs submitted to this node are kept in its durable
+    record (--state-dir): a node restarted, after a crash or a stop, resumes them, and
+    their clients receive their outcomes, each exactly once.
     """
     import logging
 
@@ -93,7 +99,11 @@ def node(
                   cores=cores, speed=speed, policy=policy, programs=program or None, config_file=config_file,
                   lease_ms=lease_ms, trace=str(trace) if trace else None, secure=secure or None,
                   credentials=str(credentials) if credentials else None, metrics=metrics, node_nice=node_nice,
-                  mode=mode, zenoh=zenoh_flags(zenoh))
+                  state_dir=state_dir, mode=mode, zenoh=zenoh_flags(zenoh))
+    if not s.state_dir:
+        from ramps.runtime.store import default_state_dir
+
+        s = msgspec.structs.replace(s, state_dir=str(default_state_dir()))
     import signal
     import threading
 

@@ -378,6 +378,82 @@ def testbed_experiment_speeds(
          out_file=out_file)
 
 
+@experiment_app.command("origin-restart")
+def testbed_experiment_origin_restart(
+    down: Optional[list[float]] = typer.Option(None, "--down", help="seconds the origin's node stays down before its supervisor starts it again (repeatable; default: 5 and 60)"),
+    cut: float = typer.Option(0.0, "--cut", min=0.0, help="also cut the origin robot's link for this many seconds from the crash"),
+    programs: int = typer.Option(15, "--programs", min=1, max=200, help="programs in flight when the node is killed"),
+    robots: int = typer.Option(5, "--robots", min=2, max=8, help="robots (r1 is the origin)"),
+    units: float = typer.Option(1.5, "--units", min=0.05, help="work units of each program"),
+    origin_hold: Optional[float] = typer.Option(None, "--origin-hold", min=0.0, help="seconds hosts keep an absent origin's programs (default: the node's, 30)"),
+    as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
+) -> None:
+    """Kill the origin's node (SIGKILL, the node alone) with programs in flight, start it again
+    DOWN s later as a supervisor would, and count what its waiting client receives: every program
+    once, with how many its hosts kept running through the crash and how many ran again."""
+    from ramps.errors import RampsError
+    from ramps.testbed.restart import run_origin_restart
+
+    runs = []
+    try:
+        for d in down or [5.0, 60.0]:
+            err.print(f"origin restart after {max(d, cut):g} s" + (f" (link cut {cut:g} s)" if cut else ""),
+                      highlight=False)
+            runs.append(run_origin_restart(d, cut=cut, programs=programs, robots=robots, units=units,
+                                           origin_hold=origin_hold, log=lambda m: err.print(m, highlight=False)))
+    except (PermissionError, RampsError, RuntimeError, TimeoutError) as exc:
+        fail(str(exc))
+
+    def table(r, console):
+        console.print(f"down {r.down:g} s, cut {r.cut:g} s: {r.delivered}/{r.programs} delivered, {r.lost} lost, "
+                      f"{r.duplicated} duplicated, {r.wrong} wrong; {r.kept} kept running by their hosts, "
+                      f"{r.again} placed again; {r.resumed} resumed from the record; last outcome "
+                      f"{r.seconds_to_last:g} s after the crash; before the crash: {r.before}"
+                      + (f"; first error: {r.error}" if r.error else ""), highlight=False, markup=False)
+
+    emit(runs, table, as_json=as_json, out_file=out_file)
+    if any(r.lost or r.duplicated or r.wrong for r in runs):
+        raise typer.Exit(1)
+
+
+@experiment_app.command("rolling-restart")
+def testbed_experiment_rolling_restart(
+    robots: int = typer.Option(8, "--robots", min=2, max=12, help="robots in the team"),
+    origins: int = typer.Option(3, "--origins", min=1, max=8, help="robots whose applications submit (r1..rN)"),
+    period: float = typer.Option(0.5, "--period", min=0.05, help="seconds between two submissions of each application"),
+    units: float = typer.Option(0.3, "--units", min=0.01, help="work units of each program"),
+    settle: float = typer.Option(15.0, "--settle", min=3.0, help="seconds of submissions before and after the roll"),
+    as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
+) -> None:
+    """Restart every node of the team one by one, as a rolling upgrade does (SIGTERM, start again,
+    wait until it is back; the origins last), while applications on ORIGINS robots submit
+    continuously; count lost and duplicated programs and print the delivery rate before, during
+    and after the roll."""
+    from ramps.errors import RampsError
+    from ramps.testbed.restart import run_rolling_restart
+
+    if origins > robots:
+        fail(f"--origins ({origins}) cannot exceed --robots ({robots})")
+    try:
+        rep = run_rolling_restart(robots=robots, origins=origins, period=period, units=units, settle=settle,
+                                  log=lambda m: err.print(m, highlight=False))
+    except (PermissionError, RampsError, RuntimeError, TimeoutError) as exc:
+        fail(str(exc))
+
+    def table(r, console):
+        console.print(f"rolling restart of {r.robots} nodes, origins {', '.join(r.origins)}: {r.submitted} submitted, "
+                      f"{r.delivered} delivered, {r.lost} lost, {r.duplicated} duplicated, {r.wrong} wrong; "
+                      f"delivered per second before / during / after the roll: {r.rate_before:g} / "
+                      f"{r.rate_during:g} / {r.rate_after:g}; each node back after (s): {r.restarts}"
+                      + (f"; first error: {r.error}" if r.error else ""), highlight=False, markup=False)
+
+    emit([rep], table, as_json=as_json, out_file=out_file)
+    if rep.lost or rep.duplicated or rep.wrong:
+        raise typer.Exit(1)
+
+
 @experiment_app.command("peers")
 def testbed_experiment_peers(
     scenario: Optional[list[str]] = typer.Option(None, "--scenario", "-s", help="run only these (repeatable): idle, busy-1, busy-2, busy-4, origins, crash (default: all)"),
@@ -486,6 +562,7 @@ def testbed_campaign(
     only_seed: Optional[int] = typer.Option(None, "--only-seed", help="re-run just this run seed (as printed by a failed run)"),
     stress: bool = typer.Option(True, "--stress/--no-stress", help="also stall nodes alone (0.5-5 s, the origin too), kill nodes alone, crash origins (robot or node; the application submits lost programs again), and put CPU pressure on robots; then check nothing was restarted without cause or left running (--no-stress: crashes, cuts and freezes only, as before 2026-11-23)"),
     told_speed: bool = typer.Option(False, "--told-speed", help="ablation: hand every node the speed measured before the start (--speed) instead of letting each measure itself, as robots do"),
+    origin_faults: float = typer.Option(0.5, "--origin-faults", min=0.0, max=1.0, help="with --stress: the chance that each origin stalls or crashes (robot or node) in a run, and is started again 1-4 s later"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
 ) -> None:
@@ -514,7 +591,7 @@ def testbed_campaign(
     try:
         rep = run_campaign(runs, seed, told_speed=told_speed, policy=policy, robots=robots, duration=duration, lease_ms=lease_ms,
                            discovery=discovery, keep_logs=keep_logs, only_seed=only_seed, progress=progress,
-                           stress=stress)
+                           stress=stress, origin_fault_p=origin_faults)
     except (PermissionError, RampsError) as exc:
         fail(str(exc))
     if rep.interrupted:

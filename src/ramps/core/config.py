@@ -28,6 +28,12 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     result_resend: float = 1.0
     #: a host keeps an unacknowledged result this long (origin cut off)
     result_retention: float = 600.0
+    #: a host keeps running the programs of an origin whose liveliness went
+    #: (its node crashed, or its robot left the network), and keeps their
+    #: results, this long for it to come back: an origin whose node restarts
+    #: with its durable record (``ramps.core.durable``) finds them there;
+    #: after this they are stopped and dropped (the record places them again)
+    origin_hold: float = 30.0
     #: load reports older than this are ignored when placing (robot gone quiet)
     max_report_age: float = 10.0
     #: costs within this relative margin count as equal; ties are then broken

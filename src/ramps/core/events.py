@@ -171,7 +171,7 @@ class Note(_Rec, frozen=True, kw_only=True):
     """Something the core decided, for traces and logs. ``what`` is one of:
     placed, accepted, rejected, blacklisted, unblacklisted, failed, backoff,
     discarded, anomaly, isolated, suspected, moving, moved, move_aborted,
-    checkpoint."""
+    checkpoint, restored."""
 
     what: str
     program_id: str = ""

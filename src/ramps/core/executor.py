@@ -13,11 +13,12 @@ the origin acknowledges it, so a result survives a lost message or an origin
 that is briefly cut off.
 
 An origin whose liveliness is lost (its robot crashed or left the network)
-and does not come back within ``origin_gone_after`` (ORIGIN_GONE_AFTER)
+and does not come back within ``origin_gone_after`` (``RampsConfig.origin_hold``)
 is gone for good: its running programs are stopped and its unacknowledged
 results dropped, instead of running for nobody and being resent for
-``result_retention``. A new incarnation of that robot is a new origin; the
-programs of the old one are its to re-submit.
+``result_retention``. An origin that comes back within it, a new
+incarnation included (a node restarted with its durable record,
+``ramps.core.durable``), receives their heartbeats and results as before.
 
 Requests are idempotent: the same (program, attempt) twice is accepted once.
 ``accepted_total`` and ``finished_total`` only ever grow; the load publisher
@@ -51,8 +52,9 @@ from ramps.core.messages import (
 )
 
 Key = tuple[str, int]
-#: seconds an origin may be lost (liveliness) before its programs here are stopped
-ORIGIN_GONE_AFTER = 30.0
+#: seconds an origin may be lost (liveliness) before its programs here are
+#: stopped, by default (``RampsConfig.origin_hold``)
+ORIGIN_GONE_AFTER = RampsConfig().origin_hold
 
 
 class _Job:
@@ -101,7 +103,7 @@ class Executor:
         self._next_tick: float | None = None
         #: origins whose liveliness went, and when (see on_origin_lost)
         self._origins_lost: dict[str, float] = {}
-        self.origin_gone_after = ORIGIN_GONE_AFTER
+        self.origin_gone_after = self.config.origin_hold
         #: programs stopped because their origin was gone for good
         self.orphans_stopped = 0
         #: runnable tasks that are not ramps programs, as the driver measures

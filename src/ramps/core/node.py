@@ -251,9 +251,11 @@ class Node:
                 self.speed = self.view.speed = event.speed
         elif isinstance(event, PeerLost):
             if event.robot != self.robot:
+                self.executor.on_origin_lost(event.robot, now)  # its programs here: stopped if it stays away
                 self.origin.on_peer_lost(event.robot, now, out)
         elif isinstance(event, PeerAlive):
-            self.origin.on_peer_alive(event.robot)
+            self.executor.on_origin_back(event.robot)
+            self.origin.on_peer_alive(event.robot, now, out)
             if self.origin.relink.heard(event.robot, now, certain=True):
                 self.origin.relinked(event.robot, now)
                 out.append(Note(what="relinked", robot=event.robot, detail="its link is back after this robot's stall"))

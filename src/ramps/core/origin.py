@@ -36,6 +36,8 @@ from collections import deque
 from collections.abc import Callable, Mapping
 from typing import Any
 
+import msgspec
+
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate
 from ramps.core.events import Action, Deliver, Note, Progress, Send, Submit
@@ -137,6 +139,11 @@ class Origin:
         self.placements = 0
         self.host_failures = 0
         self.rejections = 0
+        #: programs changed since the driver last read this (``None``: nobody
+        #: keeps a record; ``ramps.core.durable``)
+        self.changed: set[str] | None = None
+        #: restored programs offered to their host again and not answered yet: id -> attempt
+        self._resumed: dict[str, int] = {}
 
     # ================================================================ inputs
     def submit(self, sub: Submit, now: float, out: list[Action]) -> None:
@@ -148,7 +155,55 @@ class Origin:
             self._policies[sub.policy] = make_policy(sub.policy)  # ValueError names the known ones
         ap = AutonomousProgram(sub, now)
         self.programs[sub.program_id] = ap
+        self._changed(ap)
         self.place(ap, now, out)
+
+    def restore(self, programs: list[AutonomousProgram], now: float, out: list[Action]) -> None:
+        """Resume programs a previous process of this robot owned
+        (``ramps.core.durable.program_of``): one whose current attempt ran on
+        a teammate waits ``RESTORE_GRACE`` to hear of it there, as if just
+        offered; one that ran here or was backing off is placed again now."""
+        from ramps.core.durable import RESTORE_GRACE
+
+        for ap in programs:
+            if ap.program_id in self.programs:
+                raise ValueError(f"program id {ap.program_id!r} is already here")
+            sub = ap.submit
+            if sub.policy and sub.policy not in self._policies:
+                try:
+                    self._policies[sub.policy] = make_policy(sub.policy)
+                except ValueError:  # a policy this version does not have: the node's own places it
+                    ap.submit = msgspec.structs.replace(sub, policy="")
+            self.programs[ap.program_id] = ap
+            self._changed(ap)
+            for attempt, host in list(ap.live.items()):
+                if host == self.me:  # its copy here died with the previous process
+                    del ap.live[attempt]
+                else:
+                    self._by_host.setdefault(host, {})[ap.program_id] = None
+            out.append(Note(what="restored", program_id=ap.program_id, robot=ap.host or "", attempt=ap.attempt,
+                            detail=f"{len(ap.live)} live cop{'y' if len(ap.live) == 1 else 'ies'}"))
+            if ap.host is not None and ap.live.get(ap.attempt) == ap.host:
+                # offered there again: a host that has it says yes again, one
+                # that never got it (the offer went down with the old process)
+                # or lost it (it restarted too) takes it now; the offer goes
+                # again when the host's liveliness is heard (the first may
+                # precede the link)
+                ap.state = S.OFFERED
+                ap.last_heard = ap.placed_at = ap.accepted_at = ap.done_at = now
+                resume = ap.checkpoint is not None
+                ap.work = self.work_estimate(ap.submit) * (1.0 - (ap.checkpoint_fraction if resume else 0.0))
+                ap.resumed_from = ap.checkpoint_fraction if resume else None
+                self._resumed[ap.program_id] = ap.attempt
+                self._offer(ap, now, out)
+                self._set_timer(ap, now + RESTORE_GRACE, E.CONNECT_TIMEOUT)
+            else:
+                ap.state = S.BACKOFF
+                self._set_timer(ap, now, E.BACKOFF_DONE)
+
+    def _changed(self, ap: AutonomousProgram) -> None:
+        if self.changed is not None:
+            self.changed.add(ap.program_id)
 
     def cancel(self, program_id: str, now: float, out: list[Action]) -> None:
         ap = self.programs.get(program_id)
@@ -190,6 +245,7 @@ class Origin:
             fraction = (ap.resumed_from or 0.0) if msg.attempt == ap.attempt else 0.0
         ap.checkpoint = msg.state
         ap.checkpoint_fraction = fraction
+        self._changed(ap)
         if msg.attempt == ap.attempt:
             self._progress_at(ap, fraction, now)
         out.append(Note(what="checkpoint", program_id=ap.program_id, robot=msg.host, attempt=msg.attempt,
@@ -215,6 +271,7 @@ class Origin:
             if ap.state is S.MOVING and old is not None and old[1] == robot:
                 # the copy a move is taking over from is gone: the move goes on
                 self._drop_old_copy(ap)
+                self._changed(ap)
                 out.append(Note(what="failed", program_id=pid, robot=robot, attempt=old[0],
                                 detail="host_lost while moving away"))
             if ap.host == robot and ap.state in (S.OFFERED, S.RUNNING, S.MOVING):
@@ -235,6 +292,7 @@ class Origin:
             for attempt, host, when in ap.written_off:
                 if when >= horizon and host != self.me and attempt not in ap.live:
                     ap.live[attempt] = host
+                    self._changed(ap)
                     out.append(Note(what="isolated", program_id=ap.program_id, robot=host, attempt=attempt,
                                     detail="revived: this robot was cut off, not the host"))
             ap.written_off.clear()
@@ -245,8 +303,14 @@ class Origin:
         # the cut is certain at most an isolation timeout after it
         return self.config.heartbeat_timeout + self.config.isolation_timeout + self.config.heartbeat_period
 
-    def on_peer_alive(self, robot: str) -> None:
+    def on_peer_alive(self, robot: str, now: float = 0.0, out: list[Action] | None = None) -> None:
         self.view.set_lost(robot, False)
+        for pid, attempt in list(self._resumed.items()):  # restored offers not answered yet: again
+            ap = self.programs.get(pid)
+            if ap is None or ap.state is not S.OFFERED or ap.attempt != attempt:
+                del self._resumed[pid]
+            elif ap.host == robot and out is not None:
+                self._offer(ap, now, out)
 
     def on_stalled(self, seconds: float, now: float, *, links: bool = False) -> None:
         """This robot's driver did not run for ``seconds`` (taken out of the
@@ -365,6 +429,7 @@ class Origin:
             out.append(Send(to=host, msg=ResultAck(program_id=pid, attempt=attempt, origin=self.me)))
             if ap.state not in FINAL and ap.live.get(attempt) == host:
                 self._finish_with(ap, msg, now, out)
+                self._changed(ap)
             else:
                 self.discarded += 1
                 out.append(Note(what="discarded", program_id=pid, robot=host, attempt=attempt,
@@ -390,6 +455,8 @@ class Origin:
             self._anomaly(out, ap.program_id, ap.host or "", str(exc))  # a peer's doing
             return
         _HANDLERS[transition.handler](self, ap, now, out, msg, event)
+        if event is not E.HEARTBEAT or ap.state is not state:
+            self._changed(ap)
         allowed = transition.allowed(state)
         if ap.state not in allowed:
             raise IllegalTransition(ap.program_id, state, event, transition.handler, ap.state, allowed)
@@ -451,12 +518,7 @@ class Origin:
             if placement.time_budget is not None:
                 detail += f", budget {placement.time_budget:.2f} s"
         out.append(Note(what="placed", program_id=ap.program_id, robot=host, attempt=ap.attempt, detail=detail))
-        out.append(Send(to=host, msg=OffloadRequest(
-            program_id=ap.program_id, attempt=ap.attempt, origin=self.me, host=host,
-            program=sub.program, args=sub.args, payload_size=sub.payload_size, work=work,
-            expected_runnable=expected, time_budget=budget, force=ap.rejections >= self.config.max_rejections,
-            resume=resume, resume_fraction=fraction,
-        )))
+        self._offer(ap, now, out, expected=expected, budget=budget)
         # the host cannot accept before the parameters have crossed the link,
         # behind those of this robot's other offers to it still on their way
         transfer = 0.0
@@ -466,6 +528,19 @@ class Origin:
                          if self.programs[pid].state is S.OFFERED and self.programs[pid].host == host)
             transfer = queued / link.bandwidth
         self._set_timer(ap, now + self.config.connect_timeout + transfer, E.CONNECT_TIMEOUT)
+
+    def _offer(self, ap: AutonomousProgram, now: float, out: list[Action], *, expected: float | None = None,
+               budget: float | None = None) -> None:
+        """Send the current attempt's offer (``OffloadRequest``) to its host,
+        with its latest checkpoint: what is left of the work from there."""
+        sub = ap.submit
+        resume = ap.checkpoint
+        out.append(Send(to=ap.placed_host, msg=OffloadRequest(
+            program_id=ap.program_id, attempt=ap.attempt, origin=self.me, host=ap.placed_host,
+            program=sub.program, args=sub.args, payload_size=sub.payload_size, work=ap.work,
+            expected_runnable=expected, time_budget=budget, force=ap.rejections >= self.config.max_rejections,
+            resume=resume, resume_fraction=ap.checkpoint_fraction if resume is not None else 0.0,
+        )))
 
     def _on_accepted(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
         if isinstance(msg, OffloadAccepted):

@@ -75,11 +75,14 @@ from ramps.runtime.futures import ProgramFuture, RobotStatus, TeamStatus
 from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
 
 
-#: seconds a client waits for its node to come back before failing the
-#: programs it submitted there (a lease that flapped comes back within ~1 s;
-#: a node stalled for a few seconds, frozen or starved of CPU, comes back
-#: after its stall plus ~1 s to reconnect, and keeps its programs: issue 14)
-ORIGIN_GONE_GRACE = 10.0
+#: seconds a client waits, by default, for its node to come back before
+#: failing the programs it submitted there (``connect(origin_grace=)``): a
+#: lease that flapped comes back within ~1 s; a node stalled for a few
+#: seconds, frozen or starved of CPU, comes back after its stall plus ~1 s to
+#: reconnect; a node restarted by its supervisor comes back with its durable
+#: record (``ramps.runtime.store``) and its programs, which hosts keep running
+#: for it as long by default (``RampsConfig.origin_hold``)
+ORIGIN_GONE_GRACE = 30.0
 #: seconds between two looks for the node while submissions wait for it
 HELD_RETRY = 0.05
 #: a submission the node has not acknowledged (no update, no outcome) is sent
@@ -128,8 +131,11 @@ class Team:
 
     def __init__(self, settings: NodeSettings, *, robot: str | None, timeout: float,
                  registry: Registry | None = None, transport: Transport | None = None,
-                 clock: Clock = REAL_CLOCK) -> None:
+                 clock: Clock = REAL_CLOCK, origin_grace: float = ORIGIN_GONE_GRACE) -> None:
+        if not origin_grace >= 0:
+            raise ValueError(f"origin_grace must be >= 0 seconds, got {origin_grace!r}")
         self.clock = clock
+        self.origin_grace = origin_grace
         self.team = settings.team
         self.registry = registry or default_registry
         self.client_id = keys.keys_safe_id(f"{socket.gethostname()}-{os.getpid()}-{os.urandom(3).hex()}")
@@ -196,7 +202,7 @@ class Team:
                 if robot == getattr(self, "robot", None) and self._futures and not self._closed:
                     # our node, the origin of every pending program, is gone: unless it
                     # is back soon (a lease that flapped), nobody will ever answer them
-                    t = threading.Timer(ORIGIN_GONE_GRACE, self._origin_gone, args=(robot,))
+                    t = threading.Timer(self.origin_grace, self._origin_gone, args=(robot,))
                     t.daemon = True
                     t.start()
 
@@ -527,7 +533,7 @@ class _Options:
 def connect(team: str | None = None, robot: str | None = None, *, connect: list[str] | None = None,
             listen: list[str] | None = None, multicast: bool | None = None, timeout: float = 5.0,
             config_file: str | None = None, registry: Registry | None = None, secure: bool | None = None,
-            credentials: str | os.PathLike | None = None) -> Team:
+            credentials: str | os.PathLike | None = None, origin_grace: float = ORIGIN_GONE_GRACE) -> Team:
     """Join a team as an application and return a ``Team`` to submit to.
 
     ``robot`` names the node that will be the origin of your programs
@@ -538,9 +544,13 @@ def connect(team: str | None = None, robot: str | None = None, *, connect: list[
     directory (from ``ramps team add``; env ``RAMPS_SECURE``,
     ``RAMPS_CREDENTIALS``). Bad credentials raise ``CredentialsError``; a
     team that will not admit them raises ``NotAdmitted`` (a ``NoTeam``) at
-    once, as does a secured team joined without ``secure``."""
+    once, as does a secured team joined without ``secure``.
+
+    ``origin_grace``: seconds to wait for the origin node to come back (a
+    restart by its supervisor) before its pending programs fail with
+    ``ProgramLost``; a node with a durable record resumes them."""
     settings = load_settings(config_file=config_file, default_robot=False, flags={
         "team": team, "connect": connect, "listen": listen, "multicast": multicast, "secure": secure,
         "credentials": str(credentials) if credentials is not None else None,
     })
-    return Team(settings, robot=robot, timeout=timeout, registry=registry)
+    return Team(settings, robot=robot, timeout=timeout, registry=registry, origin_grace=origin_grace)

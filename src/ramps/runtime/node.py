@@ -35,6 +35,7 @@ import queue
 import random
 import threading
 from collections import deque
+from pathlib import Path
 from typing import Any, Callable
 
 
@@ -57,6 +58,7 @@ from ramps.runtime.heap import HeapTrimmer
 from ramps.runtime.registry import Registry, default_registry
 from ramps.runtime.security import admission, settings_credentials
 from ramps.runtime.settings import NodeSettings
+from ramps.runtime.store import OriginStore
 from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
 from ramps.runtime.workers import WorkerPool
 from ramps.runtime.node_clients import OUTCOME_HOLD, OUTCOME_RETRY, ClientAnswers
@@ -182,6 +184,12 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self.revoked_self = False
         #: Prometheus metrics (``--metrics``), fed from the driver thread (ramps.observe.metrics)
         self.metrics = None
+        #: the durable record of the programs this node is origin of (``state_dir``;
+        #: ramps.runtime.store), how many it resumed at start, and the outcomes
+        #: written to it that are about to be sent
+        self.store: OriginStore | None = None
+        self.restored = 0
+        self._outcomes_ready: dict[str, bytes] = {}
         #: called on the driver thread after every round of its loop (systemd's watchdog, ramps.runtime.service)
         self.on_turn: Callable[[], None] | None = None
 
@@ -213,6 +221,9 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
                          rng=random.Random(self.incarnation), incarnation=self.incarnation,
                          registry=self.registry.names(), program_weight=nice_weight(s.worker_nice),
                          core_fraction=core_fraction(quota, self.cores))
+        if s.state_dir not in ("", "off"):  # a foreign record: ConfigError, before anything starts
+            self.store = OriginStore(s.state_dir, team=self.team, robot=self.robot)
+            self.node.origin.changed = set()
         self.pool = self._worker_pool(self.cores, self.registry.targets(), self._finished, nice=worker_increment(s.worker_nice),
                                on_progress=self._progress_reported, on_checkpoint=self._checkpoint_saved)
         self.pool.start()
@@ -263,6 +274,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._threaded = threaded
         self._last_read = self.clock.monotonic()
         self._next_pub = self._clock()
+        if self.store is not None:
+            self._apply(self._restore(self._clock()))
         if threaded:
             self._driver = threading.Thread(target=self._drive, name=f"ramps-node-{self.robot}", daemon=True)
             self._driver.start()
@@ -360,6 +373,13 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             self.pool.stop()
         if self.metrics is not None:
             self.metrics.close()
+        if self.store is not None:
+            keep = self.store.programs()
+            self.store.close()
+            if not keep:  # nothing to resume: leave no file behind
+                for suffix in ("", "-wal", "-shm"):
+                    Path(str(self.store.path) + suffix).unlink(missing_ok=True)
+            self.store = None
         if self._trace is not None:
             self._trace_wire = False
             self._trace.close()

@@ -9,13 +9,22 @@ outcomes (``OUTCOMES_KEPT_BYTES``) and answers a request asked again with
 where it stands or its outcome again. An outcome is sent once, held while
 its client is not reachable (``OUTCOME_HOLD`` at most); progress updates are
 advisory and dropped under congestion.
+
+With a durable record (``--state-dir``, ``ramps.runtime.store``) every
+program a client submitted here is written down with its request before
+anything of it is sent, after each change that a restart must know (placed,
+accepted, moved, checkpointed), and replaced by its outcome before that is
+sent: a node restarted after a crash resumes them (``_restore``), answers
+their clients' requests as the old one would, and sends each outcome once.
 """
 
 from __future__ import annotations
 
 import logging
 
+from ramps.core.durable import program_of, record_of
 from ramps.core.events import (
+    Deliver,
     Submit,
 )
 from ramps.core.messages import (
@@ -25,7 +34,7 @@ from ramps.core.messages import (
     encode,
 )
 from ramps.core.policy import POLICIES
-from ramps.core.program import ProgramState
+from ramps.core.program import FINAL, ProgramState
 from ramps.errors import ProgramNotFound
 from ramps.runtime import keys
 from ramps.runtime.registry import decode_args
@@ -43,6 +52,55 @@ OUTCOME_RETRY = 0.05
 
 class ClientAnswers:
     """The driver's answers to clients (mixed into ``NodeRuntime``)."""
+
+    def _restore(self, now: float) -> list:
+        """Resume what the durable record holds (at start, before the driver runs)."""
+        found = self.store.load()
+        prefix = f"{self.robot}#{self.incarnation % 100000}-"
+        aps = []
+        for pid, (client, rid, rec) in found.programs.items():
+            self._requests[(client, rid)] = pid
+            self._clients[pid] = (client, rid)
+            aps.append(program_of(rec, now))
+            if pid.startswith(prefix):  # an old incarnation's ids that this one's could repeat
+                tail = pid[len(prefix):]
+                self._seq = max(self._seq, int(tail) if tail.isdigit() else 0)
+        for rkey, data in found.outcomes.items():
+            self._answered[rkey] = data
+        out: list = []
+        self.node.origin.restore(aps, now, out)
+        self.node.origin.changed = set()
+        if aps or found.skipped:
+            log.warning("node %s resumed %d program(s) from its record %s%s", self.robot, len(aps), self.store.path,
+                        f" ({found.skipped} unreadable, skipped)" if found.skipped else "")
+        self.restored = len(aps)
+        return out
+
+    def _persist(self, actions: list) -> None:
+        """Write what changed to the durable record, before ``actions`` are
+        applied: programs as they now stand, and the outcome of each one
+        delivered (sent once written, by ``_tell_client``)."""
+        origin = self.node.origin
+        changed, origin.changed = origin.changed or set(), set()
+        records = {}
+        for pid in changed:
+            ap = origin.programs.get(pid)
+            target = self._clients.get(pid)
+            if ap is not None and target is not None and ap.state not in FINAL:
+                records[pid] = (target[0], target[1], record_of(ap))
+        finished = []
+        for a in actions:
+            if isinstance(a, Deliver):
+                target = self._clients.get(a.program_id)
+                data = self._outcome_data(target, a) if target is not None else b""
+                self._outcomes_ready[a.program_id] = data
+                finished.append((a.program_id, target[0] if target else "", target[1] if target else 0, data))
+        self.store.save(records, finished)
+
+    def _outcome_data(self, target: tuple[str, int], a: Deliver) -> bytes:
+        return encode(self.robot, ProgramOutcome(
+            request_id=target[1], ok=a.ok, value=a.value, error=a.error, error_kind=a.error_kind, host=a.host,
+            attempts=a.attempts, moves=a.moves, resumed_from=a.resumed_from))
 
     def _client_submit(self, m: SubmitProgram, now: float) -> list:
         rkey = (m.client, m.request_id)
@@ -82,9 +140,9 @@ class ClientAnswers:
         client, request_id = target
         self._requests.pop(target, None)
         self._progress.pop(pid, None)
-        data = encode(self.robot, ProgramOutcome(
+        data = self._outcomes_ready.pop(pid, None) or encode(self.robot, ProgramOutcome(
             request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts,
-            moves=moves, resumed_from=resumed_from))
+            moves=moves, resumed_from=resumed_from))  # the one written to the record, if any
         self._answered[target] = data  # a resend still in flight must not run it again
         self._kept_outcomes.append(target)
         self._kept_bytes += len(data)

@@ -59,6 +59,8 @@ class Outbound:
     """The driver's outputs (mixed into ``NodeRuntime``)."""
 
     def _apply(self, actions: list) -> None:
+        if self.store is not None:  # written before anything of it is sent
+            self._persist(actions)
         mnow = self.clock.monotonic() - self._stall_offset  # the core's clock, for metrics' latencies
         for a in actions:
             if self.metrics is not None:
@@ -274,10 +276,14 @@ class Outbound:
         node = self.node
         out: list = []
         handed = node.executor.hand_back(now, out)
-        for pid, ap in list(node.origin.programs.items()):
-            if ap.state not in ("done", "failed"):
-                out.extend(node.handle(Cancel(program_id=pid), now))
+        if self.store is None:  # nothing keeps them: tell their clients
+            for pid, ap in list(node.origin.programs.items()):
+                if ap.state not in ("done", "failed"):
+                    out.extend(node.handle(Cancel(program_id=pid), now))
         self._apply(node._loopback(out, now))
+        if self.store is not None and node.origin.active():
+            log.info("node %s keeps %d program(s) in its record %s for its next start", self.robot,
+                     node.origin.active(), self.store.path)
         for key, data, _, block in self._held_outcomes:  # leaving: the last chance to send them
             self._put(key, data, block=block)
         self._held_outcomes = []

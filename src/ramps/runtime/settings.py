@@ -231,6 +231,11 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     credentials: str = ""
     #: serve Prometheus metrics on this ADDR:PORT ("" = off; ramps.observe.metrics)
     metrics: str = ""
+    #: directory of this robot's durable record of the programs it is origin
+    #: of (``ramps.runtime.store``): a node restarted with it resumes them.
+    #: "" or "off": none (the ``ramps node`` command's default is
+    #: $STATE_DIRECTORY, set by systemd, else ~/.local/state/ramps)
+    state_dir: str = ""
     #: explicit credential files, overriding those of ``credentials``
     ca: str = ""
     cert: str = ""
@@ -351,6 +356,7 @@ _ENV = {
     "RAMPS_TRACE_WIRE": ("trace_wire", "bool"),
     "RAMPS_METRICS": ("metrics", str),
     "RAMPS_MODE": ("mode", str),
+    "RAMPS_STATE_DIR": ("state_dir", str),
 }
 
 

@@ -35,11 +35,13 @@ from typing import Any, Callable
 
 import msgspec
 
+from ramps.core.durable import decode_record, encode_record, program_of, record_of
 from ramps.core.cost import NetworkEstimate, nice_weight, program_cores
 from ramps.core.events import (CheckpointSaved, Deliver, Note, PeerAlive, PeerLost, ProgramFinished, PublishReport,
                                Received, Send, StartProgram, StopProgram, Submit)
 from ramps.core.messages import wire_size
 from ramps.core.node import Node, NodeStatistics
+from ramps.core.program import FINAL
 from ramps.core.speed import REMEASURE_PERIOD, SpeedMeasured
 from ramps.sim.cpu import CPU
 from ramps.sim.scenario import FaultSpec, RobotSpec, Scenario
@@ -97,7 +99,7 @@ class SimResult(msgspec.Struct, kw_only=True):
 
 class _Robot:
     __slots__ = ("spec", "node", "cpu", "alive", "net_up", "frozen", "incarnation", "epoch",
-                 "wake_at", "wake_token", "done_token", "pub_phase", "remeasure_at")
+                 "wake_at", "wake_token", "done_token", "pub_phase", "remeasure_at", "record")
 
     def __init__(self, spec: RobotSpec) -> None:
         self.spec = spec
@@ -115,6 +117,8 @@ class _Robot:
         self.pub_phase = 0.0
         #: when its node measures its speed again (``ramps.core.speed``)
         self.remeasure_at = 0.0
+        #: its durable record as its node last wrote it (``RobotSpec.record``)
+        self.record: list[bytes] = []
 
     @property
     def reachable(self) -> bool:
@@ -401,7 +405,11 @@ class Simulator:
             r.alive = False
             r.epoch += 1
             r.cpu = None
-            self._orphan_programs_of(r)
+            if r.spec.record:  # what the node had written, as bytes, as the runtime's store keeps them
+                r.record = [encode_record(record_of(ap)) for ap in r.node.origin.programs.values()
+                            if ap.state not in FINAL]
+            else:
+                self._orphan_programs_of(r)
             self._liveliness(r, lost=True, delay=self.net.crash_detect)
         elif f.kind == "network" and r.alive and r.net_up:
             r.net_up = False
@@ -420,6 +428,12 @@ class Simulator:
         elif f.kind == "recover":
             if not r.alive:
                 self._boot(r, self.now)
+                if r.record:
+                    out: list = []
+                    r.node.origin.restore([program_of(decode_record(b), self.now) for b in r.record], self.now, out)
+                    r.record = []
+                    self._apply(r, out)
+                    self._schedule_wake(r)
             else:
                 if r.frozen:
                     r.frozen = False

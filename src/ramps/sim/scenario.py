@@ -84,6 +84,10 @@ class RobotSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
     bandwidth: float | None = None
     #: free memory this robot reports, bytes (0: it reports none)
     memory: int = 0
+    #: its node keeps a durable record of the programs it is origin of
+    #: (``ramps.core.durable``): a crash followed by ``recover`` resumes them;
+    #: without one a crashed origin's programs are lost (the paper's model)
+    record: bool = False
     #: expand this entry into ``count`` identical robots
     count: int | None = None
 

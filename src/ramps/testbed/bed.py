@@ -298,7 +298,13 @@ class Testbed(Faults):
             cmd += ["--config", str(self._config_file())]
         if self.log_dir:  # every decision, for experiments and post-mortems: <log_dir>/<robot>.trace.jsonl
             cmd += ["--trace", str(self.log_dir / f"{robot}.trace.jsonl")]
+        cmd += ["--state-dir", str(self.records_dir)]  # each robot's durable record, removed with the testbed
         return cmd
+
+    @property
+    def records_dir(self) -> Path:
+        """Where the robots' nodes keep their durable records (``ramps.runtime.store``)."""
+        return self.state_dir / f"records-{self.tb}"
 
     def _config_file(self) -> Path:
         """``config`` as every node's config file, in the log directory."""
@@ -404,9 +410,10 @@ class Testbed(Faults):
             return "(no log)"
 
     # ------------------------------------------------------------ clients
-    def client(self, robot: str = "r1", *, timeout: float = 10.0, lease_ms: int | None = None):
+    def client(self, robot: str = "r1", *, timeout: float = 10.0, lease_ms: int | None = None, **options):
         """A ``ramps.runtime.client.Team`` in the root namespace, connected to
-        every robot over the bridge, whose programs start on ``robot``."""
+        every robot over the bridge, whose programs start on ``robot``
+        (``options``: more of ``Team``'s, e.g. ``origin_grace``)."""
         from ramps.runtime.client import Team
         from ramps.runtime.settings import load_settings
 
@@ -416,7 +423,7 @@ class Testbed(Faults):
         if lease_ms is not None:
             flags["lease_ms"] = lease_ms
         s = load_settings(flags=flags, default_robot=False, environ={})
-        return Team(s, robot=robot, timeout=timeout)
+        return Team(s, robot=robot, timeout=timeout, **options)
 
     def zenoh_config(self):
         """A plain Zenoh peer config for the root namespace (connects to every robot)."""
@@ -502,6 +509,7 @@ class Testbed(Faults):
                 if self.log_dir:
                     shutil.rmtree(self.log_dir, ignore_errors=True)
                 if self.tb:
+                    shutil.rmtree(self.records_dir, ignore_errors=True)
                     self.state_file.unlink(missing_ok=True)
                     self.state_file.with_suffix(".tmp").unlink(missing_ok=True)
                     try:

@@ -33,15 +33,15 @@ origin falls inside an injected fault of that host, never a stall of the
 origin itself) and nothing was left running (every robot idle, no orphaned
 worker; a node killed alone leaves no process behind 1 s later).
 
-An origin that crashes (its robot, or its node alone) takes its autonomous
-programs with it; what the application does then is what the Team API
-documents: a program whose origin is back within ``ORIGIN_GONE_GRACE``
-(10 s) is asked for again by the client and run by the new node, one that
-is not fails with ``ProgramLost`` and the application submits it again
-(here: to the same robot's node, once it is back). Either way each program
-must complete once for the application; the copies still running for the
-dead origin elsewhere are stopped or their results dropped by their hosts
-(checked: nothing left running after the run).
+An origin that crashes (its robot, or its node alone) and is started again
+resumes its programs from its durable record (``ramps.runtime.store``):
+hosts deliver to the new node what they kept running, its client asks
+again for every pending program and gets each outcome once. A program
+whose origin is not back within the client's grace (``ORIGIN_GONE_GRACE``)
+fails with ``ProgramLost`` and the application submits it again (here: to
+the same robot's node, once it is back), counted as ``resubmitted``. Either
+way each program must complete once for the application (checked: nothing
+left running after the run).
 
 Work sizing: the programs must still run at the last snapshot (as in the
 paper). ``work`` defaults to ``0.9 * gap`` units: with 0.4 host cores per
@@ -282,7 +282,7 @@ RESUBMITS = 3
 
 
 def stress_plan(rng: random.Random, robots: list[str], duration: float,
-                origins: int = 1) -> list[tuple[float, str, str]]:
+                origins: int = 1, origin_fault_p: float = ORIGIN_FAULT_P) -> list[tuple[float, str, str]]:
     """``campaign_plan`` with the stresses of a busy or half-dead robot
     (issue 14): besides crashes, cuts and freezes, a node stalled alone for
     0.5-5 s (``stall``, then ``recover``), a node killed alone (``node_crash``,
@@ -313,7 +313,7 @@ def stress_plan(rng: random.Random, robots: list[str], duration: float,
                 faults.append((round(min(t, duration * 0.9), 2), robot, "recover"))
             t += rng.uniform(0.5, duration * 0.2)
     for origin in robots[:origins]:
-        if rng.random() < ORIGIN_FAULT_P:
+        if rng.random() < origin_fault_p:
             t = rng.uniform(1.0, duration * 0.7)
             kind = rng.choice(ORIGIN_FAULTS)
             back = t + (rng.uniform(0.5, 2.0) if kind == "stall" else rng.uniform(1.0, 4.0))
@@ -323,13 +323,28 @@ def stress_plan(rng: random.Random, robots: list[str], duration: float,
 
 def _unexplained(trace: list[TraceEntry], spans: dict[str, list[tuple[float, float]]], origin: str) -> list[str]:
     """Write-offs and hedges at the origin whose host had no fault then. A
-    stall of the origin itself explains none: it must restart nothing."""
+    stall of the origin itself explains none: it must restart nothing.
+
+    An attempt the origin resumed from its record after its own crash
+    (``restored``) is written off at most ``RESTORE_GRACE`` after the restart
+    when its host stays silent; that is explained when the origin never saw
+    it accepted before the crash (the offer went down with it) or when its
+    host had a fault between the placement and the write-off (the copy died
+    while the origin was away)."""
+    placed = {(e.program_id, e.attempt): e.t for e in trace if e.what == "placed"}
+    accepted = {(e.program_id, e.attempt) for e in trace if e.what == "accepted"}
+    restored = {(e.program_id, e.attempt): e.t for e in trace if e.what == "restored"}
     out = []
     for e in trace:
         if e.what not in ("failed", "suspected") or not e.other or e.other == origin and e.what == "suspected":
             continue
         if any(a <= e.t <= b for a, b in spans.get(e.other, []) if e.other != origin):
             continue
+        key = (e.program_id, e.attempt)
+        if key in restored and restored[key] <= e.t:
+            if key not in accepted or any(a <= e.t and b >= placed.get(key, restored[key])
+                                          for a, b in spans.get(e.other, []) if e.other != origin):
+                continue
         out.append(f"{e.what} {e.program_id} attempt {e.attempt} on {e.other} ({e.detail}) at +{e.t:.1f}")
     return out
 
@@ -337,7 +352,7 @@ def _unexplained(trace: list[TraceEntry], spans: dict[str, list[tuple[float, flo
 def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, duration: float = 20.0,
                       lease_ms: int | None = None, discovery: str = "both", keep_logs: Path | None = None,
                       log: Callable[[str], None] | None = None, stress: bool = False,
-                      told_speed: bool = False) -> CampaignRun:
+                      told_speed: bool = False, origin_fault_p: float = ORIGIN_FAULT_P) -> CampaignRun:
     """One seeded run: a testbed of ``robots``, programs from r1 for about
     ``duration`` seconds under random faults, then the invariants. With
     ``keep_logs``, a failed run's node logs and traces are kept in
@@ -350,7 +365,7 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
     names = [f"r{i}" for i in range(1, robots + 1)]
     if stress:  # one or two origins (r1, r2), each with its own application
         origins = names[:2] if robots >= 3 and rng.random() < 0.4 else names[:1]
-        faults = stress_plan(rng, names, duration, origins=len(origins))
+        faults = stress_plan(rng, names, duration, origins=len(origins), origin_fault_p=origin_fault_p)
     else:
         origins = names[:1]
         faults = campaign_plan(rng, names, duration)
@@ -485,7 +500,7 @@ def _wait_resubmitting(futures: list, teams: list, log, timeout: float = 600.0) 
 def run_campaign(runs: int, seed: int = 0, *, policy: str = "ramps", robots: int = 4, duration: float = 20.0,
                  lease_ms: int | None = None, discovery: str = "both", keep_logs: Path | None = None,
                  only_seed: int | None = None, progress=None, log=None, stress: bool = False,
-                 told_speed: bool = False) -> TestbedCampaignReport:
+                 told_speed: bool = False, origin_fault_p: float = ORIGIN_FAULT_P) -> TestbedCampaignReport:
     """``runs`` runs with seeds ``seed*1000000 + i``; with ``only_seed``, that
     one run seed ``runs`` times (to chase a failure a campaign printed)."""
     started = time.perf_counter()
@@ -498,7 +513,8 @@ def run_campaign(runs: int, seed: int = 0, *, policy: str = "ramps", robots: int
                 try:
                     results.append(run_campaign_once(run_seed, policy=policy, robots=robots, duration=duration,
                                                      lease_ms=lease_ms, discovery=discovery, keep_logs=keep_logs,
-                                                     log=log, stress=stress, told_speed=told_speed))
+                                                     log=log, stress=stress, told_speed=told_speed,
+                                                     origin_fault_p=origin_fault_p))
                     break
                 except NoTeam as exc:  # the fresh testbed did not come up (a busy host): up to 3 tries
                     if attempt == 3:

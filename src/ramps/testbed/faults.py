@@ -14,6 +14,8 @@ from another process see it and ``recover`` undoes exactly what was done.
 * ``freeze``: SIGSTOP to every process of the robot, until all are stopped;
   ``recover``: SIGCONT.
 * ``add_load``/``remove_load``: busy processes inside the robot.
+* ``restart``: not a fault: the node stopped (SIGTERM) and started again,
+  as its supervisor does, with the same durable record.
 
 Rules: a fault on a testbed that is not up, or on an unknown robot, raises
 ``TestbedError``; freezing a crashed robot too. Every method holds the
@@ -22,6 +24,7 @@ testbed's lock, so a fault and ``down()`` never interleave.
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import time
@@ -88,6 +91,32 @@ class Faults:
         for pid, p in list(self._popen.items()):
             if p.poll() is not None:
                 del self._popen[pid]
+
+    def restart(self, robot: str, *, timeout: float = 30.0) -> float:
+        """Restart the robot's node as its supervisor does (``systemctl
+        restart``): SIGTERM, wait for it to leave the team (SIGKILL after
+        ``timeout``), start it again with the same command (the same durable
+        record), and wait until it is alive and sees the team. Returns the
+        seconds from the SIGTERM until it is back."""
+        t0 = time.monotonic()
+        with self._lock:
+            self._live()
+            rb = self._robot(robot)
+            pid = rb["pid"]
+            p = self._popen.get(pid)
+            if pid and _alive(pid, rb["start"]) != "dead":
+                os.kill(pid, signal.SIGTERM)
+                deadline = time.monotonic() + timeout
+                while _alive(pid, rb["start"]) != "dead" and (p is None or p.poll() is None):
+                    if time.monotonic() > deadline:  # what a supervisor does next
+                        os.killpg(pid, signal.SIGKILL)
+                        deadline = math.inf
+                    time.sleep(0.05)
+            self._reap()
+            self._start_node(robot)
+            self._save()
+        self.wait_alive([robot], timeout)
+        return time.monotonic() - t0
 
     def crash(self, robot: str) -> None:
         """SIGKILL the robot's node, workers and load (a power cut)."""

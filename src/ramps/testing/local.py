@@ -223,6 +223,8 @@ class LocalTeam:
         env["COLUMNS"] = "400"  # rich logs: one line per record, so tests can grep them
         if robot:
             env["RAMPS_ROBOT"] = robot
+        # each robot's durable record in the team's own directory, not the user's
+        env.setdefault("RAMPS_STATE_DIR", str(self.log_dir / "state"))
         env.update(extra or {})
         return env
 
@@ -329,12 +331,14 @@ class LocalTeam:
     def endpoints(self, names: list[str] | None = None) -> list[str]:
         return [self.nodes[n].endpoint for n in (names or self.alive())]
 
-    def client(self, robot: str | None = None, *, timeout: float = 20.0, connect: list[str] | None = None) -> Any:
-        """``ramps.connect`` to this team with ``robot`` (default: the first) as the origin; closed on close()."""
+    def client(self, robot: str | None = None, *, timeout: float = 20.0, connect: list[str] | None = None,
+               **options: Any) -> Any:
+        """``ramps.connect`` to this team with ``robot`` (default: the first) as the origin; closed on
+        close(). ``options``: more of ``ramps.connect``'s (``origin_grace``)."""
         import ramps
 
         team = ramps.connect(team=self.team, robot=robot or self.names[0], connect=connect or self.endpoints(),
-                             multicast=False, timeout=timeout, **self._secure_kwargs())
+                             multicast=False, timeout=timeout, **self._secure_kwargs(), **options)
         self._clients.append(team)
         return team
 

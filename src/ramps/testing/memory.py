@@ -412,6 +412,20 @@ class MemoryTeam:
         """Shut one node down cleanly (it hands its programs back)."""
         self.nodes[name].stop()
 
+    def kill(self, name: str) -> None:
+        """One node's process dies at once (SIGKILL): its teammates hear its
+        liveliness go, its programs die with it, and whatever it had written
+        (its durable record) stays as it was. ``add(name, seed=...)`` with
+        another seed starts it again, as a new incarnation."""
+        rt = self.nodes[name]
+        self.bus.kill(name)
+        self.pools[name].jobs.clear()
+        rt.transport = None
+        rt._stopped.set()  # nothing of it runs any more, stop() included
+        if rt.store is not None:
+            rt.store.close()
+            rt.store = None
+
     def close(self) -> None:
         for rt in self.nodes.values():
             rt.stop()
