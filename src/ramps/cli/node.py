@@ -136,6 +136,8 @@ def node(
         err.print(f"ramps node {rt.robot}: leaving the team, handing running programs back ...")
         rt.stop()
         service.close()
+    if rt.name_taken:
+        fail(f"{rt.name_taken}: this node left the team")
     if rt.revoked_self:
         fail(f"robot {rt.robot} was revoked by team {rt.team} (revocation list {rt.revocations.seq if rt.revocations else '?'}): it left the team")
 

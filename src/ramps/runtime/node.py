@@ -182,6 +182,11 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         #: messages dropped because their sender is revoked; this robot itself was revoked
         self.revoked_dropped = 0
         self.revoked_self = False
+        #: another node runs under this robot's name: why this one left ("" = it did not;
+        #: Inbound._same_name), and the other incarnations heard (their first report's seq)
+        self.name_taken = ""
+        self._same_name_seen: dict[int, int] = {}
+        self._same_name_told: set[int] = set()
         #: Prometheus metrics (``--metrics``), fed from the driver thread (ramps.observe.metrics)
         self.metrics = None
         #: the durable record of the programs this node is origin of (``state_dir``;
@@ -495,7 +500,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             if item[0] == "stop":
                 self._apply(actions)
                 self._shutdown(item[1])
-                if self.revoked_self:  # nobody asked: leave the team now (run_node and the CLI see wait())
+                if self.revoked_self or self.name_taken:  # nobody asked: leave now (the CLI sees wait())
                     self._teardown()
                 return False
             try:
