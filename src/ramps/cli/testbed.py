@@ -408,6 +408,7 @@ def testbed_experiment_origin_restart(
     def table(r, console):
         console.print(f"down {r.down:g} s, cut {r.cut:g} s: {r.delivered}/{r.programs} delivered, {r.lost} lost, "
                       f"{r.duplicated} duplicated, {r.wrong} wrong; {r.kept} kept running by their hosts, "
+                      f"{r.dropped} dropped by them (the origin away too long), "
                       f"{r.again} placed again; {r.resumed} resumed from the record; last outcome "
                       f"{r.seconds_to_last:g} s after the crash; before the crash: {r.before}"
                       + (f"; first error: {r.error}" if r.error else ""), highlight=False, markup=False)

@@ -13,8 +13,12 @@ command, so it opens the same durable record. The client waits through it
 (``origin_grace``). Measured: programs delivered with the right result,
 how many were delivered more than once (the restarted origin's trace:
 ``delivered`` lines per program), how many finished on the host that held
-them before the crash (kept running there: attempt 1) and how many ran
-again, and the seconds from the crash to the last outcome.
+them before the crash without that host stopping them (kept: attempt 1
+there, no ``origin_gone`` in the host's trace), how many their hosts
+stopped or whose results they dropped because the origin was away longer
+than ``origin_hold`` (offered again by the restarted origin, they ran
+again on the same host as the same attempt), how many were placed again
+elsewhere, and the seconds from the crash to the last outcome.
 """
 
 from __future__ import annotations
@@ -40,8 +44,11 @@ class RestartRun(msgspec.Struct, kw_only=True):
     wrong: int
     lost: int
     duplicated: int
-    #: programs whose host before the crash delivered them (kept running through it)
+    #: programs whose host before the crash delivered them, having kept them through it
     kept: int
+    #: programs their hosts stopped, or whose results they dropped, while the origin was away
+    #: longer than ``origin_hold`` (the restarted origin offered them again)
+    dropped: int
     #: programs placed again after the restart (their copy died with the node, or the hosts gave up)
     again: int
     #: where the programs ran when the node was killed: robot -> count
@@ -68,7 +75,6 @@ def run_origin_restart(down: float, *, cut: float = 0.0, programs: int = 15, rob
         while any(f.state not in ("running", "progress") for f in futs) and time.monotonic() < deadline:
             time.sleep(0.1)
         before = Counter(f.host for f in futs)
-        hosts = {id(f): f.host for f in futs}
         t0 = time.monotonic()
         stresses.crash_node(tb, "r1", settle=0.2)
         if cut:
@@ -88,14 +94,21 @@ def run_origin_restart(down: float, *, cut: float = 0.0, programs: int = 15, rob
         last = time.monotonic() - t0
         time.sleep(1.0)  # the origin's last trace lines
         trace = read_trace(tb.log_dir / "r1.trace.jsonl") if tb.log_dir else []
+        gone = {e.program_id for r in names[1:] if tb.log_dir
+                for e in read_trace(tb.log_dir / f"{r}.trace.jsonl") if e.what == "origin_gone"}
     delivered = Counter(e.program_id for e in trace if e.what == "delivered")
     resumed = sum(1 for e in trace if e.what == "restored")
     ok = [r is not None and r.get("iterations") == expected for r in results]
-    kept = sum(1 for f, good in zip(futs, ok) if good and f.attempts == 1 and f.host == hosts[id(f)] != "r1")
+    # from the origin's trace (one clock with this process): where each ran at the crash, where it ended
+    ran_at_crash = {e.program_id: e.other for e in trace if e.what == "accepted" and e.t < t0}
+    ended = {e.program_id: (e.other, e.attempt) for e in trace if e.what == "delivered"}
+    kept = sum(1 for pid, (host, attempt) in ended.items()
+               if attempt == 1 and host != "r1" and ran_at_crash.get(pid) == host and pid not in gone)
     return RestartRun(down=down, cut=cut, programs=programs, delivered=sum(ok),
                       wrong=sum(1 for r, good in zip(results, ok) if r is not None and not good),
                       lost=sum(1 for r in results if r is None),
                       duplicated=sum(1 for n in delivered.values() if n > 1), kept=kept,
+                      dropped=len(gone & set(ended)),
                       again=sum(1 for f in futs if f.attempts > 1), before=dict(sorted(before.items())),
                       resumed=resumed, seconds_to_last=round(last, 1), error=error)
 
