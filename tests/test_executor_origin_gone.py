@@ -77,3 +77,26 @@ def test_losing_an_origin_with_nothing_here_changes_nothing():
     ex = Executor("h", config=CFG)
     ex.on_origin_lost("o1", 0.0)
     assert ex.next_deadline() is None
+
+
+def test_the_drop_happens_at_the_very_time_the_executor_wakes_for_it():
+    """A simulator wakes the executor exactly at its deadline: ``since +
+    origin_hold`` must drop the programs then, not find ``now - since`` a hair
+    short of the hold and ask to be woken at the same instant for ever."""
+    ex = Executor("h", config=CFG)
+    since = 995.801795  # (since + hold) - since < hold in floating point
+    assert (since + ORIGIN_GONE_AFTER) - since < ORIGIN_GONE_AFTER
+    offer(ex, "o1", "a", since)
+    ex.on_origin_lost("o1", since)
+    out: list = []
+    woken = []
+    for _ in range(1000):  # each wake at the deadline the executor asked for, as the simulator does
+        now = ex.next_deadline()
+        if now is None or now > since + ORIGIN_GONE_AFTER:
+            break
+        woken.append(now)
+        ex.tick(now, out)
+    else:
+        raise AssertionError(f"woken 1000 times, the last at {woken[-3:]}")
+    assert woken[-1] == since + ORIGIN_GONE_AFTER
+    assert [a.program_id for a in out if isinstance(a, StopProgram)] == ["a"]

@@ -293,7 +293,7 @@ class Executor:
 
     def _drop_gone_origins(self, now: float, out: list[Action]) -> None:
         for robot, since in list(self._origins_lost.items()):
-            if now - since < self.origin_gone_after:
+            if now < since + self.origin_gone_after:  # the very sum tick() wakes at: no float gap
                 continue
             del self._origins_lost[robot]
             for key, job in list(self.running.items()):
