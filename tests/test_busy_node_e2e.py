@@ -182,14 +182,15 @@ def test_what_ends_or_is_submitted_during_a_stall_reaches_its_place(tmp_path):
 def test_a_program_whose_origin_crashed_and_came_back_completes_once(tmp_path):
     """The application's node r1 is killed (with its workers) while its two
     programs run, one on r1 and one on r2, and restarted 2 s later (within
-    the client's grace): the client asks the new r1 about both, which runs
-    them anew; each completes once for the application (the dead origin's
-    copy on r2 sends its result to the new r1, which does not know it and
-    drops it)."""
+    the client's grace) with its durable record: the copy on r2 runs on and
+    delivers to the new r1; the one on r1 died with it and runs again; each
+    completes once for the application."""
     trace = tmp_path / "r1.trace"
     t = LocalTeam(2, tmp_path, cores=2)
     try:
         team, futs = _two_sleepy(t, trace, seconds=3.0, tag="c", start_within=60)
+        was = {f"c{i}": (t.marks / f"c{i}").read_text().split()[0] for i in range(2)}  # robot, pid
+        assert sorted(was.values()) == ["r1", "r2"]
         for i in range(2):
             (t.marks / f"c{i}").unlink()
         t.kill_node("r1")
@@ -198,7 +199,8 @@ def test_a_program_whose_origin_crashed_and_came_back_completes_once(tmp_path):
                      wait=False)
         res = [f.result(timeout=RESULT_TIMEOUT) for f in futs]
         assert sorted(r["tag"] for r in res) == ["c0", "c1"]
-        assert all((t.marks / f"c{i}").exists() for i in range(2))  # run again, by the new r1
+        again = sorted(tag for tag in was if (t.marks / tag).exists())
+        assert again == [tag for tag, robot in was.items() if robot == "r1"]  # only r1's copy ran again
         entries = trace_lines(trace)
         delivered = [e for e in entries if e["what"] == "delivered"]
         assert len(delivered) == 2 and len({e["program_id"] for e in delivered}) == 2, delivered
