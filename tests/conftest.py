@@ -21,9 +21,12 @@
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
+import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -31,6 +34,11 @@ import pytest
 
 # let test modules share helpers (tests/corehelpers.py) without a package
 sys.path.insert(0, str(Path(__file__).parent))
+# every node a test starts keeps its durable record (ramps.runtime.store) in a
+# folder of this run, not in the user's ~/.local/state/ramps; removed at the end
+_STATE_DIR = tempfile.mkdtemp(prefix="ramps-test-state-")
+os.environ.setdefault("RAMPS_STATE_DIR", _STATE_DIR)
+atexit.register(shutil.rmtree, _STATE_DIR, True)
 
 _CPU_REPORT: list[dict[str, object]] = []
 

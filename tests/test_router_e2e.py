@@ -32,7 +32,7 @@ ROBOTS = ("r1", "r2", "r3")
 
 
 def _env(robot: str | None = None) -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("RAMPS_")}
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RAMPS_") or k == "RAMPS_STATE_DIR"}
     env["PYTHONPATH"] = os.pathsep.join([str(TESTS_DIR)] + [p for p in [os.environ.get("PYTHONPATH")] if p])
     env[RUN_ENV] = RUN_ID
     if robot:

@@ -381,9 +381,13 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         if self.store is not None:
             keep = self.store.programs()
             self.store.close()
-            if not keep:  # nothing to resume: leave no file behind
+            if not keep:  # nothing to resume: leave no file behind (nor the team's folder, if it was the last)
                 for suffix in ("", "-wal", "-shm"):
                     Path(str(self.store.path) + suffix).unlink(missing_ok=True)
+                try:
+                    self.store.path.parent.rmdir()
+                except OSError:
+                    pass
             self.store = None
         if self._trace is not None:
             self._trace_wire = False

@@ -112,6 +112,7 @@ class SiteTestbed(Testbed):
             cmd += ["--config", str(self._config_file())]
         if self.log_dir:
             cmd += ["--trace", str(self.log_dir / f"{robot}.trace.jsonl")]
+        cmd += ["--state-dir", str(self.records_dir)]  # removed with the testbed
         return cmd
 
     def _start_node(self, robot: str) -> None:
