@@ -168,3 +168,13 @@ def test_router_cli_help_and_clear_errors():
     assert r.exit_code == 2 and "ramps's own" in r.output
     r = CliRunner().invoke(app, ["node", "--help"], env={"COLUMNS": "120"})
     assert "--mode" in r.output and "client" in r.output
+
+
+def test_an_application_chooses_its_mode_and_a_client_without_a_router_is_told_at_once():
+    import ramps
+    from ramps.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="client mode needs a router"):
+        ramps.connect(team="t", mode="client", multicast=False, timeout=0.1)
+    with pytest.raises(ConfigError, match="mode must be peer or client, got 'router'"):
+        ramps.connect(team="t", mode="router", timeout=0.1)

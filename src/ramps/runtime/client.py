@@ -533,7 +533,8 @@ class _Options:
 def connect(team: str | None = None, robot: str | None = None, *, connect: list[str] | None = None,
             listen: list[str] | None = None, multicast: bool | None = None, timeout: float = 5.0,
             config_file: str | None = None, registry: Registry | None = None, secure: bool | None = None,
-            credentials: str | os.PathLike | None = None, origin_grace: float = ORIGIN_GONE_GRACE) -> Team:
+            credentials: str | os.PathLike | None = None, origin_grace: float = ORIGIN_GONE_GRACE,
+            mode: str | None = None) -> Team:
     """Join a team as an application and return a ``Team`` to submit to.
 
     ``robot`` names the node that will be the origin of your programs
@@ -546,11 +547,15 @@ def connect(team: str | None = None, robot: str | None = None, *, connect: list[
     team that will not admit them raises ``NotAdmitted`` (a ``NoTeam``) at
     once, as does a secured team joined without ``secure``.
 
+    ``mode``: Zenoh's ``peer`` (default) or ``client`` (reach the team
+    through the router given in ``connect``; docs/sites-and-routers.md; env
+    ``RAMPS_MODE``).
+
     ``origin_grace``: seconds to wait for the origin node to come back (a
     restart by its supervisor) before its pending programs fail with
     ``ProgramLost``; a node with a durable record resumes them."""
     settings = load_settings(config_file=config_file, default_robot=False, flags={
         "team": team, "connect": connect, "listen": listen, "multicast": multicast, "secure": secure,
-        "credentials": str(credentials) if credentials is not None else None,
+        "credentials": str(credentials) if credentials is not None else None, "mode": mode,
     })
     return Team(settings, robot=robot, timeout=timeout, registry=registry, origin_grace=origin_grace)
