@@ -446,6 +446,20 @@ def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credential
     strategy = AUTOCONNECT_STRATEGY if listening else AUTOCONNECT_ALWAYS
     for how in ("multicast", "gossip"):
         c.insert_json5(f"scouting/{how}/autoconnect_strategy", strategy)
+    _links_security_overrides(c, s, credentials, exit_on_failure, "zenoh_config")
+    return c
+
+
+def _links_security_overrides(c, s: NodeSettings, credentials, exit_on_failure: bool, caller: str) -> None:
+    """What a robot's and a router's configurations share: the team's lease
+    and keep-alives, shared memory off when asked (two routers on one host,
+    the testbed, would pass large messages around their link), on a secured
+    team its TLS and access control (``credentials``: the checked bundle;
+    ``exit_on_failure``: ``zenoh.open`` fails within 3 s unless it links to
+    every connect endpoint), and last ``s.zenoh``: what the operator wrote
+    wins over ramps's defaults."""
+    import json
+
     c.insert_json5("transport/link/tx/lease", str(s.lease_ms))
     c.insert_json5("transport/link/tx/keep_alive", "4")
     if not s.shared_memory:
@@ -454,20 +468,12 @@ def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credential
         from ramps.runtime.security import secure_zenoh_json
 
         if credentials is None:
-            raise ValueError("secure mode: zenoh_config needs the checked credentials")
+            raise ValueError(f"secure mode: {caller} needs the checked credentials")
         for key, value in secure_zenoh_json(s.team, credentials, members=s.members).items():
             c.insert_json5(key, json.dumps(value))
         if exit_on_failure and s.connect:
             c.insert_json5("connect/exit_on_failure", "true")
             c.insert_json5("connect/timeout_ms", str(CONNECT_TIMEOUT_MS))
-    _apply_overrides(c, s)
-    return c
-
-
-def _apply_overrides(c, s: NodeSettings) -> None:
-    """``s.zenoh``, last: what the operator wrote wins over ramps's defaults."""
-    import json
-
     for key, value in flatten_zenoh(s.zenoh).items():
         c.insert_json5(key, json.dumps(value))
 
@@ -500,21 +506,7 @@ def router_config(s: NodeSettings, *, credentials=None, exit_on_failure: bool = 
     c.insert_json5("listen/endpoints", json.dumps(router_listen(s)))
     c.insert_json5("connect/endpoints", json.dumps(s.connect))
     c.insert_json5("scouting/multicast/enabled", "true" if s.multicast else "false")
-    c.insert_json5("transport/link/tx/lease", str(s.lease_ms))
-    c.insert_json5("transport/link/tx/keep_alive", "4")
-    if not s.shared_memory:  # two routers on one host (the testbed) would pass large messages around their link
-        c.insert_json5("transport/shared_memory/enabled", "false")
-    if s.secure:
-        from ramps.runtime.security import secure_zenoh_json
-
-        if credentials is None:
-            raise ValueError("secure mode: router_config needs the checked credentials")
-        for key, value in secure_zenoh_json(s.team, credentials, members=s.members).items():
-            c.insert_json5(key, json.dumps(value))
-        if exit_on_failure and s.connect:
-            c.insert_json5("connect/exit_on_failure", "true")
-            c.insert_json5("connect/timeout_ms", str(CONNECT_TIMEOUT_MS))
-    _apply_overrides(c, s)
+    _links_security_overrides(c, s, credentials, exit_on_failure, "router_config")
     return c
 
 
