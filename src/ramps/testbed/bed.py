@@ -288,6 +288,12 @@ class Testbed(Faults):
         if self.discovery in ("both", "connect") and robot != self.names[0]:
             cmd += ["--connect", f"tcp/{self.robots[self.names[0]]['ip']}:{PORT}"]
         cmd += ["--multicast" if self.discovery in ("both", "multicast") else "--no-multicast"]
+        return cmd + self._node_options(robot)
+
+    def _node_options(self, robot: str) -> list[str]:
+        """What every robot's node is told whatever its network: cores, speed,
+        policy, lease, programs, config file, trace and durable record."""
+        cmd: list[str] = []
         for flag, value in (("--cores", self.cores), ("--speed", self.speed), ("--policy", self.policy),
                             ("--lease-ms", self.lease_ms)):
             if value is not None:

@@ -102,18 +102,7 @@ class SiteTestbed(Testbed):
             cmd += ["--listen", f"tcp/{rb['ip']}:{PORT}", "--multicast"]
         else:
             cmd += ["--no-multicast"]
-        for flag, value in (("--cores", self.cores), ("--speed", self.speed), ("--policy", self.policy),
-                            ("--lease-ms", self.lease_ms)):
-            if value is not None:
-                cmd += [flag, str(value)]
-        for p in self.programs:
-            cmd += ["--program", p]
-        if self.config and self.log_dir:
-            cmd += ["--config", str(self._config_file())]
-        if self.log_dir:
-            cmd += ["--trace", str(self.log_dir / f"{robot}.trace.jsonl")]
-        cmd += ["--state-dir", str(self.records_dir)]  # removed with the testbed
-        return cmd
+        return cmd + self._node_options(robot)
 
     def _start_node(self, robot: str) -> None:
         if robot == ROUTER and self._before_router is not None:
