@@ -40,6 +40,7 @@ import msgspec
 
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate
+from ramps.core.durable import RESTORE_GRACE
 from ramps.core.events import Action, Deliver, Note, Progress, Send, Submit
 from ramps.core.links import Links
 from ramps.core.loadview import LoadView
@@ -163,8 +164,6 @@ class Origin:
         (``ramps.core.durable.program_of``): one whose current attempt ran on
         a teammate waits ``RESTORE_GRACE`` to hear of it there, as if just
         offered; one that ran here or was backing off is placed again now."""
-        from ramps.core.durable import RESTORE_GRACE
-
         for ap in programs:
             if ap.program_id in self.programs:
                 raise ValueError(f"program id {ap.program_id!r} is already here")
@@ -175,7 +174,6 @@ class Origin:
                 except ValueError:  # a policy this version does not have: the node's own places it
                     ap.submit = msgspec.structs.replace(sub, policy="")
             self.programs[ap.program_id] = ap
-            self._changed(ap)
             for attempt, host in list(ap.live.items()):
                 if host == self.me:  # its copy here died with the previous process
                     del ap.live[attempt]

@@ -68,8 +68,7 @@ class ClientAnswers:
         for rkey, data in found.outcomes.items():
             self._answered[rkey] = data
         out: list = []
-        self.node.origin.restore(aps, now, out)
-        self.node.origin.changed = set()
+        self.node.origin.restore(aps, now, out)  # as recorded: nothing to write back
         if aps or found.skipped:
             log.warning("node %s resumed %d program(s) from its record %s%s", self.robot, len(aps), self.store.path,
                         f" ({found.skipped} unreadable, skipped)" if found.skipped else "")

@@ -81,13 +81,9 @@ class Inbound:
         return self._peer_event(robot, alive, now)
 
     def _peer_event(self, robot: str, alive: bool, now: float) -> list:
-        """A teammate's liveliness, to the origin (its hosts) and to the
-        executor (its origins: one gone for good has its programs here
-        stopped, see ``Executor.on_origin_lost``)."""
-        if alive:
-            self.node.executor.on_origin_back(robot)
-        else:
-            self.node.executor.on_origin_lost(robot, now)
+        """A teammate's liveliness, to the core: its origin (the teammate as a
+        host) and its executor (the teammate as an origin: one gone for good
+        has its programs here stopped, see ``Executor.on_origin_lost``)."""
         return self.node.handle(PeerAlive(robot=robot) if alive else PeerLost(robot=robot), now)
 
     def _load_revocations(self, creds) -> None:
