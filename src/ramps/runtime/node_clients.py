@@ -91,15 +91,21 @@ class ClientAnswers:
         for a in actions:
             if isinstance(a, Deliver):
                 target = self._clients.get(a.program_id)
-                data = self._outcome_data(target, a) if target is not None else b""
+                data = b""
+                if target is not None:
+                    t = self._as_told(a)
+                    data = self._outcome(target[1], ok=t.ok, value=t.value, error=t.error, kind=t.error_kind,
+                                         host=t.host, attempts=t.attempts, moves=t.moves, resumed_from=t.resumed_from)
                 self._outcomes_ready[a.program_id] = data
                 finished.append((a.program_id, target[0] if target else "", target[1] if target else 0, data))
         self.store.save(records, finished)
 
-    def _outcome_data(self, target: tuple[str, int], a: Deliver) -> bytes:
+    def _outcome(self, request_id: int, *, ok: bool, value: bytes = b"", error: str = "", kind: str = "",
+                 host: str = "", attempts: int = 0, moves: int = 0, resumed_from: float | None = None) -> bytes:
+        """A request's outcome, encoded as its client receives it."""
         return encode(self.robot, ProgramOutcome(
-            request_id=target[1], ok=a.ok, value=a.value, error=a.error, error_kind=a.error_kind, host=a.host,
-            attempts=a.attempts, moves=a.moves, resumed_from=a.resumed_from))
+            request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts,
+            moves=moves, resumed_from=resumed_from))
 
     def _client_submit(self, m: SubmitProgram, now: float) -> list:
         rkey = (m.client, m.request_id)
@@ -139,9 +145,9 @@ class ClientAnswers:
         client, request_id = target
         self._requests.pop(target, None)
         self._progress.pop(pid, None)
-        data = self._outcomes_ready.pop(pid, None) or encode(self.robot, ProgramOutcome(
-            request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts,
-            moves=moves, resumed_from=resumed_from))  # the one written to the record, if any
+        data = self._outcomes_ready.pop(pid, None) or self._outcome(  # the one written to the record, if any
+            request_id, ok=ok, value=value, error=error, kind=kind, host=host, attempts=attempts, moves=moves,
+            resumed_from=resumed_from)
         self._answered[target] = data  # a resend still in flight must not run it again
         self._kept_outcomes.append(target)
         self._kept_bytes += len(data)

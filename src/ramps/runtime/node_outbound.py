@@ -77,13 +77,11 @@ class Outbound:
             elif isinstance(a, StopProgram):
                 self.pool.cancel((a.program_id, a.attempt))
             elif isinstance(a, Deliver):
-                kind = a.error_kind
-                if self.node.executor.closing and kind == "cancelled":
-                    kind, a = "shutdown", msgspec.structs.replace(a, error=f"origin {self.robot} shut down")
                 if self._trace is not None:  # first, so a caller holding the result finds it traced
                     self._write_trace("delivered", a.program_id, a.host, a.attempts, a.error_kind)
-                self._tell_client(a.program_id, ok=a.ok, value=a.value, error=a.error, kind=kind, host=a.host,
-                                  attempts=a.attempts, moves=a.moves, resumed_from=a.resumed_from)
+                t = self._as_told(a)
+                self._tell_client(t.program_id, ok=t.ok, value=t.value, error=t.error, kind=t.error_kind, host=t.host,
+                                  attempts=t.attempts, moves=t.moves, resumed_from=t.resumed_from)
             elif isinstance(a, PublishReport):
                 self._publish_prompt(a.report)
             elif isinstance(a, Progress):
@@ -270,6 +268,13 @@ class Outbound:
         parts = [f"+{names(after - before)}" if after - before else "",
                  f"-{names(before - after)}" if before - after else ""]
         log.info("node %s sees %d teammate(s): %s", self.robot, len(after), " ".join(p for p in parts if p))
+
+    def _as_told(self, a: Deliver) -> Deliver:
+        """An outcome as its client is told it: a program cancelled because
+        this node is shutting down ends as ``shutdown``."""
+        if self.node.executor.closing and a.error_kind == "cancelled":
+            return msgspec.structs.replace(a, error_kind="shutdown", error=f"origin {self.robot} shut down")
+        return a
 
     def _shutdown(self, done: threading.Event) -> None:
         now = self._clock()
