@@ -194,3 +194,18 @@ def test_the_campaign_explains_a_resumed_attempt_written_off_only_when_the_crash
     assert _unexplained(trace(True), {"r4": [(12.0, 19.0)]}, "r1") == []  # r4 crashed while r1 was away
     assert len(_unexplained(trace(True), {}, "r1")) == 1
     assert len(_unexplained(trace(True), {"r1": [(11.0, 20.0)]}, "r1")) == 1  # the origin's own fault explains none
+
+
+def test_the_record_keeps_the_newest_outcomes_up_to_its_bound(tmp_path, monkeypatch):
+    import ramps.runtime.store as st
+
+    monkeypatch.setattr(st, "OUTCOMES_MAX", 3)
+    store = OriginStore(tmp_path, team="t", robot="r1")
+    for i in range(5):
+        store.save({}, [(f"p{i}", "app", i, b"o%d" % i)])
+    assert sorted(store.load().outcomes) == [("app", 2), ("app", 3), ("app", 4)]
+    store.close()
+    again = OriginStore(tmp_path, team="t", robot="r1")  # counted again at start: still bounded
+    again.save({}, [("p5", "app", 5, b"o5")])
+    assert sorted(again.load().outcomes) == [("app", 3), ("app", 4), ("app", 5)]
+    again.close()

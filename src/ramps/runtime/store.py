@@ -49,6 +49,7 @@ CREATE TABLE IF NOT EXISTS programs (
 CREATE TABLE IF NOT EXISTS outcomes (
     client TEXT NOT NULL, request_id INTEGER NOT NULL, outcome BLOB NOT NULL, at REAL NOT NULL,
     PRIMARY KEY (client, request_id));
+CREATE INDEX IF NOT EXISTS outcomes_at ON outcomes (at);
 """
 
 
@@ -96,6 +97,11 @@ class OriginStore:
             log.error("node %s: its record %s could not be read (%s): set aside as %s; starting with an empty "
                       "record (programs it had are lost to it)", robot, self.path, exc, aside)
             self._db = self._open()
+        #: outcome rows, at least (a replaced one counts twice): the oldest go once there are too many
+        self._outcome_rows = self._count_outcomes()
+
+    def _count_outcomes(self) -> int:
+        return int(self._db.execute("SELECT count(*) FROM outcomes").fetchone()[0])
 
     def _open(self) -> sqlite3.Connection:
         db = sqlite3.connect(self.path, isolation_level=None, check_same_thread=False)
@@ -123,6 +129,7 @@ class OriginStore:
         ``OUTCOME_KEEP`` are dropped first)."""
         now = time.time() if now is None else now
         self._db.execute("DELETE FROM outcomes WHERE at < ?", (now - OUTCOME_KEEP,))
+        self._outcome_rows = self._count_outcomes()
         found = Restored()
         for pid, client, rid, data in self._db.execute("SELECT program_id, client, request_id, record FROM programs"):
             try:
@@ -150,14 +157,19 @@ class OriginStore:
             if finished:
                 db.executemany("DELETE FROM programs WHERE program_id = ?", [(f[0],) for f in finished])
                 at = time.time()
-                db.executemany("INSERT OR REPLACE INTO outcomes VALUES (?, ?, ?, ?)",
-                               [(c, r, data, at) for _, c, r, data in finished if c])
-                db.execute("DELETE FROM outcomes WHERE rowid IN (SELECT rowid FROM outcomes ORDER BY at DESC "
-                           "LIMIT -1 OFFSET ?)", (OUTCOMES_MAX,))
+                kept = [(c, r, data, at) for _, c, r, data in finished if c]
+                db.executemany("INSERT OR REPLACE INTO outcomes VALUES (?, ?, ?, ?)", kept)
+                rows = self._outcome_rows + len(kept)
+                if rows > OUTCOMES_MAX:  # the oldest beyond the bound, through the index on ``at``
+                    db.execute("DELETE FROM outcomes WHERE rowid IN (SELECT rowid FROM outcomes ORDER BY at "
+                               "LIMIT ?)", (rows - OUTCOMES_MAX,))
+                    rows = OUTCOMES_MAX
             db.execute("COMMIT")
         except BaseException:
             db.execute("ROLLBACK")
             raise
+        if finished:
+            self._outcome_rows = rows
         self.writes += 1
         self.commit_s += time.perf_counter() - t0
 
