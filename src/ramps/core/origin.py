@@ -301,13 +301,13 @@ class Origin:
         # the cut is certain at most an isolation timeout after it
         return self.config.heartbeat_timeout + self.config.isolation_timeout + self.config.heartbeat_period
 
-    def on_peer_alive(self, robot: str, now: float = 0.0, out: list[Action] | None = None) -> None:
+    def on_peer_alive(self, robot: str, now: float, out: list[Action]) -> None:
         self.view.set_lost(robot, False)
         for pid, attempt in list(self._resumed.items()):  # restored offers not answered yet: again
             ap = self.programs.get(pid)
             if ap is None or ap.state is not S.OFFERED or ap.attempt != attempt:
                 del self._resumed[pid]
-            elif ap.host == robot and out is not None:
+            elif ap.host == robot:
                 self._offer(ap, now, out)
 
     def on_stalled(self, seconds: float, now: float, *, links: bool = False) -> None:
