@@ -39,7 +39,7 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: costs within this relative margin count as equal; ties are then broken
     #: towards the least utilised robot, then this one (ramps policy only).
     #: 0.005 (was 0.02): a 2% margin kept programs on their origin where a
-    #: teammate was 1% faster (docs/2026-11-23-several-origins.md, "Ties")
+    #: teammate was 1% faster (docs/lab/2026-11-23-several-origins.md, "Ties")
     tie_tolerance: float = 0.005
     #: a host busier than the origin expected still takes a program that
     #: computes there within its time budget plus this relative margin
@@ -98,7 +98,7 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     relocate_max_moves: int = 2
     relocate_settle: float = 5.0
     relocate_persist: float = 3.0
-    #: calm relocation (issue 23; docs/2026-11-23-relocation.md, "Calm"): a
+    #: calm relocation (issue 23; docs/lab/2026-11-23-relocation.md, "Calm"): a
     #: program that does not checkpoint is never moved once the origin's
     #: upper estimate of its work done (its time there at one whole core of
     #: the host's speed, or its own progress if further) passes this fraction

@@ -22,7 +22,7 @@ Discovery: multicast scouting (``--multicast``) inside the bridge *and* an
 explicit ``--connect`` to a seed (r1, for every robot but r1). Multicast
 alone finds everyone at start-up, but the explicit seed makes rejoining after
 a cut deterministic (the side holding a ``connect`` endpoint redials by
-itself: docs/failures-2026-11-23.md, zenoh#2806) instead of depending on the scouting period. r1
+itself: docs/lab/2026-11-23-failures.md, zenoh#2806) instead of depending on the scouting period. r1
 dials nobody: everyone dials it. (r1 used to dial r2 as its seed; with r2
 dialing r1 too, stalls of both overlapping left them deaf to each other for
 good, zenoh#2806: the stressed campaign, seed 25000000.)

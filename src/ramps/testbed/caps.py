@@ -1,4 +1,4 @@
-"""Per-program CPU caps on the testbed (docs/testbed-2026-11-23.md, "caps").
+"""Per-program CPU caps on the testbed (docs/lab/2026-11-23-testbed.md, "caps").
 
 How this works: a robot is one cpu cgroup whose quota makes it ``cores``
 emulated cores of ``quota / cores`` host cores each. Without more, a robot
