@@ -3,6 +3,7 @@
     ramps config check /etc/ramps/node.toml                   # ok and the effective settings, or every problem
     ramps config check node.toml --env-file /etc/ramps/node.env   # with the service's environment
     ramps config check node.toml --json                       # the effective settings as JSON
+    ramps config reference > docs/configuration.md            # every setting, flag and variable
 
 The checks are the node's own (``ramps.runtime.config_check``); this module
 prints. Exit 0 when the node would start with this file, 2 otherwise, one
@@ -20,8 +21,8 @@ import typer
 
 from ramps.cli.common import err, fail, out
 
-config_app = typer.Typer(help="Check a node's config file before it runs (ramps node --config).",
-                         no_args_is_help=True)
+config_app = typer.Typer(help="A node's configuration: check a config file before it runs (ramps node "
+                         "--config), or print the reference of every setting.", no_args_is_help=True)
 
 
 @config_app.command("check")
@@ -67,6 +68,17 @@ def check(
     width = max(len(name) for name, _ in rows)
     for name, value in rows:
         out.print(f"  {name.ljust(width)}  {value}", highlight=False, soft_wrap=True)
+
+
+@config_app.command("reference")
+def reference() -> None:
+    """Print the configuration reference as Markdown: every setting of a node with its
+    TOML key, `ramps node` flag, environment variable, default and meaning, the
+    \\[commands.NAME], \\[core] and \\[zenoh] tables, and the other environment variables
+    (docs/configuration.md is this output)."""
+    from ramps.cli.reference import reference as make
+
+    sys.stdout.write(make())
 
 
 def register(app: typer.Typer) -> None:

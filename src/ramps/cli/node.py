@@ -45,9 +45,11 @@ def node(
     policy: PolicyOption = None,
     program: Optional[list[str]] = typer.Option(None, "--program", help="extra program as package.module:function (repeatable)"),
     command: Optional[list[str]] = typer.Option(None, "--command", help="an executable as a program, NAME=PATH (repeatable; env RAMPS_COMMANDS): "
-                                                "arguments as a JSON object on stdin, result as JSON on stdout, failure = non-zero exit "
-                                                "(stderr tail returned), progress = 'RAMPS_PROGRESS 0.4' lines on stderr, killed with its "
-                                                "process group when withdrawn or after 600 s ([commands.NAME] timeout in --config)"),
+                                                "it gets the call's arguments as a JSON object on stdin and prints its result as JSON "
+                                                "on stdout; a non-zero exit is a failure (the tail of its stderr goes to the caller); "
+                                                "'RAMPS_PROGRESS 0.4' lines on stderr report progress; its process group is killed when "
+                                                "the program is withdrawn or after 600 s (another limit: timeout in a \\[commands.NAME] "
+                                                "table of --config)"),
     config_file: Optional[Path] = typer.Option(None, "--config", help="TOML config file (env RAMPS_CONFIG)"),
     lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh session lease: how fast a frozen or cut-off peer is noticed"),
     node_nice: Optional[int] = typer.Option(None, "--node-nice", min=-20, max=19,

@@ -37,9 +37,9 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: load reports older than this are ignored when placing (robot gone quiet)
     max_report_age: float = 10.0
     #: costs within this relative margin count as equal; ties are then broken
-    #: towards the least utilised robot, then this one (ramps policy only).
-    #: 0.005 (was 0.02): a 2% margin kept programs on their origin where a
-    #: teammate was 1% faster (docs/lab/2026-11-23-several-origins.md, "Ties")
+    #: towards the least utilised robot, then this one (ramps policy only). A
+    #: wider margin keeps programs on their origin where a teammate is a little
+    #: faster (docs/lab/2026-11-23-several-origins.md, "Ties")
     tie_tolerance: float = 0.005
     #: a host busier than the origin expected still takes a program that
     #: computes there within its time budget plus this relative margin
@@ -56,16 +56,20 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     admission_slack: float = 0.5
     #: with no report from any teammate for this long, an origin treats itself
     #: as cut off and runs displaced programs locally, still wanting the
-    #: remote copies it wrote off just before (see Origin._revive_written_off)
+    #: remote copies it wrote off just before: the first result is delivered
     isolation_timeout: float = 5.0
     #: robots' speeds are corrected (``ramps.core.speed``, policies that
     #: share load only): a node's own by a faster re-measurement while idle,
     #: a host's at its origins by comparing its results with the same
     #: program's runs on other robots, once the median of its last figures is
     #: off by more than ``speed_deadband`` and within ``speed_max_correction``
-    #: times either way; False keeps every robot's boot measurement
+    #: times either way; false keeps every robot's boot measurement
     speed_learning: bool = True
+    #: a robot's speed is corrected only when its figures are off by more than
+    #: this fraction
     speed_deadband: float = 0.05
+    #: a robot's speed is corrected by at most this factor either way; figures
+    #: further off are taken as noise
     speed_max_correction: float = 2.0
     #: a program that lost this many hosts or workers ends with an error
     max_attempts: int = 50
@@ -76,29 +80,35 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: a host publishes a report of the instant whenever the programs it runs
     #: change, so origins deciding at once see each other's placements within
     #: a network latency instead of a report period (policies that share
-    #: load only, see ``ramps.core.node``); at most one per interval
+    #: load only)
     prompt_reports: bool = True
+    #: the shortest time between two such reports of the instant (0: one per
+    #: change)
     prompt_report_interval: float = 0.0
     #: a node probes each teammate's link this often to measure T_comm
     #: (``ramps.core.links``); 0 = assume the configured network estimate
     probe_period: float = 5.0
-    #: relocation after placement (policies that relocate, see
-    #: ``Origin._relocate``): every ``relocate_period`` seconds an origin
-    #: re-evaluates eq. (1) for its running programs with what it now knows,
-    #: and moves one when its remaining time where it runs exceeds the time to
-    #: finish elsewhere (restart, or resume from its last checkpoint, plus
-    #: T_comm of parameters and checkpoint) by ``relocate_gain`` (relative)
-    #: AND ``relocate_min_gain`` seconds, for ``relocate_persist`` seconds in a
-    #: row (a spike of load moves nothing); at most ``relocate_max_moves``
-    #: moves per program, none within ``relocate_settle`` s of an acceptance
+    #: relocation after placement (the ramps policy): an origin re-evaluates
+    #: the cost model for its running programs with what it now knows, and
+    #: moves one when its remaining time where it runs exceeds the time to
+    #: finish elsewhere (restart, or resume from its last checkpoint, plus the
+    #: transfer of its parameters and checkpoint) by ``relocate_gain`` and
+    #: ``relocate_min_gain``, for ``relocate_persist`` seconds in a row (a
+    #: spike of load moves nothing). Off: programs stay where they started
     relocate: bool = True
+    #: seconds between an origin's re-evaluations of its running programs
     relocate_period: float = 1.0
+    #: a move must save at least this fraction of the time left where it runs
     relocate_gain: float = 0.2
+    #: a move must save at least this many seconds
     relocate_min_gain: float = 5.0
+    #: moves per program at most
     relocate_max_moves: int = 2
+    #: no move within this many seconds of a program's acceptance by its host
     relocate_settle: float = 5.0
+    #: a move must pay off for this many seconds in a row before it is made
     relocate_persist: float = 3.0
-    #: calm relocation (issue 23; docs/lab/2026-11-23-relocation.md, "Calm"): a
+    #: calm relocation (docs/lab/2026-11-23-relocation.md, "Calm"): a
     #: program that does not checkpoint is never moved once the origin's
     #: upper estimate of its work done (its time there at one whole core of
     #: the host's speed, or its own progress if further) passes this fraction

@@ -60,13 +60,17 @@ from ramps.runtime.registry import MAX_ARGS_BYTES as _MAX_ARGS
 class CommandEntry(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """An executable registered as a program (``ramps.runtime.command``)."""
 
+    #: the executable (``~`` expanded, a relative path taken from the node's
+    #: working directory); checked when the node starts
     path: str
     #: seconds it may run before its process group is killed
     timeout: float = 600.0
-    #: fixed command-line arguments, before nothing (the call's arguments come on stdin)
+    #: fixed command-line arguments (the call's arguments come on stdin as JSON)
     args: list[str] = []
-    #: expected work units, for placement (about CPU-seconds on a reference core)
+    #: expected work units, for placement (about CPU seconds on a reference core)
     work: float = 1.0
+    #: run it only on the robot whose node it was submitted to (it touches
+    #: that robot's hardware)
     local_only: bool = False
 
     def __post_init__(self) -> None:
@@ -159,45 +163,76 @@ def check_zenoh_overrides(table: dict[str, Any], *, secure: bool) -> dict[str, A
 
 
 class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """A node's (or client's) settings; ``load_settings`` builds them. Each field's
+    ``#:`` comment is its entry in docs/configuration.md (``ramps config reference``)."""
+
+    #: this robot's name, unique in its team: 1-64 letters, digits, ``_``, ``-``
+    #: or ``.``. Default: this host's name, which machines cloned from one disk
+    #: image share, so give each robot its own
     robot: str = ""
+    #: the team this node joins: teams on one network never hear each other
     team: str = "lab"
-    #: Zenoh mode. "peer" (default): links straight to every teammate it finds
-    #: (multicast, gossip, --connect), the robots of one network. "client": links
-    #: to one router only (--connect tcp/ROUTER:7447, or found by multicast) and
-    #: reaches every teammate through it: robots that cannot or should not link
-    #: to each other (client-isolated WiFi, many robots, another site reached
-    #: only through routers). A client does not listen. See docs/sites-and-routers.md
+    #: Zenoh mode. ``peer``: links straight to every teammate it finds
+    #: (multicast, gossip, ``connect``), for the robots of one network.
+    #: ``client``: links to one router only (``connect = ["tcp/ROUTER:7447"]``,
+    #: or found by multicast) and reaches every teammate through it, for robots
+    #: that cannot or should not link to each other (client-isolated WiFi, many
+    #: robots, another site reached only through routers). A client does not
+    #: listen. See docs/sites-and-routers.md
     mode: str = "peer"
-    #: Zenoh endpoints to listen on and to connect to
+    #: Zenoh endpoints this node listens on for teammates, e.g.
+    #: ``tcp/0.0.0.0:7447``. The default takes a free port on every interface,
+    #: which teammates find by multicast; give a fixed port to robots that
+    #: others ``connect`` to. ``tls/`` endpoints on a secured team
     listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/0.0.0.0:0"])
+    #: Zenoh endpoints of teammates (or of a router) to dial, e.g.
+    #: ``tcp/192.168.1.12:7447``. Needed
+    #: where multicast does not reach (most managed networks, loopback without
+    #: multicast): list one or two seed robots, not every robot
     connect: list[str] = []
-    #: find teammates by UDP multicast scouting
+    #: find teammates by UDP multicast scouting (224.0.0.224:7446). Off
+    #: (``--no-multicast``) where a network drops multicast or where nodes
+    #: should meet only through ``connect``
     multicast: bool = True
-    #: cores offered to programs (default: detected, cgroup quota included)
+    #: cores this robot offers to programs. Default: detected, a cgroup's CPU
+    #: quota included (a container's or a pod's limit)
     cores: int | None = None
-    #: work units per second per core (default: measured at start)
+    #: work units a core of this robot computes per second (a unit is about a
+    #: CPU second of a reference core). Default: measured at start and again
+    #: while idle, so leave it unset except to pin a figure
     speed: float | None = None
+    #: placement policy: ``ramps`` (the cost model, default), ``paper``
+    #: (faithful to the paper), ``round_robin``, ``random``, ``local_only``
     policy: str = "ramps"
-    #: extra programs, as "package.module:function"
+    #: the node's own programs, as ``package.module:function``, each a
+    #: function decorated with ``@ramps.program`` in a module installed on
+    #: every robot (the bundled programs, and those of the ``ramps.programs``
+    #: entry-point group, are always there)
     programs: list[str] = []
-    #: executables as programs: NAME -> path, time limit, ... (``--command NAME=PATH``)
+    #: executables as programs: ``[commands.NAME]`` tables in the config file,
+    #: ``NAME=PATH`` with ``--command`` or ``RAMPS_COMMANDS`` (those take the
+    #: table's defaults); the table's keys are listed below
     commands: dict[str, CommandEntry] = {}
-    #: load publisher: seconds between reports and averaging window
+    #: seconds between the load reports this node publishes (it also
+    #: publishes one at once whenever its programs change)
     publish_period: float = 1.0
+    #: seconds over which a load report averages the CPU use and run queue
+    #: it samples every 0.2 s
     window: float = 1.0
-    #: Zenoh session lease, ms: how long a frozen or cut-off peer takes to be
-    #: reported gone (keep-alives are sent 4 times per lease). 2000 ms gave no
+    #: Zenoh session lease, ms: how long a frozen or cut-off teammate takes to
+    #: be reported gone (keep-alives go 4 times per lease). 2000 ms raised no
     #: false alarm on a link with 20% loss and sub-second dropouts, 1500 ms
-    #: 2-4 a minute (ramps.testbed.detect --flap); 1000 ms suits wired teams
+    #: 2-4 a minute (``python -m ramps.testbed.detect --flap``); 1000 ms suits
+    #: wired teams. At least 100
     lease_ms: int = 2000
     #: Zenoh's shared memory for large messages (over 3 KB) between processes
     #: of one host: a robot's node and its local clients. Robots on separate
-    #: hosts never share it. The testbed turns it off: its emulated robots
-    #: share one host, and shared memory carried their large messages past
-    #: the emulated network (a link slowed with tc never saw them)
+    #: hosts never share it. Turn it off when several robots are emulated on
+    #: one host (the testbed does), else their large messages bypass the
+    #: emulated network
     shared_memory: bool = True
-    #: what the load publisher measures: host, cgroup, or auto (cgroup when
-    #: the node runs in a cpu cgroup with a quota)
+    #: what the load publisher measures: ``host``, ``cgroup``, or ``auto``
+    #: (``cgroup`` when the node runs in a cpu cgroup with a quota)
     load_scope: str = "auto"
     #: niceness of the worker processes that run programs (0-19): the node's
     #: own threads (heartbeats, replies) and the robot's own software come
@@ -208,43 +243,53 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     #: niceness the ``ramps node`` process gives itself (-20..19; below 0
     #: needs root or CAP_SYS_NICE, else one log line and it stays as it is):
     #: on a robot saturated by its own software the node's driver still gets
-    #: the CPU to hear heartbeats and send its own (issue 23: a node at nice 0
-    #: beside 8 programs in a 0.32-core cgroup stalled 14 times, 0.6-3.8 s).
-    #: Its workers still run at ``worker_nice``
+    #: the CPU to hear heartbeats and send its own. Its workers run at
+    #: ``worker_nice``
     node_nice: int = -5
     #: largest encoded arguments accepted from a client, bytes (at most
-    #: ramps.runtime.registry.MAX_ARGS_BYTES, just under 8 MiB: one message).
-    #: The origin keeps each program's arguments until its result is in, to
-    #: restart it elsewhere, so this times the programs in flight is memory
+    #: ``ramps.runtime.registry.MAX_ARGS_BYTES``, 8 MiB less 64 KiB: one
+    #: message). The origin keeps each program's arguments until its result is
+    #: in, to restart it elsewhere, so this times the programs in flight is
+    #: memory
     max_args_bytes: int = _MAX_ARGS
     #: write every decision of the core (placed, accepted, failed,
-    #: blacklisted, delivered, ...) to this file as JSON lines ("" = off)
+    #: blacklisted, delivered, ...) to this file as JSON lines (``""``: off);
+    #: ``ramps report`` draws it
     trace: str = ""
-    #: also trace every message sent and received ("tx"/"rx", with the time
-    #: Zenoh handed it over) and every teammate appearing or vanishing
-    #: ("peer_alive"/"peer_lost"): for chasing delays between robots
+    #: also trace every message sent and received (``tx``/``rx``, with the
+    #: time Zenoh handed it over) and every teammate appearing or vanishing
+    #: (``peer_alive``/``peer_lost``): for chasing delays between robots
     trace_wire: bool = False
+    #: the decision core's timeouts, back-off and placement settings: the
+    #: ``[core]`` table, listed below
     core: RampsConfig = RampsConfig()
-    #: secured team: mutual TLS with team-CA certificates, access control
+    #: secured team: mutual TLS with team-CA certificates and Zenoh access
+    #: control limited to the team's keys (docs/security.md)
     secure: bool = False
-    #: this robot's credentials directory from `ramps team add` (ca.pem, cert.pem, key.pem)
+    #: this robot's credentials directory from ``ramps team add`` (``ca.pem``,
+    #: ``cert.pem``, ``key.pem``)
     credentials: str = ""
-    #: serve Prometheus metrics on this ADDR:PORT ("" = off; ramps.observe.metrics)
+    #: serve Prometheus metrics on this ``ADDR:PORT``, e.g. ``127.0.0.1:9464``
+    #: (``""``: off; docs/observability.md)
     metrics: str = ""
-    #: directory of this robot's durable record of the programs it is origin
-    #: of (``ramps.runtime.store``): a node restarted with it resumes them.
-    #: "" or "off": none (the ``ramps node`` command's default is
-    #: $STATE_DIRECTORY, set by systemd, else ~/.local/state/ramps)
+    #: directory of this robot's durable record of the programs its clients
+    #: submitted (``ramps.runtime.store``): a node restarted with it resumes
+    #: them. ``off``: none. Default for ``ramps node``: ``$STATE_DIRECTORY``
+    #: (systemd's ``StateDirectory=``), else ``~/.local/state/ramps``
     state_dir: str = ""
-    #: explicit credential files, overriding those of ``credentials``
+    #: the team CA's certificate, overriding ``credentials``'s ``ca.pem``
     ca: str = ""
+    #: this robot's certificate, overriding ``credentials``'s ``cert.pem``
     cert: str = ""
+    #: this robot's private key, overriding ``credentials``'s ``key.pem``
     key: str = ""
-    #: secure mode: robots admitted by certificate common name (default: any
+    #: secure mode: the robots admitted, by certificate name (default: any
     #: holder of a certificate from the team CA)
     members: list[str] = []
-    #: raw Zenoh settings applied last, by path ("transport/link/tx/batch_size")
-    #: or as nested tables; see ``check_zenoh_overrides`` for what is refused
+    #: raw Zenoh settings applied last, by path
+    #: (``"transport/link/tx/batch_size" = 8192``) or as nested tables; the
+    #: keys ramps sets from its own settings and, on a secured team, TLS and
+    #: access control are refused
     zenoh: dict[str, Any] = {}
 
     def __post_init__(self) -> None:
