@@ -35,7 +35,7 @@ def _pool(programs: dict[str, str]) -> tuple[WorkerPool, dict, list, threading.E
     saved: list = []
     ev = threading.Event()
 
-    def finished(key, ok, value, error, retryable, cpu_s=None):
+    def finished(key, ok, value, error, retryable, cpu_s=None, died=False):
         done[key] = msgspec.msgpack.decode(value) if ok else error
         ev.set()
 

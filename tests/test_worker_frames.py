@@ -50,7 +50,7 @@ def test_a_program_with_a_megabyte_of_parameters_and_result_runs_in_a_forked_wor
     done: dict = {}
     ev = threading.Event()
 
-    def finished(key, ok, value, error, retryable, cpu_s=None):
+    def finished(key, ok, value, error, retryable, cpu_s=None, died=False):
         done[key] = (ok, msgspec.msgpack.decode(value) if ok else error)
         ev.set()
 

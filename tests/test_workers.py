@@ -35,7 +35,7 @@ def make_pool(size: int, max_size: int | None = None, cpu: dict | None = None):
     done: dict = {}
     ev = threading.Event()
 
-    def finished(key, ok, value, error, retryable, cpu_s=None):
+    def finished(key, ok, value, error, retryable, cpu_s=None, died=False):
         if cpu is not None:
             cpu[key] = cpu_s
         done[key] = (ok, msgspec.msgpack.decode(value) if ok else error, retryable)

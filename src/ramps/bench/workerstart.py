@@ -70,7 +70,7 @@ def inner(cores: int, programs: int, rounds: int, hold_s: float) -> dict:
     done: dict = {}
     ev = threading.Event()
 
-    def finished(key, ok, value, error, retryable):
+    def finished(key, ok, value, error, retryable, *_):
         done[key] = msgspec.msgpack.decode(value) if ok else error
         if len(done) >= programs:
             ev.set()

@@ -19,8 +19,22 @@ Death: the server and every worker ask the kernel (``PR_SET_PDEATHSIG``) for
 SIGKILL when their parent dies, and check that it has not already. A node
 killed alone (SIGKILL of its process only) takes its fork server with it,
 and the server its workers, at once: work is never left running that nobody
-will collect. Workers are reaped by the server (SIGCHLD ignored there, reset
-to the default in each worker so programs can wait for their own children).
+will collect. Workers are reaped by the server (SIGCHLD is reset to the
+default in each worker so programs can wait for their own children).
+
+How a worker ended: the server keeps its own copy of each worker's result
+pipe, a pidfd of the worker, and the read end of the worker's stderr (fds 1
+and 2 of the worker), which it copies to its own stderr keeping the last
+``STDERR_TAIL`` bytes. When the worker exits the server reaps it and writes
+one last frame into its result pipe, ``{"died": "exit code 3" | "killed by
+signal 11 (SIGSEGV)", "stderr": tail}``, then closes its copy: the pool sees
+that frame, then end of file. A worker whose server died first (killed with
+it, ``PR_SET_PDEATHSIG``) sends no such frame. Where pidfds are missing (Linux
+before 5.3) the kernel reaps the workers and nothing is said.
+
+Ctrl-C (SIGINT to the terminal's process group) is the node's: the server
+and its workers ignore it, and the node, which hands its programs back
+first, stops them.
 
 Protocol on the socket (SOCK_SEQPACKET, one message each way per fork):
 pool -> server ``b"fork"`` with fds [job_read, result_write]; server -> pool
@@ -31,12 +45,16 @@ from __future__ import annotations
 
 import ctypes
 import os
+import select
+import selectors
 import signal
 import socket
 import sys
 
 PR_SET_NAME = 15
 PR_SET_PDEATHSIG = 1
+#: bytes of a worker's stderr kept to say how it ended
+STDERR_TAIL = 1500
 
 
 def _prctl(option: int, arg) -> None:
@@ -75,20 +93,145 @@ def _preload(targets: dict[str, str]) -> None:
             pass
 
 
+def describe_status(status: int) -> str:
+    """A ``waitpid`` status in words: "exit code 3", "killed by signal 11 (SIGSEGV)"."""
+    if os.WIFSIGNALED(status):
+        sig = os.WTERMSIG(status)
+        try:
+            name = signal.Signals(sig).name
+        except ValueError:
+            return f"killed by signal {sig}"
+        return f"killed by signal {sig} ({name})"
+    if os.WIFEXITED(status):
+        return f"exit code {os.WEXITSTATUS(status)}"
+    return f"status {status}"
+
+
+class _Watched:
+    """What the server holds of one live worker (see the module's docstring)."""
+
+    __slots__ = ("pid", "pidfd", "res_w", "err_r", "tail")
+
+    def __init__(self, pid: int, pidfd: int, res_w: int, err_r: int) -> None:
+        self.pid, self.pidfd, self.res_w, self.err_r = pid, pidfd, res_w, err_r
+        self.tail = bytearray()
+
+
+class _Workers:
+    """The server's live workers: their stderr copied and tailed, their end
+    reaped and reported into their result pipe."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        self.sel = selectors.DefaultSelector()
+        self.sel.register(sock, selectors.EVENT_READ, None)
+        self.live: dict[int, _Watched] = {}
+
+    def fds(self) -> list[int]:
+        return [fd for w in self.live.values() for fd in (w.pidfd, w.res_w, w.err_r)]
+
+    def add(self, pid: int, res_w: int, err_r: int) -> None:
+        try:
+            pidfd = os.pidfd_open(pid)
+        except OSError:  # cannot watch it: the pool sees its end of file only
+            os.close(res_w)
+            os.close(err_r)
+            return
+        w = _Watched(pid, pidfd, res_w, err_r)
+        self.live[pid] = w
+        os.set_blocking(err_r, False)
+        self.sel.register(pidfd, selectors.EVENT_READ, ("end", w))
+        self.sel.register(err_r, selectors.EVENT_READ, ("err", w))
+
+    def wait_for_request(self) -> None:
+        """Copy stderr and report ends until the pool sends something."""
+        while True:
+            for key, _ in self.sel.select():
+                if key.data is None:
+                    return
+                what, w = key.data
+                if what == "err":
+                    self._copy(w)
+                else:
+                    self._ended(w)
+
+    def _copy(self, w: _Watched) -> bool:
+        """Copy what the worker wrote to stderr; False at its end."""
+        try:
+            data = os.read(w.err_r, 65536)
+        except BlockingIOError:
+            return True
+        except OSError:
+            data = b""
+        if not data:
+            self.sel.unregister(w.err_r)
+            os.close(w.err_r)
+            w.err_r = -1
+            return False
+        try:
+            os.write(2, data)
+        except OSError:
+            pass
+        w.tail += data
+        del w.tail[:-STDERR_TAIL]
+        return True
+
+    def _ended(self, w: _Watched) -> None:
+        try:
+            _, status = os.waitpid(w.pid, 0)
+            how = describe_status(status)
+        except ChildProcessError:
+            how = "ended (status unknown)"
+        # what it wrote last (a child of the program may still hold the pipe: no end of file)
+        while w.err_r >= 0 and _readable(w.err_r) and self._copy(w):
+            pass
+        from ramps.runtime import worker
+
+        os.set_blocking(w.res_w, False)  # the worker is gone: nobody else writes; never block the server
+        try:
+            os.write(w.res_w, worker.frame(worker._enc.encode(
+                {"died": how, "stderr": bytes(w.tail).decode("utf-8", "replace")})))
+        except OSError:
+            pass
+        self.sel.unregister(w.pidfd)
+        for fd in (w.pidfd, w.res_w):
+            os.close(fd)
+        if w.err_r >= 0:
+            self.sel.unregister(w.err_r)
+            os.close(w.err_r)
+        del self.live[w.pid]
+
+
+def _readable(fd: int) -> bool:
+    return bool(select.select([fd], [], [], 0)[0])
+
+
+def _pidfds() -> bool:
+    try:
+        os.close(os.pidfd_open(os.getpid()))
+        return True
+    except (AttributeError, OSError):
+        return False
+
+
 def serve(sock: socket.socket, parent: int) -> None:
     from ramps.runtime import worker
 
     die_with_parent(parent)
     name_process(b"ramps-forksrv")
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the node's (see the module's docstring)
     init = sock.recv(1 << 20)
     if not init:
         return
     targets = worker._dec.decode(init)["targets"]
     _preload(targets)
-    signal.signal(signal.SIGCHLD, signal.SIG_IGN)  # the kernel reaps the workers
+    workers = _Workers(sock) if _pidfds() else None
+    if workers is None:
+        signal.signal(signal.SIGCHLD, signal.SIG_IGN)  # the kernel reaps the workers
     me = os.getpid()
     while True:
         try:
+            if workers is not None:
+                workers.wait_for_request()
             msg, fds, _, _ = socket.recv_fds(sock, 64, 2)
         except (OSError, KeyboardInterrupt):
             return
@@ -97,10 +240,18 @@ def serve(sock: socket.socket, parent: int) -> None:
                 os.close(fd)
             return
         job_r, res_w = fds
+        err_r, err_w = os.pipe() if workers is not None else (-1, -1)
         pid = os.fork()
         if pid == 0:  # the new worker
             try:
                 sock.close()
+                if workers is not None:  # other workers' pipes are not this one's to hold
+                    workers.sel.close()
+                    for fd in workers.fds() + [err_r]:
+                        os.close(fd)
+                    os.dup2(err_w, 2)
+                    os.dup2(err_w, 1)
+                    os.close(err_w)
                 signal.signal(signal.SIGCHLD, signal.SIG_DFL)
                 die_with_parent(me)
                 name_process(b"ramps-worker")
@@ -112,7 +263,11 @@ def serve(sock: socket.socket, parent: int) -> None:
             finally:
                 os._exit(0)
         os.close(job_r)
-        os.close(res_w)
+        if workers is not None:
+            os.close(err_w)
+            workers.add(pid, res_w, err_r)
+        else:
+            os.close(res_w)
         try:
             sock.send(b"%08d" % pid)
         except OSError:

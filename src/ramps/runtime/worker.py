@@ -24,6 +24,7 @@ stdin closes.
 
 from __future__ import annotations
 
+import faulthandler
 import math
 import os
 import struct
@@ -179,6 +180,7 @@ def run(inp: BinaryIO, out: BinaryIO) -> None:
     first = read_frame(inp)
     if first is None:
         return
+    faulthandler.enable()  # a crash in C (SIGSEGV, SIGABRT...) leaves its Python traceback on stderr
     init = _dec.decode(first)
     targets: dict[str, str] = init["targets"]
     if init.get("nice"):  # programs yield to the node (heartbeats) and the robot's own software
@@ -212,6 +214,8 @@ def run(inp: BinaryIO, out: BinaryIO) -> None:
                 reply = [False, b"", f"program {program!r} returned a value that cannot be sent: {exc}"]
         except CommandFailed as exc:  # an executable's failure: its own words, exit code and stderr
             reply = [False, b"", str(exc)[:3500]]
+        except SystemExit as exc:  # the program's own end: an error like any other, not a dead worker
+            reply = [False, b"", f"program {program!r} called sys.exit({exc.code!r})"]
         except Exception as exc:  # the program's own failure, reported to its origin
             tb = traceback.format_exception(type(exc), exc, exc.__traceback__)
             reply = [False, b"", "".join(tb[-6:])[-3000:]]

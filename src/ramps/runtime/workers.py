@@ -25,10 +25,15 @@ served by the workers there are. A worker beyond ``size`` exits after
 
 One monitor thread watches every worker's output. A result is handed to
 ``on_finished``; a worker that dies under a program (killed, out of memory,
-``os._exit``) is reported as a *retryable* failure so the origin places the
-program again, and a fresh worker takes its place. ``cancel`` kills the
-worker running a program (or drops it from the queue) and reports nothing:
-the core already knows.
+``os._exit``, a crash) is reported as a *retryable* failure so the origin
+places the program again, and a fresh worker takes its place. Where the fork
+server said how the worker ended (its exit code or signal and the last lines
+it wrote to stderr, see ``ramps.runtime.forkserver``) the report says so and
+is marked ``died``: the worker died by itself while this executor lived, which
+the origin counts towards calling the program a poison pill
+(``ramps.core.origin``); a worker killed with its fork server is not.
+``cancel`` kills the worker running a program (or drops it from the queue)
+and reports nothing: the core already knows.
 """
 
 from __future__ import annotations
@@ -50,8 +55,9 @@ import msgspec
 from ramps.runtime.worker import frame
 
 Key = tuple[str, int]
-#: on_finished(key, ok, value_bytes, error_text, retryable, cpu_seconds or None)
-Finished = Callable[[Key, bool, bytes, str, bool, "float | None"], None]
+#: on_finished(key, ok, value_bytes, error_text, retryable, cpu_seconds or None,
+#: died: the worker died by itself, as the fork server saw it)
+Finished = Callable[[Key, bool, bytes, str, bool, "float | None", bool], None]
 #: on_progress(key, fraction, detail): a running program reported progress
 Progress = Callable[[Key, float, str], None]
 #: on_checkpoint(key, state_bytes, fraction): a running program saved its state
@@ -63,6 +69,10 @@ GROW_AFTER = 0.1
 RETIRE_AFTER = 2.0
 #: seconds the fork server may take to fork a worker (it imports the programs first)
 FORK_TIMEOUT = 60.0
+#: lines of a dead worker's stderr quoted in its program's error (ramps's own
+#: frames in a crash's traceback left out)
+STDERR_LINES = 10
+_OWN_FRAMES = ("/ramps/runtime/worker.py\"", "/ramps/runtime/forkserver.py\"", "<frozen runpy>")
 
 _enc = msgspec.msgpack.Encoder()
 _dec = msgspec.msgpack.Decoder()
@@ -129,7 +139,7 @@ class _Forked:
 
 
 class _Worker:
-    __slots__ = ("proc", "fd", "buf", "job", "cancelled", "retiring", "idle_since")
+    __slots__ = ("proc", "fd", "buf", "job", "cancelled", "retiring", "idle_since", "ended")
 
     def __init__(self, proc: subprocess.Popen | _Forked) -> None:
         self.proc = proc
@@ -139,6 +149,22 @@ class _Worker:
         self.cancelled = False
         self.retiring = False
         self.idle_since = time.monotonic()
+        #: how it ended, from the fork server: {"died": "exit code 3", "stderr": "..."}
+        self.ended: dict | None = None
+
+
+def death_text(ended: dict | None) -> str:
+    """A dead worker's program error: how it ended and, if it wrote any,
+    the last ``STDERR_LINES`` lines of its stderr."""
+    if ended is None:
+        return "worker process died under the program (killed or crashed)"
+    how = str(ended.get("died", "?"))
+    lines = [ln for ln in str(ended.get("stderr", "")).splitlines()
+             if ln.strip() and not any(own in ln for own in _OWN_FRAMES)][-STDERR_LINES:]
+    text = f"worker process died under the program: {how}"
+    if lines:
+        text += "; its last stderr:\n" + "\n".join("    " + ln[:300] for ln in lines)
+    return text
 
 
 class WorkerPool:
@@ -368,7 +394,7 @@ class WorkerPool:
                 if retire is not None:
                     wait = retire + 0.01 if wait is None else min(wait, retire + 0.01)
             events = self._sel.select(wait)
-            finished: list[tuple[Key, bool, bytes, str, bool]] = []
+            finished: list[tuple[Key, bool, bytes, str, bool, float | None, bool]] = []
             progress: list[tuple[Key, float, str]] = []
             checkpoints: list[tuple[Key, bytes, float | None]] = []
             with self._lock:
@@ -390,7 +416,13 @@ class WorkerPool:
                             if len(w.buf) < 4 + n:
                                 break
                             body, w.buf = bytes(w.buf[4:4 + n]), w.buf[4 + n:]
-                            reply = _dec.decode(body)
+                            try:
+                                reply = _dec.decode(body)
+                            except msgspec.DecodeError:  # cut short by its death: the end of file follows
+                                continue
+                            if isinstance(reply, dict) and "died" in reply:  # the fork server: how it ended
+                                w.ended = reply
+                                continue
                             if isinstance(reply, dict) and "checkpoint" in reply:  # its saved state
                                 if w.job is not None and not w.cancelled and isinstance(reply["checkpoint"], bytes):
                                     checkpoints.append((w.job, reply["checkpoint"], reply.get("fraction")))
@@ -402,7 +434,7 @@ class WorkerPool:
                             ok, value, error = reply[:3]
                             cpu = reply[3] if len(reply) > 3 and isinstance(reply[3], (int, float)) else None
                             if w.job is not None and not w.cancelled:
-                                finished.append((w.job, ok, value, error, False, cpu))
+                                finished.append((w.job, ok, value, error, False, cpu, False))
                             w.job = None
                             w.idle_since = self._last_progress = time.monotonic()
                         continue
@@ -417,9 +449,10 @@ class WorkerPool:
                             pass
                     if w.job is not None and not w.cancelled:
                         self.died += 1
-                        how = f"exit code {code}" if isinstance(w.proc, subprocess.Popen) else "killed or crashed"
-                        finished.append((w.job, False, b"", f"worker process died under the program "
-                                                             f"({how})", True, None))
+                        ended = w.ended
+                        if ended is None and isinstance(w.proc, subprocess.Popen):
+                            ended = {"died": f"exit code {code}"}
+                        finished.append((w.job, False, b"", death_text(ended), True, None, w.ended is not None))
                     if len(self._workers) < self.size:
                         self._add_worker()
                 self._dispatch_locked()  # idle extra workers retire at the top of the loop
