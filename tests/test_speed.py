@@ -52,6 +52,25 @@ def test_speed_samples_average_the_cpus_and_outvote_an_odd_measurement():
     assert s.rate() == pytest.approx(0.49)
 
 
+def test_the_boot_measurement_counts_only_until_the_grid_outvotes_it():
+    from ramps.runtime.measure import GRID_QUORUM, SpeedSamples
+
+    s = SpeedSamples()
+    # the node booted half a second after its teammates, on another phase of the vCPUs
+    s.add({0: [0.30, 0.30, 0.30]}, boot=True)
+    assert s.rate() == pytest.approx(0.30)
+    s.add({0: [0.50, 0.50, 0.50]})
+    assert s.rate() == pytest.approx(0.40)  # the boot figure still counts
+    for _ in range(GRID_QUORUM - 1):
+        s.add({0: [0.50, 0.50, 0.50]})
+    # three of the grid's: the boot figure no longer counts
+    assert s.rate() == pytest.approx(0.50)
+    s.add({0: [0.44, 0.44]})
+    s.add({0: [0.44, 0.44]})
+    # the grid's 0.50 0.50 0.50 0.44 0.44; with the boot figure among them it would be 0.47
+    assert s.rate() == pytest.approx(0.50)
+
+
 def test_a_host_slower_than_it_says_on_the_same_program_gets_a_factor():
     speeds = HostSpeeds(CFG)
     assert not speeds.on_result("plan", "a", 53.0)  # nothing to compare with yet

@@ -125,11 +125,18 @@ SPEED_CHUNK = 0.001
 #: pieces timed on one CPU before the next (the first after a move is left
 #: out: it warms the caches of its new CPU)
 SPEED_BLOCK = 5
-#: wall seconds a measurement may take at most (a robot starved of CPU by its
-#: own software measures what it got in that time)
-SPEED_MAX_WALL = 5.0
+#: wall seconds a measurement may take at most: a robot starved of CPU by its
+#: own software measures the pieces it got in that second. Identical robots
+#: measuring at one moment of the team's grid then cover the same second of
+#: the host, whose vCPUs change speed from one second to the next: with 5 s,
+#: robots beside 8 busy processes each took 2.4-5.4 s for 0.2 s of CPU, their
+#: measurements of one moment were 1.01-1.22 apart, and 1.02-1.06 with 1 s
+#: (docs/lab/2026-11-26-speed-under-load.md)
+SPEED_MAX_WALL = 1.0
 #: measurements of a node's life its figure is the median of (the newest)
 SPEED_MEASUREMENTS = 9
+#: measurements on the team's grid that outvote the boot measurement for good
+GRID_QUORUM = 3
 
 
 def chunk_rates(seconds: float) -> dict[int, list[float]]:
@@ -238,24 +245,36 @@ class SpeedSamples:
     now and then left out. The node's figure is the median of its latest
     ``SPEED_MEASUREMENTS`` (boot and every re-measurement): one taken while
     the robot's neighbours kept the machine busy (their start-up, a burst
-    of their own) moves nothing once there are three. The fastest piece or
+    of their own) moves nothing once there are three. The boot measurement
+    is the one not taken on the team's grid (each node boots when it is
+    started), so it counts only until ``GRID_QUORUM`` measurements of the
+    grid are in. The fastest piece or
     the fastest cluster of pieces, the rule before, said how lucky a robot
     had been: identical robots booting together on one host settled 1.02 to
     1.08 apart that way, as the phases of the host's vCPUs came and went
     (docs/lab/2026-11-26-self-measured-speed.md)."""
 
     def __init__(self) -> None:
+        self._boot: float | None = None
         self._figures: deque[float] = deque(maxlen=SPEED_MEASUREMENTS)
 
-    def add(self, pieces: dict[int, list[float]]) -> None:
+    def add(self, pieces: dict[int, list[float]], *, boot: bool = False) -> None:
+        """One measurement's pieces; ``boot``: the measurement at the node's start."""
         medians = [statistics.median(good) for v in pieces.values()
                    if (good := [r for r in v if math.isfinite(r) and r > 0])]
-        if medians:
+        if not medians:
+            return
+        if boot:
+            self._boot = statistics.fmean(medians)
+        else:
             self._figures.append(statistics.fmean(medians))
 
     def rate(self) -> float:
         """Work units per CPU second of this robot's CPUs (0.0 before any measurement)."""
-        return statistics.median(self._figures) if self._figures else 0.0
+        figures = list(self._figures)
+        if self._boot is not None and len(figures) < GRID_QUORUM:
+            figures.append(self._boot)
+        return statistics.median(figures) if figures else 0.0
 
     def speed(self, *, quota: float | None = None, cores: int = 1) -> float:
         """Work units per second of one of this robot's cores."""
@@ -263,7 +282,7 @@ class SpeedSamples:
 
 
 def measure_speed(seconds: float = 0.2, *, quota: float | None = None, cores: int = 1,
-                  samples: SpeedSamples | None = None, apart: bool = False) -> float:
+                  samples: SpeedSamples | None = None, apart: bool = False, boot: bool = False) -> float:
     """Work units per second of one of this robot's cores (1.0 = the reference core).
 
     Two parts, measured apart: what a CPU second computes here
@@ -271,9 +290,10 @@ def measure_speed(seconds: float = 0.2, *, quota: float | None = None, cores: in
     the figure as ``SpeedSamples`` explains), and how much of a CPU each of
     the robot's cores is (the kernel's ``quota`` shared by ``cores``).
     ``apart``: in a forked child (``chunk_rates_apart``), for a process that
-    runs other threads."""
+    runs other threads; ``boot``: the node's measurement at its start (see
+    ``SpeedSamples``)."""
     samples = samples if samples is not None else SpeedSamples()
-    samples.add(chunk_rates_apart(seconds) if apart else chunk_rates(seconds))
+    samples.add(chunk_rates_apart(seconds) if apart else chunk_rates(seconds), boot=boot)
     return samples.speed(quota=quota, cores=cores)
 
 

@@ -213,7 +213,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             scope = "cgroup" if quota is not None else "host"
         self.cores = s.cores or detect_cores()
         self._speed_samples = SpeedSamples()
-        self.speed = s.speed or measure_speed(quota=quota, cores=self.cores, samples=self._speed_samples)
+        self.speed = s.speed or measure_speed(quota=quota, cores=self.cores, samples=self._speed_samples,
+                                                   boot=True)
         # a speed measured at boot is measured again while no program runs, soon
         # after boot and then now and then (robots booting together measure
         # each other's start-up; ramps.core.speed)
