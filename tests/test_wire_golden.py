@@ -162,4 +162,5 @@ def test_random_honest_messages_of_today_decode_under_the_previous_release(seed:
         except m.WireError:
             continue  # the generator's extremes go past a limit now and then: refused today as well
         env = old.decode(data)
-        assert env.sender == sender and _plain(env.msg) == _plain(msg), msg
+        then = _plain(env.msg)  # the fields the previous release knows (those added since are at their defaults)
+        assert env.sender == sender and then == {k: v for k, v in _plain(msg).items() if k in then}, msg

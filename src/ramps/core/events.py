@@ -62,6 +62,12 @@ class ProgramFinished(_Rec, frozen=True, kw_only=True):
     #: work it reports is then what processor sharing at this robot's
     #: speed and load says it did
     cpu_s: float | None = None
+    #: (with ``retryable``) the worker died by itself while this robot's
+    #: executor lived: the program exited, crashed or was killed on its own,
+    #: how is in ``error``; not a worker stopped because the node shuts down
+    #: or was killed with its fork server. Its origin counts these towards
+    #: calling the program a poison pill (``ramps.core.origin``)
+    worker_died: bool = False
 
 
 class ProgressReported(_Rec, frozen=True, kw_only=True):

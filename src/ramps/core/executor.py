@@ -208,7 +208,7 @@ class Executor:
         result = ProgramResult(
             program_id=ev.program_id, attempt=ev.attempt, host=self.me, ok=ev.ok, value=ev.value,
             error=ev.error, result_size=ev.result_size, retryable=ev.retryable, finish_seq=self.finished_total,
-            work_done=self._work_done(job, ev) if ev.ok else None,
+            work_done=self._work_done(job, ev) if ev.ok else None, worker_died=ev.retryable and ev.worker_died,
         )
         self._outbox[key] = (job.origin, result, now + self.config.result_resend, now + self.config.result_retention)
         out.append(Send(to=job.origin, msg=result))

@@ -55,8 +55,9 @@ from msgspec import Meta
 from ramps import __version__
 
 #: the protocol this code speaks, major.minor. 1.0 is ramps 0.1.0 (strict:
-#: it refuses unknown fields and types); 1.1 (ramps 0.2.0) adds nothing to
-#: the wire and decodes tolerantly. The envelope's ``v`` carries the major
+#: it refuses unknown fields and types); 1.1 (ramps 0.2.0) decodes
+#: tolerantly and adds one field, ``ProgramResult.worker_died``, set only
+#: when a program killed its own worker. The envelope's ``v`` carries the major
 #: only, since 1.0 checks ``v == 1`` and refuses any other envelope field.
 PROTOCOL_MAJOR = 1
 PROTOCOL_MINOR = 1
@@ -326,6 +327,11 @@ class ProgramResult(_Msg, frozen=True, kw_only=True, tag="result"):
     #: the share of a core processor sharing gave it, in work units), which
     #: the origin learns from; None where the host did not estimate it
     work_done: Amount | None = None
+    #: (with ``retryable``) the program's worker died by itself while the
+    #: host lived, how is in ``error`` (``ProgramFinished.worker_died``): the
+    #: origin counts it towards calling the program a poison pill. Added in
+    #: protocol 1.1; an origin that ignores it places the program again
+    worker_died: bool = False
 
 
 class ResultAck(_Msg, frozen=True, kw_only=True, tag="ack"):

@@ -73,6 +73,14 @@ S = ProgramState
 E = Event
 #: how many of a program's latest runs its learned work is the median of
 LEARN_RUNS = 8
+#: a program whose worker died by itself (``ProgramResult.worker_died``: it
+#: exited, crashed or was killed while its host lived) on this many different
+#: robots, or this many times in all where the team had no other robot for
+#: it, is a poison pill: it fails with how each attempt ended instead of
+#: being placed again. A host that crashed or shut down under it counts
+#: nothing here (that is a host failure, retried up to ``max_attempts``)
+POISON_ROBOTS = 2
+POISON_DEATHS = 3
 
 
 class Origin:
@@ -669,6 +677,8 @@ class Origin:
             ap.failures += 1
             out.append(Note(what="failed", program_id=ap.program_id, robot=msg.host, attempt=msg.attempt,
                             detail=f"worker lost: {msg.error}"))
+            if msg.worker_died:
+                ap.deaths.append((msg.attempt, msg.host, msg.error))
             if ap.state is S.MOVING:
                 if msg.attempt == ap.attempt:  # the new copy died: the old one runs on
                     self._abandon_move(ap, now, out, f"worker lost on {msg.host}")
@@ -678,6 +688,9 @@ class Origin:
             if ap.live:
                 return  # another live attempt may still deliver
             ap.deadline = None
+            if poison_pill(ap.deaths):
+                self._deliver(ap, now, out, ok=False, host=msg.host, kind="program", error=poison_error(ap.deaths))
+                return
             if ap.failures >= self.config.max_attempts:
                 self._backoff(ap, now, out)  # delivers the error
                 return
@@ -820,6 +833,23 @@ class Origin:
 
     def active(self) -> int:
         return sum(1 for ap in self.programs.values() if ap.state not in FINAL)
+
+
+def poison_pill(deaths: list[tuple[int, str, str]]) -> bool:
+    """Whether a program whose workers died by themselves on these attempts
+    ((attempt, host, how)) is a poison pill: on POISON_ROBOTS different
+    robots, or POISON_DEATHS times in all."""
+    return len({host for _, host, _ in deaths}) >= POISON_ROBOTS or len(deaths) >= POISON_DEATHS
+
+
+def poison_error(deaths: list[tuple[int, str, str]]) -> str:
+    """A poison pill's error: how each attempt's worker ended."""
+    robots = len({host for _, host, _ in deaths})
+    where = f"on {robots} robots" if robots > 1 else f"{len(deaths)} times on {deaths[0][1]}"
+    lines = [f"the program killed its own worker {where}, so it is not placed again (a poison pill):"]
+    for attempt, host, how in deaths:
+        lines.append(f"  attempt {attempt} on {host}: {how}")
+    return "\n".join(lines)
 
 
 Handler = Callable[[Origin, AutonomousProgram, float, list[Action], Any, Event], None]

@@ -195,6 +195,7 @@ class AutonomousProgram:
         "last_heard", "rejections", "excluded", "submitted_at", "failures", "written_off",
         "made", "moves", "moving_from", "accepted_at", "done", "done_at", "work", "checkpoint",
         "checkpoint_fraction", "resumed_from", "move_wanted_since", "ran_on", "placed_at", "stall_base",
+        "deaths",
     )
 
     def __init__(self, submit: Submit, now: float) -> None:
@@ -246,6 +247,9 @@ class AutonomousProgram:
         #: run at most, stalls of the origin's own clock included
         self.placed_at = now
         self.stall_base = 0.0
+        #: attempts whose worker the program killed by itself (``ProgramResult.worker_died``):
+        #: (attempt, host, how it ended); enough of them make it a poison pill
+        self.deaths: list[tuple[int, str, str]] = []
 
     @property
     def placed_host(self) -> str:

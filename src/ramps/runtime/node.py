@@ -409,9 +409,11 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._backlog_bytes += len(data)
         self._q.put(("wire", data, self.clock.monotonic()))
 
-    def _finished(self, key, ok: bool, value: bytes, error: str, retryable: bool, cpu_s: float | None = None) -> None:
+    def _finished(self, key, ok: bool, value: bytes, error: str, retryable: bool, cpu_s: float | None = None,
+                  died: bool = False) -> None:
         self._q.put(("finished", ProgramFinished(program_id=key[0], attempt=key[1], ok=ok, value=value, error=error,
-                                                 result_size=len(value), retryable=retryable, cpu_s=cpu_s)))
+                                                 result_size=len(value), retryable=retryable, cpu_s=cpu_s,
+                                                 worker_died=died)))
 
     def _checkpoint_saved(self, key, state: bytes, fraction: float | None) -> None:
         self._q.put(("progress", CheckpointSaved(program_id=key[0], attempt=key[1], state=state,
