@@ -151,3 +151,25 @@ def test_dasks_orphaned_semaphores_are_removed_not_older_ones(tmp_path):
     os.utime(old, (time.time() - 600, time.time() - 600))
     assert _orphan_semaphores(time.time() - 60, tmp_path) == 1
     assert not new.exists() and old.exists() and other.exists()
+
+
+def test_a_burst_whose_time_ran_out_has_no_makespan_and_says_how_many_were_not_done():
+    from ramps.testbed.peers import _Burst
+
+    sc = SCENARIOS["busy-1"].with_programs(5)
+    burst = _Burst(sc)
+    burst.t0 = 100.0
+    burst.hosts = ["r1", "r2", "r3", None, None]  # r5's two programs still running at the deadline
+    burst.ends = [130.0, 131.0, 140.0]
+    burst.unfinished = 2
+    run = burst.result("ray")
+    # the last completion (40 s) is not the burst's makespan: two programs never ended
+    assert run.makespan is None and run.completed == 3 and run.unfinished == 2 and run.lost == 0
+    rep = PeersReport(cores=4, quota=0.32, work=1.5, worker_nice=0,
+                      scenarios=[ScenarioResult(scenario=sc, ideal=45.0, ideal_distribution=[1, 1, 1, 2, 0],
+                                                sim=None, runs=[run])])
+    assert "2 not done when the time was up" in format_report(rep)
+    burst.unfinished = 0
+    burst.hosts = ["r1", "r2", "r3", "r4", "r4"]
+    burst.ends += [145.0, 150.0]
+    assert burst.result("ray").makespan == 50.0

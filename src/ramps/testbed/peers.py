@@ -143,6 +143,8 @@ class EngineRun(msgspec.Struct, kw_only=True):
     ratio: float | None = None
     host_load: float = 0.0
     wall: float = 0.0
+    #: programs still running when the burst's time was up (``Setup.timeout``): no makespan then
+    unfinished: int = 0
     #: why it did not run, or failed
     error: str | None = None
 
@@ -257,6 +259,8 @@ def format_report(rep: PeersReport) -> str:
             notes = []
             if r.crashed:
                 notes.append(f"crashed {r.crashed} with {r.crashed_running} running")
+            if r.unfinished:
+                notes.append(f"{r.unfinished} not done when the time was up")
             notes.append(f"speed {r.speed:.4f}, host load {r.host_load:.1f}")
             if r.error:
                 notes.append(r.error)
@@ -290,14 +294,16 @@ class _Burst:
         self.ends: list[float] = []
         self.crashed: str | None = None
         self.crashed_running = 0
+        #: programs still running when the time was up
+        self.unfinished = 0
 
     def result(self, engine: str) -> EngineRun:
         done = [h for h in self.hosts if h is not None]
-        span = max(self.ends) - self.t0 if self.ends and self.t0 is not None else None
+        span = max(self.ends) - self.t0 if self.ends and self.t0 is not None and not self.unfinished else None
         return EngineRun(engine=engine, makespan=round(span, 2) if span is not None else None,
                          distribution=distribution(self.hosts, self.sc.names), completed=len(done),
-                         lost=self.sc.per_origin() * len(self.sc.origins) - len(done), crashed=self.crashed,
-                         crashed_running=self.crashed_running)
+                         lost=self.sc.per_origin() * len(self.sc.origins) - len(done) - self.unfinished,
+                         unfinished=self.unfinished, crashed=self.crashed, crashed_running=self.crashed_running)
 
 
 def _load(tb: Testbed, sc: PeerScenario) -> None:
@@ -384,6 +390,7 @@ class RampsEngine:
                     if ok:
                         burst.ends.append(ends[k])
                     elif not f.done():
+                        burst.unfinished += 1
                         f.cancel()
             finally:
                 stop.set()
@@ -481,14 +488,18 @@ class ClusterEngine:
             for o, p in zip(sc.origins, results):
                 try:
                     got = json.loads(p.read_text())
-                except (OSError, ValueError):
-                    got = {"programs": [], "error": f"no result from the driver on {o}"}
+                except (OSError, ValueError):  # time is up: what the driver has seen so far
+                    try:
+                        got = json.loads(p.with_suffix(".partial").read_text())
+                    except (OSError, ValueError):
+                        got = {"programs": [], "error": f"no result from the driver on {o}"}
                 if got.get("error"):
                     errors.append(f"{o}: {got['error']}")
                 for prog in got["programs"]:
                     burst.hosts.append(prog["robot"] if prog.get("ok") else None)
                     if prog.get("ok"):
                         burst.ends.append(prog["end"])
+                    burst.unfinished += bool(prog.get("pending"))
                 burst.hosts += [None] * (sc.per_origin() - len(got["programs"]))
         run = burst.result(self.name)
         run.error = "; ".join(errors) or None
@@ -657,11 +668,18 @@ def _drive(engine: str, origin: str, head: str, count: int, work: float, workers
            nice: int) -> None:
     """One origin's programs through ``engine``: connect, wait for every worker, write ``ready-<origin>``,
     wait for ``go`` (the first submission's monotonic time), submit ``count`` programs ``SPACING``
-    apart, and write ``result-<origin>.json``: per program ok, robot and end time."""
+    apart, and write ``result-<origin>.json``: per program ok, robot and end time (and
+    ``result-<origin>.partial`` after each completion, for a burst whose time runs out)."""
     d = Path(work_dir)
     marks = str(d / "marks")
     programs: list[dict[str, Any]] = []
     error = None
+
+    def save(suffix: str) -> None:
+        tmp = d / f"result-{origin}.tmp"
+        tmp.write_text(json.dumps({"programs": programs, "error": error}))
+        tmp.replace(d / f"result-{origin}.{suffix}")
+
     try:
         if engine == "ray":
             import ray
@@ -688,7 +706,7 @@ def _drive(engine: str, origin: str, head: str, count: int, work: float, workers
                 refs.append(client.submit(peer_burn, work, origin, i, marks, nice, pure=False,
                                           key=f"burn-{origin}-{i}"))
             time.sleep(max(0.0, t0 + (i + 1) * SPACING - time.monotonic()))
-        programs = [{"ok": False} for _ in refs]
+        programs = [{"ok": False, "pending": True} for _ in refs]
         if engine == "ray":
             index = {r: i for i, r in enumerate(refs)}
             pending = list(refs)
@@ -700,6 +718,7 @@ def _drive(engine: str, origin: str, head: str, count: int, work: float, workers
                         programs[i] = {"ok": True, "robot": ray.get(r)["robot"], "end": end}
                     except Exception as exc:
                         programs[i] = {"ok": False, "error": f"{type(exc).__name__}: {exc}"[:300]}
+                    save("partial")
         else:
             index = {f.key: i for i, f in enumerate(refs)}
             for f in as_completed(refs):
@@ -708,11 +727,10 @@ def _drive(engine: str, origin: str, head: str, count: int, work: float, workers
                     programs[i] = {"ok": True, "robot": f.result()["robot"], "end": end}
                 except Exception as exc:
                     programs[i] = {"ok": False, "error": f"{type(exc).__name__}: {exc}"[:300]}
+                save("partial")
     except Exception as exc:
         error = f"{type(exc).__name__}: {exc}"[:1000]
-    tmp = d / f"result-{origin}.tmp"
-    tmp.write_text(json.dumps({"programs": programs, "error": error}))
-    tmp.replace(d / f"result-{origin}.json")
+    save("json")
 
 
 def main(argv: list[str] | None = None) -> None:
