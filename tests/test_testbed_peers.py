@@ -34,7 +34,7 @@ def test_the_issue_scenarios_are_there():
     assert SCENARIOS["crash"].crash_at == 10.0 and SCENARIOS["crash"].programs == 15
     assert all(s.robots == 5 for s in SCENARIOS.values())
     assert SCENARIOS["idle"].with_programs(10).programs == 10 and SCENARIOS["idle"].with_programs(None).programs == 30
-    assert set(ENGINES) == {"ramps", "round-robin", "ray", "dask"}
+    assert set(ENGINES) == {"ramps", "round-robin", "ray", "dask", "ramps-nice0"}
 
 
 def test_releases_follow_the_origins_submitting_together():
@@ -173,3 +173,22 @@ def test_a_burst_whose_time_ran_out_has_no_makespan_and_says_how_many_were_not_d
     burst.hosts = ["r1", "r2", "r3", "r4", "r4"]
     burst.ends += [145.0, 150.0]
     assert burst.result("ray").makespan == 50.0
+
+
+def test_the_busy_robots_own_cpu_is_read_from_their_load_processes():
+    import os
+    from types import SimpleNamespace
+
+    from ramps.runtime.measure import proc_cpu
+    from ramps.testbed.peers import _Burst, own_cpu
+
+    me = os.getpid()
+    tb = SimpleNamespace(robots={"r4": {"load_pids": [[me, 0]]}, "r5": {"load_pids": [[me, 0], [2 ** 22 + 7, 0]]}})
+    assert own_cpu(tb, SCENARIOS["idle"]) is None  # nothing busy
+    before = proc_cpu(me)[0]
+    got = own_cpu(tb, SCENARIOS["busy-2"])  # this process twice; a process gone counts nothing
+    assert 2 * before <= got <= 2 * proc_cpu(me)[0]
+    burst = _Burst(SCENARIOS["busy-2"])
+    burst.start(tb, 0.0)  # a burst that began long ago (monotonic 0): a small share of a core
+    burst.stop(tb)
+    assert burst.result("ramps").own_cpu is not None and burst.result("ramps").own_cpu >= 0

@@ -458,7 +458,7 @@ def testbed_experiment_rolling_restart(
 @experiment_app.command("peers")
 def testbed_experiment_peers(
     scenario: Optional[list[str]] = typer.Option(None, "--scenario", "-s", help="run only these (repeatable): idle, busy-1, busy-2, busy-4, origins, crash (default: all)"),
-    engine: Optional[list[str]] = typer.Option(None, "--engine", "-e", help="run only these (repeatable): ramps, round-robin, ray, dask (default: all)"),
+    engine: Optional[list[str]] = typer.Option(None, "--engine", "-e", help="run only these (repeatable): ramps, round-robin, ray, dask, and ramps-nice0 (ramps with its programs at nice 0: what its default nice 10 costs and protects on busy robots) (default: the first four)"),
     programs: Optional[int] = typer.Option(None, "--programs", min=1, max=500, help="programs in every scenario, split between its origins (default: 30, 15 with the crash)"),
     work: float = typer.Option(1.5, "--work", min=0.05, max=20.0, help="work units of each burn program (1.5: about 19-28 s alone on an emulated core)"),
     quota: float = typer.Option(0.32, "--quota", min=0.05, max=4.0, help="host cores of each robot"),
@@ -476,14 +476,14 @@ def testbed_experiment_peers(
     nice-10 programs land beside a busy robot's load (round robin; Ray and Dask at --peer-nice 10),
     so 1.5-2.5 hours for all 24 runs."""
     from ramps.errors import RampsError
-    from ramps.testbed.peers import ENGINES, SCENARIOS, Setup, format_report, run_peers
+    from ramps.testbed.peers import DEFAULT_ENGINES, ENGINES, SCENARIOS, Setup, format_report, run_peers
 
     for name, known, what in ((scenario, SCENARIOS, "scenario"), (engine, ENGINES, "engine")):
         bad = [n for n in name or [] if n not in known]
         if bad:
             fail(f"unknown {what} {bad[0]!r}: choose from {', '.join(known)}")
     chosen = [SCENARIOS[s].with_programs(programs) for s in (scenario or SCENARIOS)]
-    engines = list(engine or ENGINES)
+    engines = list(engine or DEFAULT_ENGINES)
     err.print(f"{len(chosen)} scenario(s) x {len(engines)} engine(s), each run on a fresh testbed ...")
     try:
         rep = run_peers(chosen, engines, Setup(cores=cores, quota=quota, work=work, peer_nice=peer_nice, timeout=timeout),

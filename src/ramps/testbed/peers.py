@@ -145,6 +145,9 @@ class EngineRun(msgspec.Struct, kw_only=True):
     wall: float = 0.0
     #: programs still running when the burst's time was up (``Setup.timeout``): no makespan then
     unfinished: int = 0
+    #: host cores the busy robots' own software got during the burst, per busy robot (None: none busy):
+    #: what the programs' priority protects (a robot's quota is ``Setup.quota``)
+    own_cpu: float | None = None
     #: why it did not run, or failed
     error: str | None = None
 
@@ -261,6 +264,8 @@ def format_report(rep: PeersReport) -> str:
                 notes.append(f"crashed {r.crashed} with {r.crashed_running} running")
             if r.unfinished:
                 notes.append(f"{r.unfinished} not done when the time was up")
+            if r.own_cpu is not None:
+                notes.append(f"busy robots' own software {r.own_cpu / rep.quota:.0%} of the robot")
             notes.append(f"speed {r.speed:.4f}, host load {r.host_load:.1f}")
             if r.error:
                 notes.append(r.error)
@@ -296,6 +301,22 @@ class _Burst:
         self.crashed_running = 0
         #: programs still running when the time was up
         self.unfinished = 0
+        #: the busy robots' own software's CPU seconds at the first submission (``own_cpu``)
+        self.own_cpu0: float | None = None
+        self.own_cpu: float | None = None
+
+    def start(self, tb: Testbed, t0: float) -> None:
+        """The burst starts at ``t0`` (monotonic)."""
+        self.t0 = t0
+        self.own_cpu0 = own_cpu(tb, self.sc)
+
+    def stop(self, tb: Testbed) -> None:
+        """The burst is over (done, or its time up): how much CPU the busy robots' own software got."""
+        if self.own_cpu0 is None or self.t0 is None or not self.sc.loaded:
+            return
+        now, span = own_cpu(tb, self.sc), time.monotonic() - self.t0
+        if now is not None and span > 0:
+            self.own_cpu = round((now - self.own_cpu0) / span / len(self.sc.loaded), 4)
 
     def result(self, engine: str) -> EngineRun:
         done = [h for h in self.hosts if h is not None]
@@ -303,7 +324,23 @@ class _Burst:
         return EngineRun(engine=engine, makespan=round(span, 2) if span is not None else None,
                          distribution=distribution(self.hosts, self.sc.names), completed=len(done),
                          lost=self.sc.per_origin() * len(self.sc.origins) - len(done) - self.unfinished,
-                         unfinished=self.unfinished, crashed=self.crashed, crashed_running=self.crashed_running)
+                         unfinished=self.unfinished, crashed=self.crashed, crashed_running=self.crashed_running,
+                         own_cpu=self.own_cpu)
+
+
+def own_cpu(tb: Testbed, sc: PeerScenario) -> float | None:
+    """CPU seconds the busy robots' own processes (``Testbed.add_load``) have used so far
+    (None: no busy robot)."""
+    from ramps.runtime.measure import proc_cpu
+
+    if not sc.loaded:
+        return None
+    total = 0.0
+    for r in sc.loaded:
+        for pid, _start in tb.robots[r]["load_pids"]:
+            got = proc_cpu(pid)
+            total += got[0] if got else 0.0
+    return total
 
 
 def _load(tb: Testbed, sc: PeerScenario) -> None:
@@ -346,8 +383,8 @@ def _crash_when_due(tb: Testbed, burst: _Burst, running: Callable[[], dict[str, 
 class RampsEngine:
     """ramps with its default settings, or one of its policies (``round_robin``)."""
 
-    def __init__(self, name: str = "ramps", policy: str | None = None) -> None:
-        self.name, self.policy = name, policy
+    def __init__(self, name: str = "ramps", policy: str | None = None, config: dict[str, Any] | None = None) -> None:
+        self.name, self.policy, self.config = name, policy, config
 
     def missing(self) -> str | None:
         return None
@@ -355,7 +392,8 @@ class RampsEngine:
     def run(self, sc: PeerScenario, setup: Setup, log: Callable[[str], None]) -> EngineRun:
         burst = _Burst(sc)
         futures: list[Any] = []
-        with Testbed(sc.robots, cores=setup.cores, quota=setup.quota, speed=None, policy=self.policy) as tb:
+        with Testbed(sc.robots, cores=setup.cores, quota=setup.quota, speed=None, policy=self.policy,
+                     config=self.config) as tb:
             clients = {o: tb.client(o, timeout=30.0) for o in sc.origins}
             stop = threading.Event()
             try:
@@ -370,7 +408,8 @@ class RampsEngine:
 
                 crasher = _crash_when_due(tb, burst, running, stop, log)
                 ends: dict[int, float] = {}
-                burst.t0 = t0 = time.monotonic()
+                t0 = time.monotonic()
+                burst.start(tb, t0)
                 for i in range(sc.per_origin()):
                     for o in sc.origins:
                         f = clients[o].options(work=setup.work).submit("burn", units=setup.work)
@@ -381,6 +420,7 @@ class RampsEngine:
                 deadline = time.monotonic() + setup.timeout
                 while not all(f.done() for f in futures) and time.monotonic() < deadline:
                     time.sleep(0.1)
+                burst.stop(tb)
                 stop.set()
                 if crasher is not None:
                     crasher.join(5)
@@ -476,11 +516,12 @@ class ClusterEngine:
             t0 = time.monotonic() + 0.5
             (tb.work_dir / "go.tmp").write_text(repr(t0))
             (tb.work_dir / "go.tmp").replace(tb.work_dir / "go")
-            burst.t0 = t0
+            burst.start(tb, t0)
             results = [tb.work_dir / f"result-{o}.json" for o in sc.origins]
             deadline = time.monotonic() + setup.timeout
             while not all(p.exists() for p in results) and time.monotonic() < deadline:
                 time.sleep(0.2)
+            burst.stop(tb)
             stop.set()
             if crasher is not None:
                 crasher.join(5)
@@ -554,9 +595,13 @@ def _running(marks: Path) -> dict[str, int]:
 ENGINES: dict[str, Callable[[], Engine]] = {
     "ramps": lambda: RampsEngine("ramps"),
     "round-robin": lambda: RampsEngine("round-robin", "round_robin"),
+    # ramps with its programs at nice 0 (its default is 10): what that priority costs and protects
+    "ramps-nice0": lambda: RampsEngine("ramps-nice0", config={"worker_nice": 0}),
     "ray": lambda: ClusterEngine("ray", "ray"),
     "dask": lambda: ClusterEngine("dask", "distributed"),
 }
+#: what a run compares when it names no engine (``ramps-nice0`` is the ablation of ramps' priority)
+DEFAULT_ENGINES = ("ramps", "round-robin", "ray", "dask")
 
 
 def run_peers(scenarios: Sequence[PeerScenario], engines: Sequence[str], setup: Setup = Setup(), *,
