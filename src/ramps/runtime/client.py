@@ -3,8 +3,9 @@
 How this works: ``ramps.connect()`` opens a Zenoh peer session that joins
 the team, finds this robot's node by its liveliness token, and returns a
 ``Team``. ``team.submit("plan_route", **args)`` checks the arguments against
-the program's signature (when the program is installed here too), encodes
-them with msgpack and sends one ``SubmitProgram`` to the node; the node is
+the program's signature and annotated types (when the program is installed
+here too: ``ramps.runtime.argtypes``; else its node does), encodes them with
+msgpack and sends one ``SubmitProgram`` to the node; the node is
 the origin of the autonomous program and sends back exactly one
 ``ProgramOutcome``, which resolves the ``concurrent.futures.Future``.
 
@@ -67,7 +68,7 @@ from ramps.errors import (
     ProgramRefused,
     TransportError,
 )
-from ramps.runtime import keys
+from ramps.runtime import argtypes, keys
 from ramps.runtime.registry import MAX_ARGS_BYTES, Registry, decode_value, default_registry, encode_args
 from ramps.runtime.security import admission, settings_credentials, tls_listeners
 from ramps.runtime.settings import NodeSettings, load_settings
@@ -176,6 +177,21 @@ class Team:
         self._timer_thread.start()
         self.robot = self._find_robot(robot, timeout)
         self._pub = t.publisher(keys.inbox(self.team, self.robot), block=True)
+        self._prepare_checks()
+
+    def _prepare_checks(self) -> None:
+        """Import the programs this client knows (the built-ins and those
+        registered with ``@ramps.program`` in this process) and read their
+        signatures now, so that even the first call of each is checked in
+        well under a millisecond. One that does not import here is left to
+        fail, as before, when it is submitted."""
+        for name in sorted(self.registry.names()):
+            try:
+                fn = self.registry.get(name).function()
+                if getattr(fn, "check_args", None) is None:
+                    argtypes.prepare(fn)
+            except Exception:
+                continue
 
     # ------------------------------------------------------------ discovery
     def _on_alive(self, key: str, alive: bool) -> None:

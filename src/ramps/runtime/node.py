@@ -10,8 +10,9 @@ or recovery decision is made here.
 Applications (clients) submit to their robot's node with ``SubmitProgram``;
 the node's core is the origin of the autonomous program and the node sends
 the one ``ProgramOutcome`` back to the client's key. The node checks the
-program name and the arguments against the program's signature before it
-places anything, so a bad call fails at the caller.
+program name and the arguments against the program's signature and
+annotated types before it places anything, so a bad call fails at the
+caller.
 
 Shutdown (SIGINT/SIGTERM, ``stop()``): the executor hands every running
 program back to its origin (a retryable result, so the origin places it

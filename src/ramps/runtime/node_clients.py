@@ -2,7 +2,8 @@
 
 How this works: a client (``ramps.connect()``) sends ``SubmitProgram`` to
 its robot's node; ``_client_submit`` checks the program's name, arguments
-(against its signature), policy and size before the core places anything,
+(against its signature and annotated types, ``ramps.runtime.argtypes``),
+policy and size before the core places anything,
 so a bad call fails at the caller with a clear error and nothing runs. Each
 request is one program however often it is resent; the node keeps recent
 outcomes (``OUTCOMES_KEPT_BYTES``) and answers a request asked again with

@@ -16,13 +16,13 @@ stdin, result as JSON on stdout.
 
 Arguments are keyword arguments encoded with msgpack (msgspec); results are
 any msgpack-encodable value. Arguments are checked against the function's
-signature before anything is sent, so a bad call fails at the caller.
+signature and the types it annotates (``ramps.runtime.argtypes``) before
+anything is sent, so a bad call fails at the caller.
 """
 
 from __future__ import annotations
 
 import importlib
-import inspect
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import Any, Callable
@@ -30,6 +30,7 @@ from typing import Any, Callable
 import msgspec
 
 from ramps.core.messages import MAX_MESSAGE_BYTES
+from ramps.runtime import argtypes
 from ramps.errors import BadArguments, ConfigError, ProgramNotFound
 
 #: largest encoded arguments a client will send, bytes: they must fit in one
@@ -62,13 +63,14 @@ class ProgramSpec:
 
     def check_args(self, kwargs: dict[str, Any]) -> None:
         """Raise TypeError unless ``kwargs`` fit the program: its Python
-        signature, or JSON for an executable."""
+        signature and annotated types (``ramps.runtime.argtypes``), or JSON
+        for an executable."""
         fn = self.function()
         check = getattr(fn, "check_args", None)
         if check is not None:
             check(kwargs)
         else:
-            inspect.signature(fn).bind(**kwargs)
+            argtypes.check(fn, kwargs)
 
 
 def resolve(target: str) -> Callable[..., Any]:
@@ -189,17 +191,19 @@ def program(name: str | None = None, *, work: float = 1.0, payload: int = 0, res
 
 
 def encode_args(spec: ProgramSpec, kwargs: dict[str, Any], *, max_bytes: int = MAX_ARGS_BYTES) -> bytes:
-    """Check ``kwargs`` against the program's signature and encode them."""
-    try:
-        spec.check_args(kwargs)
-    except TypeError as exc:
-        raise BadArguments(f"bad arguments for program {spec.name!r}: {exc}") from None
+    """Encode ``kwargs`` and check them against the program's signature and
+    types: BadArguments for what cannot be sent (not msgpack, over
+    ``max_bytes``), then for what does not fit the program."""
     try:
         data = _encoder.encode(kwargs)
     except (TypeError, msgspec.EncodeError) as exc:
         raise BadArguments(f"arguments of {spec.name!r} cannot be sent (msgpack only, never pickle): {exc}") from None
     if len(data) > max_bytes:
         raise BadArguments(f"arguments of {spec.name!r} are {len(data)} bytes; the limit is {max_bytes}")
+    try:
+        spec.check_args(kwargs)
+    except TypeError as exc:
+        raise BadArguments(f"bad arguments for program {spec.name!r}: {exc}") from None
     return data
 
 
