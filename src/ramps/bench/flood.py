@@ -151,7 +151,7 @@ class RssSampler:
 
 # ====================================================================== the flood
 def _legit_calls(n: int) -> list[tuple[str, dict]]:
-    calls = []
+    calls: list[tuple[str, dict]] = []
     for i in range(n):
         if i % 2 == 0:
             calls.append(("burn", {"seconds": 0.2}))

@@ -153,13 +153,14 @@ def fuzz_revocations(rng: random.Random, good: bytes, ca_cert, tally: _Tally, ou
 
 def fuzz_args(rng: random.Random, tally: _Tally, out: Counter) -> None:
     """One input at the program-argument decoder a node runs on a client's bytes."""
+    data: bytes
     if rng.random() < 0.5:
         data = ENCODER.encode(random_object(rng))
     else:
-        data = bytearray(ENCODER.encode({"seed": rng.randint(0, 9), "grid": [[0, 1], [1, 0]], "name": "r1"}))
+        mangled = bytearray(ENCODER.encode({"seed": rng.randint(0, 9), "grid": [[0, 1], [1, 0]], "name": "r1"}))
         for _ in range(rng.randint(1, 4)):
-            data[rng.randrange(len(data))] = rng.choice(INTERESTING)
-        data = bytes(data[:rng.randint(0, len(data))]) if rng.random() < 0.3 else bytes(data)
+            mangled[rng.randrange(len(mangled))] = rng.choice(INTERESTING)
+        data = bytes(mangled[:rng.randint(0, len(mangled))]) if rng.random() < 0.3 else bytes(mangled)
     try:
         decode_args(data)
         out["args_ok"] += 1
@@ -268,8 +269,9 @@ class CoreHarness:
         if not programs or rng.random() < 0.2:
             if self.node.executor.running and rng.random() < 0.5:
                 pid, attempt = rng.choice(sorted(self.node.executor.running))
-                return rng.choice([m.ResultAck, m.CancelProgram])(
-                    program_id=pid, attempt=attempt, origin=rng.choice([ME, *PEERS]))
+                kinds: list[type[m.ResultAck] | type[m.CancelProgram]] = [m.ResultAck, m.CancelProgram]
+                kind = rng.choice(kinds)
+                return kind(program_id=pid, attempt=attempt, origin=rng.choice([ME, *PEERS]))
             return random_message(rng)
         ap = programs[rng.choice(sorted(programs))]
         attempt = rng.choice(sorted({ap.attempt, max(0, ap.attempt - 1), ap.attempt + 1, *ap.live}))

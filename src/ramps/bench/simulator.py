@@ -30,7 +30,7 @@ def large_team(robots: int = 1000, programs: int = 10_000, origins: int = 10, se
 
 def bench_sweep(runs: int = 3, policy: str = "ramps") -> dict:
     started = time.perf_counter()
-    out = {}
+    out: dict[str, object] = {}
     for experiment in ("unloaded", "loaded"):
         rep = run_experiment(experiment, policy=policy, runs=runs)
         out[experiment] = {"wall_seconds": rep.wall_seconds, "optimal_or_near_share": rep.summary.optimal_or_near_share,

@@ -79,7 +79,8 @@ def inner(cores: int, programs: int, rounds: int, hold_s: float) -> dict:
     cpu0 = _cpu_seconds()
     pool.start()
     time.sleep(1.0)  # the pool's first workers are up before the first round
-    out = {"cores": cores, "programs": programs, "rounds": []}
+    rounds_out: list[dict] = []
+    out: dict[str, object] = {"cores": cores, "programs": programs, "rounds": rounds_out}
     try:
         for r in range(rounds):
             done.clear()
@@ -97,7 +98,7 @@ def inner(cores: int, programs: int, rounds: int, hold_s: float) -> dict:
                    "workers_started": pool.started - started0,
                    "cpu_s": None if c0 is None or c1 is None else c1 - c0,
                    "errors": [v for v in done.values() if not isinstance(v, float)]}
-            out["rounds"].append(row)
+            rounds_out.append(row)
             time.sleep(3.0)  # the extra workers retire (RETIRE_AFTER) before the next round
     finally:
         pool.stop()
@@ -132,6 +133,7 @@ def death_times(trials: int) -> list[float]:
     for _ in range(trials):
         owner = subprocess.Popen([sys.executable, "-c", _OWNER], stdout=subprocess.PIPE, text=True,
                                  start_new_session=True)
+        assert owner.stdout is not None  # stdout=PIPE
         try:
             procs = [psutil.Process(int(p)) for p in owner.stdout.readline().split()]
             t0 = time.monotonic()
