@@ -22,11 +22,12 @@ from __future__ import annotations
 
 import random
 import time
+from typing import Generic, TypeVar
 
 import msgspec
 
 from ramps.sim.engine import Simulator
-from ramps.sim.scenario import FaultSpec, NetworkSpec, ProgramSpec, RobotSpec, Scenario
+from ramps.sim.scenario import FaultKind, FaultSpec, NetworkSpec, ProgramSpec, RobotSpec, Scenario
 
 
 class CampaignRun(msgspec.Struct, kw_only=True):
@@ -46,7 +47,11 @@ class CampaignRun(msgspec.Struct, kw_only=True):
     resumed: int = 0
 
 
-class CampaignReport(msgspec.Struct, kw_only=True):
+#: one run of a campaign: the simulator's ``CampaignRun`` or the testbed's
+RunT = TypeVar("RunT")
+
+
+class CampaignReport(msgspec.Struct, Generic[RunT], kw_only=True):
     """Totals over a campaign's runs (``world``: simulator or testbed)."""
 
     runs: int
@@ -58,7 +63,7 @@ class CampaignReport(msgspec.Struct, kw_only=True):
     lost: int
     duplicated: int
     not_rejoined: int
-    failed_runs: list[CampaignRun]
+    failed_runs: list[RunT]
     wall_seconds: float
     world: str = "simulator"
     load_changes: bool = False
@@ -79,7 +84,7 @@ def random_scenario(rng: random.Random, seed: int, policy: str, load_changes: bo
     for robot in others:
         t = rng.uniform(0.0, 10.0)
         for _ in range(rng.randint(0, 2)):
-            kind = rng.choice(["crash", "network", "freeze"])
+            kind: FaultKind = rng.choice(["crash", "network", "freeze"])
             faults.append(FaultSpec(at=t, robot=robot, kind=kind))
             t += rng.uniform(0.5, 30.0)
             if rng.random() < 0.7:
@@ -127,7 +132,7 @@ def run_one(seed: int, policy: str = "ramps", load_changes: bool = False) -> Cam
 
 
 def run_campaign(runs: int, seed: int = 0, policy: str = "ramps", progress=None,
-                 load_changes: bool = False) -> CampaignReport:
+                 load_changes: bool = False) -> CampaignReport[CampaignRun]:
     started = time.perf_counter()
     results = []
     for i in range(runs):

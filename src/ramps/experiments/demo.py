@@ -148,7 +148,7 @@ def run_demo(*, robots: int = 5, programs: int = 15, program: str = "route_plan"
                 warm = [client.options(policy="round_robin").submit(program, **c) for c in calls[:robots]]
                 for f in warm:
                     f.result(timeout=120)
-            killed = []
+            killed: list[str] = []
 
             def during(elapsed: float) -> None:
                 if kill and not killed and elapsed >= kill_at:
@@ -164,19 +164,20 @@ def run_demo(*, robots: int = 5, programs: int = 15, program: str = "route_plan"
                                          on_progress=on_progress, during=during if title == "ramps" else None))
                 windows[title] = (w0, time.time())
                 if killed and title == "ramps":
-                    team.start_node(kill)  # back for the baselines, so they run on the same team
+                    team.start_node(killed[0])  # back for the baselines, so they run on the same team
                     time.sleep(2.5)
         finally:
             client.close()
     ramps_t, rr_t, single_t = (p.makespan for p in phases)
     saved = ""
-    if report:
+    if report and trace:  # trace: set whenever report is
         from ramps.observe.report import make_report, write_html
 
         what = (f"{programs} x {program} from r1 placed by ramps on {robots} robots"
                 + (f", {kill} killed at {kill_at:g} s" if kill else "") + (f", loaded: {', '.join(loaded)}" if loaded
                                                                            else ""))
-        saved = str(write_html(make_report([trace], title=f"ramps demo: {what}", window=windows["ramps"]), report))
+        rep = make_report([Path(trace)], title=f"ramps demo: {what}", window=windows["ramps"])
+        saved = str(write_html(rep, Path(report)))
     return DemoReport(mode=mode, robots=names, robot_cores=quota or host_cores, programs=programs, program=program,
                       arguments=args, loaded=loaded, killed=kill, phases=phases,
                       speedup_vs_single=single_t / ramps_t, ratio_to_round_robin=ramps_t / rr_t,

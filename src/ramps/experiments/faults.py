@@ -18,6 +18,7 @@ description; the testbed runs the same plans on real processes.
 from __future__ import annotations
 
 import statistics
+from typing import Literal, cast
 
 import msgspec
 
@@ -29,7 +30,9 @@ from ramps.sim.scenario import FaultSpec, NetworkSpec, ProgramSpec, RobotSpec, S
 ROBOTS = ["R1", "R2", "R3", "R4", "R5"]
 ORDER = ["R5", "R4", "R3", "R2"]
 KINDS = ("crash", "network", "mixed")
-MIXED = {"R5": "network", "R4": "crash", "R3": "network", "R2": "crash"}
+#: what one failure does to a robot (``mixed`` plans alternate the two)
+FailureKind = Literal["crash", "network"]
+MIXED: dict[str, FailureKind] = {"R5": "network", "R4": "crash", "R3": "network", "R2": "crash"}
 
 
 class FaultPlan(msgspec.Struct, frozen=True, kw_only=True):
@@ -38,14 +41,17 @@ class FaultPlan(msgspec.Struct, frozen=True, kw_only=True):
     name: str
     mode: str  # sequential | simultaneous
     kind: str  # crash | network | mixed
-    failures: list[tuple[float, str, str]]  # (at, robot, crash|network)
+    failures: list[tuple[float, str, FailureKind]]  # (at, robot, kind)
     #: when to record distributions (seconds after the submit), with labels
     snapshots: list[tuple[str, float]]
 
 
 def plans(mode: str, kind: str, *, first: float = 20.0, gap: float = 20.0) -> list[FaultPlan]:
-    def how(robot: str) -> str:
-        return MIXED[robot] if kind == "mixed" else kind
+    if kind not in KINDS:
+        raise ValueError(f"unknown failure kind {kind!r}; choose one of {', '.join(KINDS)}")
+
+    def how(robot: str) -> FailureKind:
+        return MIXED[robot] if kind == "mixed" else cast(FailureKind, kind)  # crash or network, checked above
 
     if mode == "sequential":
         fails = [(first + i * gap, r, how(r)) for i, r in enumerate(ORDER)]
@@ -163,8 +169,6 @@ def run_fault_experiment(mode: str, kind: str, *, policy: str = "ramps", runs: i
     """Every plan of ``mode``/``kind``, ``runs`` times each. ``runner(plan,
     seed=, policy=)`` runs one plan and returns a ``FaultRun``: the simulator's
     ``run_plan`` by default, the testbed's for ``ramps testbed experiment``."""
-    if kind not in KINDS:
-        raise ValueError(f"unknown failure kind {kind!r}; choose one of {', '.join(KINDS)}")
     runner = runner or run_plan
     todo = [(plan, seed * 1000 + k) for plan in plans(mode, kind, first=first, gap=gap) for k in range(runs)]
     out = []

@@ -21,7 +21,8 @@ from ramps.core.config import RampsConfig
 from ramps.core.cost import NODE_CPU_MAX
 
 POLICIES = ("ramps", "paper", "round_robin", "random", "local_only")
-FAULT_KINDS = ("crash", "network", "freeze", "recover", "load")
+FaultKind = Literal["crash", "network", "freeze", "recover", "load"]
+FAULT_KINDS: tuple[FaultKind, ...] = ("crash", "network", "freeze", "recover", "load")
 
 
 class ScenarioError(ValueError):
@@ -126,7 +127,7 @@ class FaultSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
 
     at: float
     robot: str
-    kind: Literal["crash", "network", "freeze", "recover", "load"]
+    kind: FaultKind
     #: ``load`` only: the robot's busy processes from then on
     background: int | None = None
 
@@ -196,20 +197,20 @@ class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
             seen[r.name] = 1
         if not self.programs:
             raise ScenarioError("$.programs", "a workload needs at least one program entry")
-        for i, p in enumerate(self.programs):
+        for i, spec in enumerate(self.programs):
             path = f"$.programs[{i}]"
-            if p.origin not in seen:
-                raise ScenarioError(f"{path}.origin", f"unknown robot {p.origin!r}")
-            if p.count < 1:
-                raise ScenarioError(f"{path}.count", f"must be >= 1, got {p.count}")
-            if not p.work > 0:
-                raise ScenarioError(f"{path}.work", f"must be > 0, got {p.work}")
-            if p.work_estimate is not None and not p.work_estimate > 0:
-                raise ScenarioError(f"{path}.work_estimate", f"must be > 0, got {p.work_estimate}")
+            if spec.origin not in seen:
+                raise ScenarioError(f"{path}.origin", f"unknown robot {spec.origin!r}")
+            if spec.count < 1:
+                raise ScenarioError(f"{path}.count", f"must be >= 1, got {spec.count}")
+            if not spec.work > 0:
+                raise ScenarioError(f"{path}.work", f"must be > 0, got {spec.work}")
+            if spec.work_estimate is not None and not spec.work_estimate > 0:
+                raise ScenarioError(f"{path}.work_estimate", f"must be > 0, got {spec.work_estimate}")
             for fld in ("payload", "result", "at", "spacing", "jitter", "memory", "checkpoint_every",
                         "checkpoint_size"):
-                if getattr(p, fld) < 0:
-                    raise ScenarioError(f"{path}.{fld}", f"must be >= 0, got {getattr(p, fld)}")
+                if getattr(spec, fld) < 0:
+                    raise ScenarioError(f"{path}.{fld}", f"must be >= 0, got {getattr(spec, fld)}")
         for i, f in enumerate(self.faults):
             if f.robot not in seen:
                 raise ScenarioError(f"$.faults[{i}].robot", f"unknown robot {f.robot!r}")
