@@ -60,6 +60,7 @@ own default, ``NodeSettings.lease_ms`` = 2000 ms, not Zenoh's 10 s.
 
 from __future__ import annotations
 
+import argparse
 import statistics
 import time
 from typing import TYPE_CHECKING
@@ -127,9 +128,21 @@ def flapping(testbed, watcher: TeamWatcher, robot: str, *, loss: float, duration
                 false_detections=len(dels), at=[round(t, 2) for t in dels])
 
 
-def main(argv: list[str] | None = None) -> None:
-    import argparse
+def _outages(text: str) -> tuple[float, float] | None:
+    """``--outages``: ``lo,hi`` seconds, or '' for none."""
+    if not text:
+        return None
+    want = f"want lo,hi seconds with 0 <= lo <= hi, got {text!r}"
+    try:
+        parts = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(want) from None
+    if len(parts) != 2 or not 0 <= parts[0] <= parts[1]:
+        raise argparse.ArgumentTypeError(want)
+    return parts[0], parts[1]
 
+
+def main(argv: list[str] | None = None) -> None:
     from ramps.testbed import Testbed
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -140,14 +153,15 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--flap", action="store_true",
                     help="measure false detections on a lossy link instead of detection times")
     ap.add_argument("--loss", default="0.1,0.2,0.3", help="with --flap: packet loss rates to try")
-    ap.add_argument("--outages", default="0.1,1.0", help="with --flap: also silent gaps of lo,hi s ('' for none)")
+    ap.add_argument("--outages", type=_outages, default="0.1,1.0",
+                    help="with --flap: also silent gaps of lo,hi s ('' for none)")
     ap.add_argument("--duration", type=float, default=60.0, help="with --flap: seconds per loss rate")
     ap.add_argument("--json", default=None, help="with --flap: save the results to this file")
     a = ap.parse_args(argv)
     if a.flap:
         import json
 
-        outages = tuple(float(x) for x in a.outages.split(",")) if a.outages else None
+        outages: tuple[float, float] | None = a.outages
         results = []
         with Testbed(a.robots, lease_ms=a.lease_ms) as tb, watch_team(tb) as w:
             for i, loss in enumerate(float(x) for x in a.loss.split(",")):

@@ -63,7 +63,7 @@ import sys
 import time
 from concurrent.futures import wait as wait_futures
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import msgspec
 
@@ -75,6 +75,9 @@ from ramps.experiments.metrics import classify_counts
 from ramps.programs.burn import burn
 from ramps.sim.engine import TraceEntry
 
+if TYPE_CHECKING:
+    from ramps.testbed import Testbed
+
 #: seconds between the testbed being up (seen from outside) and the first
 #: submit, so the origin has a load report from every robot (published every 1 s)
 SETTLE = 2.5
@@ -84,7 +87,7 @@ NAMES = {r: r.lower() for r in ROBOTS}
 
 def read_trace(path: Path) -> list[TraceEntry]:
     """A node's ``--trace`` file as simulator trace entries (torn last line skipped)."""
-    out = []
+    out: list[TraceEntry] = []
     try:
         lines = Path(path).read_text().splitlines()
     except OSError:
@@ -122,12 +125,19 @@ def hosts_at(trace: list[TraceEntry], t: float) -> dict[str, str]:
     return {p: h for p, (h, _) in where.items()}
 
 
-def _keep(tb, dest: Path) -> None:
+def _log_dir(tb: Testbed) -> Path:
+    """The folder of a testbed's node logs and traces (``up`` makes it)."""
+    if tb.log_dir is None:
+        raise RuntimeError(f"testbed {tb.tb} is not up: it has no log folder")
+    return tb.log_dir
+
+
+def _keep(tb: Testbed, dest: Path) -> None:
     """Copy the testbed's node logs and traces before ``down`` deletes them."""
     import shutil
 
     dest.mkdir(parents=True, exist_ok=True)
-    for f in tb.log_dir.iterdir():
+    for f in _log_dir(tb).iterdir():
         shutil.copy(f, dest / f.name)
 
 
@@ -196,7 +206,7 @@ def run_plan(plan: FaultPlan, *, seed: int = 0, policy: str = "ramps", work: flo
             f.cancel()
         makespan = time.monotonic() - t0
         time.sleep(0.2)  # the origin's last trace lines
-        trace = sorted(read_trace(tb.log_dir / "r1.trace.jsonl"), key=lambda e: e.t)
+        trace = sorted(read_trace(_log_dir(tb) / "r1.trace.jsonl"), key=lambda e: e.t)
         if keep_logs is not None:
             _keep(tb, Path(keep_logs) / f"{plan.name.replace(' ', '_').replace(':', '').replace(',', '-')}-{seed}")
     dup = sum(n - 1 for n in delivered_counts(trace).values() if n > 1)
@@ -240,10 +250,9 @@ class CampaignRun(msgspec.Struct, kw_only=True):
     resubmitted: int = 0
 
 
-class TestbedCampaignReport(CampaignReport, kw_only=True):
+class TestbedCampaignReport(CampaignReport[CampaignRun], kw_only=True):
     """The simulator's campaign totals, with the testbed's runs (all kept: each is expensive)."""
 
-    failed_runs: list[CampaignRun]
     all_runs: list[CampaignRun] = []
     #: stopped by Ctrl-C: ``runs`` counts the runs that finished
     interrupted: bool = False
@@ -447,7 +456,7 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
         else:
             not_rejoined += [f"{r} (blacklisted at r1 or not alive)" for r in missing]
         time.sleep(0.2)
-        traces = {o: read_trace(tb.log_dir / f"{o}.trace.jsonl") for o in origins}
+        traces = {o: read_trace(_log_dir(tb) / f"{o}.trace.jsonl") for o in origins}
         dup = sum(n - 1 for tr in traces.values() for n in delivered_counts(tr).values() if n > 1)
         for robot, at in began.items():  # faults never recovered explain what followed them
             spans.setdefault(robot, []).append((at, float("inf")))

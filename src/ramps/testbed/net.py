@@ -38,6 +38,7 @@ import os
 import re
 import shutil
 import subprocess
+from collections.abc import Set
 from pathlib import Path
 
 SUBNET_BASE = "10.201"
@@ -144,7 +145,7 @@ def _subnet_used(x: int) -> bool:
     return False
 
 
-def free_subnet(taken: set[int] = frozenset()) -> int:
+def free_subnet(taken: Set[int] = frozenset()) -> int:
     """The lowest X in 1..250 free for a new testbed ``t<X>``."""
     existing = set(links())
     for x in range(1, 251):
