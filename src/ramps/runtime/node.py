@@ -79,6 +79,9 @@ STALL_MIN = 0.5
 RELINK_LEASE_FRACTION = 0.75
 #: queued items handled before the timers fire (the rest after them)
 MAX_ITEMS_PER_ROUND = 10_000
+#: a node told to --connect somewhere, or with multicast off, that has heard
+#: no teammate this many seconds after it started says so, once (``_lonely``)
+LONELY_AFTER = 8.0
 #: seconds of queued items one round handles before this robot's own duties
 #: that are due (its load report, its programs' heartbeats) go out; the
 #: origin's timeouts wait until the queue is drained, as it may hold the
@@ -198,6 +201,10 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._outcomes_ready: dict[str, bytes] = {}
         #: called on the driver thread after every round of its loop (systemd's watchdog, ramps.runtime.service)
         self.on_turn: Callable[[], None] | None = None
+        #: when to look whether this node has heard any teammate (None: looked, or no need)
+        self._lonely_at: float | None = None
+        #: the warning it gave, if it heard nobody ("" = none)
+        self.lonely = ""
 
     # ================================================================ lifecycle
     def start(self, *, threaded: bool = True) -> "NodeRuntime":
@@ -281,6 +288,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._threaded = threaded
         self._last_read = self.clock.monotonic()
         self._next_pub = self._clock()
+        if s.connect or not s.multicast:  # else a lone robot on a LAN with multicast is no surprise
+            self._lonely_at = self.clock.monotonic() + LONELY_AFTER
         if self.store is not None:
             self._apply(self._restore(self._clock()))
         if threaded:
@@ -290,6 +299,38 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         log.info("node %s joined team %s: %d cores, speed %.2f, load scope %s", self.robot, self.team,
                  self.cores, self.speed, scope)
         return self
+
+    def _lonely(self) -> None:
+        """LONELY_AFTER seconds after start: if no teammate was ever heard
+        (no load report, no liveliness), log one warning saying what this
+        node tried and what to check. It runs on: a lone robot is legal."""
+        if any(r != self.robot for r in self.node.view.robots()):
+            return
+        s = self.s
+        tried = []
+        if s.connect:
+            tried.append(f"connecting to {', '.join(s.connect)}")
+        if s.mode != "client":
+            tried.append(f"listening on {', '.join(self.endpoints() or s.listen_endpoints())}")
+        tried.append("multicast discovery " + ("on" if s.multicast else "off"))
+        try:
+            sessions = len(self.transport.peers()) if self.transport is not None else 0
+        except Exception:
+            sessions = 0
+        if sessions:
+            why = (f"it is linked to {sessions} Zenoh session(s), but none is a node of team {self.team!r} (an "
+                   "application's ramps.connect() is not one): check that every robot runs with the same --team "
+                   "(env RAMPS_TEAM)"
+                   + (" and the same --secure setting" if not s.secure else ""))
+        else:
+            why = ("it is linked to no one: check that --connect names an endpoint a teammate's node listens on "
+                   "(its --listen, shown as 'listening on' when it starts; e.g. --listen tcp/0.0.0.0:7447 there, "
+                   "--connect tcp/ITS-IP:7447 here), that a firewall lets it through, and on loopback or a "
+                   "network without multicast, run every node with --no-multicast and --connect/--listen")
+        self.lonely = (f"node {self.robot} has heard no teammate in team {self.team!r} {LONELY_AFTER:g} s after "
+                       f"starting ({'; '.join(tried)}); {why}. It keeps running: a lone robot runs its "
+                       "programs itself")
+        log.warning(self.lonely)
 
     def _serve_metrics(self, address: str) -> None:
         from ramps.observe.metrics import NodeMetrics
@@ -535,6 +576,9 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         if now >= next_pub:
             self._publish(now)
             self.heap.maybe_trim(self._backlog_bytes)
+            if self._lonely_at is not None and self.clock.monotonic() >= self._lonely_at:
+                self._lonely_at = None
+                self._lonely()
             period = self.s.publish_period
             self._next_pub = now + period if now - next_pub > period else next_pub + period
         deadline = node.next_deadline()
