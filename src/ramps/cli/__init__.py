@@ -57,6 +57,19 @@ def version() -> None:
     out.print(f"ramps {__version__} (protocol {PROTOCOL})")
 
 
+def _version_flag(value: bool) -> None:
+    if value:
+        version()
+        raise typer.Exit()
+
+
+@app.callback()
+def _ramps(show_version: bool = typer.Option(False, "--version", callback=_version_flag, is_eager=True,
+                                             help="print the ramps version and wire protocol, then exit "
+                                                  "(as `ramps version`)")) -> None:
+    pass
+
+
 app.command()(node)
 app.command()(submit)
 app.command()(status)

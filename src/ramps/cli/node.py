@@ -120,7 +120,8 @@ def node(
         fail(str(exc))
     err.print(f"[bold]ramps node {rt.robot}[/] joined team [bold]{rt.team}[/]: {rt.cores} cores, speed {rt.speed:g}, "
               f"policy {s.policy}, load measured on the {rt.load_scope}; "
-              + ("client of a router" if s.mode == "client" else f"listening on {', '.join(s.listen_endpoints())}")
+              + ("client of a router" if s.mode == "client"
+                 else f"listening on {', '.join(rt.endpoints() or s.listen_endpoints())}")
               + (f"; connecting to {', '.join(s.connect)}" if s.connect else "")
               + ("; multicast discovery on" if s.multicast else "")
               + ("; secured: TLS with team certificates" if s.secure else "")

@@ -23,6 +23,7 @@ anything is sent, so a bad call fails at the caller.
 from __future__ import annotations
 
 import importlib
+import traceback
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import Any, Callable
@@ -90,6 +91,10 @@ def resolve(target: str) -> Callable[..., Any]:
         mod = importlib.import_module(module)
     except ImportError as exc:
         raise ConfigError(f"cannot import {module!r} for program {target!r}: {exc}") from exc
+    except (Exception, SystemExit) as exc:  # the module itself failed: what and where, in one line
+        what = (f"called sys.exit({exc.code!r})" if isinstance(exc, SystemExit)
+                else f"raised {type(exc).__name__}: {exc}")
+        raise ConfigError(f"cannot import {module!r} for program {target!r}: it {what}{_where(exc)}") from exc
     fn: Any = mod
     for part in attr.split("."):
         fn = getattr(fn, part, None)
@@ -98,6 +103,15 @@ def resolve(target: str) -> Callable[..., Any]:
     if not callable(fn):
         raise ConfigError(f"program {target!r} is not callable")
     return fn
+
+
+def _where(exc: BaseException) -> str:
+    """`` (at path/mod.py:12)``: the innermost frame of the exception's
+    traceback outside the import machinery (a SyntaxError's own line)."""
+    if isinstance(exc, SyntaxError):
+        return ""  # its message names the file and line already
+    frames = [f for f in traceback.extract_tb(exc.__traceback__) if "importlib" not in f.filename]
+    return f" (at {frames[-1].filename}:{frames[-1].lineno})" if frames else ""
 
 
 BUILTINS = {

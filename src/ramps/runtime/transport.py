@@ -121,6 +121,10 @@ class ZenohTransport:
 
         self._z = zenoh
         self.session = session
+        #: the listen endpoints asked for, and the TCP sockets this process
+        #: began to listen on while the session opened (address, port)
+        self._asked: list[str] = []
+        self._bound: list[tuple[str, int]] = []
 
     @classmethod
     def open(cls, settings: "NodeSettings", *, credentials: Any = None, fail_fast: bool = False,
@@ -135,6 +139,7 @@ class ZenohTransport:
 
         zenoh.try_init_log_from_env()  # RUST_LOG=zenoh=debug shows Zenoh's own view (links, leases)
         extra: dict[str, Any] = {} if listen is None else {"listen": listen}
+        before = _listening()
         try:
             if settings.secure:
                 session = open_session(
@@ -144,7 +149,10 @@ class ZenohTransport:
                 session = zenoh.open(zenoh_config(settings, **extra))
         except zenoh.ZError as exc:
             raise TransportError(explain_open_error(settings, exc)) from exc
-        return cls(session)
+        t = cls(session)
+        t._asked = [] if settings.mode == "client" else settings.listen_endpoints(listen)
+        t._bound = sorted(_listening() - before)
+        return t
 
     def subscribe(self, key: str, callback: OnSample) -> Declared:
         try:
@@ -180,14 +188,44 @@ class ZenohTransport:
         self.session.put(key, data, congestion_control=self._cc(block))
 
     def locators(self) -> list[str]:
+        """Where this session listens, with the real ports: Zenoh's own list
+        where its Python API has one, else each endpoint asked for with a
+        port 0 replaced by the port its listener was given (found among the
+        TCP sockets this process began to listen on as the session opened)."""
         info = self.session.info
-        return [str(x) for x in info.locators()] if hasattr(info, "locators") else []
+        if hasattr(info, "locators"):
+            return [str(x) for x in info.locators()]
+        return [real_endpoint(e, self._bound) for e in self._asked]
 
     def peers(self) -> list[str]:
         return [str(z) for z in self.session.info.peers_zid()]
 
     def close(self) -> None:
         self.session.close()
+
+
+def _listening() -> set[tuple[str, int]]:
+    """The TCP sockets this process listens on: (address, port)."""
+    try:
+        import psutil
+
+        return {(c.laddr.ip, c.laddr.port) for c in psutil.Process().net_connections(kind="tcp")
+                if c.status == psutil.CONN_LISTEN}
+    except Exception:  # cannot tell (no permission, no psutil): the banner shows what was asked
+        return set()
+
+
+def real_endpoint(endpoint: str, bound: list[tuple[str, int]]) -> str:
+    """``tcp/0.0.0.0:0`` (or ``tls/``, ``ws/``) with the port its listener got:
+    the one socket in ``bound`` on that address; unchanged if it has a port
+    already, or if that cannot be told."""
+    proto, sep, rest = endpoint.partition("/")
+    addr, colon, port = rest.split("#", 1)[0].rpartition(":")
+    if not sep or not colon or port != "0" or proto not in ("tcp", "tls", "ws"):
+        return endpoint
+    host = addr.strip("[]")
+    ports = {p for a, p in bound if a == host or (host in ("0.0.0.0", "::") and a in ("0.0.0.0", "::"))}
+    return f"{proto}/{addr}:{ports.pop()}" if len(ports) == 1 else endpoint
 
 
 def explain_open_error(settings: "NodeSettings", exc: Exception) -> str:
