@@ -54,3 +54,20 @@ def test_port_zero_is_shown_as_the_port_the_listener_got():
         socket.create_connection((host, int(port)), timeout=2).close()  # it really listens there
     finally:
         t.close()
+
+
+def test_help_of_ramps_connect_is_the_real_signature_and_says_what_each_argument_is():
+    import inspect
+
+    import ramps
+    from ramps.runtime import client
+
+    public, impl = inspect.signature(ramps.connect), inspect.signature(client.connect)
+    assert [(p.name, p.kind, p.default) for p in public.parameters.values()] == [
+        (p.name, p.kind, p.default) for p in impl.parameters.values()]
+    doc = inspect.getdoc(ramps.connect)
+    for name in public.parameters:
+        assert f"\n{name}\n" in doc or f"\n{name}," in doc or f", {name}\n" in doc, name
+    assert "Example" in doc and "team.submit(" in doc
+    for method in ("submit", "map", "submit_async", "map_async", "options", "status", "pending", "close"):
+        assert len(inspect.getdoc(getattr(client.Team, method)) or "") > 40, method

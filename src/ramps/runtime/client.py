@@ -125,10 +125,19 @@ def _track(team: "Team") -> None:
 
 
 class Team:
-    """A client's connection to its team (``ramps.connect()``). ``transport``
-    (default: a Zenoh session opened from ``settings``; closed with the
-    Team) and ``clock`` (default: the real one) are its seams to the world,
-    as ``NodeRuntime``'s: ``ramps.testing.memory`` has in-memory ones."""
+    """A client's connection to its team: get one from ``ramps.connect()``.
+
+    It submits programs to one robot's node (``robot``), the origin of each:
+    ``submit`` and ``map`` (and their ``async`` forms) return futures or
+    results; ``options(timeout=..., local_only=..., work=..., policy=...)``
+    sets them per call; ``status()`` is the team as this client sees it;
+    ``pending()`` counts programs not finished; ``close()`` (or ``with``)
+    leaves, failing what is still pending with ``ProgramLost``.
+
+    For tests and embedding: ``transport`` (default: a Zenoh session opened
+    from ``settings``; closed with the Team) and ``clock`` (default: the real
+    one) are its seams to the world, as ``NodeRuntime``'s:
+    ``ramps.testing.memory`` has in-memory ones."""
 
     def __init__(self, settings: NodeSettings, *, robot: str | None, timeout: float,
                  registry: Registry | None = None, transport: Transport | None = None,
@@ -289,16 +298,41 @@ class Team:
         return _Options(self, timeout=timeout, local_only=local_only, work=work, policy=policy)
 
     def submit(self, program: str, /, **kwargs: Any) -> ProgramFuture:
+        """Run ``program`` (a name registered on the team's robots) with these
+        keyword arguments somewhere on the team; returns at once.
+
+        The arguments are checked against the program's signature and
+        annotated types first when this process knows the program
+        (``BadArguments``, nothing sent), else by the node. The returned
+        ``ProgramFuture`` is a ``concurrent.futures.Future``: ``result()``
+        gives the program's return value or raises ``ProgramFailed`` (the
+        program raised, or killed its worker on several robots),
+        ``ProgramRefused``, ``ProgramLost`` or ``BadArguments``;
+        ``cancel()`` withdraws it from the team; ``state``, ``host``,
+        ``attempts`` and ``progress`` follow it while it runs.
+
+            fut = team.submit("route_plan", picks=8, seed=3)
+            plan = fut.result(timeout=60)"""
         return self._submit(program, kwargs)
 
     def map(self, program: str, calls: Iterable[dict[str, Any]], *, timeout: float | None = None) -> Iterator[Any]:
-        """Submit one program per dict of arguments; yield results in order."""
+        """Submit one program per dict of arguments, all at once; yield their
+        results in the order of ``calls`` (the first error raises, and the
+        programs not yet collected are withdrawn). ``timeout``: seconds each
+        call may take (TimeoutError).
+
+            for plan in team.map("route_plan", [{"seed": s} for s in range(6)]):
+                print(plan["length"])"""
         return self.options(timeout=timeout).map(program, calls)
 
     async def submit_async(self, program: str, /, **kwargs: Any) -> Any:
+        """``await team.submit_async("route_plan", seed=2)``: ``submit``, awaited
+        for its result (cancelling the awaiting task withdraws the program)."""
         return await asyncio.wrap_future(self._submit(program, kwargs))
 
     async def map_async(self, program: str, calls: Iterable[dict[str, Any]]) -> list[Any]:
+        """``map`` for asyncio: every call at once, their results as a list in
+        the order of ``calls`` (the first error raises)."""
         futs = [asyncio.wrap_future(self._submit(program, dict(c))) for c in calls]
         return list(await asyncio.gather(*futs))
 
@@ -466,7 +500,10 @@ class Team:
 
     # ------------------------------------------------------------ looking
     def status(self) -> TeamStatus:
-        """The live team view: who is alive, their latest load reports."""
+        """The team as this client sees it now: one ``RobotStatus`` per robot
+        (alive by its liveliness token; cores, speed, CPU use, the programs
+        it runs and more from its latest load report, with the report's age).
+        What ``ramps status`` prints."""
         now = self.clock.monotonic()
         with self._lock:
             names = sorted(self._alive | set(self._reports))
@@ -487,11 +524,17 @@ class Team:
         return TeamStatus(team=self.team, robots=rows)
 
     def pending(self) -> int:
+        """How many of this client's programs have not finished yet."""
         with self._lock:
             return len(self._futures)
 
     # ------------------------------------------------------------ closing
     def close(self) -> None:
+        """Leave the team: futures still pending fail here with
+        ``ProgramLost`` (their programs are not withdrawn: ``cancel()`` them
+        first for that) and the Zenoh session closes. Idempotent; ``with
+        ramps.connect(...) as team:`` calls it, and a Team left open is
+        closed at interpreter exit."""
         if self._closed:
             return
         with self._lock:
@@ -522,6 +565,9 @@ class Team:
 
 
 class _Options:
+    """Per-call options bound to a Team (``team.options(...)``): its
+    ``submit``, ``map`` and ``submit_async`` are the Team's, with them."""
+
     def __init__(self, team: Team, **opts: Any) -> None:
         self._team = team
         self._opts = opts
@@ -548,28 +594,13 @@ class _Options:
 
 def connect(team: str | None = None, robot: str | None = None, *, connect: list[str] | None = None,
             listen: list[str] | None = None, multicast: bool | None = None, timeout: float = 5.0,
-            config_file: str | None = None, registry: Registry | None = None, secure: bool | None = None,
+            config_file: str | os.PathLike | None = None, registry: Registry | None = None, secure: bool | None = None,
             credentials: str | os.PathLike | None = None, origin_grace: float = ORIGIN_GONE_GRACE,
             mode: str | None = None) -> Team:
-    """Join a team as an application and return a ``Team`` to submit to.
-
-    ``robot`` names the node that will be the origin of your programs
-    (default: the node named after this host, or any node found). Raises
-    ``NoTeam`` if no such node answers within ``timeout`` seconds.
-
-    ``secure=True`` joins a secured team with this robot's ``credentials``
-    directory (from ``ramps team add``; env ``RAMPS_SECURE``,
-    ``RAMPS_CREDENTIALS``). Bad credentials raise ``CredentialsError``; a
-    team that will not admit them raises ``NotAdmitted`` (a ``NoTeam``) at
-    once, as does a secured team joined without ``secure``.
-
-    ``mode``: Zenoh's ``peer`` (default) or ``client`` (reach the team
-    through the router given in ``connect``; docs/sites-and-routers.md; env
-    ``RAMPS_MODE``).
-
-    ``origin_grace``: seconds to wait for the origin node to come back (a
-    restart by its supervisor) before its pending programs fail with
-    ``ProgramLost``; a node with a durable record resumes them."""
+    """Join a team as an application and return a ``Team``: what
+    ``ramps.connect`` does, whose docstring says what each argument means
+    (``help(ramps.connect)``). Raises ``NoTeam`` if no node answers within
+    ``timeout`` seconds."""
     settings = load_settings(config_file=config_file, default_robot=False, flags={
         "team": team, "connect": connect, "listen": listen, "multicast": multicast, "secure": secure,
         "credentials": str(credentials) if credentials is not None else None, "mode": mode,

@@ -21,6 +21,10 @@ __all__ = ["ProgramFuture", "RobotStatus", "TeamStatus"]
 
 
 class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
+    """One robot as a client sees it (``Team.status()``): ``alive`` from its
+    liveliness token, the rest from its latest load report (defaults where
+    none arrived yet), which is ``report_age`` seconds old."""
+
     robot: str
     alive: bool
     cores: int = 0
@@ -53,6 +57,8 @@ class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
 
 
 class TeamStatus(msgspec.Struct, frozen=True, kw_only=True):
+    """The team as a client sees it (``Team.status()``): its robots by name."""
+
     team: str
     robots: list[RobotStatus]
 
