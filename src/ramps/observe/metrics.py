@@ -28,12 +28,16 @@ heartbeat timeout or the session lease).
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, Info
 
 from ramps import __version__
 from ramps.core.events import Deliver, Note, StartProgram
+
+if TYPE_CHECKING:
+    import threading
+    from wsgiref.simple_server import WSGIServer
 
 #: latency buckets, seconds: from a loopback dispatch (~1 ms) to a slow recovery
 LATENCY_BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.0, 3.0, 5.0, 10.0, 30.0)
@@ -76,8 +80,8 @@ class NodeMetrics:
     def __init__(self, robot: str, team: str, *, cores: int = 0, speed: float = 0.0, policy: str = "") -> None:
         self.robot = robot
         self.registry = reg = CollectorRegistry(auto_describe=True)
-        self._server = None
-        self._thread = None
+        self._server: WSGIServer | None = None
+        self._thread: threading.Thread | None = None
         self.address: tuple[str, int] | None = None
         r = ("robot",)
         Info("ramps_node", "this ramps node", r, registry=reg).labels(robot).info(
@@ -146,8 +150,9 @@ class NodeMetrics:
         from prometheus_client import start_http_server
 
         host, port = parse_address(address)
-        self._server, self._thread = start_http_server(port, addr=host, registry=self.registry)
-        self.address = (host, self._server.server_port)
+        server, self._thread = start_http_server(port, addr=host, registry=self.registry)
+        self._server = server
+        self.address = (host, server.server_port)
         return self.address
 
     def close(self) -> None:

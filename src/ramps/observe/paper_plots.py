@@ -28,12 +28,20 @@ from __future__ import annotations
 
 import statistics
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
+from functools import partial
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import msgspec
 
 from ramps.experiments.paper import PAPER_5_ROBOTS
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+    from ramps.observe.report import Report
 
 # ---------------------------------------------------------------- the paper's tables
 #: Table 3 (median run): (programs, team size) -> distribution R1..Rn
@@ -46,7 +54,7 @@ PAPER_TABLE3 = {
     (30, 5): [7, 5, 6, 6, 6], (30, 4): [7, 9, 9, 5], (30, 3): [9, 10, 11], (30, 2): [15, 15],
 }
 #: Table 4 (mean of 3 runs, 5 robots, the last ``loaded`` ones busy): (programs, loaded) -> R1..R5
-PAPER_TABLE4 = {
+PAPER_TABLE4: dict[tuple[int, int], list[float]] = {
     (5, 1): [0.67, 1.34, 1.34, 1.67, 0], (5, 2): [1, 2, 2, 0, 0], (5, 3): [2.33, 2.67, 0, 0, 0],
     (5, 4): [3.67, 0.67, 0.33, 0.33, 0],
     (10, 1): [1.67, 3.33, 3, 2, 0], (10, 2): [3, 3.67, 3.33, 0, 0], (10, 3): [4, 5.67, 0, 0, 0.33],
@@ -78,7 +86,7 @@ _SEQ = {  # Tables 5, 7, 9: three runs, D1..D5 (surviving robots, R1 first)
 PAPER_SEQUENTIAL = {k: [[round(statistics.fmean(run[d][i] for run in runs), 2) for i in range(len(runs[0][d]))]
                         for d in range(5)] for k, runs in _SEQ.items()}
 #: Tables 6, 8, 10: mean distribution before, then after R5 / R4-R5 / R3-R5 / R2-R5 failed together
-PAPER_SIMULTANEOUS = {
+PAPER_SIMULTANEOUS: dict[str, list[list[float]]] = {
     "crash": [[2.67, 3, 3.25, 3.08, 3], [3.67, 3.67, 3.67, 4], [5, 5.33, 4.67], [7.33, 7.67], [15]],
     "network": [[2.92, 3.08, 3, 3.08, 2.92], [3.33, 3.67, 4, 4], [4.33, 5.33, 5.33], [7, 8], [15]],
     "mixed": [[3, 2.92, 2.92, 3.25, 2.92], [3.67, 4, 4, 3.33], [4.33, 5.67, 5], [7.33, 7.67], [15]],
@@ -156,7 +164,7 @@ def _plt():
     return plt
 
 
-def unloaded_makespan(rep: dict):
+def unloaded_makespan(rep: dict) -> Figure:
     plt = _plt()
     sizes = sorted({c["team_size"] for c in rep["configs"]})
     fig, axes = plt.subplots(1, len(sizes), figsize=(3.6 * len(sizes), 3.6), sharey=True, squeeze=False)
@@ -186,7 +194,7 @@ def unloaded_makespan(rep: dict):
     return fig
 
 
-def unloaded_spread(rep: dict):
+def unloaded_spread(rep: dict) -> Figure:
     plt = _plt()
     sizes = sorted({c["team_size"] for c in rep["configs"]})
     fig, axes = plt.subplots(1, len(sizes), figsize=(3.6 * len(sizes), 3.2), sharey=True, squeeze=False)
@@ -214,7 +222,7 @@ def unloaded_spread(rep: dict):
     return fig
 
 
-def loaded_makespan(rep: dict):
+def loaded_makespan(rep: dict) -> Figure:
     plt = _plt()
     loads = sorted({c["loaded"] for c in rep["configs"]})
     fig, axes = plt.subplots(1, len(loads), figsize=(3.6 * len(loads), 3.6), sharey=True, squeeze=False)
@@ -237,7 +245,7 @@ def loaded_makespan(rep: dict):
     return fig
 
 
-def loaded_share(rep: dict):
+def loaded_share(rep: dict) -> Figure:
     plt = _plt()
     loads = sorted({c["loaded"] for c in rep["configs"]})
     fig, axes = plt.subplots(1, len(loads), figsize=(3.6 * len(loads), 3.2), sharey=True, squeeze=False)
@@ -280,7 +288,7 @@ def _mean_dists(reports: list[dict], mode: str, kind: str) -> list[list[float]] 
     return out
 
 
-def fault_distributions(reports: list[dict], kind: str):
+def fault_distributions(reports: list[dict], kind: str) -> Figure:
     plt = _plt()
     fig, axes = plt.subplots(2, 5, figsize=(15, 5.4), sharey=True)
     tables = {"crash": ("5", "6"), "network": ("7", "8"), "mixed": ("9", "10")}[kind]
@@ -311,10 +319,10 @@ def fault_distributions(reports: list[dict], kind: str):
     return fig
 
 
-def _builders(doc) -> list[tuple[str, str, object]]:
+def _builders(doc) -> list[tuple[str, str, Callable[[], Figure]]]:
     """(name, caption, function returning the figure) for every experiment in ``doc``."""
     parts = split_documents(doc)
-    out = []
+    out: list[tuple[str, str, Callable[[], Figure]]] = []
     if "unloaded" in parts:
         out.append(("unloaded-makespan", "Makespan on an unloaded team, ours next to the paper's measured times.",
                     lambda: unloaded_makespan(parts["unloaded"])))
@@ -327,11 +335,11 @@ def _builders(doc) -> list[tuple[str, str, object]]:
     kinds = sorted({r["kind"] for r in parts["faults"]}, key=["crash", "network", "mixed"].index)
     for k in kinds:
         out.append((f"faults-{k}", f"Distributions after {k} failures, ours next to the paper's tables.",
-                    lambda k=k: fault_distributions(parts["faults"], k)))
+                    partial(fault_distributions, parts["faults"], k)))
     return out
 
 
-def figures(doc) -> list[tuple[str, str, object]]:
+def figures(doc) -> list[tuple[str, str, Figure]]:
     """(name, caption, matplotlib figure) for every experiment in ``doc``."""
     return [(name, caption, build()) for name, caption, build in _builders(doc)]
 
@@ -360,7 +368,7 @@ def write_figures(doc, directory: Path, *, dpi: int = 110, workers: int | None =
         return [Path(p) for p in pool.map(_write_one, jobs)]
 
 
-def experiment_report(doc, *, title: str = ""):
+def experiment_report(doc, *, title: str = "") -> Report:
     """A ``ramps.observe.report.Report`` of saved experiment results."""
     from ramps.observe.plots import png_bytes
     from ramps.observe.report import Report

@@ -26,6 +26,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.artist import Artist  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
@@ -103,8 +104,9 @@ def gantt(tl: Timeline, *, title: str = "") -> Figure:
     ax.set_xlim(0, end * 1.01)
     ax.set_xlabel("seconds")
     ax.set_title(title or "where every program ran (one bar per attempt)", loc="left", fontsize=11)
-    handles = [Patch(color=OUTCOME_COLOURS[k], label=k) for k in ("delivered", "failed", "cancelled", "running")
-               if any(a.outcome == k for a in tl.attempts)]
+    handles: list[Artist] = [Patch(color=OUTCOME_COLOURS[k], label=k)
+                             for k in ("delivered", "failed", "cancelled", "running")
+                             if any(a.outcome == k for a in tl.attempts)]
     handles.append(Patch(facecolor="#888888", hatch="//", edgecolor="white", label="re-placed attempt"))
     handles.append(Line2D([], [], marker="x", color="black", lw=0, label="written off (detected)"))
     if tl.faults:

@@ -52,10 +52,10 @@ def fault_summary(tl: Timeline) -> list[dict]:
         detected = [a.end for a in running if a.outcome == "failed" and a.end is not None]
         again = []
         for a in running:
-            nxt = [b for b in tl.attempts if b.program_id == a.program_id and b.attempt > a.attempt
-                   and b.accepted is not None]
-            if nxt:
-                again.append(min(b.accepted for b in nxt))
+            accepted = [b.accepted for b in tl.attempts if b.program_id == a.program_id and b.attempt > a.attempt
+                        and b.accepted is not None]
+            if accepted:
+                again.append(min(accepted))
         out.append({"robot": f.robot, "kind": f.kind, "at": f.t, "displaced": len(running),
                     "detection": min(detected) - f.t if detected else None,
                     "recovery": max(again) - f.t if running and len(again) == len(running) else None})

@@ -90,7 +90,7 @@ class Timeline:
         by_pid: dict[str, list[Attempt]] = {}
         for a in self.attempts:
             by_pid.setdefault(a.program_id, []).append(a)
-        out = []
+        out: list[tuple[Attempt, Attempt]] = []
         for atts in by_pid.values():
             atts.sort(key=lambda a: (a.attempt, a.start))
             out.extend(zip(atts, atts[1:]))
@@ -245,7 +245,7 @@ def build_timeline(events: list[Event], extra: dict | None = None) -> Timeline:
     return tl
 
 
-def _deliver(attempts: dict, pid: str, host: str, t: float, *, ok: bool) -> None:
+def _deliver(attempts: dict[tuple[str, int], Attempt], pid: str, host: str, t: float, *, ok: bool) -> None:
     """The program's delivery ends its winning attempt (the latest on
     ``host``) as delivered and every other open attempt as cancelled."""
     mine = [a for (p, _), a in attempts.items() if p == pid]

@@ -21,11 +21,15 @@ from __future__ import annotations
 
 from collections import Counter, deque
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from rich.console import Group
 from rich.panel import Panel
 from rich.table import Table
 from rich.text import Text
+
+if TYPE_CHECKING:
+    from ramps.runtime.futures import RobotStatus, TeamStatus
 
 #: events kept for the scrolling list
 MAX_EVENTS = 200
@@ -34,7 +38,7 @@ MAX_EVENTS = 200
 @dataclass
 class RobotView:
     name: str
-    status: object  # the latest ramps.runtime.client.RobotStatus
+    status: RobotStatus  # the latest one
     alive: bool
     first_seen: float
     last_heard: float  # `now` of the newest load report (or of joining)
@@ -67,7 +71,7 @@ class TopModel:
     def alive(self) -> list[str]:
         return [r for r, v in self.robots.items() if v.alive]
 
-    def update(self, status, now: float) -> None:
+    def update(self, status: TeamStatus, now: float) -> None:
         """One view of the team (``Team.status()``), taken at ``now`` (monotonic seconds)."""
         self.updates += 1
         if self.started_at is None:
@@ -109,7 +113,7 @@ class TopModel:
             self._diff_blacklist(v, prev, st, now)
             self._diff_running(v, prev, st, now)
 
-    def _diff_blacklist(self, v: RobotView, prev, st, now: float) -> None:
+    def _diff_blacklist(self, v: RobotView, prev: RobotStatus, st: RobotStatus, now: float) -> None:
         after = set(st.blacklisted)
         before = set(prev.blacklisted) if prev is not st else after
         for r in sorted(after - before):
@@ -119,12 +123,12 @@ class TopModel:
         for r in sorted(before - after):
             self._event(now, "cleared", v.name, f"{v.name} uses {r} again")
 
-    def _diff_running(self, v: RobotView, prev, st, now: float) -> None:
+    def _diff_running(self, v: RobotView, prev: RobotStatus, st: RobotStatus, now: float) -> None:
         have = Counter((p.program, p.origin) for p in st.running)
         old = {k: list(ts) for k, ts in v.running.items()}
         finished = max(0, st.finished_total - (prev.finished_total if prev is not st else st.finished_total))
         new_running: dict[tuple[str, str], list[float]] = {}
-        ended = []
+        ended: list[tuple[tuple[str, str], float]] = []
         for key, ts in old.items():  # the oldest copies are the ones that ended
             gone_n = len(ts) - have.get(key, 0)
             if gone_n > 0:
@@ -168,7 +172,7 @@ def _bar(frac: float, width: int = 10) -> str:
     return "█" * full + "░" * (width - full)
 
 
-def render(model: TopModel, now: float, *, events: int = 12, interval: float | None = None):
+def render(model: TopModel, now: float, *, events: int = 12, interval: float | None = None) -> Group:
     t = Table(title=f"team {model.team}: {len(model.alive())} of {len(model.robots)} robots alive",
               title_justify="left", expand=False, pad_edge=False)
     for name, right in (("robot", False), ("state", False), ("cores", True), ("speed", True), ("CPU", False),
