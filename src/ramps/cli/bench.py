@@ -2,6 +2,7 @@
 
     ramps bench sim          # the paper sweep and a 1000-robot scenario, timed
     ramps bench dispatch     # submit-to-result latency and throughput on a loopback team
+    ramps bench first-calls  # a fresh team's first calls of a heavy program, at once and one by one
     ramps bench fuzz         # hostile input at the decoders and the core
     ramps bench flood        # a real node under a flood of malformed messages
     ramps bench metrics      # what --metrics costs (ramps.cli.observe)
@@ -12,6 +13,7 @@ This module parses and prints (rules in ``ramps.cli.common``).
 from __future__ import annotations
 
 import json
+import statistics
 from pathlib import Path
 
 import typer
@@ -72,6 +74,49 @@ def bench_dispatch_cmd(
               f"p99 {res['remote_p99_ms']:.2f} ms")
     out.print(f"throughput from one origin: {res['throughput_per_s']:.0f} programs/s "
               f"({res['completed']}/{res['burst']} completed; ran on {res['burst_hosts']})")
+    out_file.parent.mkdir(parents=True, exist_ok=True)
+    out_file.write_text(json.dumps(res, indent=2) + "\n")
+    out.print(f"saved {out_file}")
+
+
+@bench_app.command("first-calls")
+def bench_first_calls_cmd(
+    nodes: int = typer.Option(3, "--nodes", min=1, help="real node processes on loopback"),
+    cores: int = typer.Option(2, "--cores", min=1, help="cores each node declares (its idle workers)"),
+    calls: int = typer.Option(6, "--calls", min=1, help="calls in each phase"),
+    rounds: int = typer.Option(1, "--rounds", "-n", min=1, help="times on a fresh team"),
+    out_file: Path = typer.Option(Path("bench-results/first-calls.json"), "--out", "-o",
+                                  help="where to save the JSON"),
+) -> None:
+    """A fresh team's first calls of a heavy program (route_plan: OR-Tools), all at once, against the same
+    calls one after another and at once again; and the memory of each node's fork server and workers."""
+    from ramps.bench.firstcalls import bench_first_calls
+
+    err.print(f"{rounds} round(s): a fresh team of {nodes} nodes on loopback, {calls} route_plan calls at once "
+              f"(cold), one after another, at once (warm) ...")
+    res = bench_first_calls(nodes=nodes, cores=cores, calls=calls, rounds=rounds)
+    for i, r in enumerate(res["rounds"], 1):
+        c, s, w = r["cold_at_once"], r["warm_one_after_another"], r["warm_at_once"]
+        out.print(f"round {i} (team up in {r['team_start_s']:.1f} s): cold at once p50 {c['p50_ms']:.0f} ms "
+                  f"[{c['min_ms']:.0f}-{c['max_ms']:.0f}], one after another p50 {s['p50_ms']:.0f} ms "
+                  f"[{s['min_ms']:.0f}-{s['max_ms']:.0f}], warm at once p50 {w['p50_ms']:.0f} ms "
+                  f"[{w['min_ms']:.0f}-{w['max_ms']:.0f}]; cold at once / one after another: "
+                  f"{r['cold_over_sequential_p50']:.1f}x, / warm at once: {r['cold_over_warm_at_once_p50']:.1f}x",
+                  highlight=False)
+        for when in ("memory_start", "memory_after"):
+            parts = []
+            for robot, m in r[when].items():
+                fs, ws = m["fork_server"] or {}, m["workers"]
+                wk = (f"{len(ws)} workers PSS {statistics.fmean(x['pss_mb'] for x in ws):.1f} / "
+                      f"USS {statistics.fmean(x['uss_mb'] for x in ws):.1f} / "
+                      f"RSS {statistics.fmean(x['rss_mb'] for x in ws):.1f} MB each" if ws else "no workers")
+                parts.append(f"{robot}: fork server PSS {fs.get('pss_mb', 0):.1f} / RSS {fs.get('rss_mb', 0):.1f} "
+                             f"MB ({fs.get('cpu_s', 0):.2f} CPU-s), {wk}; executor PSS {m['executor_pss_mb']:.1f} MB")
+            out.print(f"  {when.replace('_', ' ')}: " + "; ".join(parts), highlight=False)
+    for key, what in (("cold_over_sequential_p50", "one after another"), ("cold_over_warm_at_once_p50", "warm at once")):
+        agg = res[key]
+        out.print(f"cold at once / {what} (p50): median {agg['median']:.1f}x "
+                  f"[{agg['min']:.1f}-{agg['max']:.1f}] over {rounds} round(s)", highlight=False)
     out_file.parent.mkdir(parents=True, exist_ok=True)
     out_file.write_text(json.dumps(res, indent=2) + "\n")
     out.print(f"saved {out_file}")

@@ -2,7 +2,11 @@
 
 How this works: the worker pool (``ramps.runtime.workers``) starts one
 ``python -m ramps.runtime.worker --fork-server`` per node. It imports the
-registered programs' modules once, then waits on a Unix socket. For each new
+registered programs' modules once, and the modules each program names in
+``preload`` (those it imports only when it runs, such as ``route_plan``'s
+OR-Tools, see ``ramps.runtime.registry.program``), then waits on a Unix
+socket: no worker pays an import, so a fresh team's first calls of a heavy
+program run as fast as its later ones (``ramps bench first-calls``). For each new
 worker the pool sends the worker's two pipe ends (``SCM_RIGHTS``); the
 server forks, and the child becomes an ordinary worker
 (``ramps.runtime.worker.run`` over those pipes, the same frames, nothing
@@ -11,9 +15,12 @@ pickled). The pool gets the child's pid back.
 Why: booting ``python -m ramps.runtime.worker`` and importing the registry
 costs about 0.2 s of CPU, which on a robot emulated at 0.08 of a host core per
 core made programs beyond one per core start 2.5-4.5 s late. A fork of the
-warmed server costs a few milliseconds. The server is single-threaded and
-has no Zenoh session, so forking it is safe (the node, which has Zenoh's
-threads, never forks a worker itself).
+warmed server costs a few milliseconds. The server starts no thread of its
+own (a library a program imports may: numpy's OpenBLAS pool, which stops
+itself around a fork) and has no Zenoh session, so forking it is safe (the
+node, which has Zenoh's threads, never forks a worker itself). What the
+preload costs is memory: the fork server holds the imported modules (OR-Tools:
+about 70 MB resident), which its workers share until they write to it.
 
 Death: the server and every worker ask the kernel (``PR_SET_PDEATHSIG``) for
 SIGKILL when their parent dies, and check that it has not already. A node
@@ -44,6 +51,7 @@ the child's pid as 8 ASCII digits. Anything else ends the server.
 from __future__ import annotations
 
 import ctypes
+import importlib
 import os
 import select
 import selectors
@@ -81,16 +89,34 @@ def die_with_parent(parent: int) -> None:
         os._exit(1)
 
 
-def _preload(targets: dict[str, str]) -> None:
-    """Import every program's module now, so a forked worker has it; a module
-    that fails here fails again, with its error, when its program runs."""
-    from ramps.runtime.registry import resolve
+def preload(targets: dict[str, str]) -> list[str]:
+    """Import every program's module now, and the modules its spec names in
+    ``preload`` (those it imports only when it runs, such as ``route_plan``'s
+    OR-Tools), so a forked worker has them all and no run pays an import.
+    Returns the ``preload`` modules imported. A module that fails here (any
+    exception, ``SystemExit`` too) is skipped: the server goes on, and the
+    program's runs fail with the import's own error."""
+    from ramps.runtime.registry import default_registry, resolve
 
-    for target in targets.values():
+    wanted = set(targets.values())
+    extra: list[str] = []
+    for target in sorted(wanted):
         try:
-            resolve(target)
+            fn = resolve(target)
         except BaseException:  # noqa: BLE001 - reported when the program runs
-            pass
+            continue
+        extra.extend(getattr(getattr(fn, "__ramps_program__", None), "preload", ()))  # a decorated program's
+    for spec in default_registry.specs():  # the built-ins, and the programs registered by those imports
+        if spec.target in wanted:
+            extra.extend(spec.preload)
+    imported = []
+    for module in dict.fromkeys(extra):
+        try:
+            importlib.import_module(module)
+        except BaseException:  # noqa: BLE001 - reported when the program runs
+            continue
+        imported.append(module)
+    return imported
 
 
 def describe_status(status: int) -> str:
@@ -223,7 +249,7 @@ def serve(sock: socket.socket, parent: int) -> None:
     if not init:
         return
     targets = worker._dec.decode(init)["targets"]
-    _preload(targets)
+    preload(targets)
     workers = _Workers(sock) if _pidfds() else None
     if workers is None:
         signal.signal(signal.SIGCHLD, signal.SIG_IGN)  # the kernel reaps the workers

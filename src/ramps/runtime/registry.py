@@ -55,6 +55,11 @@ class ProgramSpec:
     local_only: bool = False
     #: bytes of memory one run needs; robots reporting less free memory are skipped
     memory: int = 0
+    #: modules the program imports only when it runs (to keep its own module
+    #: cheap for callers, which import it to check arguments): the executor's
+    #: fork server imports them with the program's module, before it forks a
+    #: worker, so no run pays the import
+    preload: tuple[str, ...] = ()
     _fn: Callable[..., Any] | None = field(default=None, repr=False)
 
     def function(self) -> Callable[..., Any]:
@@ -115,7 +120,8 @@ def _where(exc: BaseException) -> str:
 
 
 BUILTINS = {
-    "route_plan": ProgramSpec("route_plan", "ramps.programs.route:plan_route", work=2.0, payload=200, result=2000),
+    "route_plan": ProgramSpec("route_plan", "ramps.programs.route:plan_route", work=2.0, payload=200, result=2000,
+                              preload=("ortools.sat.python.cp_model",)),
     "burn": ProgramSpec("burn", "ramps.programs.burn:burn", work=1.0, payload=50, result=100),
     "noop": ProgramSpec("noop", "ramps.programs.burn:noop", work=0.001),
     "echo": ProgramSpec("echo", "ramps.programs.burn:echo", work=0.001),
@@ -171,6 +177,9 @@ class Registry:
     def targets(self) -> dict[str, str]:
         return {name: spec.target for name, spec in self._specs.items()}
 
+    def specs(self) -> list[ProgramSpec]:
+        return list(self._specs.values())
+
     def __contains__(self, name: str) -> bool:
         return name in self._specs
 
@@ -180,14 +189,22 @@ default_registry = Registry(BUILTINS)
 
 
 def program(name: str | None = None, *, work: float = 1.0, payload: int = 0, result: int = 0,
-            local_only: bool = False, memory: int = 0) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+            local_only: bool = False, memory: int = 0,
+            preload: tuple[str, ...] | list[str] = ()) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Register a function as a ramps program (in an installed module).
 
     ``work`` is its declared cost in work units (origins learn the real one
     from completed runs); ``memory`` the bytes one run needs: a robot that
-    reports less free memory is not offered it."""
+    reports less free memory is not offered it. ``preload`` names modules
+    the function imports only inside its body (say ``("torch",)``, so that
+    callers, which import the program's module to check arguments, do not
+    pay for them): every robot's executor imports them once, with the
+    program's module, before it starts a worker, so no run pays the import.
+    Modules imported at the top of the program's module need no mention."""
     if memory < 0:
         raise ConfigError(f"program {name or '?'}: memory must be >= 0 bytes, got {memory}")
+    if isinstance(preload, str) or not all(isinstance(m, str) and m for m in preload):
+        raise ConfigError(f"program {name or '?'}: preload is a list of module names, got {preload!r}")
 
     def deco(fn: Callable[..., Any]) -> Callable[..., Any]:
         if fn.__module__ == "__main__":
@@ -196,7 +213,8 @@ def program(name: str | None = None, *, work: float = 1.0, payload: int = 0, res
                 "on every robot (code never travels, only arguments do)"
             )
         spec = ProgramSpec(name or fn.__name__, f"{fn.__module__}:{fn.__qualname__}", work=work,
-                           payload=payload, result=result, local_only=local_only, memory=memory, _fn=fn)
+                           payload=payload, result=result, local_only=local_only, memory=memory,
+                           preload=tuple(preload), _fn=fn)
         fn.__ramps_program__ = spec  # type: ignore[attr-defined]
         default_registry.add(spec)
         return fn

@@ -1,0 +1,3 @@
+"""A dependency that ``preloadprogs.lazy`` imports only when it runs."""
+
+WHAT = "lazy"
