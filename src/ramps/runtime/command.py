@@ -54,7 +54,7 @@ import subprocess
 import tempfile
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import IO, Any, Callable, cast
 
 #: seconds an executable may run unless its registration says otherwise
 DEFAULT_TIMEOUT = 600.0
@@ -138,7 +138,7 @@ class CommandProgram:
         except (TypeError, ValueError) as exc:
             raise TypeError(f"arguments of an executable travel as JSON: {exc}") from None
 
-    def run(self, kwargs: dict[str, Any], *, on_progress: Callable[[float, str], None] | None = None,
+    def run(self, kwargs: dict[str, Any], *, on_progress: Callable[[float, str], object] | None = None,
             on_checkpoint: Callable[[Any], Any] | None = None, resume: Any = None) -> Any:
         """Run it once. In a worker, progress and checkpoints go to the
         program's origin and ``resume`` is the state saved in an earlier
@@ -178,7 +178,7 @@ class CommandProgram:
                 except OSError:
                     pass
 
-    def _run(self, stdin: bytes, env: dict[str, str], on_progress: Callable[[float, str], None],
+    def _run(self, stdin: bytes, env: dict[str, str], on_progress: Callable[[float, str], object],
              on_checkpoint: Callable[[Any], Any], max_result: int) -> Any:
         guard_r, guard_w = os.pipe()
         # The guardian is forked first: a worker killed while the executable
@@ -322,7 +322,7 @@ _MAX_CHECKPOINT_LINE = 6 * 256 * 1024
 
 
 def _communicate(proc: subprocess.Popen, stdin: bytes, deadline: float, max_out: int,
-                 on_progress: Callable[[float, str], None],
+                 on_progress: Callable[[float, str], object],
                  on_checkpoint: Callable[[Any], Any]) -> tuple[bytes, bytes, bool, bool, str]:
     """Feed stdin, collect stdout and stderr (progress and checkpoint lines
     parsed out, stderr kept as a bounded tail) until both close, the time is
@@ -349,7 +349,7 @@ def _communicate(proc: subprocess.Popen, stdin: bytes, deadline: float, max_out:
                 timed_out = True
                 break
             for key, _ in sel.select(min(left, 1.0)):
-                f = key.fileobj
+                f = cast(IO[bytes], key.fileobj)  # only the process's pipes are registered
                 if f is proc.stdin:
                     try:
                         pos += os.write(f.fileno(), stdin[pos:pos + 65536])

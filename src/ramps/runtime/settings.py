@@ -47,7 +47,7 @@ import os
 import socket
 import tomllib
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import msgspec
 
@@ -380,7 +380,9 @@ def check_endpoint(endpoint: str) -> None:
         raise ValueError(f"endpoint {endpoint!r} needs a host and a port 0-65535 after {proto}/, {example}")
 
 
-_ENV = {
+#: how an environment variable's text becomes its setting: a type to call, or one of these forms
+_EnvForm = Literal["list", "commands", "bool"]
+_ENV: dict[str, tuple[str, _EnvForm | type[str] | type[int] | type[float]]] = {
     "RAMPS_ROBOT": ("robot", str),
     "RAMPS_TEAM": ("team", str),
     "RAMPS_LISTEN": ("listen", "list"),
