@@ -34,7 +34,7 @@ pipe, a pidfd of the worker, and the read end of the worker's stderr (fds 1
 and 2 of the worker), which it copies to its own stderr keeping the last
 ``STDERR_TAIL`` bytes. When the worker exits the server reaps it and writes
 one last frame into its result pipe, ``{"died": "exit code 3" | "killed by
-signal 11 (SIGSEGV)", "stderr": tail}``, then closes its copy: the pool sees
+signal 11 (SIGSEGV)", "stderr": its last lines}``, then closes its copy: the pool sees
 that frame, then end of file. A worker whose server died first (killed with
 it, ``PR_SET_PDEATHSIG``) sends no such frame. Where pidfds are missing (Linux
 before 5.3) the kernel reaps the workers and nothing is said.
@@ -61,8 +61,12 @@ import sys
 
 PR_SET_NAME = 15
 PR_SET_PDEATHSIG = 1
-#: bytes of a worker's stderr kept to say how it ended
-STDERR_TAIL = 1500
+#: bytes of a worker's stderr kept to say how it ended, and of that the last
+#: lines sent (a crash's "Extension modules: ..." list left out), each cut
+#: short: the frame stays within one atomic pipe write (PIPE_BUF, 4096)
+STDERR_TAIL = 8192
+TAIL_LINES = 20
+TAIL_LINE_CHARS = 150
 
 
 def _prctl(option: int, arg) -> None:
@@ -215,7 +219,7 @@ class _Workers:
         os.set_blocking(w.res_w, False)  # the worker is gone: nobody else writes; never block the server
         try:
             os.write(w.res_w, worker.frame(worker._enc.encode(
-                {"died": how, "stderr": bytes(w.tail).decode("utf-8", "replace")})))
+                {"died": how, "stderr": _last_lines(bytes(w.tail))})))
         except OSError:
             pass
         self.sel.unregister(w.pidfd)
@@ -225,6 +229,15 @@ class _Workers:
             self.sel.unregister(w.err_r)
             os.close(w.err_r)
         del self.live[w.pid]
+
+
+def _last_lines(tail: bytes) -> str:
+    """The last TAIL_LINES lines worth quoting of a worker's stderr tail."""
+    lines = tail.decode("utf-8", "replace").splitlines()
+    if len(tail) >= STDERR_TAIL:
+        lines = lines[1:]  # cut mid-line
+    keep = [ln[:TAIL_LINE_CHARS] for ln in lines if ln.strip() and not ln.startswith("Extension modules:")]
+    return "\n".join(keep[-TAIL_LINES:])
 
 
 def _readable(fd: int) -> bool:
