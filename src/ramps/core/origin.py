@@ -67,12 +67,19 @@ from ramps.core.program import (
     Transition,
 )
 from ramps.core.relink import Relink
+from ramps.core.speed import MIN_RUN_WORK
 from ramps.core.relocation import RELOCATE_BATCH, price_move, relocation_check, worth_moving  # noqa: F401 (re-exported)
 
 S = ProgramState
 E = Event
 #: how many of a program's latest runs its learned work is the median of
 LEARN_RUNS = 8
+#: a call whose measured work is more than this many times its declaration,
+#: or less than its inverse, is flagged (``Note(what="misdeclared")``)
+MISDECLARED = 4.0
+#: a resumed attempt that ran less than this fraction of its program says
+#: nothing of the whole program's work
+LEARN_MIN_PART = 0.2
 #: a program whose worker died by itself (``ProgramResult.worker_died``: it
 #: exited, crashed or was killed while its host lived) on this many different
 #: robots, or this many times in all where the team had no other robot for
@@ -701,11 +708,40 @@ class Origin:
         self._leave_host(ap, msg.host, msg.finish_seq, attempt=msg.attempt)
         ap.live.pop(msg.attempt, None)
         if msg.ok and msg.work_done is not None:
-            runs = self._learned.setdefault(ap.submit.program, deque(maxlen=LEARN_RUNS))
-            runs.append(msg.work_done / ap.submit.work if ap.submit.work > 0 else msg.work_done)
-            self._declared[ap.submit.program] = ap.submit.work
+            self._learn(ap, msg.attempt, msg.host, msg.work_done, out)
         self._deliver(ap, now, out, ok=msg.ok, value=msg.value, error=msg.error, host=msg.host,
                       kind="" if msg.ok else "program")
+
+    def _learn(self, ap: AutonomousProgram, attempt: int, host: str, work_done: float, out: list[Action]) -> None:
+        """What a completed run says of its program's work.
+
+        Only the attempt that delivered as the program's current one counts
+        (its start point is known): one resumed from a checkpoint at
+        fraction ``f`` did ``1 - f`` of the program, so the whole took
+        ``work_done / (1 - f)``, and one that did less than
+        ``LEARN_MIN_PART`` says nothing. A run shorter than ``MIN_RUN_WORK``
+        is not learned from either: too short to measure, and a caller's
+        warm-up calls that return at once must not make its real calls of
+        the same declaration look free. A call that took more than
+        ``MISDECLARED`` times its declaration, or less than its inverse, is
+        flagged with a ``misdeclared`` note (trace, log, metric) whether it
+        is learned from or not."""
+        if attempt != ap.attempt or not (math.isfinite(work_done) and work_done >= 0.0):
+            return
+        part = 1.0 - (ap.resumed_from or 0.0)
+        if part < LEARN_MIN_PART:
+            return
+        whole, declared = work_done / part, ap.submit.work
+        if declared > 0 and max(whole, declared) >= MIN_RUN_WORK \
+                and not 1.0 / MISDECLARED <= whole / declared <= MISDECLARED:
+            out.append(Note(what="misdeclared", program_id=ap.program_id, robot=host, attempt=attempt,
+                            detail=f"{ap.submit.program} declared {declared:.4g} work units, took {whole:.4g} "
+                                   f"({whole / declared:.3g}x)"))
+        if whole < MIN_RUN_WORK:
+            return
+        runs = self._learned.setdefault(ap.submit.program, deque(maxlen=LEARN_RUNS))
+        runs.append(whole / declared if declared > 0 else whole)
+        self._declared[ap.submit.program] = declared
 
     def work_estimate(self, sub: Submit) -> float:
         """The work a program will take: its declaration times the median of

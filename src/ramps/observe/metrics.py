@@ -100,6 +100,9 @@ class NodeMetrics:
                                  "application", r + ("program", "outcome"), registry=reg)
         self.blacklisted = Counter("ramps_blacklistings", "teammates this robot wrote off", r + ("host",),
                                    registry=reg)
+        self.misdeclared = Counter("ramps_calls_misdeclared", "completed calls that took more than 4x or less "
+                                   "than a quarter of the work their program declares", r + ("program",),
+                                   registry=reg)
         self.run = Counter("ramps_programs_run", "programs this robot's executor started (for any origin)",
                            r + ("program", "origin"), registry=reg)
         self.finished = Counter("ramps_programs_finished", "programs this robot's executor finished",
@@ -197,6 +200,8 @@ class NodeMetrics:
                 self._remember(self._written_off, a.program_id, now)
             elif what == "blacklisted":
                 self.blacklisted.labels(me, a.robot).inc()
+            elif what == "misdeclared":
+                self.misdeclared.labels(me, _program(node, a.program_id)).inc()
         elif isinstance(a, StartProgram):
             self.run.labels(me, a.program, a.origin).inc()
             self._remember(self._running, (a.program_id, a.attempt), a.program)

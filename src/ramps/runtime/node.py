@@ -229,6 +229,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._quota = quota
         self._remeasures = 0
         self._remeasure_at = None if s.speed else next_remeasure(self.clock.time(), 0)
+        #: programs whose calls were found far from their declaration, said once each
+        self._misdeclared_warned: set[str] = set()
         self.incarnation = self._incarnation or int.from_bytes(os.urandom(6), "big")
         return_freed_memory()
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=s.core,

@@ -39,7 +39,7 @@ from ramps.core.messages import (
     RunningProgram,
     encode,
 )
-from ramps.core.speed import REMEASURE_CPU, SpeedMeasured, next_remeasure
+from ramps.core.speed import MIN_RUN_WORK, REMEASURE_CPU, SpeedMeasured, next_remeasure
 from ramps.runtime import keys
 from ramps.runtime.measure import measure_speed
 from ramps.runtime.transport import Publisher
@@ -96,8 +96,21 @@ class Outbound:
                     self._write_trace(a.what, a.program_id, a.robot, a.attempt, a.detail)
                 if a.what in ("blacklisted", "unblacklisted", "failed", "anomaly"):
                     log.info("node %s: %s %s %s %s", self.robot, a.what, a.robot, a.program_id, a.detail)
+                elif a.what == "misdeclared":
+                    self._warn_misdeclared(a)
                 if self.on_note is not None:
                     self.on_note(a)
+
+    def _warn_misdeclared(self, note: Note) -> None:
+        """A call took far more or less than its program declares: said once
+        per program (every call is in the trace and the metric)."""
+        program = note.detail.split(" ", 1)[0]
+        if program in self._misdeclared_warned or len(self._misdeclared_warned) >= 1024:
+            return
+        self._misdeclared_warned.add(program)
+        log.warning("node %s: %s on %s; placements learn only from runs of at least %g work units, so declare "
+                    "what a call really does (@ramps.program(work=...) or team.options(work=...))",
+                    self.robot, note.detail, note.robot, MIN_RUN_WORK)
 
     def _write_trace(self, what: str, program_id: str, other: str, attempt: int, detail: str, *,
                      at: float | None = None) -> None:

@@ -1,0 +1,96 @@
+"""What an origin learns of its programs' work from completed runs
+(``Origin._learn``): only runs long enough to measure, a resumed attempt as
+the part it did, and a call far from its declaration flagged."""
+
+from __future__ import annotations
+
+import pytest
+
+from ramps.core.events import Note, Received, Submit
+from ramps.core.messages import ProgramResult
+from ramps.core.origin import LEARN_MIN_PART, MISDECLARED
+from ramps.core.speed import MIN_RUN_WORK
+from ramps.sim.engine import simulate
+from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario
+from ramps.testing import FakeTeam
+
+
+def _finish(team: FakeTeam, pid: str, declared: float, work_done: float, *, resumed_from: float | None = None,
+            attempt_offset: int = 0) -> list:
+    team.handle("o", Submit(program_id=pid, program="plan", work=declared))
+    ap = team.nodes["o"].origin.programs[pid]
+    ap.live[ap.attempt] = "o"
+    ap.resumed_from = resumed_from
+    return team.handle("o", Received(sender="o", msg=ProgramResult(
+        program_id=pid, attempt=ap.attempt + attempt_offset, host="o", ok=True, value=b"", work_done=work_done)))
+
+
+def _notes(actions: list) -> list[Note]:
+    return [a for a in actions if isinstance(a, Note) and a.what == "misdeclared"]
+
+
+def test_runs_too_short_to_measure_teach_nothing_but_are_flagged():
+    team = FakeTeam({"o": (4, 1.0)})
+    origin = team.nodes["o"].origin
+    # warm-up calls that return at once while declaring 1.5 units
+    for i in range(20):
+        acts = _finish(team, f"w{i}", 1.5, 0.002)
+        [note] = _notes(acts)
+        assert "declared 1.5 work units, took 0.002" in note.detail
+    assert origin.work_estimate(Submit(program_id="q", program="plan", work=1.5)) == 1.5
+    assert "plan" not in origin.learned_work()
+    # a measurable run that took its declaration is learned and not flagged
+    assert _notes(_finish(team, "r1", 1.5, 1.6)) == []
+    assert origin.work_estimate(Submit(program_id="q", program="plan", work=1.5)) == pytest.approx(1.6)
+    # a short call declared short is neither learned nor flagged
+    assert _notes(_finish(team, "s1", MIN_RUN_WORK / 4, MIN_RUN_WORK / 2)) == []
+    # one that took MISDECLARED+ times its declaration is flagged and learned
+    [note] = _notes(_finish(team, "b1", 1.0, 1.01 * MISDECLARED))
+    assert "plan declared 1 work units" in note.detail
+
+
+def test_a_resumed_attempt_counts_as_the_part_it_did():
+    team = FakeTeam({"o": (4, 1.0)})
+    origin = team.nodes["o"].origin
+    # 60-unit programs: one ran whole, one resumed at 0.2 of its work did the other 48
+    _finish(team, "a", 60.0, 60.0)
+    _finish(team, "b", 60.0, 48.0, resumed_from=0.2)
+    assert list(origin._learned["plan"]) == pytest.approx([1.0, 1.0])
+    # one resumed near its end says nothing of the whole
+    _finish(team, "c", 60.0, 3.0, resumed_from=1.0 - LEARN_MIN_PART / 2)
+    assert len(origin._learned["plan"]) == 2
+    # a result of an attempt that is no longer the program's (a move's old copy): its start is unknown
+    _finish(team, "d", 60.0, 10.0, attempt_offset=-1)
+    assert len(origin._learned["plan"]) == 2
+
+
+def test_warm_up_calls_leave_the_real_ones_placed_as_declared():
+    # 5 robots; the application first makes 20 calls that return at once (0.02 units
+    # declared 40), then 30 real ones of 40 units: placed as declared, the same as
+    # without the warm-up (before: learned as free, most stayed on the origin)
+    robots = [RobotSpec(name=f"r{i}") for i in range(1, 6)]
+    real = ProgramSpec(origin="r1", count=30, work=40.0, at=30.0, spacing=0.05)
+    warm = ProgramSpec(origin="r1", count=20, work=0.02, work_estimate=40.0, spacing=0.5)
+    cold = simulate(Scenario(robots=robots, programs=[real]), seed=1)
+    warmed = simulate(Scenario(robots=robots, programs=[warm, real]), seed=1, trace=True)
+    assert (warmed.completed, warmed.lost, warmed.duplicated) == (50, 0, 0)
+    def real_makespan(res) -> float:
+        return max(p.delivered_at or 0.0 for p in res.programs) - real.at
+
+    assert real_makespan(warmed) == pytest.approx(real_makespan(cold), rel=0.05)
+    flagged = [e for e in warmed.trace if e.what == "misdeclared"]
+    assert len(flagged) == 20
+
+
+def test_a_misdeclared_call_is_counted_in_the_metrics():
+    from prometheus_client import generate_latest
+
+    from ramps.observe.metrics import NodeMetrics
+
+    team = FakeTeam({"o": (4, 1.0)})
+    metrics = NodeMetrics("o", "t")
+    for pid, took in (("a", 0.002), ("b", 1.5), ("c", 0.001)):
+        for action in _finish(team, pid, 1.5, took):
+            metrics.on_action(action, team.nodes["o"], now=0.0)
+    text = generate_latest(metrics.registry).decode()
+    assert 'ramps_calls_misdeclared_total{program="plan",robot="o"} 2.0' in text
