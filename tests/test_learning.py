@@ -94,3 +94,52 @@ def test_a_misdeclared_call_is_counted_in_the_metrics():
             metrics.on_action(action, team.nodes["o"], now=0.0)
     text = generate_latest(metrics.registry).decode()
     assert 'ramps_calls_misdeclared_total{program="plan",robot="o"} 2.0' in text
+
+
+# ------------------------------------------------------------ a cost that depends on the arguments
+def test_a_work_function_declares_each_call_from_its_arguments():
+    from ramps.errors import BadArguments, ConfigError
+    from ramps.runtime.registry import ProgramSpec as Spec
+    from ramps.runtime.registry import program
+
+    def plan(picks: int = 8, seed: int = 0) -> int:
+        return picks
+
+    spec = Spec("plan", "x:plan", work=lambda picks, **_: 0.2 * picks, _fn=plan)
+    assert spec.declared_work({"picks": 20}) == pytest.approx(4.0)
+    assert spec.declared_work({}) == pytest.approx(1.6)  # the program's default picks=8
+    assert Spec("p", "x:p", work=2.5, _fn=plan).declared_work({"picks": 3}) == 2.5
+    with pytest.raises(BadArguments, match="work function of program 'plan' failed"):
+        Spec("plan", "x:plan", work=lambda picks, **_: 1 / (picks - 1), _fn=plan).declared_work({"picks": 1})
+    with pytest.raises(BadArguments, match="returned -1"):
+        Spec("plan", "x:plan", work=lambda **_: -1, _fn=plan).declared_work({})
+    with pytest.raises(ConfigError, match="work is work units"):
+        program("bad", work="lots")  # type: ignore[arg-type]
+
+
+def test_a_client_and_a_node_declare_each_call_by_the_work_function():
+    import msgspec
+
+    import workprogs  # noqa: F401 (registers the program in this process: the client checks with it)
+    from ramps.core.messages import SubmitProgram, encode
+    from ramps.runtime import keys
+    from ramps.testing.memory import MemoryTeam
+
+    team = MemoryTeam({"r1": (2, 1.0)}, programs=["workprogs:sized"])
+    app = team.connect("r1")
+    try:
+        futs = [app.submit("sized", picks=20), app.submit("sized")]
+        team.run(2.0, until=lambda: all(f.done() for f in futs))
+        assert [f.result(0) for f in futs] == [20, 4]
+        works = sorted(ap.submit.work for ap in team.nodes["r1"].node.origin.programs.values())
+        assert works == pytest.approx([2.0, 10.0])  # 0.5 x 4 picks (the default) and 0.5 x 20
+        # a client that does not have the program sends no work: the node declares it
+        raw = team.bus.transport("other")
+        raw.put(keys.inbox(team.team, "r1"), encode("other", SubmitProgram(
+            client="other", request_id=1, program="sized", args=msgspec.msgpack.encode({"picks": 6}))), block=True)
+        team.run(2.0, until=lambda: len(team.nodes["r1"].node.origin.programs) == 3)
+        works = sorted(ap.submit.work for ap in team.nodes["r1"].node.origin.programs.values())
+        assert works == pytest.approx([2.0, 3.0, 10.0])
+    finally:
+        app.close()
+        team.close()

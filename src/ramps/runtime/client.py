@@ -345,7 +345,7 @@ class Team:
         if program in self.registry:
             spec = self.registry.get(program)
             args = encode_args(spec, kwargs)
-            work = work if work is not None else spec.work
+            work = work if work is not None else spec.declared_work(kwargs)
         else:  # not installed here: the robot's node checks it
             try:
                 args = msgspec.msgpack.encode(kwargs)

@@ -120,7 +120,9 @@ class ClientAnswers:
         self._clients[pid] = rkey
         try:
             spec = self.registry.get(m.program)
-            spec.check_args(decode_args(m.args))
+            kwargs = decode_args(m.args)
+            spec.check_args(kwargs)
+            work = m.work or spec.declared_work(kwargs)
         except ProgramNotFound as exc:
             return self._tell_client(pid, ok=False, error=str(exc), kind="refused", host=self.robot)
         except Exception as exc:  # signature mismatch, undecodable arguments
@@ -134,7 +136,7 @@ class ClientAnswers:
                                      error=f"arguments are {len(m.args)} bytes; the limit is {self.s.max_args_bytes}")
         return self.node.handle(Submit(
             program_id=pid, program=m.program, args=m.args, payload_size=len(m.args),
-            work=m.work or spec.work, result_size=m.result_size or spec.result,
+            work=work, result_size=m.result_size or spec.result,
             local_only=m.local_only or spec.local_only, policy=m.policy, memory=spec.memory,
         ), now)
 

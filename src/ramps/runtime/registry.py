@@ -23,6 +23,8 @@ anything is sent, so a bad call fails at the caller.
 from __future__ import annotations
 
 import importlib
+import inspect
+import math
 import traceback
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
@@ -49,7 +51,9 @@ _decoder = msgspec.msgpack.Decoder()
 class ProgramSpec:
     name: str
     target: str  # "module:function"
-    work: float = 1.0
+    #: declared work units of one call, or a function of the call's keyword
+    #: arguments that returns them (a cost that depends on the arguments)
+    work: float | Callable[..., float] = 1.0
     payload: int = 0
     result: int = 0
     local_only: bool = False
@@ -61,6 +65,33 @@ class ProgramSpec:
     #: worker, so no run pays the import
     preload: tuple[str, ...] = ()
     _fn: Callable[..., Any] | None = field(default=None, repr=False)
+
+    def declared_work(self, kwargs: dict[str, Any]) -> float:
+        """The work one call with these arguments declares: ``work``, or what
+        it returns for them when it is a function. BadArguments if that
+        function fails on them or returns no finite number >= 0."""
+        if not callable(self.work):
+            return float(self.work)
+        try:
+            value = self.work(**self._with_defaults(kwargs))
+            work = float(value)
+        except Exception as exc:
+            raise BadArguments(f"the work function of program {self.name!r} failed on these arguments: "
+                               f"{type(exc).__name__}: {exc}") from None
+        if not (math.isfinite(work) and work >= 0.0):
+            raise BadArguments(f"the work function of program {self.name!r} returned {value!r} for these "
+                               "arguments; it must return work units, a finite number >= 0")
+        return work
+
+    def _with_defaults(self, kwargs: dict[str, Any]) -> dict[str, Any]:
+        """``kwargs`` and the defaults of the parameters the call left out (a
+        work function sees what the program will run with)."""
+        try:
+            bound = inspect.signature(self.function()).bind_partial(**kwargs)
+        except (TypeError, ValueError):  # an executable, or arguments check_args refuses
+            return kwargs
+        bound.apply_defaults()
+        return dict(bound.arguments)
 
     def function(self) -> Callable[..., Any]:
         if self._fn is None:
@@ -188,13 +219,16 @@ class Registry:
 default_registry = Registry(BUILTINS)
 
 
-def program(name: str | None = None, *, work: float = 1.0, payload: int = 0, result: int = 0,
+def program(name: str | None = None, *, work: float | Callable[..., float] = 1.0, payload: int = 0, result: int = 0,
             local_only: bool = False, memory: int = 0,
             preload: tuple[str, ...] | list[str] = ()) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Register a function as a ramps program (in an installed module).
 
-    ``work`` is its declared cost in work units (origins learn the real one
-    from completed runs); ``memory`` the bytes one run needs: a robot that
+    ``work`` is its declared cost in work units, about CPU seconds on a
+    reference core (origins learn the real one from completed runs of at
+    least 0.1 units), or a function of a call's keyword arguments that
+    returns it, for a cost that depends on them:
+    ``@ramps.program(work=lambda picks, **_: 0.2 * picks)``; ``memory`` the bytes one run needs: a robot that
     reports less free memory is not offered it. ``preload`` names modules
     the function imports only inside its body (say ``("torch",)``, so that
     callers, which import the program's module to check arguments, do not
@@ -203,6 +237,9 @@ def program(name: str | None = None, *, work: float = 1.0, payload: int = 0, res
     Modules imported at the top of the program's module need no mention."""
     if memory < 0:
         raise ConfigError(f"program {name or '?'}: memory must be >= 0 bytes, got {memory}")
+    if not callable(work) and not (isinstance(work, (int, float)) and math.isfinite(work) and work >= 0):
+        raise ConfigError(f"program {name or '?'}: work is work units (a finite number >= 0) or a function "
+                          f"of the call's arguments that returns them, got {work!r}")
     if isinstance(preload, str) or not all(isinstance(m, str) and m for m in preload):
         raise ConfigError(f"program {name or '?'}: preload is a list of module names, got {preload!r}")
 
