@@ -118,11 +118,15 @@ def test_without_the_extra_ray_and_dask_are_skipped_and_say_why():
 
 @pytest.mark.slow  # not serial: it checks what ran where and that nothing was lost, no time or CPU share
 @pytest.mark.skipif(REASON is not None, reason=REASON or "")
-def test_ramps_and_round_robin_run_a_crash_end_to_end():
+def test_ramps_and_round_robin_run_a_crash_end_to_end(tmp_path):
     """Two robots, eight short programs from r1 (more than its four cores), r2 crashed at 1.5 s
-    while it runs some: ramps runs them again, every figure is filled in."""
+    while it runs some: ramps runs them again, every figure is filled in, the traces are kept."""
     sc = msgspec.structs.replace(SCENARIOS["crash"], robots=2, programs=8, crash_at=1.5)
-    rep = run_peers([sc], ["ramps", "round-robin"], Setup(work=0.15, timeout=60.0))
+    rep = run_peers([sc], ["ramps", "round-robin"], Setup(work=0.15, timeout=60.0, keep_logs=str(tmp_path)))
+    for engine in ("ramps", "round-robin"):
+        delivered = [line for line in (tmp_path / f"crash-{engine}" / "r1.trace.jsonl").read_text().splitlines()
+                     if '"delivered"' in line]
+        assert len(delivered) == 8
     (s,) = rep.scenarios
     assert [r.engine for r in s.runs] == ["ramps", "round-robin"]
     assert s.ideal and s.ideal_distribution == [8, 0]  # r2 left out: it crashes

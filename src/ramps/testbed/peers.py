@@ -179,6 +179,8 @@ class Setup(msgspec.Struct, kw_only=True, frozen=True):
     timeout: float = 1500.0
     #: niceness of Ray's and Dask's processes (ramps' workers keep the node's ``worker_nice``, 10)
     peer_nice: int = WORKER_NICE
+    #: a folder where each ramps run's node logs and traces are kept (``<scenario>-<engine>/``)
+    keep_logs: str | None = None
 
 
 # ====================================================================== pure parts
@@ -424,6 +426,11 @@ class RampsEngine:
                 stop.set()
                 if crasher is not None:
                     crasher.join(5)
+                if setup.keep_logs:
+                    from ramps.testbed.experiments import _keep
+
+                    time.sleep(0.3)  # the nodes' last trace lines
+                    _keep(tb, Path(setup.keep_logs) / f"{sc.name}-{self.name}")
                 for k, f in enumerate(futures):
                     ok = f.done() and not f.cancelled() and f.exception() is None
                     burst.hosts.append(f.host if ok else None)
