@@ -1,26 +1,36 @@
 # The two commands of the README:
-#   make demo   -> the main job (bootstraps .venv on first use)
+#   make demo   -> the main job (bootstraps .venv on first use with what the demo
+#                  needs only: ramps and its `demo` extra, OR-Tools and matplotlib)
 #   make test   -> ruff, mypy and the whole test suite (bootstraps .venv on first
-#                  use, with the ROS 2 extra so the ROS face is tested too): the
-#                  tests in parallel, then those marked serial alone; each pass
+#                  use with everything: the demo's, test and check tools, and the
+#                  ROS 2 extra with its action built, so the ROS face is tested too):
+#                  the tests in parallel, then those marked serial alone; each pass
 #                  ends with its slowest tests, to keep the suite in its 15 minutes
 # and the fast loop while you work:
 #   make check  -> ruff + mypy + the tests not marked slow (about a minute on 2 cores)
 PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
+# everything (make test, check, lint, types)
 STAMP  := $(VENV)/.installed
+# what the demo and the benchmarks need (a subset: the full install makes it too)
+DEMO_STAMP := $(VENV)/.installed-demo
 
 .PHONY: demo test check lint types bench clean
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[test,check,ros]'
-	-$(BIN)/ramps ros --build-interfaces  # the RunProgram action type: needs cmake and a C/C++ compiler (~30 s); without them its test skips
-	@touch $(STAMP)
+	$(BIN)/python -m pip install -q -e '.[demo,test,check,ros]'
+	-$(BIN)/ramps ros --build-interfaces  # the RunProgram action type: needs cmake and a C/C++ compiler; without them its test skips
+	@touch $(STAMP) $(DEMO_STAMP)
 
-demo: $(STAMP)
+$(DEMO_STAMP): pyproject.toml
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q -e '.[demo]'
+	@touch $(DEMO_STAMP)
+
+demo: $(DEMO_STAMP)
 	$(BIN)/ramps demo
 
 # the suite in two passes: first every test not marked serial, spread over
@@ -47,9 +57,10 @@ lint: $(STAMP)
 types: $(STAMP)
 	$(BIN)/mypy
 
-bench: $(STAMP)
+bench: $(DEMO_STAMP)
 	$(BIN)/ramps bench sim
 	$(BIN)/ramps bench dispatch
+	$(BIN)/ramps bench first-calls --rounds 3
 
 clean:
 	rm -rf $(VENV) build dist .pytest_cache .hypothesis .mypy_cache .ruff_cache

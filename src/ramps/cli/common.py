@@ -18,6 +18,7 @@ from typing import Annotated, Any, Callable, NoReturn, Optional
 import msgspec
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 # a pipe or a CI log gets wide tables instead of wrapped ones
 out = Console(width=None if sys.stdout.isatty() else 200)
@@ -44,7 +45,7 @@ LeaseOption = Annotated[Optional[int], typer.Option("--lease-ms", help="Zenoh le
 
 
 def fail(message: str, code: int = 2) -> NoReturn:
-    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)  # "[route]" is no markup
     raise typer.Exit(code)
 
 

@@ -45,6 +45,13 @@ def demo(
     sizes = {"demo": DEMO_ROUTE, **ROUTE_SIZES}
     if size not in sizes:
         fail(f"unknown size {size!r}; choose one of {', '.join(sizes)}")
+    from ramps.extras import MissingExtra, require
+
+    try:  # the `demo` extra (`make demo` installs it)
+        require("ortools", "ramps demo (its route_plan programs)", "demo")
+        require("matplotlib", "ramps demo (its report)", "demo")
+    except MissingExtra as exc:
+        fail(str(exc))
     progress = _Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                          TextColumn("{task.fields[spread]}"), console=err, transient=not as_json)
     tasks: dict[str, TaskID] = {}

@@ -18,13 +18,14 @@ from typing import NoReturn, Optional
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 _out = Console(highlight=False, soft_wrap=True)
 _err = Console(stderr=True, highlight=False, soft_wrap=True)
 
 
 def _fail(message: str) -> NoReturn:
-    _err.print(f"[bold red]error:[/] {message}")
+    _err.print(f"[bold red]error:[/] {escape(message)}")
     raise typer.Exit(2)
 
 
@@ -65,11 +66,13 @@ def report(
     """A self-contained HTML report of a run (and PNGs): a Gantt timeline of every program per robot
     (attempts, failures and when they were noticed, re-placements), each robot's load over time, and
     the distribution; or the paper's figures from experiment results."""
+    from ramps.extras import MissingExtra, require
     from ramps.observe.report import ReportError, make_report, write_html, write_pngs
 
     try:
+        require("matplotlib", "ramps report")
         rep = make_report(paths, title=title)
-    except ReportError as exc:
+    except (MissingExtra, ReportError) as exc:
         _fail(str(exc))
     html_path = out_file or Path(paths[0].name.split(".")[0] + ".html")
     write_html(rep, html_path)
@@ -87,6 +90,12 @@ def sim_paper_plot(directory: Path, experiment: str, *, policy: str, runs: int, 
     """``ramps sim paper --plot DIR``: run the experiments (in parallel) and draw the paper's figures."""
     import time
 
+    from ramps.extras import MissingExtra, require
+
+    try:
+        require("matplotlib", "ramps sim paper --plot")
+    except MissingExtra as exc:
+        _fail(str(exc))
     from ramps.observe.paper_plots import run_all, write_figures
 
     wanted = {"all": ("unloaded", "loaded", "faults"), "unloaded": ("unloaded",), "loaded": ("loaded",),

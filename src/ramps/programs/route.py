@@ -79,6 +79,8 @@ from typing import Any
 
 import msgspec
 
+from ramps.extras import require
+
 Cell = tuple[int, int]
 
 MAX_SIDE = 100
@@ -340,6 +342,7 @@ def plan_route(
     dist = distance_matrix(warehouse, cells)
     cap = picks if capacity is None else min(capacity, picks)
 
+    require("ortools", "route_plan")  # the `route` extra: one clear line when it is missing
     import ortools.sat.python.cp_model  # noqa: F401  (lazy; imported before the clock starts)
 
     wall0, cpu0 = time.perf_counter(), time.process_time()
