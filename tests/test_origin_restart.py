@@ -209,3 +209,22 @@ def test_the_record_keeps_the_newest_outcomes_up_to_its_bound(tmp_path, monkeypa
     again.save({}, [("p5", "app", 5, b"o5")])
     assert sorted(again.load().outcomes) == [("app", 3), ("app", 4), ("app", 5)]
     again.close()
+
+
+def test_the_record_syncs_as_configured_and_refuses_other_words(tmp_path):
+    from ramps.errors import ConfigError
+    from ramps.runtime.settings import load_settings
+    from ramps.runtime.store import OriginStore
+
+    # SQLite's synchronous: 1 NORMAL (the default: survives the node's crash), 2 FULL (fsync each write)
+    for sync, level in (("normal", 1), ("full", 2)):
+        store = OriginStore(tmp_path / sync, team="t", robot="r1", sync=sync)
+        assert store._db.execute("PRAGMA synchronous").fetchone()[0] == level
+        assert store._db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+        store.close()
+    with pytest.raises(ConfigError, match="state_sync must be one of normal, full"):
+        OriginStore(tmp_path / "x", team="t", robot="r1", sync="sometimes")
+    assert load_settings(flags={"robot": "r1"}, environ={}).state_sync == "normal"
+    assert load_settings(flags={"robot": "r1"}, environ={"RAMPS_STATE_SYNC": "full"}).state_sync == "full"
+    with pytest.raises(ConfigError, match="state_sync must be 'normal' or 'full'"):
+        load_settings(flags={"robot": "r1"}, environ={"RAMPS_STATE_SYNC": "always"})

@@ -238,7 +238,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
                          registry=self.registry.names(), program_weight=nice_weight(s.worker_nice),
                          core_fraction=core_fraction(quota, self.cores))
         if s.state_dir not in ("", "off"):  # a foreign record: ConfigError, before anything starts
-            self.store = OriginStore(s.state_dir, team=self.team, robot=self.robot)
+            self.store = OriginStore(s.state_dir, team=self.team, robot=self.robot, sync=s.state_sync)
             self.node.origin.changed = set()
         self.pool = self._worker_pool(self.cores, self.registry.targets(), self._finished, nice=worker_increment(s.worker_nice),
                                on_progress=self._progress_reported, on_checkpoint=self._checkpoint_saved)
