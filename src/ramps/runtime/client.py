@@ -18,7 +18,7 @@ the origin of the autonomous program and sends back exactly one
 
 ``fut.cancel()`` withdraws the program from the team. While it runs,
 ``fut.state`` ("submitted", "placed", "running", "replaced", "host_failed",
-then "done" or "failed"), ``fut.host``, ``fut.attempts`` and ``fut.progress``
+then "done", "failed", "timed_out" or "cancelled"), ``fut.host``, ``fut.attempts`` and ``fut.progress``
 (0..1, or None until the program reports any; see ``ramps.progress``) follow
 it, and ``fut.add_update_callback(fn)`` calls ``fn(fut)`` on every change.
 Once done, ``fut.host`` names the robot that ran it and ``fut.attempts`` how
@@ -238,7 +238,6 @@ class Team:
             futs = list(self._futures.values())
             self._futures.clear()
         for f in futs:
-            f.state = "failed"
             try:
                 f.set_exception(ProgramLost(f"{f.program}: robot {robot}, the origin of this program (the node this "
                                             f"client submitted to), left the team or died; the program is lost "
@@ -450,7 +449,6 @@ class Team:
         fut.host = o.host  # which robot ran it
         fut.attempts = o.attempts
         fut.moves, fut.resumed_from = o.moves, o.resumed_from
-        fut.state = "done" if o.ok else "failed"
         try:
             if o.ok:
                 try:

@@ -68,19 +68,27 @@ class ProgramFuture(Future):
 
     ``program``: its name; ``state``: "submitted", "placed", "running",
     "replaced" (placed again after a failure or refusal), "host_failed",
-    then "done" or "failed"; ``host``: the robot it was last offered to (the
-    one that ran it, once done); ``attempts``: placements so far;
-    ``progress``: the newest fraction (0..1) the program reported, or None;
-    ``progress_detail``: the text that came with it; once done, ``moves``:
-    how often it was relocated while running, and ``resumed_from``: the
-    progress of the checkpoint its last attempt resumed from (None: it ran
-    from the start, see ``ramps.checkpoint``). Updates are advisory
-    (they may be lost or arrive late); the result is not."""
+    then how it ended: "done" (a result), "failed" (an error: the program
+    raised, was refused or lost), "timed_out" (its per-call timeout withdrew
+    it) or "cancelled" (``cancel()`` withdrew it); ``host``: the robot it was
+    last offered to (the one that ran it, once done); ``attempts``:
+    placements so far, the first included (a re-placement after a host
+    failed or handed it back is one more); ``progress``: the newest fraction
+    (0..1) the program reported, or None; ``progress_detail``: the text that
+    came with it; once done, ``moves``: how often the origin relocated it
+    while it ran on a healthy host (to a robot where it finishes sooner, see
+    "Programs that move" in docs/using-ramps.md; a re-placement after a
+    failure is not a move, it shows in ``attempts``), and ``resumed_from``:
+    the progress of the checkpoint its last attempt resumed from (None: it
+    ran from the start, see ``ramps.checkpoint``). Updates are advisory
+    (they may be lost or arrive late); the result, and the state it sets,
+    are not."""
 
     def __init__(self, program: str = "") -> None:
         super().__init__()
         self.program = program
-        self.state = "submitted"
+        #: the newest update's state, while the program runs (``state``)
+        self._state = "submitted"
         self.host = ""
         self.attempts = 0
         self.progress: float | None = None
@@ -95,13 +103,28 @@ class ProgramFuture(Future):
         self._update_callbacks.append(fn)
         self.add_done_callback(fn)
 
+    @property
+    def state(self) -> str:
+        """Where the program stands (see the class's docstring): once the
+        future is done, how it ended, read from the future itself, so it
+        can never disagree with ``result()``; before that, the newest
+        update's state."""
+        if not self.done():
+            return self._state
+        if self.cancelled():  # done is final: these no longer change
+            return "cancelled"
+        exc = self.exception(timeout=0)
+        if exc is None:
+            return "done"
+        return "timed_out" if isinstance(exc, TimeoutError) else "failed"
+
     def _updated(self, u: ProgramUpdate) -> None:
         if self.done():
             return
         if u.state != "progress":
-            self.state = u.state
-        elif self.state in ("submitted", "placed", "replaced"):
-            self.state = "running"  # progress comes from a running program
+            self._state = u.state
+        elif self._state in ("submitted", "placed", "replaced"):
+            self._state = "running"  # progress comes from a running program
         if u.host:
             self.host = u.host
         self.attempts = max(self.attempts, u.attempt)
