@@ -34,7 +34,7 @@ from matplotlib.patches import Patch  # noqa: E402
 from ramps.observe.timeline import Timeline  # noqa: E402
 
 OUTCOME_COLOURS = {"delivered": "#2e7d32", "failed": "#c62828", "rejected": "#ef6c00", "cancelled": "#9e9e9e",
-                   "running": "#1565c0", "error": "#6a1b9a"}
+                   "running": "#1565c0", "error": "#6a1b9a", "finished": "#81c784"}
 FAULT_COLOURS = {"crash": "#b71c1c", "network": "#e65100", "freeze": "#4a148c", "recover": "#1b5e20"}
 
 
@@ -105,7 +105,7 @@ def gantt(tl: Timeline, *, title: str = "") -> Figure:
     ax.set_xlabel("seconds")
     ax.set_title(title or "where every program ran (one bar per attempt)", loc="left", fontsize=11)
     handles: list[Artist] = [Patch(color=OUTCOME_COLOURS[k], label=k)
-                             for k in ("delivered", "failed", "cancelled", "running")
+                             for k in ("delivered", "finished", "failed", "cancelled", "running")
                              if any(a.outcome == k for a in tl.attempts)]
     handles.append(Patch(facecolor="#888888", hatch="//", edgecolor="white", label="re-placed attempt"))
     handles.append(Line2D([], [], marker="x", color="black", lw=0, label="written off (detected)"))

@@ -14,8 +14,11 @@ from when (``placed``) to when, and how it ended (delivered, failed with
 the detection time and reason, rejected, cancelled because another copy
 won, or still running). A new attempt of a program after a failed one is a
 re-placement (a move, under weak mobility). Faults come from the simulator
-(``fault`` entries: crash, network, freeze, recover); node traces only
-show what the origin noticed (failures, blacklistings).
+(``fault`` entries: crash, network, freeze, recover); node traces show what
+the origin noticed (failures, blacklistings) and, on a host, what it ran
+for other origins (``started``, ``finished``, ``stopped``: see
+``ramps.runtime.node_outbound``), so a host's trace alone shows its
+attempts, and with its origins' traces the origin's view wins.
 
 Rules: pure data, no plotting (``ramps.observe.plots`` draws it). Times are
 as the trace says; nothing here guesses when a fault really struck.
@@ -55,7 +58,8 @@ class Attempt:
     start: float  # placed
     accepted: float | None = None
     end: float | None = None
-    #: delivered | failed | rejected | cancelled | running
+    #: delivered | failed | rejected | cancelled | running | error, or from a
+    #: host's trace alone: finished (its result was sent; delivery is the origin's)
     outcome: str = "running"
     detail: str = ""
     lane: int = 0  # row within the host's band (for the Gantt)
@@ -221,6 +225,16 @@ def build_timeline(events: list[Event], extra: dict | None = None) -> Timeline:
                 a.end, a.outcome, a.detail = e.t, e.what, e.detail
             if e.what == "failed":
                 detections.append((e.t, e.robot, e.other, e.detail))
+        elif e.what == "started":  # a host's trace: robot = the host, other = the origin
+            seen(e.robot)
+            seen(e.other)
+            if key not in attempts:  # else the origin's trace placed it
+                attempts[key] = Attempt(e.program_id, e.attempt, e.robot, e.other, e.t, accepted=e.t)
+        elif e.what in ("finished", "stopped") and key in attempts:
+            a = attempts[key]
+            if a.end is None and a.host == e.robot:
+                a.end, a.detail = e.t, e.detail
+                a.outcome = "cancelled" if e.what == "stopped" else "error" if e.detail else "finished"
         elif e.what == "blacklisted":
             blacklistings.append((e.t, e.robot, e.other))
         elif e.what == "delivered":  # node traces: other = host, attempt = attempts, detail = error kind

@@ -6,7 +6,8 @@ core survives lost messages; a message over 60 KB waits for room instead, on
 a thread of its own destination, ``ramps.runtime.bulk``), ``StartProgram``/``StopProgram`` go to the
 worker pool, ``Deliver`` becomes the client's outcome
 (``ramps.runtime.node_clients``), ``Note`` a client update, a trace line and
-a log line. ``_publish`` builds the periodic load report from the sampler
+a log line; programs it hosts for other origins are traced as this robot
+runs them (``_trace_hosted``). ``_publish`` builds the periodic load report from the sampler
 and the core (what it runs, its links, what it learned) and publishes it;
 ``_shutdown`` hands running programs back and cancels this origin's.
 """
@@ -36,6 +37,8 @@ from ramps.core.messages import (
     MAX_LISTED,
     LearnedWork,
     LinkSeen,
+    ProgramCheckpoint,
+    ProgramResult,
     RunningProgram,
     encode,
 )
@@ -65,6 +68,8 @@ class Outbound:
         for a in actions:
             if self.metrics is not None:
                 self.metrics.on_action(a, self.node, mnow)
+            if self._trace is not None and isinstance(a, (StartProgram, StopProgram, Send)):
+                self._trace_hosted(a)
             if isinstance(a, Send):
                 key, data = keys.inbox(self.team, a.to), encode(self.robot, a.msg)
                 if not self._bulk.send(key, data):  # large (or behind a large one): its thread sends it
@@ -126,6 +131,36 @@ class Outbound:
             log.warning("node %s: trace file write failed, trace off: %s", self.robot, exc)
             self._trace = None
             self._trace_wire = False
+
+    def _trace_hosted(self, a: StartProgram | StopProgram | Send) -> None:
+        """The host's side of the trace, for programs of other origins (this
+        robot's own are in its origin notes), ``other`` the origin:
+        ``started`` (detail: the program, and the progress it resumes from),
+        ``checkpointed`` (detail: its progress then, if it reported any),
+        ``finished`` (its result is sent; detail: empty if it returned, else
+        its error's last line) or ``stopped`` (no longer wanted: withdrawn,
+        another copy won, its origin gone; "handed back" when this node
+        leaves)."""
+        hosted: dict[tuple[str, int], str] = self.__dict__.setdefault("_hosted_origins", {})
+        if isinstance(a, StartProgram):
+            if a.origin != self.robot:
+                hosted[(a.program_id, a.attempt)] = a.origin
+                self._write_trace("started", a.program_id, a.origin, a.attempt, a.program + (
+                    f" resumed from {a.resume_fraction:.2f}" if a.resume is not None else ""))
+        elif isinstance(a, StopProgram):
+            origin = hosted.pop((a.program_id, a.attempt), None)
+            if origin is not None:
+                self._write_trace("stopped", a.program_id, origin, a.attempt,
+                                  "handed back" if self.node.executor.closing else "")
+        elif isinstance(a.msg, ProgramResult):  # the first send only: resends find it gone
+            origin = hosted.pop((a.msg.program_id, a.msg.attempt), None)
+            if origin is not None:
+                error = a.msg.error.strip().splitlines()
+                self._write_trace("finished", a.msg.program_id, origin, a.msg.attempt,
+                                  "" if a.msg.ok else (error[-1][:200] if error else "error"))
+        elif isinstance(a.msg, ProgramCheckpoint) and (a.msg.program_id, a.msg.attempt) in hosted:
+            self._write_trace("checkpointed", a.msg.program_id, a.to, a.msg.attempt,
+                              "" if a.msg.fraction is None else f"{a.msg.fraction:.2f}")
 
     def _put(self, key: str, data: bytes, *, block: bool = False) -> None:
         """Publish on ``key``. Messages to robots use Zenoh's DROP congestion
