@@ -294,7 +294,8 @@ def status(
                  "programs", "done", "moved", "node cores", "dropped msgs", "sees", "blacklists", "report age"):
         table.add_column(name, justify="left" if name in ("robot", "blacklists", "per core %") else "right")
     for r in st.robots:
-        table.add_row(r.robot, "yes" if r.alive else "[red]no[/]", str(r.cores), f"{r.speed:g}", f"{r.cpu_busy:.2f}",
+        alive = "yes" if r.alive else "no (left)" if r.leaving else "[red]no[/]"  # left: stopped, not crashed
+        table.add_row(r.robot, alive, str(r.cores), f"{r.speed:g}", f"{r.cpu_busy:.2f}",
                       " ".join(f"{100 * c:.0f}" for c in r.cpu_per_core[:16]), f"{r.runnable:.1f}",
                       f"{r.load_avg:.2f}", f"{r.mem_free / 2**30:.1f} GiB", str(r.ramps_running),
                       str(r.finished_total),

@@ -146,7 +146,9 @@ def top(
     """A live view of the team: every robot with its cores, speed, CPU, run queue, programs running
     and in flight, free memory, whom it sees and whom it wrote off, and a scrolling list of events
     (robots joining and leaving, programs starting, finishing and moving). Robots that disappear
-    stay, greyed, with how long ago they were last heard. Ctrl-C quits."""
+    stay, greyed, with how long ago they were last heard: "left" when the robot's node stopped
+    (Ctrl-C, SIGTERM: it handed its programs back), "gone" when its liveliness went without a
+    word (a crash, a cut link). Ctrl-C quits."""
     import time
 
     from rich.live import Live

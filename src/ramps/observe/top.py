@@ -5,7 +5,9 @@ liveliness tokens and load reports) is polled a few times a second; each
 ``TeamStatus`` goes into a ``TopModel``, which keeps every robot ever seen
 (a robot that disappears stays, greyed, with how long ago it was last
 heard) and turns the differences between two views into events: a robot
-joining, leaving (its liveliness token gone), writing a teammate off, a
+joining, leaving (its node stopped and handed its programs back: it said so
+with its ``leaving`` token before its liveliness went), gone (its liveliness
+went without that: a crash, a cut link), writing a teammate off, a
 program starting on a host, finishing there (and how long it ran), and
 starting again elsewhere after its host was lost (a move). ``render``
 draws the model with rich; the command refreshes it in a ``rich.live.Live``.
@@ -43,6 +45,10 @@ class RobotView:
     first_seen: float
     last_heard: float  # `now` of the newest load report (or of joining)
     gone_at: float | None = None
+    #: it left (its node stopped and handed its programs back), not crashed
+    left: bool = False
+    #: programs seen running there when it went
+    gone_programs: int = 0
     #: (program, origin) -> times each copy was first seen running here
     running: dict[tuple[str, str], list[float]] = field(default_factory=dict)
 
@@ -50,7 +56,7 @@ class RobotView:
 @dataclass
 class TopEvent:
     t: float
-    kind: str  # joined, gone, back, wrote_off, cleared, started, finished, moved, displaced
+    kind: str  # joined, left, gone, back, wrote_off, cleared, started, finished, stopped, moved
     robot: str
     text: str
 
@@ -95,23 +101,36 @@ class TopModel:
             if heard is not None:
                 v.last_heard = max(v.last_heard, heard)
             if st.alive and not v.alive:
-                v.alive, v.gone_at = True, None
+                v.alive, v.gone_at, v.left = True, None, False
                 self._event(now, "back", st.robot, f"{st.robot} is back")
             elif not st.alive and v.alive:
-                v.alive, v.gone_at = False, now
-                n = sum(len(x) for x in v.running.values())
-                self._event(now, "gone", st.robot, f"{st.robot} gone (liveliness lost; last report "
-                            f"{now - v.last_heard:.1f} s before)" + (f", {n} program(s) were running there" if n
-                                                                     else ""))
+                v.alive, v.gone_at, v.left = False, now, st.leaving
+                v.gone_programs = sum(len(x) for x in v.running.values())
+                self._event(now, *self._gone(v))
                 for key, starts in v.running.items():
                     self._displaced.setdefault(key, []).extend((st.robot, now) for _ in starts)
                 v.running = {}
+            elif not st.alive and st.leaving and not v.left and v.gone_at is not None:
+                # its goodbye came after its liveliness went: the event said "gone"; it left
+                v.left = True
+                for i, e in enumerate(self.events):
+                    if e.kind == "gone" and e.robot == st.robot and e.t == v.gone_at:
+                        self.events[i] = TopEvent(e.t, *self._gone(v))
             if st.alive:
                 live.append((v, prev, st))
             v.status = st
         for v, prev, st in live:
             self._diff_blacklist(v, prev, st, now)
             self._diff_running(v, prev, st, now)
+
+    def _gone(self, v: RobotView) -> tuple[str, str, str]:
+        """The event of a robot no longer alive: left, or gone (a crash, a cut link)."""
+        n = v.gone_programs
+        if v.left:
+            return "left", v.name, f"{v.name} left (its node stopped" + (
+                f" and handed {n} program(s) back to their origins)" if n else ")")
+        return "gone", v.name, (f"{v.name} gone (liveliness lost; last report {(v.gone_at or v.last_heard) - v.last_heard:.1f} s "
+                                f"before)" + (f", {n} program(s) were running there" if n else ""))
 
     def _diff_blacklist(self, v: RobotView, prev: RobotStatus, st: RobotStatus, now: float) -> None:
         after = set(st.blacklisted)
@@ -151,8 +170,9 @@ class TopModel:
             src, when = waiting.pop(0)
             if not waiting:
                 del self._displaced[key]
+            src_left = src in self.robots and self.robots[src].left
             self._event(now, "moved", robot, f"{key[0]} from {key[1]} moved {src} -> {robot}, running again "
-                        f"{now - when:.1f} s after {src} was lost")
+                        f"{now - when:.1f} s after {src} " + ("left" if src_left else "was lost"))
         else:
             self._event(now, "started", robot, f"{key[0]} from {key[1]} started on {robot}")
 
@@ -162,8 +182,8 @@ class TopModel:
 
 
 # ====================================================================== drawing
-_EVENT_STYLE = {"joined": "green", "back": "green", "gone": "bold red", "wrote_off": "red", "cleared": "green",
-                "started": "cyan", "finished": "white", "stopped": "yellow", "moved": "bold magenta"}
+_EVENT_STYLE = {"joined": "green", "back": "green", "left": "yellow", "gone": "bold red", "wrote_off": "red",
+                "cleared": "green", "started": "cyan", "finished": "white", "stopped": "yellow", "moved": "bold magenta"}
 
 
 def _bar(frac: float, width: int = 10) -> str:
@@ -187,7 +207,8 @@ def render(model: TopModel, now: float, *, events: int = 12, interval: float | N
             state = Text("alive" if age < 3 else f"silent {age:.0f} s", style="green" if age < 3 else "yellow")
             style = ""
         else:
-            state = Text(f"gone {now - (v.gone_at or now):.1f} s ago (heard {now - v.last_heard:.1f} s ago)")
+            state = Text(f"{'left' if v.left else 'gone'} {now - (v.gone_at or now):.1f} s ago "
+                         f"(heard {now - v.last_heard:.1f} s ago)")
             style = "grey50"
         cpu = st.cpu_busy / st.cores if st.cores else 0.0
         progs = Counter(p.program for p in st.running) if v.alive else Counter()

@@ -430,7 +430,9 @@ class RosFace(Node):
 def robot_status(r, team_size: int, *, stale_after: float) -> DiagnosticStatus:
     """One robot's load report as a DiagnosticStatus (OK / WARN / ERROR)."""
     s = DiagnosticStatus(name=f"ramps: {r.robot}", hardware_id=r.robot)
-    if not r.alive:
+    if not r.alive and r.leaving:  # stopped, its programs handed back: not a fault
+        s.level, s.message = DiagnosticStatus.WARN, "left the team: its node stopped"
+    elif not r.alive:
         s.level, s.message = DiagnosticStatus.ERROR, "gone: not in the team"
     elif r.report_age is None:
         s.level, s.message = DiagnosticStatus.WARN, "alive, no load report yet"

@@ -153,6 +153,8 @@ class Team:
         self._futures: dict[int, ProgramFuture] = {}
         self._ids = itertools.count(1)
         self._alive: set[str] = set()
+        #: robots whose node said it is leaving (``keys.leaving``), until they are back
+        self._leaving: set[str] = set()
         self._reports: dict[str, tuple[LoadReport, float]] = {}
         self._timers: list[tuple[float, int]] = []
         self._timer_cv = threading.Condition(self._lock)
@@ -181,6 +183,7 @@ class Team:
             t.subscribe(keys.client(self.team, self.client_id), self._on_outcome),
             t.subscribe(keys.load(self.team), self._on_report),
             t.subscribe_liveliness(keys.alive(self.team), self._on_alive, history=True),
+            t.subscribe_liveliness(keys.leaving(self.team), self._on_leaving, history=True),
         ]
         self._timer_thread = threading.Thread(target=self._timeouts, name="ramps-client-timers", daemon=True)
         self._timer_thread.start()
@@ -208,6 +211,7 @@ class Team:
         with self._lock:
             if alive:
                 self._alive.add(robot)
+                self._leaving.discard(robot)  # back: a new start of its node
                 if robot == getattr(self, "robot", None) and self._node_lapsed:
                     # the link to our node is back: an outcome it sent meanwhile went nowhere
                     # (Zenoh may even report a match through another peer); ask about every
@@ -230,6 +234,14 @@ class Team:
                     t = threading.Timer(self.origin_grace, self._origin_gone, args=(robot,))
                     t.daemon = True
                     t.start()
+
+    def _on_leaving(self, key: str, declared: bool) -> None:
+        robot = keys.robot_of(key)
+        with self._lock:
+            if declared:
+                self._leaving.add(robot)
+            elif robot in self._alive:  # it went with a node that did not leave: not this robot's
+                self._leaving.discard(robot)
 
     def _origin_gone(self, robot: str) -> None:
         with self._lock:
@@ -508,7 +520,7 @@ class Team:
             rows = []
             for name in names:
                 rep, at = self._reports.get(name, (None, None))
-                base = dict(robot=name, alive=name in self._alive)
+                base = dict(robot=name, alive=name in self._alive, leaving=name in self._leaving)
                 if rep is not None:
                     base.update(cores=rep.cores, speed=rep.speed, cpu_busy=rep.cpu_busy, runnable=rep.runnable,
                                 ramps_running=rep.ramps_running, accepted_total=rep.accepted_total,

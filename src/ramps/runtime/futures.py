@@ -21,12 +21,16 @@ __all__ = ["ProgramFuture", "RobotStatus", "TeamStatus"]
 
 
 class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
-    """One robot as a client sees it (``Team.status()``): ``alive`` from its
-    liveliness token, the rest from its latest load report (defaults where
-    none arrived yet), which is ``report_age`` seconds old."""
+    """One robot as a client sees it (``Team.status()``): ``alive`` and
+    ``leaving`` from its liveliness tokens, the rest from its latest load
+    report (defaults where none arrived yet), which is ``report_age``
+    seconds old."""
 
     robot: str
     alive: bool
+    #: its node said it is leaving (stopped: Ctrl-C, SIGTERM, revoked; it
+    #: hands its programs back), so not alive any more means it left, not crashed
+    leaving: bool = False
     cores: int = 0
     speed: float = 0.0
     cpu_busy: float = 0.0

@@ -7,6 +7,8 @@ never hear each other:
     ramps/<team>/msg/<robot>       protocol messages addressed to a robot
     ramps/<team>/client/<client>   outcomes for an application (client)
     ramps/<team>/alive/<robot>     liveliness token of a robot's node
+    ramps/<team>/leaving/<robot>   liveliness token a node declares as it stops
+                                   (it hands its programs back): not a crash
 """
 
 from __future__ import annotations
@@ -39,6 +41,10 @@ def client(team: str, client_id: str) -> str:
 
 def alive(team: str, robot: str = "*") -> str:
     return f"ramps/{team}/alive/{robot}"
+
+
+def leaving(team: str, robot: str = "*") -> str:
+    return f"ramps/{team}/leaving/{robot}"
 
 
 def robot_of(key: str) -> str:

@@ -325,6 +325,13 @@ class Outbound:
         return a
 
     def _shutdown(self, done: threading.Event) -> None:
+        # before its liveliness goes: a client (ramps top) tells this from a crash (not when the name
+        # is another node's: that node stays)
+        if self.transport is not None and not self.name_taken:
+            try:
+                self._leaving_token = self.transport.declare_token(keys.leaving(self.team, self.robot))
+            except Exception as exc:
+                log.warning("node %s could not say it is leaving: %s", self.robot, exc)
         now = self._clock()
         node = self.node
         out: list = []
