@@ -389,7 +389,7 @@ class Testbed(Faults):
         robots = list(robots or self.names)
         t0 = time.monotonic()
         deadline = t0 + timeout
-        with watch_team(self) as obs:
+        with watch_team(self, redial=True) as obs:  # opened before the nodes listen: dial them again soon
             while True:
                 for r in robots:
                     if self.process_state(r) == "dead":
@@ -590,17 +590,25 @@ def _check_config(config: Mapping[str, Any]) -> dict[str, Any]:
     return {**{k: v for k, v in config.items() if k != "core"}, **({"core": dict(core)} if core else {})}
 
 
-def watch_team(testbed: "Testbed") -> "TeamWatcher":
+def watch_team(testbed: "Testbed", *, redial: bool = False) -> "TeamWatcher":
     """A plain Zenoh session in the root namespace that watches the team:
     liveliness and the latest load report of each robot
     (``ramps.runtime.watch.TeamWatcher``).
+
+    ``redial``: an endpoint that does not answer yet is dialled again every
+    0.1-0.5 s, not Zenoh's 1 s backing off to 4 s: for a watcher opened
+    while the nodes still start (``Testbed.wait_alive``), which with the
+    default saw robots up to 4 s after they had joined.
 
     Used instead of a ``Team`` client for readiness and status because it
     is closed by its ``with`` block whatever interrupts it (a Ctrl-C in the
     middle of ``Team()`` would leave a session whose thread blocks exit)."""
     from ramps.runtime.watch import TeamWatcher
 
-    return TeamWatcher.open(testbed.zenoh_config(), testbed.team)
+    config = testbed.zenoh_config()
+    if redial:
+        config.insert_json5("connect/retry", "{period_init_ms: 100, period_max_ms: 500, period_increase_factor: 2}")
+    return TeamWatcher.open(config, testbed.team)
 
 
 def __getattr__(name: str) -> object:
