@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+import typer.core
 
 ROS_HELP = ("Expose this robot's ramps team to ROS 2 (needs: pip install 'ramps-robotics\\[ros]').\n\n"
             "Every registered program becomes runnable from ROS as the action /ROBOT/ramps/run "
@@ -17,15 +18,33 @@ ROS_HELP = ("Expose this robot's ramps team to ROS 2 (needs: pip install 'ramps-
             "cancel by sending the goal id on /ROBOT/ramps/cancel (the program is withdrawn from the team); goal "
             "states are on /ROBOT/ramps/status (action_msgs/GoalStatusArray).\n\n"
             "Every robot's load and health go to /diagnostics (diagnostic_msgs/DiagnosticArray).\n\n"
-            "The options are ROS parameters too: --ros-args -p team:=warehouse -p connect:=\"['tcp/10.0.0.2:7447']\". "
-            "See docs/ros2.md.")
+            "The options are ROS parameters too: --ros-args -p team:=warehouse -p connect:=\"['tcp/10.0.0.2:7447']\" "
+            "-r __ns:=/r1; everything from --ros-args on is ROS's. Where neither gives one, team, connect, multicast, "
+            "secure and credentials come from the environment (RAMPS_TEAM, RAMPS_CONNECT, ...) and RAMPS_CONFIG, as "
+            "for every ramps command. See docs/ros2.md.")
+
+
+class _RosArgsCommand(typer.core.TyperCommand):
+    """``ramps ros``'s parsing: everything from ``--ros-args`` on goes to ROS
+    untouched (rcl's own ``-r``, ``-p``, ``-e`` are not ramps' ``-r``...);
+    before it, ramps' options only, so a typo is an error, not a ROS argument."""
+
+    def parse_args(self, ctx, args: list[str]) -> list[str]:
+        cut = args.index("--ros-args") if "--ros-args" in args else len(args)
+        super().parse_args(ctx, args[:cut])
+        if ctx.args:  # (the command takes unknown words only to hand them to ROS: not these)
+            ctx.fail(f"no such option or argument: {' '.join(ctx.args)} (ROS arguments go after --ros-args)")
+        ctx.args = args[cut:]
+        return ctx.args
 
 
 def register(app: typer.Typer) -> None:
-    @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True}, help=ROS_HELP)
+    @app.command(cls=_RosArgsCommand, context_settings={"allow_extra_args": True, "ignore_unknown_options": True},
+                 help=ROS_HELP)
     def ros(
         ctx: typer.Context,
-        team: Optional[str] = typer.Option(None, "--team", "-t", help="team name (parameter team; default lab)"),
+        team: Optional[str] = typer.Option(None, "--team", "-t", help="team name (parameter team; default: "
+                                           "RAMPS_TEAM, else lab)"),
         robot: Optional[str] = typer.Option(None, "--robot", "-r", help="the ramps node to submit to, normally this "
                                             "robot's (parameter robot; default: the one named after this host)"),
         connect: Optional[list[str]] = typer.Option(None, "--connect", "-c", help="Zenoh endpoint of the team "
@@ -35,6 +54,12 @@ def register(app: typer.Typer) -> None:
         credentials: Optional[Path] = typer.Option(None, "--credentials", help="credentials directory (parameter credentials)"),
         diagnostics_period: Optional[float] = typer.Option(None, "--diagnostics-period", min=0.05,
                                                            help="seconds between /diagnostics messages (default 1)"),
+        goal_timeout: Optional[float] = typer.Option(None, "--goal-timeout", min=0.0, help="seconds a goal may run "
+                                                     "before its program is withdrawn, unless the goal says (parameter "
+                                                     "goal_timeout; default 0: none)"),
+        connect_timeout: Optional[float] = typer.Option(None, "--connect-timeout", min=0.05, help="seconds to find "
+                                                        "the ramps node at start (parameter connect_timeout; "
+                                                        "default 10)"),
         namespace: Optional[str] = typer.Option(None, "--namespace", help="ROS namespace of the face (default: /<robot>)"),
         build_interfaces: bool = typer.Option(False, "--build-interfaces", help="build the RunProgram action type "
                                               "(ramps_interfaces) into this environment and exit; then ramps ros "
@@ -63,7 +88,8 @@ def register(app: typer.Typer) -> None:
         overrides = {k: v for k, v in {
             "team": team, "robot": robot, "connect": list(connect) if connect else None, "multicast": multicast,
             "secure": True if secure else None, "credentials": str(credentials) if credentials else None,
-            "diagnostics_period": diagnostics_period}.items() if v is not None}
+            "diagnostics_period": diagnostics_period, "goal_timeout": goal_timeout,
+            "connect_timeout": connect_timeout}.items() if v is not None}
         ns = namespace if namespace is not None else ("/" + ros_name(robot) if robot else "")
         try:
             run(namespace=ns, overrides=overrides, ros_args=list(ctx.args))

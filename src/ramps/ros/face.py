@@ -12,7 +12,8 @@ Two ways in, on standard types and on ramps' own action:
 
 - ``~/run``, the ROS 2 action ``ramps_interfaces/action/RunProgram``
   (``interfaces/RunProgram.action``): goal = program and ``args_json``,
-  feedback = state, host, attempt, progress (-1 before any), result = ok,
+  feedback = state, host, attempt, progress (-1 before any; news of it comes
+  with state ``running``), result = ok,
   ``value_json`` or error and error_kind, host, attempts; cancelling the goal
   withdraws the program. The type is built into the environment by
   ``ramps ros --build-interfaces`` (``ramps.ros.build``: rosidl from the
@@ -30,7 +31,8 @@ Names (relative to the node, ``/<robot>/ramps/...`` by default):
 - ``~/cancel`` (std_msgs/String, in): a goal id
 - ``~/feedback`` (std_msgs/String, out): ``{"goal_id", "program", "state",
   "host", "attempt", "progress", "detail"}``; state: accepted, placed,
-  running, replaced, host_failed, progress
+  running, replaced, host_failed (where the program stands: a new progress
+  fraction comes as another ``running`` feedback, ``progress`` updated)
 - ``~/result`` (std_msgs/String, out, latched for 100): ``{"goal_id",
   "program", "ok", "value" | "error" and "error_kind", "host", "attempts"}``;
   error_kind: program, refused, bad_arguments, bad_goal, cancelled, lost,
@@ -44,6 +46,9 @@ Names (relative to the node, ``/<robot>/ramps/...`` by default):
 Parameters: team, robot (the origin node; default any), connect (string
 array of Zenoh endpoints), multicast, secure, credentials,
 diagnostics_period (s), goal_timeout (s, 0 = none), connect_timeout (s).
+Team, connect, multicast, secure and credentials not given as parameters
+come from the environment and config file (``RAMPS_TEAM``, ...), as for
+``ramps.connect``.
 
 Rules: future callbacks (Zenoh threads) only enqueue and trigger a guard
 condition; the executor's thread drains the queue and publishes, so every
@@ -137,9 +142,10 @@ class RosFace(Node):
         if team is None:
             import ramps
 
-            team = ramps.connect(team=p["team"], robot=p["robot"] or None, connect=p["connect"] or None,
-                                 multicast=p["multicast"], secure=p["secure"] or None,
-                                 credentials=p["credentials"] or None, timeout=p["connect_timeout"])
+            # unset parameters are None: RAMPS_TEAM, RAMPS_MULTICAST, RAMPS_CONFIG ... decide, as for any client
+            team = ramps.connect(team=p["team"] or None, robot=p["robot"] or None, connect=p["connect"] or None,
+                                 multicast=p["multicast"], secure=p["secure"], credentials=p["credentials"] or None,
+                                 timeout=p["connect_timeout"])
         self.team = team
         self.origin = team.robot
         self._events: queue.SimpleQueue = queue.SimpleQueue()
@@ -172,10 +178,17 @@ class RosFace(Node):
                if self.action_server else "; no RunProgram action (ramps ros --build-interfaces builds it)"))
 
     def _declare(self) -> dict[str, Any]:
-        defaults = {"team": "lab", "robot": "", "multicast": True, "secure": False, "credentials": "",
+        # ramps' own settings have no default here (a typed parameter without a value reads None), so
+        # what is not given falls to the environment and config file in ramps.connect; the face's own
+        # settings have theirs
+        defaults = {"team": Parameter.Type.STRING, "robot": Parameter.Type.STRING,
+                    "multicast": Parameter.Type.BOOL, "secure": Parameter.Type.BOOL,
+                    "credentials": Parameter.Type.STRING, "connect": Parameter.Type.STRING_ARRAY,
                     "diagnostics_period": 1.0, "goal_timeout": 0.0, "connect_timeout": 10.0}
+        wants = {Parameter.Type.STRING: "a string", Parameter.Type.BOOL: "true or false",
+                 Parameter.Type.STRING_ARRAY: "a list of strings"}
         out: dict[str, Any] = {}
-        for k, v in [*defaults.items(), ("connect", Parameter.Type.STRING_ARRAY)]:
+        for k, v in defaults.items():
             number = isinstance(v, float)  # seconds: 2 is as good as 2.0
             try:
                 out[k] = self.declare_parameter(
@@ -183,7 +196,7 @@ class RosFace(Node):
                 if number:
                     out[k] = float(out[k])
             except Exception as exc:  # rclpy's InvalidParameterTypeException, float("x"): say which and what
-                want = "a list of strings" if k == "connect" else "a number" if number else type(v).__name__
+                want = "a number" if isinstance(v, float) else wants[v]
                 raise ValueError(f"ROS parameter {k!r} must be {want} ({type(exc).__name__}: {exc})") from None
         out["connect"] = list(out["connect"] or [])
         if not out["diagnostics_period"] > 0:
