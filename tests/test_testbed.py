@@ -1,7 +1,11 @@
 """The testbed end to end: namespaces, cgroups, real nodes, faults, cleanup.
 
 Needs root, `ip netns`, `nsenter` and writable cpu cgroups; skipped otherwise.
-One 3-robot testbed (lease 1 s) is shared by the fault tests, in file order.
+One 3-robot testbed (lease 1 s) is shared by the fault tests, in file order:
+they time its robots (a crash, cut or freeze seen within seconds) and measure
+their CPU, so they are marked serial (run alone). The tests of a testbed's
+start and cleanup only check what is left on the host: they run in the
+parallel pass, beside other tests' testbeds.
 """
 
 from __future__ import annotations
@@ -16,7 +20,8 @@ import time
 
 import pytest
 
-pytestmark = [pytest.mark.slow, pytest.mark.serial]  # robots at a fraction of a core, timed: run alone
+pytestmark = pytest.mark.slow
+serial = pytest.mark.serial  # robots at a fraction of a core, timed: run alone
 
 RAMPS = [sys.executable, "-m", "ramps.cli"]
 
@@ -53,13 +58,22 @@ def alive(team) -> set[str]:
 
 
 def others_leftovers(tb: str | None = None) -> list[str]:
-    """What is left on the host that belongs to no live testbed (other than ``tb``)."""
+    """What is left on the host that belongs to no live testbed (other than ``tb``).
+
+    A testbed is live when its state file is there before or after the host
+    is listed: a testbed makes its state file first and removes it last, so
+    one that another process (an xdist worker) starts or takes down while
+    the host is listed is not counted as left over."""
     from ramps.testbed import leftovers
     from ramps.testbed.bed import STATE_DIR
 
-    live = [f.stem.removeprefix("testbed-") for f in STATE_DIR.glob("testbed-*.json")]
-    live = [t for t in live if t != tb]
-    return [x for x in leftovers() if not any(f"-{t}-" in x or x.endswith(f"-{t}") for t in live)]
+    def live() -> set[str]:
+        return {f.stem.removeprefix("testbed-") for f in STATE_DIR.glob("testbed-*.json")}
+
+    before = live()
+    found = leftovers()
+    others = (before | live()) - {tb}
+    return [x for x in found if not any(f"-{t}-" in x or x.endswith(f"-{t}") for t in others)]
 
 
 def our_processes(team: str) -> list[str]:
@@ -104,6 +118,7 @@ def team(bed):
     t.close()
 
 
+@serial
 def test_robots_are_namespaces_cgroups_and_nodes(bed):
     from ramps.testbed import net
 
@@ -119,11 +134,11 @@ def test_robots_are_namespaces_cgroups_and_nodes(bed):
         assert os.readlink(f"/proc/{r['pid']}/ns/net") != os.readlink("/proc/self/ns/net")
 
 
+@serial
 def test_client_in_root_namespace_runs_programs(bed, team):
-    from ramps.testbed.experiments import SETTLE
-
+    # r1 itself has a load report from r2 and r3, so round robin can use them: the bed
+    # was up only once r1's own report said it sees both (Testbed.wait_alive)
     assert wait_until(lambda: alive(team) == {"r1", "r2", "r3"}, 10)
-    time.sleep(SETTLE)  # r1 itself has a load report from r2 and r3: round robin can use them
     futs = [team.options(policy="round_robin").submit("burn", seconds=0.2) for _ in range(6)]
     res = [f.result(30) for f in futs]
     assert all(r["units"] == 0.2 for r in res)
@@ -131,6 +146,7 @@ def test_client_in_root_namespace_runs_programs(bed, team):
     assert team.submit("echo", x=1).result(10) is not None
 
 
+@serial
 def test_crash_removes_liveliness_and_programs_still_complete(bed, team):
     bed.crash("r3")
     assert bed.process_state("r3") == "dead"
@@ -144,6 +160,7 @@ def test_crash_removes_liveliness_and_programs_still_complete(bed, team):
     assert wait_until(lambda: "r3" in alive(team), 10)
 
 
+@serial
 def test_cut_replaces_programs_and_robot_rejoins_after_recover(bed, team):
     futs = [team.options(policy="round_robin").submit("burn", seconds=0.6) for _ in range(6)]
     time.sleep(0.3)  # some are running on r2 now
@@ -160,6 +177,7 @@ def test_cut_replaces_programs_and_robot_rejoins_after_recover(bed, team):
     assert all(x.result(30) for x in [f.submit("burn", seconds=0.05) for _ in range(3)])
 
 
+@serial
 def test_freeze_and_recover(bed, team):
     pid = bed.robots["r3"]["pid"]
     bed.freeze("r3")
@@ -173,6 +191,7 @@ def test_freeze_and_recover(bed, team):
     assert wait_until(lambda: "r3" in alive(team), 10)
 
 
+@serial
 def test_load_runs_inside_the_robot(bed):
     from ramps.testbed.bed import _cgroup_pids
 
@@ -202,6 +221,7 @@ def test_load_runs_inside_the_robot(bed):
     bed.remove_load("r2")
 
 
+@serial
 def test_cli_status_and_errors(bed):
     r = subprocess.run([*RAMPS, "testbed", "status", "--json", "--tb", bed.tb], capture_output=True, text=True,
                        timeout=60)
@@ -217,6 +237,7 @@ def test_cli_status_and_errors(bed):
     assert r.returncode == 2 and "no testbed is up" in r.stderr
 
 
+@serial
 def test_down_leaves_nothing_and_twice_is_harmless(bed, team):
     team.close()  # before its peers go, so closing does not wait for them
     pids = [bed.robots[r]["pid"] for r in bed.names]
@@ -301,10 +322,10 @@ def test_sigterm_of_the_owner_cleans_up(tmp_path):
 
 
 def test_not_root_is_a_clear_error_before_anything(monkeypatch):
-    from ramps.testbed import Testbed, leftovers
+    from ramps.testbed import Testbed
 
-    before = leftovers() if REASON is None else []
+    before = others_leftovers() if REASON is None else []  # other testbeds may come and go meanwhile
     monkeypatch.setattr(os, "geteuid", lambda: 1000)
     with pytest.raises(PermissionError, match="the testbed needs root"):
         Testbed(2)
-    assert (leftovers() if REASON is None else []) == before
+    assert (others_leftovers() if REASON is None else []) == before
