@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import time
 
+import pytest
 from runtime_team import LocalTeam
+
+pytestmark = pytest.mark.slow  # three real nodes, one killed and started again: 10-20 s
 
 
 def test_an_origin_killed_and_restarted_by_its_supervisor_loses_nothing(tmp_path):
