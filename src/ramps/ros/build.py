@@ -7,7 +7,8 @@ interface package (package.xml, CMakeLists.txt, ``action/RunProgram.action``)
 into a temporary directory and runs CMake on it with ``sys.prefix`` as the
 prefix, then installs it there: ``ramps_interfaces`` becomes importable and
 ``ramps ros`` serves ``/<robot>/ramps/run`` as a real ROS 2 action beside its
-topics. Needs ``cmake`` and a C/C++ compiler (about 30 s on two cores).
+topics. Needs ``cmake`` and a C/C++ compiler (about 20 s of CPU; the wall
+time depends on the machine's load: docs/ros2.md).
 
 Two gaps of the wheels are bridged here, without touching them: their ament
 index lacks the ``rosidl_typesupport_c``/``_cpp`` entries that tell CMake

@@ -64,7 +64,8 @@ def register(app: typer.Typer) -> None:
         build_interfaces: bool = typer.Option(False, "--build-interfaces", help="build the RunProgram action type "
                                               "(ramps_interfaces) into this environment and exit; then ramps ros "
                                               "also serves /ROBOT/ramps/run as a ROS 2 action (needs cmake and a "
-                                              "C/C++ compiler, ~30 s)"),
+                                              "C/C++ compiler; about 20 s of CPU: 82 s on a 2-core machine at "
+                                              "load average 50, docs/ros2.md)"),
     ) -> None:
         from ramps.ros import missing
 
