@@ -119,8 +119,7 @@ def run_one(seed: int, policy: str = "ramps", load_changes: bool = False) -> Cam
         if f.kind != "recover" or sc.warmup + f.at + 2 * sc.publisher.period + 1.0 > res.end_time:
             continue
         for o in origins:
-            node = sim.robots[o].node
-            if node is not None and node.view.is_blacklisted(robot):
+            if sim.robots[o].node.view.is_blacklisted(robot):
                 not_rejoined.append(f"{robot}@{o}")
     ok = res.lost == 0 and res.duplicated == 0 and not not_rejoined
     return CampaignRun(seed=seed, robots=len(sc.robots), programs=sum(p.count for p in sc.programs),

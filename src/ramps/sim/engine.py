@@ -37,14 +37,14 @@ import msgspec
 
 from ramps.core.durable import decode_record, encode_record, program_of, record_of
 from ramps.core.cost import NetworkEstimate, nice_weight, program_cores
-from ramps.core.events import (CheckpointSaved, Deliver, Note, PeerAlive, PeerLost, ProgramFinished, PublishReport,
-                               Received, Send, StartProgram, StopProgram, Submit)
-from ramps.core.messages import wire_size
+from ramps.core.events import (Action, CheckpointSaved, Deliver, Note, PeerAlive, PeerLost, ProgramFinished,
+                               PublishReport, Received, Send, StartProgram, StopProgram, Submit)
+from ramps.core.messages import LoadReport, Message, wire_size
 from ramps.core.node import Node, NodeStatistics
 from ramps.core.program import FINAL
 from ramps.core.speed import REMEASURE_PERIOD, SpeedMeasured
 from ramps.sim.cpu import CPU
-from ramps.sim.scenario import FaultSpec, RobotSpec, Scenario
+from ramps.sim.scenario import FaultSpec, ProgramSpec, RobotSpec, Scenario
 
 
 class ProgramRecord(msgspec.Struct, kw_only=True):
@@ -100,11 +100,15 @@ class SimResult(msgspec.Struct, kw_only=True):
 class _Robot:
     __slots__ = ("spec", "node", "cpu", "alive", "net_up", "frozen", "incarnation", "epoch",
                  "wake_at", "wake_token", "done_token", "pub_phase", "remeasure_at", "record")
+    #: the robot's node and CPU, made by each boot (``Simulator._setup`` boots
+    #: every robot before the first event). A crashed robot keeps its last
+    #: ones until it recovers, unused: everything that reaches them checks
+    #: ``alive`` (or the incarnation) first
+    node: Node
+    cpu: CPU
 
     def __init__(self, spec: RobotSpec) -> None:
         self.spec = spec
-        self.node: Node | None = None
-        self.cpu: CPU | None = None
         self.alive = False
         self.net_up = True
         self.frozen = False
@@ -212,7 +216,7 @@ class Simulator:
         self._at(now + r.pub_phase, self._publish, (r, r.incarnation))
 
     # ================================================================ node driving
-    def _apply(self, r: _Robot, actions: list) -> None:
+    def _apply(self, r: _Robot, actions: list[Action]) -> None:
         node = r.node
         for a in actions:
             if isinstance(a, Send):
@@ -250,7 +254,7 @@ class Simulator:
         r.wake_token += 1
         self._at(max(d, self.now), self._wake, (r, r.wake_token))
 
-    def _wake(self, arg) -> None:
+    def _wake(self, arg: tuple[_Robot, int]) -> None:
         r, token = arg
         if token != r.wake_token or not r.alive:
             return
@@ -266,7 +270,7 @@ class Simulator:
         if nxt is not None:
             self._at(nxt[0], self._cpu_done, (r, r.done_token, r.incarnation))
 
-    def _cpu_done(self, arg) -> None:
+    def _cpu_done(self, arg: tuple[_Robot, int, int]) -> None:
         r, token, inc = arg
         if token != r.done_token or inc != r.incarnation or not r.alive:
             return
@@ -280,7 +284,7 @@ class Simulator:
             self._handle(r, ProgramFinished(program_id=pid, attempt=attempt, ok=True,
                                             value=b"", result_size=self._result_size.get(pid, 0)))
 
-    def _save_checkpoint(self, arg) -> None:
+    def _save_checkpoint(self, arg: tuple[_Robot, int, str, int, float, float]) -> None:
         """A running program saves its state (``ramps.checkpoint``)."""
         r, inc, pid, attempt, work, base = arg
         if inc != r.incarnation or not r.alive or (pid, attempt) not in r.cpu.jobs:
@@ -295,7 +299,7 @@ class Simulator:
         self._handle(r, CheckpointSaved(program_id=pid, attempt=attempt, state=bytes(size), fraction=fraction))
 
     # ================================================================ load publisher
-    def _publish(self, arg) -> None:
+    def _publish(self, arg: tuple[_Robot, int]) -> None:
         r, inc = arg
         if inc != r.incarnation or not r.alive:
             return
@@ -317,14 +321,14 @@ class Simulator:
             self._handle(r, Received(sender=r.spec.name, msg=report))
         self._broadcast(r, report)
 
-    def _broadcast(self, r: _Robot, report) -> None:
+    def _broadcast(self, r: _Robot, report: LoadReport) -> None:
         """A load report on its way to every robot that places programs."""
         if not r.net_up:
             return
         delay = self.net.latency + wire_size(report) / self.net.bandwidth
         self._at(self.now + delay, self._deliver_report, (r, r.epoch, report))
 
-    def _deliver_report(self, arg) -> None:
+    def _deliver_report(self, arg: tuple[_Robot, int, LoadReport]) -> None:
         src, epoch, report = arg
         if epoch != src.epoch:
             return
@@ -337,7 +341,7 @@ class Simulator:
             self._handle(dst, Received(sender=src.spec.name, msg=report))
 
     # ================================================================ network
-    def _send(self, src: _Robot, to: str, msg) -> None:
+    def _send(self, src: _Robot, to: str, msg: Message) -> None:
         self.sent += 1
         dst = self.robots.get(to)
         if dst is None or not src.reachable or not dst.reachable:
@@ -358,7 +362,7 @@ class Simulator:
         self._link_free[link] = start + tx
         self._at(start + tx + latency, self._arrive, (src, src.epoch, dst, dst.epoch, msg))
 
-    def _arrive(self, arg) -> None:
+    def _arrive(self, arg: tuple[_Robot, int, _Robot, int, Message]) -> None:
         src, se, dst, de, msg = arg
         if se != src.epoch or de != dst.epoch or not dst.reachable:
             self.dropped += 1
@@ -366,7 +370,7 @@ class Simulator:
         self._handle(dst, Received(sender=src.spec.name, msg=msg))
 
     # ================================================================ workload
-    def _submit(self, entry) -> None:
+    def _submit(self, entry: ProgramSpec) -> None:
         origin = self.robots[entry.origin]
         pid = f"{entry.origin}#{len(self.records) + 1}"
         self.records[pid] = ProgramRecord(program_id=pid, origin=entry.origin, submitted_at=self.now)
@@ -404,7 +408,6 @@ class Simulator:
         if f.kind == "crash" and r.alive:
             r.alive = False
             r.epoch += 1
-            r.cpu = None
             if r.spec.record:  # what the node had written, as bytes, as the runtime's store keeps them
                 r.record = [encode_record(record_of(ap)) for ap in r.node.origin.programs.values()
                             if ap.state not in FINAL]
@@ -421,7 +424,7 @@ class Simulator:
             r.cpu.set_frozen(True, self.now)
             self._liveliness(r, lost=True, delay=self.net.lease)
         elif f.kind == "load":
-            if r.alive and r.cpu is not None and f.background is not None:
+            if r.alive and f.background is not None:
                 r.cpu.set_background(f.background, self.now)
                 r.node.executor.background = float(f.background)
                 self._cpu_changed(r)
@@ -455,7 +458,7 @@ class Simulator:
         if self.net.liveliness:
             self._at(self.now + delay, self._notify_liveliness, (r, lost))
 
-    def _notify_liveliness(self, arg) -> None:
+    def _notify_liveliness(self, arg: tuple[_Robot, bool]) -> None:
         r, lost = arg
         name = r.spec.name
         if lost and r.reachable:
@@ -477,11 +480,11 @@ class Simulator:
         """Where each still-running program's current attempt runs now."""
         counts = {n: 0 for n in self.names}
         for name, r in self.robots.items():
-            if not r.alive or r.cpu is None:
+            if not r.alive:
                 continue
             for pid, attempt in r.cpu.jobs:
                 origin = self.robots.get(self.records[pid].origin)
-                ap = origin.node.origin.programs.get(pid) if origin and origin.node else None
+                ap = origin.node.origin.programs.get(pid) if origin else None
                 if ap is not None and ap.attempt == attempt and ap.host == name:
                     counts[name] += 1
         self.snapshots[f"{label:g}"] = counts
@@ -494,12 +497,13 @@ class Simulator:
                 dup += rec.deliveries - 1
                 if rec.ok:
                     completed += 1
-                    dist[rec.host] = dist.get(rec.host, 0) + 1
+                    if rec.host is not None:  # set with ok, at the delivery
+                        dist[rec.host] = dist.get(rec.host, 0) + 1
                 else:
                     failed += 1
             elif not rec.error:
                 lost += 1
-        stats = [r.node.statistics() for r in self.robots.values() if r.node is not None]
+        stats = [r.node.statistics() for r in self.robots.values()]
         first = self._first_submit if self._first_submit < math.inf else 0.0
         return SimResult(
             scenario=self.sc.name, policy=self.policy, seed=self.seed, robots=self.names,
