@@ -43,7 +43,9 @@ def test_a_program_moves_off_a_robot_that_became_busy_and_resumes_there_from_its
     t.env["RAMPS_CONFIG"] = str(config)
     with t:
         team = t.client("r1")
-        burns = [team.options(work=8.0).submit("burn", units=8.0, checkpoint_every=0.25) for _ in range(2)]
+        # 4 units: with r1 busy, a move saves far more than relocate_min_gain (5 s); a burn
+        # reports progress at its checkpoints only (1/16 of it), so above 0.02 it has saved its place
+        burns = [team.options(work=4.0).submit("burn", units=4.0, checkpoint_every=0.25) for _ in range(2)]
         wait_for(lambda: sorted(f.host or "" for f in burns) == ["r1", "r2"] and all((f.progress or 0) > 0.02
                                                                                   for f in burns),
                  30, f"one burn running on each robot ({[(f.host, f.progress) for f in burns]}; {t.logs()})")
