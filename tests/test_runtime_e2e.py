@@ -244,7 +244,13 @@ def test_cli_submit_and_status(team3):
 
     robots = wait_for(measured, 30, "every robot's status listing its links to both teammates")
     assert all(link[1] is not None and 0 <= link[1] < 1.0 for r in robots.values() for link in r["links"])
-    assert "where" in {w[0] for w in robots["r1"]["learned"]}, robots["r1"]
+    # "where" returns at once: too short to learn from (MIN_RUN_WORK); a spin of 0.3 s is not
+    assert "where" not in {w[0] for w in robots["r1"]["learned"]}, robots["r1"]
+    spin = team3.cli("submit", "spin", "--arg", "seconds=0.3", "--team", team3.team, "--robot", "r1", *eps,
+                     "--no-multicast", "--json")
+    assert spin.returncode == 0, spin.stderr
+    robots = wait_for(lambda: (r := measured()) and "spin" in {w[0] for w in r["r1"]["learned"]} and r, 30,
+                      "r1's status listing the work it learned of spin")
     table = team3.cli("status", "--team", team3.team, *eps, "--no-multicast", "--wait", "1.5").stdout
     assert "links each robot measured" in table and "work learned" in table
 

@@ -118,6 +118,9 @@ class ClientAnswers:
         pid = f"{self.robot}#{self.incarnation % 100000}-{self._seq}"
         self._requests[rkey] = pid
         self._clients[pid] = rkey
+        if len(m.args) > self.s.max_args_bytes:  # before anything is decoded
+            return self._tell_client(pid, ok=False, kind="bad_arguments",
+                                     error=f"arguments are {len(m.args)} bytes; the limit is {self.s.max_args_bytes}")
         try:
             spec = self.registry.get(m.program)
             kwargs = decode_args(m.args)
@@ -131,9 +134,6 @@ class ClientAnswers:
         if m.policy and m.policy not in POLICIES:
             return self._tell_client(pid, ok=False, kind="bad_arguments",
                                      error=f"unknown policy {m.policy!r}; choose one of {', '.join(POLICIES)}")
-        if len(m.args) > self.s.max_args_bytes:
-            return self._tell_client(pid, ok=False, kind="bad_arguments",
-                                     error=f"arguments are {len(m.args)} bytes; the limit is {self.s.max_args_bytes}")
         return self.node.handle(Submit(
             program_id=pid, program=m.program, args=m.args, payload_size=len(m.args),
             work=work, result_size=m.result_size or spec.result,
