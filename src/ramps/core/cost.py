@@ -113,11 +113,26 @@ def shared_finish_time(work: float, others: list[float], cores: float, speed: fl
     of them ends (``program_share``). With no others this is
     ``work / (speed * program_share(cores, 1, background, weight))``; with
     others of the new program's own size, the count-based estimate."""
-    left = sorted(x for x in others if x < work)
+    left = [x for x in others if x < work]
+    left.sort()
     k = len(others) + 1
     t = done = 0.0
+    # program_share(cores, k, background, weight) inlined (the same operations,
+    # so the same floats): this loop runs once per program on every busy host
+    # an origin considers, for every placement
+    top = max(weight, 1.0 if background > 0 else 0.0)
     for x in left:
-        t += (x - done) / (speed * program_share(cores, k, background, weight))
+        if k + background <= cores:
+            share = 1.0
+        else:
+            per_weight = cores / (background + weight * k)
+            if top * per_weight <= 1.0:
+                share = weight * per_weight
+            elif weight < 1.0:
+                share = (cores - background) / k
+            else:
+                share = 1.0
+        t += (x - done) / (speed * share)
         done = x
         k -= 1
     return t + (work - done) / (speed * program_share(cores, k, background, weight))

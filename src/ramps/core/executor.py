@@ -27,6 +27,7 @@ puts them in every report so origins can tell what a report includes.
 
 from __future__ import annotations
 
+import heapq
 import math
 
 from collections.abc import Callable
@@ -142,7 +143,13 @@ class Executor:
         """Work units each running program has left by the estimate above,
         smallest first, at most MAX_LISTED (what load reports carry)."""
         self._advance(now)
-        return sorted(max(0.0, job.work - job.done) for job in self.running.values())[:MAX_LISTED]
+        # x if x > 0.0 else 0.0 is max(0.0, x) without a call per job; a
+        # robot running more than MAX_LISTED lists the smallest, without sorting the rest
+        left = [x if (x := job.work - job.done) > 0.0 else 0.0 for job in self.running.values()]
+        if len(left) > MAX_LISTED:
+            return heapq.nsmallest(MAX_LISTED, left)
+        left.sort()
+        return left
 
     def on_offload(self, req: OffloadRequest, now: float, out: list[Action],
                    report_now: Callable[[], LoadReport] | None = None) -> None:

@@ -19,17 +19,38 @@ I/O; ``now`` is passed in.
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import math
 
 from ramps.core.cost import program_cores, program_share
 from ramps.core.messages import MAX_CORES, MAX_LISTED, MAX_LOAD, MAX_SPEED, MAX_WEIGHT, MIN_SPEED, MIN_WEIGHT, LoadReport
+
+#: the speeds ``report_problem``'s quick check passes: within both bounds it checks
+_SPEED_LOW, _SPEED_TOP = max(MIN_SPEED, 0.0), min(MAX_SPEED, MAX_LOAD)
 
 
 def report_problem(report: LoadReport) -> str | None:
     """Why a teammate's report cannot be used, or None if it can. A report
     with zero cores or speed would make every cost estimate divide by zero,
     and so would a tiny speed over a huge run queue (their product underflows
-    to 0.0): the bounds are those the wire schema declares."""
+    to 0.0): the bounds are those the wire schema declares.
+
+    Every report a node hears or makes passes here: a sound one in a single
+    chain of comparisons (a NaN or an infinity fails ``0 <= x <= MAX_LOAD``
+    as surely as ``math.isfinite``), a faulty one through ``_problem`` for
+    the words."""
+    if (1 <= report.cores <= MAX_CORES and _SPEED_LOW <= report.speed <= _SPEED_TOP
+            and 0 <= report.cpu_busy <= MAX_LOAD and 0 <= report.runnable <= MAX_LOAD
+            and 0 <= report.ramps_avg <= MAX_LOAD and 0 <= report.window <= MAX_LOAD
+            and MIN_WEIGHT <= report.program_weight <= MAX_WEIGHT
+            and report.ramps_running >= 0 and report.accepted_total >= 0 and report.finished_total >= 0):
+        return None
+    return _problem(report)
+
+
+def _problem(report: LoadReport) -> str | None:
+    """``report_problem``'s words for a report that failed its quick check."""
     if not 1 <= report.cores <= MAX_CORES:
         return f"load report from {report.robot!r} claims {report.cores} cores"
     for name in ("speed", "cpu_busy", "runnable", "ramps_avg", "window"):
@@ -53,8 +74,27 @@ class _Booking:
         self.finish_seq: int | None = None
 
 
+#: what a booking is to the counts, given a report's totals (``_kind``)
+_KEPT, _UNSEEN_ACCEPT, _UNSEEN_FINISH, _GONE = 0, 1, 2, 3
+
+
+def _kind(b: _Booking, acc_total: int, fin_total: int) -> int:
+    """How a report with these totals sees booking ``b``: not started in it
+    (and not finished: it counts as running), started and finished but the
+    finish not in it (it counts as ended), started and finished in it (the
+    booking is done with), or anything else (the report says it all)."""
+    if b.accept_seq is None or b.accept_seq > acc_total:
+        # not in the report yet; if it already finished it runs no more
+        # (kept, because a report made before the finish may come late)
+        return _UNSEEN_ACCEPT if b.finish_seq is None else _KEPT
+    if b.finish_seq is None:
+        return _KEPT
+    return _UNSEEN_FINISH if b.finish_seq > fin_total else _GONE
+
+
 class _Robot:
-    __slots__ = ("report", "received_at", "bookings", "unseen_accept", "unseen_finish", "paper_booked", "lost")
+    __slots__ = ("report", "received_at", "bookings", "unseen_accept", "unseen_finish", "paper_booked", "lost",
+                 "counted", "waiting_accept", "waiting_finish", "stale")
 
     def __init__(self) -> None:
         self.report: LoadReport | None = None
@@ -67,6 +107,16 @@ class _Robot:
         self.paper_booked = 0
         #: liveliness says the robot is gone
         self.lost = False
+        #: the (accepted_total, finished_total) the counts above are of
+        self.counted = (-1, -1)
+        #: bookings whose acceptance / finish a report has yet to show, by
+        #: sequence number: (seq, tie, key, booking), pushed when the number
+        #: is set, possibly outdated (the booking went or changed since:
+        #: skipped when taken out)
+        self.waiting_accept: list[tuple[int, int, tuple[str, int], _Booking]] = []
+        self.waiting_finish: list[tuple[int, int, tuple[str, int], _Booking]] = []
+        #: a booking was made again under a key it had: counted afresh at the next change
+        self.stale = False
 
 
 class LoadView:
@@ -85,6 +135,8 @@ class LoadView:
         #: robot -> how much faster than it reports it runs programs (set by
         #: ``Node`` from ``HostSpeeds``; absent = 1)
         self.speed_factor: dict[str, float] = {}
+        #: tie-breaks of the bookings waiting for a report (``_Robot.waiting_accept``)
+        self._ties = itertools.count()
 
     # ------------------------------------------------------------ reports
     def on_report(self, report: LoadReport, now: float, *, fresh: bool = False) -> bool:
@@ -97,6 +149,12 @@ class LoadView:
         if report_problem(report) is not None:
             self.bad_reports += 1
             return False
+        return self.on_checked_report(report, now, fresh=fresh)
+
+    def on_checked_report(self, report: LoadReport, now: float, *, fresh: bool = False) -> bool:
+        """``on_report`` for a report its caller has just found sound
+        (``report_problem`` returned None): the same, without checking it
+        again."""
         rob = self._robots.get(report.robot)
         if rob is None:
             rob = self._robots[report.robot] = _Robot()
@@ -108,6 +166,7 @@ class LoadView:
         if old is not None and old.incarnation != report.incarnation:
             # the robot restarted: whatever we booked there died with it
             rob.bookings.clear()
+            rob.stale = True
         rob.report = report
         rob.received_at = now
         rob.paper_booked = 0
@@ -115,31 +174,83 @@ class LoadView:
         self.reports_received += 1
         if report.robot != self.me:
             self.last_remote_report = now
-        self._recount(rob)
+        self._count_report(rob)
         bl = self._blacklist.get(report.robot)
         if bl is not None and (report.incarnation != bl[0] or report.seq > bl[1]):
             del self._blacklist[report.robot]
             return True
         return False
 
+    # Counting bookings. ``unseen_accept``/``unseen_finish`` are always what
+    # ``_recount`` (every booking through ``_kind``) would make them, and a
+    # booking the current report shows started and finished is dropped. They
+    # change only where a booking changes (``accepted``, ``released``) or
+    # where a report's totals pass a booking's sequence numbers, so only those
+    # bookings are looked at: a report or a result costs O(log n) per
+    # booking it settles, not O(n) for every booking on that host.
     def _recount(self, rob: _Robot) -> None:
+        """Count every booking afresh (and index those a report has yet to show)."""
         rep = rob.report
         acc_total = rep.accepted_total if rep else -1
         fin_total = rep.finished_total if rep else -1
-        unseen_accept = unseen_finish = 0
+        counts = [0, 0, 0, 0]
+        waiting_accept: list[tuple[int, int, tuple[str, int], _Booking]] = []
+        waiting_finish: list[tuple[int, int, tuple[str, int], _Booking]] = []
         for key, b in list(rob.bookings.items()):
-            if b.accept_seq is None or b.accept_seq > acc_total:
-                # not in the report yet; if it already finished it runs no more
-                # (kept, because a report made before the finish may come late)
-                if b.finish_seq is None:
-                    unseen_accept += 1
-            elif b.finish_seq is not None:
-                if b.finish_seq > fin_total:
-                    unseen_finish += 1
-                else:
-                    del rob.bookings[key]  # report shows it started and ended
-        rob.unseen_accept = unseen_accept
-        rob.unseen_finish = unseen_finish
+            kind = _kind(b, acc_total, fin_total)
+            counts[kind] += 1
+            if kind == _GONE:
+                del rob.bookings[key]  # report shows it started and ended
+                continue
+            if b.accept_seq is not None and b.accept_seq > acc_total:
+                waiting_accept.append((b.accept_seq, next(self._ties), key, b))
+            if b.finish_seq is not None and b.finish_seq > fin_total:
+                waiting_finish.append((b.finish_seq, next(self._ties), key, b))
+        heapq.heapify(waiting_accept)
+        heapq.heapify(waiting_finish)
+        rob.waiting_accept, rob.waiting_finish = waiting_accept, waiting_finish
+        rob.unseen_accept = counts[_UNSEEN_ACCEPT]
+        rob.unseen_finish = counts[_UNSEEN_FINISH]
+        rob.counted = (acc_total, fin_total)
+        rob.stale = False
+
+    def _count_report(self, rob: _Robot) -> None:
+        """``rob`` has a new report: the bookings whose sequence numbers its
+        totals passed change how they count (a report whose totals went
+        back, which no honest host sends, is counted afresh)."""
+        rep = rob.report
+        assert rep is not None
+        acc_total, fin_total = rep.accepted_total, rep.finished_total
+        was_acc, was_fin = rob.counted
+        if rob.stale or acc_total < was_acc or fin_total < was_fin:
+            self._recount(rob)
+            return
+        passed: dict[int, tuple[tuple[str, int], _Booking]] = {}
+        for heap, total, field in ((rob.waiting_accept, acc_total, "accept_seq"),
+                                   (rob.waiting_finish, fin_total, "finish_seq")):
+            while heap and heap[0][0] <= total:
+                seq, _, key, b = heapq.heappop(heap)
+                if getattr(b, field) == seq and rob.bookings.get(key) is b:
+                    passed[id(b)] = (key, b)
+        rob.counted = (acc_total, fin_total)
+        for key, b in passed.values():
+            before = _kind(b, was_acc, was_fin)
+            after = _kind(b, acc_total, fin_total)
+            self._move(rob, key, before, after)
+
+    def _move(self, rob: _Robot, key: tuple[str, int], before: int, after: int) -> None:
+        """The booking ``key`` counted as ``before`` and counts as ``after``
+        now; one the report shows ended is dropped."""
+        if before == _UNSEEN_ACCEPT:
+            rob.unseen_accept -= 1
+        elif before == _UNSEEN_FINISH:
+            rob.unseen_finish -= 1
+        if after == _UNSEEN_ACCEPT:
+            rob.unseen_accept += 1
+        elif after == _UNSEEN_FINISH:
+            rob.unseen_finish += 1
+        elif after == _GONE:
+            del rob.bookings[key]
 
     def report_of(self, robot: str) -> LoadReport | None:
         rob = self._robots.get(robot)
@@ -159,29 +270,51 @@ class LoadView:
         rob = self._robots.get(robot)
         if rob is None:
             rob = self._robots[robot] = _Robot()
-        rob.bookings[(program_id, attempt)] = _Booking()
+        key = (program_id, attempt)
+        if key in rob.bookings:
+            rob.stale = True  # the one it replaces still counts, until the next change counts afresh
+        rob.bookings[key] = _Booking()
         rob.unseen_accept += 1
         rob.paper_booked += 1
 
     def accepted(self, robot: str, program_id: str, attempt: int, accept_seq: int) -> None:
         rob = self._robots.get(robot)
-        b = rob.bookings.get((program_id, attempt)) if rob else None
+        key = (program_id, attempt)
+        b = rob.bookings.get(key) if rob else None
         if rob is None or b is None or b.accept_seq is not None:
             return
+        if rob.stale:
+            b.accept_seq = accept_seq
+            self._recount(rob)
+            return
+        before = _kind(b, *rob.counted)
         b.accept_seq = accept_seq
-        self._recount(rob)
+        if accept_seq > rob.counted[0]:
+            heapq.heappush(rob.waiting_accept, (accept_seq, next(self._ties), key, b))
+        self._move(rob, key, before, _kind(b, *rob.counted))
 
     def released(self, robot: str, program_id: str, attempt: int, finish_seq: int | None) -> None:
         """The program ended (``finish_seq`` known) or left the host (None)."""
         rob = self._robots.get(robot)
-        b = rob.bookings.get((program_id, attempt)) if rob else None
+        key = (program_id, attempt)
+        b = rob.bookings.get(key) if rob else None
         if rob is None or b is None:
             return
+        before = _kind(b, *rob.counted)
         if finish_seq is None or b.accept_seq is None:
-            del rob.bookings[(program_id, attempt)]
-        else:
-            b.finish_seq = finish_seq
-        self._recount(rob)
+            del rob.bookings[key]
+            if rob.stale:
+                self._recount(rob)
+            else:
+                self._move(rob, key, before, _KEPT)
+            return
+        b.finish_seq = finish_seq
+        if rob.stale:
+            self._recount(rob)
+            return
+        if finish_seq > rob.counted[1]:
+            heapq.heappush(rob.waiting_finish, (finish_seq, next(self._ties), key, b))
+        self._move(rob, key, before, _kind(b, *rob.counted))
 
     # ------------------------------------------------------------ estimates
     def ramps_programs(self, robot: str) -> float:
@@ -208,17 +341,19 @@ class LoadView:
             return None  # more than a report lists: the count-based estimate stands
         rob = self._robots.get(robot)
         rep = rob.report if rob else None
-        left = list(rep.remaining) if rep is not None else []
-        if left and rob is not None and rep is not None:
-            age = max(0.0, now - rob.received_at)
-            background = max(0.0, rep.runnable - rep.ramps_avg)
-            speed = self.speed_of(robot, rep.speed)
-            step = age * speed * program_share(rep.cores, len(left), background, rep.program_weight)
-            left = [x - step for x in left]
+        if rob is None or rep is None or not rep.remaining:
+            return [unknown] * programs
+        listed = rep.remaining
+        age = max(0.0, now - rob.received_at)
+        background = max(0.0, rep.runnable - rep.ramps_avg)
+        speed = self.speed_of(robot, rep.speed)
+        step = age * speed * program_share(rep.cores, len(listed), background, rep.program_weight)
+        left = [x - step for x in listed]
         left.sort()
         if len(left) > programs:
-            left = left[len(left) - programs:]
-        return [max(0.0, x) for x in left] + [unknown] * (programs - len(left))
+            del left[:len(left) - programs]
+        # x if x > 0.0 else 0.0 is max(0.0, x), NaN and -0.0 included, without a call per item
+        return [x if x > 0.0 else 0.0 for x in left] + [unknown] * (programs - len(left))
 
     def short_of_memory(self, memory: int) -> frozenset[str]:
         """Robots whose last report shows less than ``memory`` bytes free once

@@ -189,9 +189,11 @@ class Node:
         return self._prompt_report(out, now)
 
     def next_deadline(self) -> float | None:
-        times = [t for t in (self.origin.next_deadline(), self.executor.next_deadline(), self._prompt_due,
-                             self._probe_due) if t is not None]
-        return min(times) if times else None
+        first = self.origin.next_deadline()  # the driver asks twice a round: no list built
+        for t in (self.executor.next_deadline(), self._prompt_due, self._probe_due):
+            if t is not None and (first is None or t < first):
+                first = t
+        return first
 
     def _prompt_report(self, out: list[Action], now: float) -> list[Action]:
         """Publish a report of this instant when the programs running here
@@ -282,7 +284,7 @@ class Node:
                 if self.host_speeds is not None and self.host_speeds.on_reported_speed(msg.robot, msg.speed):
                     out.append(Note(what="speed", robot=msg.robot, detail=f"measured itself again ({msg.speed:.4g}): "
                                                                           f"its results' correction starts over"))
-                if self.view.on_report(msg, now):
+                if self.view.on_checked_report(msg, now):
                     out.append(Note(what="unblacklisted", robot=msg.robot))
         elif isinstance(msg, OffloadRequest):
             self.executor.on_offload(msg, now, out, report_now=self.current_report)

@@ -1,0 +1,207 @@
+"""The per-program path kept cheap without changing a decision.
+
+The load server counts its bookings incrementally, the cost model inlines
+processor sharing, the executor lists the work left without a full sort,
+and ``report_problem`` passes a sound report in one chain of comparisons.
+Each must give exactly what the straightforward code gives (the same
+floats, the same counts, the same words), or the simulator's fixed-seed
+sweeps would change: here each is checked against that code, kept below as
+the reference, over generated inputs.
+"""
+
+from __future__ import annotations
+
+import math
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from corehelpers import report
+
+from ramps.core.config import RampsConfig
+from ramps.core.cost import program_share, shared_finish_time
+from ramps.core.executor import Executor, _Job
+from ramps.core.loadview import LoadView, report_problem
+from ramps.core.messages import MAX_CORES, MAX_LISTED, MAX_LOAD, MAX_SPEED, MAX_WEIGHT, MIN_SPEED, MIN_WEIGHT
+
+
+# ---------------------------------------------------------------- references (the straightforward code)
+class ReferenceBookings:
+    """One host's bookings as the load server kept them: every change
+    followed by a full recount (a booking is [accept_seq, finish_seq])."""
+
+    def __init__(self) -> None:
+        self.bookings: dict = {}
+        self.totals = (-1, -1)
+        self.incarnation: int | None = None
+        self.unseen_accept = self.unseen_finish = 0
+
+    def recount(self) -> None:
+        acc_total, fin_total = self.totals
+        self.unseen_accept = self.unseen_finish = 0
+        for key, (a, f) in list(self.bookings.items()):
+            if a is None or a > acc_total:
+                if f is None:
+                    self.unseen_accept += 1
+            elif f is not None:
+                if f > fin_total:
+                    self.unseen_finish += 1
+                else:
+                    del self.bookings[key]
+
+    def book(self, key) -> None:
+        self.bookings[key] = [None, None]
+        self.unseen_accept += 1
+
+    def accepted(self, key, seq) -> None:
+        b = self.bookings.get(key)
+        if b is None or b[0] is not None:
+            return
+        b[0] = seq
+        self.recount()
+
+    def released(self, key, seq) -> None:
+        b = self.bookings.get(key)
+        if b is None:
+            return
+        if seq is None or b[0] is None:
+            del self.bookings[key]
+        else:
+            b[1] = seq
+        self.recount()
+
+    def report(self, incarnation, acc_total, fin_total) -> None:
+        if self.incarnation is not None and incarnation != self.incarnation:
+            self.bookings.clear()
+        self.incarnation, self.totals = incarnation, (acc_total, fin_total)
+        self.recount()
+
+
+def reference_finish_time(work, others, cores, speed, background=0.0, weight=1.0) -> float:
+    left = sorted(x for x in others if x < work)
+    k = len(others) + 1
+    t = done = 0.0
+    for x in left:
+        t += (x - done) / (speed * program_share(cores, k, background, weight))
+        done = x
+        k -= 1
+    return t + (work - done) / (speed * program_share(cores, k, background, weight))
+
+
+def reference_problem(rep) -> str | None:
+    if not 1 <= rep.cores <= MAX_CORES:
+        return f"load report from {rep.robot!r} claims {rep.cores} cores"
+    for name in ("speed", "cpu_busy", "runnable", "ramps_avg", "window"):
+        value = getattr(rep, name)
+        if not math.isfinite(value) or not 0 <= value <= MAX_LOAD:
+            return f"load report from {rep.robot!r} has {name}={value!r}"
+    if not MIN_SPEED <= rep.speed <= MAX_SPEED:
+        return f"load report from {rep.robot!r} claims speed {rep.speed!r}"
+    if not MIN_WEIGHT <= rep.program_weight <= MAX_WEIGHT:
+        return f"load report from {rep.robot!r} claims program weight {rep.program_weight!r}"
+    if rep.ramps_running < 0 or rep.accepted_total < 0 or rep.finished_total < 0:
+        return f"load report from {rep.robot!r} has negative counters"
+    return None
+
+
+# ---------------------------------------------------------------- the load server's bookings
+ops = st.lists(st.tuples(st.sampled_from(["book", "accept", "release", "report", "restart"]),
+                         st.integers(0, 7), st.integers(0, 40), st.booleans()), max_size=80)
+
+
+@settings(max_examples=250, deadline=None)
+@given(ops)
+def test_bookings_count_as_a_full_recount_would(steps):
+    """Bookings made (twice under one key too), accepted, released, and
+    reports whose totals pass them (in order, going back, from a new
+    incarnation): after every step the counts and the bookings kept are
+    those of a full recount after every change."""
+    view = LoadView("o", cores=4, speed=1.0)
+    view.book("h", "first", 1)  # the host is known to the view from the start
+    ref = ReferenceBookings()
+    ref.book(("first", 1))
+    seq = incarnation = acc = fin = 0
+    for op, n, value, flag in steps:
+        key = (f"p{n}", 1)
+        if op == "book":
+            view.book("h", *key)
+            ref.book(key)
+        elif op == "accept":
+            view.accepted("h", *key, value)
+            ref.accepted(key, value)
+        elif op == "release":
+            view.released("h", *key, None if flag else value)
+            ref.released(key, None if flag else value)
+        else:
+            if op == "restart":
+                incarnation += 1
+            seq += 1
+            acc, fin = (value, value // 2) if flag else (acc + value % 5, fin + value % 3)
+            view.on_report(report("h", seq=seq, incarnation=incarnation, accepted_total=acc,
+                                  finished_total=fin, ramps_running=3), 1.0)
+            ref.report(incarnation, acc, fin)
+        rob = view._robots["h"]
+        assert (rob.unseen_accept, rob.unseen_finish) == (ref.unseen_accept, ref.unseen_finish)
+        assert {k: [b.accept_seq, b.finish_seq] for k, b in rob.bookings.items()} == ref.bookings
+
+
+# ---------------------------------------------------------------- the cost model and the work left
+floats = st.floats(0.0, 100.0, allow_nan=False)
+
+
+@settings(max_examples=250, deadline=None)
+@given(floats.filter(lambda w: w > 0), st.lists(floats, max_size=40), st.integers(1, 16),
+       st.floats(0.01, 10.0), st.sampled_from([0.0, 0.5, 1.0, 2.5, 7.0]),
+       st.sampled_from([1.0, 110 / 1024, 0.5, 3.0]))
+def test_shared_finish_time_is_the_same_float(work, others, cores, speed, background, weight):
+    assert shared_finish_time(work, others, cores, speed, background, weight) == \
+        reference_finish_time(work, others, cores, speed, background, weight)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(floats, floats), max_size=MAX_LISTED + 40))
+def test_remaining_lists_the_smallest_as_a_sort_would(jobs):
+    ex = Executor("h", config=RampsConfig())
+    for i, (work, done) in enumerate(jobs):
+        job = ex.running[(f"p{i}", 1)] = _Job("o", "noop", 0.0, work)
+        job.done = done
+    want = sorted(max(0.0, w - d) for w, d in jobs)[:MAX_LISTED]
+    assert ex.remaining(0.0) == want
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(floats, max_size=30), st.integers(0, 40), st.floats(0.0, 5.0), floats)
+def test_remaining_work_is_the_same(listed, programs, age, unknown):
+    view = LoadView("o", cores=4, speed=1.0)
+    view.on_report(report("h", cores=2, runnable=1.5, ramps_avg=1.0, remaining=listed), 1.0)
+    left = list(listed)
+    if left:
+        step = ((1.0 + age) - 1.0) * 1.0 * program_share(2, len(left), 0.5, 1.0)
+        left = [x - step for x in left]
+    left.sort()
+    if len(left) > programs:
+        left = left[len(left) - programs:]
+    want = [max(0.0, x) for x in left] + [unknown] * (programs - len(left))
+    assert view.remaining_work("h", 1.0 + age, programs, unknown) == want
+
+
+# ---------------------------------------------------------------- report_problem
+odd = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-5, 10**10))
+
+
+@settings(max_examples=250, deadline=None)
+@given(st.fixed_dictionaries({}, optional={
+    "cores": st.integers(-2, MAX_CORES + 2), "speed": odd, "cpu_busy": odd, "runnable": odd, "ramps_avg": odd,
+    "window": odd, "program_weight": odd, "ramps_running": st.integers(-2, 5),
+    "accepted_total": st.integers(-2, 5), "finished_total": st.integers(-2, 5)}))
+def test_report_problem_says_what_it_said(fields):
+    rep = report("h", **fields)
+    assert report_problem(rep) == reference_problem(rep)
+
+
+def test_report_problem_at_the_bounds():
+    for fields in ({"speed": MIN_SPEED}, {"speed": MAX_SPEED}, {"runnable": MAX_LOAD}, {"cores": MAX_CORES},
+                   {"program_weight": MIN_WEIGHT}, {"program_weight": MAX_WEIGHT}, {"speed": MIN_SPEED / 2},
+                   {"cpu_busy": -0.0}, {"window": math.nextafter(MAX_LOAD, math.inf)}):
+        rep = report("h", **fields)
+        assert report_problem(rep) == reference_problem(rep), fields
