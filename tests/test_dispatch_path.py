@@ -6,23 +6,31 @@ and ``report_problem`` passes a sound report in one chain of comparisons.
 Each must give exactly what the straightforward code gives (the same
 floats, the same counts, the same words), or the simulator's fixed-seed
 sweeps would change: here each is checked against that code, kept below as
-the reference, over generated inputs.
+the reference, over generated inputs. The driver publishes one report of
+the instant per batch of the core's actions (the newest).
 """
 
 from __future__ import annotations
 
 import math
+import random
 
+import msgspec
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from corehelpers import report
 
+import ramps.runtime.node as rn
 from ramps.core.config import RampsConfig
 from ramps.core.cost import program_share, shared_finish_time
+from ramps.core.events import Note, PublishReport
 from ramps.core.executor import Executor, _Job
 from ramps.core.loadview import LoadView, report_problem
-from ramps.core.messages import MAX_CORES, MAX_LISTED, MAX_LOAD, MAX_SPEED, MAX_WEIGHT, MIN_SPEED, MIN_WEIGHT
+from ramps.core.messages import MAX_CORES, MAX_LISTED, MAX_LOAD, MAX_SPEED, MAX_WEIGHT, MIN_SPEED, MIN_WEIGHT, decode
+from ramps.core.node import Node
+from ramps.runtime.settings import load_settings
+from ramps.testing.memory import FakeClock
 
 
 # ---------------------------------------------------------------- references (the straightforward code)
@@ -205,3 +213,29 @@ def test_report_problem_at_the_bounds():
                    {"cpu_busy": -0.0}, {"window": math.nextafter(MAX_LOAD, math.inf)}):
         rep = report("h", **fields)
         assert report_problem(rep) == reference_problem(rep), fields
+
+
+# ---------------------------------------------------------------- the driver
+class _Pub:
+    def __init__(self) -> None:
+        self.sent: list[bytes] = []
+
+    def put(self, data: bytes) -> None:
+        self.sent.append(data)
+
+
+def test_one_report_of_the_instant_goes_out_per_batch_the_newest():
+    """Reports of the instant the core asks for in one batch of actions: the
+    newest is published, once, after the batch (each says all the earlier
+    ones did: the executor's counters only grow)."""
+    rt = rn.NodeRuntime(load_settings(flags={"robot": "r1", "team": "t"}, environ={}), clock=FakeClock())
+    rt.node = Node("r1", cores=2, speed=1.0, rng=random.Random(0))
+    rt._load_pub = pub = _Pub()
+    first, second = (report("r1", seq=s, accepted_total=s) for s in (1, 2))
+    rt._apply([PublishReport(report=first), Note(what="placed", robot="r2"), PublishReport(report=second)])
+    assert len(pub.sent) == 1
+    sent = decode(pub.sent[0]).msg
+    assert sent.seq == 2 and sent.accepted_total == 2
+    assert msgspec.structs.replace(sent, running=[], blacklisted=[]) == second
+    rt._apply([Note(what="placed", robot="r2")])
+    assert len(pub.sent) == 1  # nothing changed: nothing published

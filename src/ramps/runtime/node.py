@@ -139,6 +139,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._progress: dict[str, tuple[float, str]] = {}
         self._seq = 0
         self._pubs: dict[str, Any] = {}
+        #: publishers of clients' advisory updates (never blocking), apart from their outcomes' (blocking)
+        self._update_pubs: dict[str, Any] = {}
         #: large messages to teammates: sent whole, in order, off the driver's thread
         self._bulk = OrderedSender(self._bulk_put, name=self.robot)
         self._stopped = threading.Event()

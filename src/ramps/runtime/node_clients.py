@@ -236,6 +236,6 @@ class ClientAnswers:
         data = encode(self.robot, ProgramUpdate(request_id=target[1], state=state, host=host, attempt=attempt,
                                                 fraction=fraction, detail=detail))
         try:  # advisory: dropped rather than let a stalled client stall this driver (outcomes block, see _put)
-            self.transport.put(keys.client(self.team, target[0]), data, block=False)
+            self._publisher(keys.client(self.team, target[0]), False, self._update_pubs).put(data)
         except Exception as exc:
             log.debug("node %s could not send a program update: %s", self.robot, exc)

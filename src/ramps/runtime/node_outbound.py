@@ -7,7 +7,12 @@ a thread of its own destination, ``ramps.runtime.bulk``), ``StartProgram``/``Sto
 worker pool, ``Deliver`` becomes the client's outcome
 (``ramps.runtime.node_clients``), ``Note`` a client update, a trace line and
 a log line; programs it hosts for other origins are traced as this robot
-runs them (``_trace_hosted``). ``_publish`` builds the periodic load report from the sampler
+runs them (``_trace_hosted``). ``PublishReport`` (a report of the instant:
+the programs running here changed) is published once per batch of actions,
+the newest after the batch's messages: in a burst each change made one, and
+every teammate and client decoded reports that the next one superseded at
+once (every report carries the executor's counters, so a later one says all
+an earlier one did). ``_publish`` builds the periodic load report from the sampler
 and the core (what it runs, its links, what it learned) and publishes it;
 ``_shutdown`` hands running programs back and cancels this origin's.
 """
@@ -20,6 +25,8 @@ import math
 import os
 import threading
 import time
+from itertools import islice
+from typing import Any
 
 import msgspec
 
@@ -65,6 +72,7 @@ class Outbound:
         if self.store is not None:  # written before anything of it is sent
             self._persist(actions)
         mnow = self.clock.monotonic() - self._stall_offset  # the core's clock, for metrics' latencies
+        prompt = None  # the newest report of the instant: the only one of a batch that goes out
         for a in actions:
             if self.metrics is not None:
                 self.metrics.on_action(a, self.node, mnow)
@@ -88,7 +96,7 @@ class Outbound:
                 self._tell_client(t.program_id, ok=t.ok, value=t.value, error=t.error, kind=t.error_kind, host=t.host,
                                   attempts=t.attempts, moves=t.moves, resumed_from=t.resumed_from)
             elif isinstance(a, PublishReport):
-                self._publish_prompt(a.report)
+                prompt = a.report
             elif isinstance(a, Progress):
                 self._progress[a.program_id] = (a.fraction, a.detail)
                 self._update_client(a.program_id, "progress", a.host, a.attempt)
@@ -105,6 +113,8 @@ class Outbound:
                     self._warn_misdeclared(a)
                 if self.on_note is not None:
                     self.on_note(a)
+        if prompt is not None:
+            self._publish_prompt(prompt)
 
     def _warn_misdeclared(self, note: Note) -> None:
         """A call took far more or less than its program declares: said once
@@ -181,16 +191,19 @@ class Outbound:
         if self.transport is not None:
             self.transport.put(key, data, block=block)
 
-    def _publisher(self, key: str, block: bool) -> Publisher:
+    def _publisher(self, key: str, block: bool, pubs: dict[str, Any] | None = None) -> Publisher:
         """The declared publisher of ``key`` (declared on first use; at most
-        4096 kept, the oldest undeclared: clients come and go). Needs a
+        4096 kept, the oldest undeclared: clients come and go), from ``pubs``
+        (default: those of messages and outcomes; a client's advisory updates
+        have their own, ``_update_pubs``, as they never block). Needs a
         transport; raises what it raises."""
-        pub = self._pubs.get(key)
+        pubs = self._pubs if pubs is None else pubs
+        pub = pubs.get(key)
         if pub is None:
             assert self.transport is not None
-            pub = self._pubs[key] = self.transport.publisher(key, block=block)
-            if len(self._pubs) > 4096:
-                self._pubs.pop(next(iter(self._pubs))).undeclare()
+            pub = pubs[key] = self.transport.publisher(key, block=block)
+            if len(pubs) > 4096:
+                pubs.pop(next(iter(pubs))).undeclare()
         return pub
 
     def _remeasure(self, at: float) -> None:
@@ -259,15 +272,14 @@ class Outbound:
     def _publish_prompt(self, report) -> None:
         """A report of the instant from the core (its programs changed), with
         what only the sampler measures taken from the last periodic report."""
-        last = getattr(self, "_last_report", None)
-        if last is not None:
-            report = msgspec.structs.replace(report, mem_free=last.mem_free, cpu_per_core=last.cpu_per_core,
-                                             load_avg=last.load_avg, bad_messages=last.bad_messages,
-                                             sees=last.sees, links=last.links, learned=last.learned)
         # what it runs and whom it wrote off, as the periodic report says: without them
         # `ramps status`, `ramps top` and ROS diagnostics saw both flap to empty
-        report = msgspec.structs.replace(report, running=self._running_list(),
-                                         blacklisted=self.node.view.blacklisted())
+        fields: dict[str, Any] = dict(running=self._running_list(), blacklisted=self.node.view.blacklisted())
+        last = getattr(self, "_last_report", None)
+        if last is not None:
+            fields.update(mem_free=last.mem_free, cpu_per_core=last.cpu_per_core, load_avg=last.load_avg,
+                          bad_messages=last.bad_messages, sees=last.sees, links=last.links, learned=last.learned)
+        report = msgspec.structs.replace(report, **fields)
         try:
             self._load_pub.put(encode(self.robot, report))
         except Exception as exc:
@@ -303,7 +315,7 @@ class Outbound:
 
     def _running_list(self) -> list[RunningProgram]:
         """The programs this robot runs, with their progress (``ramps status``)."""
-        jobs = list(self.node.executor.running.values())[:MAX_LISTED]
+        jobs = islice(self.node.executor.running.values(), MAX_LISTED)
         return [RunningProgram(j.program, j.origin, j.progress) for j in jobs]
 
     def _log_view_change(self, before: frozenset[str], after: frozenset[str]) -> None:
