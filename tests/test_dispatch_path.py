@@ -7,7 +7,8 @@ Each must give exactly what the straightforward code gives (the same
 floats, the same counts, the same words), or the simulator's fixed-seed
 sweeps would change: here each is checked against that code, kept below as
 the reference, over generated inputs. The driver publishes one report of
-the instant per batch of the core's actions (the newest).
+the instant per batch of the core's actions (the newest), and a client
+decodes load reports only when ``status()`` asks for them.
 """
 
 from __future__ import annotations
@@ -239,3 +240,31 @@ def test_one_report_of_the_instant_goes_out_per_batch_the_newest():
     assert msgspec.structs.replace(sent, running=[], blacklisted=[]) == second
     rt._apply([Note(what="placed", robot="r2")])
     assert len(pub.sent) == 1  # nothing changed: nothing published
+
+
+def test_a_client_decodes_load_reports_only_when_asked_for_the_team():
+    """A client keeps each robot's newest load report as it came and
+    decodes it in ``status()``: the newest wins, garbage on the load key is
+    dropped, and a newest report that is malformed leaves the one decoded
+    before."""
+    from ramps.core.messages import encode
+    from ramps.runtime import keys
+    from ramps.testing.memory import MemoryTeam
+
+    team = MemoryTeam({"r1": (2, 1.0)})
+    client = team.connect("r1")
+    try:
+        other = team.bus.transport("r9")
+        put = lambda data: other.put(keys.load(team.team, "r9"), data)  # noqa: E731
+        put(encode("r9", report("r9", seq=1, cores=3)))
+        put(encode("r9", report("r9", seq=2, cores=5)))
+        put(b"\x93garbage")
+        assert client._raw_reports["r9"][0] != b"\x93garbage"  # nothing decoded yet, garbage not kept
+        [r9] = [r for r in client.status().robots if r.robot == "r9"]
+        assert r9.cores == 5 and client._raw_reports == {}
+        put(encode("r9", report("r9", seq=3, cores=0)))  # out of bounds: refused when decoded
+        [r9] = [r for r in client.status().robots if r.robot == "r9"]
+        assert r9.cores == 5
+    finally:
+        client.close()
+        team.close()

@@ -49,6 +49,7 @@ from typing import Any, Iterable, Iterator
 import msgspec
 
 from ramps.core.messages import (
+    PROTOCOL_MAJOR,
     CancelSubmitted,
     LoadReport,
     ProgramOutcome,
@@ -91,6 +92,24 @@ HELD_RETRY = 0.05
 SUBMIT_RESEND = 1.0
 
 _ERRORS = {"program": ProgramFailed, "refused": ProgramRefused, "bad_arguments": BadArguments}
+
+
+class _ReportAbout(msgspec.Struct, frozen=True):
+    type: str = ""
+    robot: str = ""
+
+
+class _ReportHead(msgspec.Struct, frozen=True):
+    """A message on the load key, read only as far as the robot its report
+    is about (the rest is skipped unparsed, ``Team._on_report``)."""
+
+    v: int = 0
+    msg: _ReportAbout = _ReportAbout()
+
+
+_report_head = msgspec.msgpack.Decoder(_ReportHead)
+#: what reading a head of garbage raises (``ramps.core.messages.decode`` catches the same)
+_NOT_A_REPORT = (msgspec.DecodeError, UnicodeDecodeError, RecursionError)
 
 #: Teams still open, closed at interpreter exit if the application did not
 _OPEN: "weakref.WeakSet[Team]" = weakref.WeakSet()
@@ -156,6 +175,8 @@ class Team:
         #: robots whose node said it is leaving (``keys.leaving``), until they are back
         self._leaving: set[str] = set()
         self._reports: dict[str, tuple[LoadReport, float]] = {}
+        #: each robot's newest load report as it came, not decoded yet (``_on_report``)
+        self._raw_reports: dict[str, tuple[bytes, float]] = {}
         self._timers: list[tuple[float, int]] = []
         self._timer_cv = threading.Condition(self._lock)
         #: submissions the node has not acknowledged yet: request id -> (bytes, when to send again)
@@ -259,13 +280,30 @@ class Team:
                 pass
 
     def _on_report(self, data: bytes) -> None:
+        """A load report: kept as it came, read only as far as the robot it
+        is about; ``status()`` decodes the newest of each robot. Every robot
+        publishes one whenever its programs change, so a client busy
+        submitting would otherwise decode a report per program start and end
+        that nobody reads (the robot's node decodes and checks them all). A
+        newest report that turns out malformed leaves the one decoded before."""
         try:
-            env = decode(data)
-        except WireError:
+            head = _report_head.decode(data)
+        except _NOT_A_REPORT:
             return
-        if isinstance(env.msg, LoadReport):
+        if head.v == PROTOCOL_MAJOR and head.msg.type == "load" and head.msg.robot:
             with self._lock:
-                self._reports[env.msg.robot] = (env.msg, self.clock.monotonic())
+                self._raw_reports[head.msg.robot] = (data, self.clock.monotonic())
+
+    def _decode_reports(self) -> None:
+        """With the lock held: the newest report of each robot, decoded (see ``_on_report``)."""
+        raw, self._raw_reports = self._raw_reports, {}
+        for robot, (data, at) in raw.items():
+            try:
+                env = decode(data)
+            except WireError:
+                continue
+            if isinstance(env.msg, LoadReport) and env.msg.robot == robot:
+                self._reports[robot] = (env.msg, at)
 
     def _find_robot(self, robot: str | None, timeout: float) -> str:
         deadline = self.clock.monotonic() + timeout
@@ -516,6 +554,7 @@ class Team:
         What ``ramps status`` prints."""
         now = self.clock.monotonic()
         with self._lock:
+            self._decode_reports()
             names = sorted(self._alive | set(self._reports))
             rows = []
             for name in names:
