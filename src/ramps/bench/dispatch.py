@@ -9,17 +9,48 @@ origin itself, so offloads to another robot are timed separately (placed
 round robin, only the calls that ran elsewhere). Throughput: ``burst`` no-op programs from
 the same origin with up to ``window`` in flight. Figures are printed and
 saved as JSON; nothing here asserts a target.
+
+Wall-clock figures follow whatever else the machine runs; the CPU each
+process spent per program of the burst (``burst_cpu_us``: the origin's node,
+the other nodes, their workers, this client process) follows the code, so
+a regression shows there even on a busy machine. The load average is saved
+beside them (``loadavg``).
 """
 
 from __future__ import annotations
 
+import os
 import statistics
 import threading
 import time
 from collections import Counter
 
+import psutil
+
 from ramps.bench.simulator import machine
 from ramps.testing import LocalTeam
+
+
+def _cpu_seconds(procs: dict[str, psutil.Process]) -> dict[str, float]:
+    """CPU seconds (user + system) each process has used, and its children
+    (``<name>-workers``: a node's fork server and workers)."""
+    out: dict[str, float] = {}
+    for name, p in procs.items():
+        try:
+            t = p.cpu_times()
+            out[name] = t.user + t.system
+            if name != "client":
+                kids = 0.0
+                for c in p.children(recursive=True):
+                    try:
+                        ct = c.cpu_times()
+                        kids += ct.user + ct.system
+                    except psutil.Error:
+                        continue
+                out[f"{name}-workers"] = kids
+        except psutil.Error:
+            continue
+    return out
 
 
 def _pct(sorted_values: list[float], p: float) -> float:
@@ -70,12 +101,16 @@ def bench_dispatch(*, nodes: int = 3, calls: int = 1000, warmup: int = 100, burs
                     if left[0] == 0:
                         done.set()
 
+            procs = {"client": psutil.Process()}
+            procs.update({name: psutil.Process(p.pid) for name, p in team.procs.items()})
+            cpu0 = _cpu_seconds(procs)
             t0 = time.perf_counter()
             for _ in range(burst):
                 sem.acquire()
                 client.submit(program).add_done_callback(finished)
             done.wait(120)
             elapsed = time.perf_counter() - t0
+            cpu1 = _cpu_seconds(procs)
         finally:
             client.close()
     return {
@@ -85,4 +120,7 @@ def bench_dispatch(*, nodes: int = 3, calls: int = 1000, warmup: int = 100, burs
         "burst": burst, "window": window, "completed": burst - left[0], "throughput_per_s": (burst - left[0]) / elapsed,
         "latency_hosts": dict(lat_hosts), "remote_calls": len(remote),
         "remote_p50_ms": _pct(remote, 50) * 1e3, "remote_p99_ms": _pct(remote, 99) * 1e3, "burst_hosts": dict(burst_hosts),
+        "burst_cpu_us": {name: (cpu1[name] - cpu0[name]) / max(1, burst - left[0]) * 1e6
+                         for name in cpu1 if name in cpu0},
+        "loadavg": list(os.getloadavg()),
     }
