@@ -268,3 +268,15 @@ def test_a_client_decodes_load_reports_only_when_asked_for_the_team():
     finally:
         client.close()
         team.close()
+
+
+def test_the_cpu_benchmark_runs_its_bursts_to_the_end():
+    """``python -m ramps.bench.dispatchcpu``, small: every program delivered,
+    in the core alone and through the drivers and a client in memory."""
+    from ramps.bench.dispatchcpu import core_burst, driver_burst
+
+    core = core_burst(40, 8)
+    assert sum(core["ran_on"].values()) == 40 and core["cpu_us_per_program"] > 0
+    drv = driver_burst(40, 8)
+    assert sum(drv["burst_ran_on"].values()) == 40 and sum(drv["one_at_a_time_ran_on"].values()) == 8
+    assert "?" not in drv["burst_ran_on"]

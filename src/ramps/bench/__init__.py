@@ -9,6 +9,9 @@ experiments live in ``ramps.experiments``; these are ours:
   1000-robot team) and ``machine()``, the host every benchmark records;
 * ``dispatch``: submit-to-result latency and throughput on a real loopback
   team (``ramps bench dispatch``);
+* ``dispatchcpu``: the CPU one program costs in the core alone, and in the
+  drivers, core and client without the network
+  (``python -m ramps.bench.dispatchcpu``);
 * ``fuzz``: hostile input (``ramps.testing.hostile``) at the decoders and the
   core (``ramps bench fuzz``);
 * ``flood``: a real node flooded with malformed messages keeps working
