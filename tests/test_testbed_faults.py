@@ -53,7 +53,7 @@ def test_origin_cut_off_briefly_delivers_exactly_once():
     from ramps.testbed import Testbed
 
     with Testbed(3, cores=2) as tb:
-        time.sleep(SETTLE)  # r1 has every robot's load report: round robin will use r2
+        # r1 has every robot's load report (Testbed.wait_alive): round robin will use r2
         ns = f"--net=/run/netns/{tb.namespace('r1')}"
         # round robin from r1: the first program runs on r1, the second on r2
         client = subprocess.Popen(["nsenter", ns, sys.executable, NSCLIENT, tb.team, tb.endpoint("r1"), "burn",
@@ -90,8 +90,7 @@ def test_written_off_host_that_reappears_has_its_result_discarded_and_rejoins():
     from ramps.testbed import Testbed
 
     with Testbed(3, cores=2) as tb, tb.client("r1", timeout=30) as team:
-        time.sleep(SETTLE)
-        rr = team.options(policy="round_robin")
+        rr = team.options(policy="round_robin")  # r1 has every robot's report (Testbed.wait_alive)
         local, fut = rr.submit("burn", units=1.0), rr.submit("burn", units=1.0)  # r1, then r2
         assert wait_until(lambda: remote_program(tb) is not None, 30), trace(tb)
         _, host = remote_program(tb)
