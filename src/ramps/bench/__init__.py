@@ -11,7 +11,9 @@ experiments live in ``ramps.experiments``; these are ours:
   team (``ramps bench dispatch``);
 * ``dispatchcpu``: the CPU one program costs in the core alone, and in the
   drivers, core and client without the network
-  (``python -m ramps.bench.dispatchcpu``);
+  (``python -m ramps.bench.dispatchcpu``); ``dispatchstages``: where one
+  call's time goes, stage by stage, from the nodes' traces
+  (``python -m ramps.bench.dispatchstages``);
 * ``fuzz``: hostile input (``ramps.testing.hostile``) at the decoders and the
   core (``ramps bench fuzz``);
 * ``flood``: a real node flooded with malformed messages keeps working
