@@ -129,9 +129,8 @@ SPEED_BLOCK = 5
 #: own software measures the pieces it got in that second. Identical robots
 #: measuring at one moment of the team's grid then cover the same second of
 #: the host, whose vCPUs change speed from one second to the next: with 5 s,
-#: robots beside 8 busy processes each took 2.4-5.4 s for 0.2 s of CPU, their
-#: measurements of one moment were 1.01-1.22 apart, and 1.02-1.06 with 1 s
-#: (docs/lab/2026-11-26-speed-under-load.md)
+#: robots beside 8 busy processes each took 2.4-5.4 s for 0.2 s of CPU and
+#: later moments started late (docs/lab/2026-11-26-speed-under-load.md)
 SPEED_MAX_WALL = 1.0
 #: measurements of a node's life its figure is the median of (the newest)
 SPEED_MEASUREMENTS = 9
