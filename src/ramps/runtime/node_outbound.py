@@ -360,7 +360,8 @@ class Outbound:
             self._put(key, data, block=block)
         self._held_outcomes = []
         log.info("node %s leaving team %s: handed back %d program(s)", self.robot, self.team, handed)
-        if self.bad_messages:
-            log.warning("node %s dropped %d malformed message(s) while it ran", self.robot, self.bad_messages)
+        if self.bad_messages or self.overflow:  # what `ramps status` counted as dropped, both kinds
+            log.warning("node %s dropped %d malformed message(s) and %d over its backlog while it ran", self.robot,
+                        self.bad_messages, self.overflow)
         self.clock.sleep(0.05)  # let Zenoh flush the hand-backs
         done.set()
