@@ -149,6 +149,8 @@ def top(
     stay, greyed, with how long ago they were last heard: "left" when the robot's node stopped
     (Ctrl-C, SIGTERM: it handed its programs back), "gone" when its liveliness went without a
     word (a crash, a cut link). Ctrl-C quits."""
+    import signal
+    import threading
     import time
 
     from rich.live import Live
@@ -180,28 +182,33 @@ def top(
             return False
         return True
 
+    # Ctrl-C sets a flag the loop reads between frames: a KeyboardInterrupt raised at any
+    # instant could land while the client holds its lock, and its close() then waits forever
+    stop = threading.Event()
+    previous = signal.signal(signal.SIGINT, lambda *_: stop.set())
     try:
         if once or frames:
             if once:
-                time.sleep(wait)
+                stop.wait(wait)
             for i in range(1 if once else frames):
                 going = step()
                 _out.print(render(model, time.monotonic(), events=events))
-                if not going:
+                if not going or stop.is_set():
                     break
                 if i + 1 < frames:
-                    time.sleep(interval)
+                    stop.wait(interval)
         else:
             with Live(render(model, time.monotonic(), events=events, interval=interval), console=_out,
                       refresh_per_second=max(2.0, 1 / interval), transient=False) as live:
-                while step():
+                while not stop.is_set() and step():
                     live.update(render(model, time.monotonic(), events=events, interval=interval))
-                    time.sleep(interval)
+                    stop.wait(interval)
                 live.update(render(model, time.monotonic(), events=events, interval=interval))
-    except KeyboardInterrupt:
-        reason = "interrupted"
     finally:
+        signal.signal(signal.SIGINT, previous)
         t.close()
+    if stop.is_set():
+        reason = "interrupted"
     if reason:
         _err.print(reason)
 
