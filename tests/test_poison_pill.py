@@ -24,7 +24,7 @@ from ramps.core.events import Deliver, PeerLost
 from ramps.errors import ProgramFailed
 from ramps.runtime.workers import WorkerPool
 from ramps.testing import FakeTeam
-from ramps.testing.memory import MemoryTeam, StillSampler
+from ramps.testing.memory import MemoryTeam
 
 from corehelpers import busy_origin_team, submit
 
@@ -143,22 +143,9 @@ class _PoolTeam(MemoryTeam):
     """A ``MemoryTeam`` whose nodes run their programs in real worker pools
     (fork server, worker processes), so a program can kill its worker."""
 
-    def add(self, name: str, *, cores: int = 2, speed: float = 1.0, seed: int = 0):
-        from ramps.runtime.node import NodeRuntime
-
-        s = self._load_settings(flags={"robot": name, "team": self.team, "cores": cores, "speed": speed,
-                                       "programs": self._programs, **self._settings}, environ={})
+    def make_pool(self, *a, **kw):
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([TESTS, os.environ.get("PYTHONPATH", "")]))
-
-        def pool(*a, **kw):
-            p = self.pools[name] = WorkerPool(*a, env=env, **kw)
-            return p
-
-        rt = NodeRuntime(s, transport=self.bus.transport(name), clock=self.clock, worker_pool=pool,
-                         load_sampler=StillSampler, incarnation=seed + 1)
-        rt.start(threaded=False)
-        self.nodes[name] = rt
-        return rt
+        return WorkerPool(*a, env=env, **kw)
 
 
 @pytest.mark.slow

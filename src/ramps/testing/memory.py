@@ -358,8 +358,8 @@ class MemoryTeam:
                  **self._settings}
         s = self._load_settings(flags=flags, environ={})
 
-        def pool(*a: Any, **kw: Any) -> MemoryPool:
-            p = self.pools[name] = MemoryPool(*a, **kw)
+        def pool(*a: Any, **kw: Any) -> Any:
+            p = self.pools[name] = self.make_pool(*a, **kw)
             return p
 
         rt = NodeRuntime(s, transport=self.bus.transport(name), clock=self.clock, worker_pool=pool,
@@ -367,6 +367,12 @@ class MemoryTeam:
         rt.start(threaded=False)
         self.nodes[name] = rt
         return rt
+
+    def make_pool(self, *a: Any, **kw: Any) -> Any:
+        """The worker pool of a node this team starts (``NodeRuntime``'s
+        ``worker_pool`` arguments): in-process programs, a ``MemoryPool``. A
+        subclass may run real worker processes instead."""
+        return MemoryPool(*a, **kw)
 
     def connect(self, robot: str, name: str = "app") -> Any:
         """A real client (``ramps.runtime.client.Team``, what ``ramps.connect()``
