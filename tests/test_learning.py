@@ -117,7 +117,7 @@ def test_a_work_function_declares_each_call_from_its_arguments():
         program("bad", work="lots")  # type: ignore[arg-type]
 
 
-def test_a_client_and_a_node_declare_each_call_by_the_work_function():
+def test_a_client_and_a_node_declare_each_call_by_the_work_function(caplog):
     import msgspec
 
     import workprogs  # noqa: F401 (registers the program in this process: the client checks with it)
@@ -131,6 +131,9 @@ def test_a_client_and_a_node_declare_each_call_by_the_work_function():
         futs = [app.submit("sized", picks=20), app.submit("sized")]
         team.run(2.0, until=lambda: all(f.done() for f in futs))
         assert [f.result(0) for f in futs] == [20, 4]
+        # in-process, both returned at once: far below what they declare, said once for the program
+        warned = [r.getMessage() for r in caplog.records if "declared" in r.getMessage()]
+        assert len(warned) == 1 and warned[0].startswith("node r1: sized declared"), warned
         works = sorted(ap.submit.work for ap in team.nodes["r1"].node.origin.programs.values())
         assert works == pytest.approx([2.0, 10.0])  # 0.5 x 4 picks (the default) and 0.5 x 20
         # a client that does not have the program sends no work: the node declares it

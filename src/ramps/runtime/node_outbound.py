@@ -119,7 +119,8 @@ class Outbound:
     def _warn_misdeclared(self, note: Note) -> None:
         """A call took far more or less than its program declares: said once
         per program (every call is in the trace and the metric)."""
-        program = note.detail.split(" ", 1)[0]
+        ap = self.node.origin.programs.get(note.program_id)
+        program = ap.submit.program if ap is not None else note.program_id
         if program in self._misdeclared_warned or len(self._misdeclared_warned) >= 1024:
             return
         self._misdeclared_warned.add(program)
