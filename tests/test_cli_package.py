@@ -1,8 +1,10 @@
 """The ``ramps`` command as a package: every command and group answers
-``--help``, and the testbed's fault commands, generated from one table, take
-the arguments they document."""
+``--help``, whole on an 80-column terminal, and the testbed's fault commands,
+generated from one table, take the arguments they document."""
 
 from __future__ import annotations
+
+import re
 
 import typer
 from typer.core import TyperArgument, TyperGroup, TyperOption
@@ -14,24 +16,46 @@ from ramps.cli.testbed import FAULTS
 runner = CliRunner()
 
 
-def _paths(cmd: object, path: list[str]) -> list[list[str]]:
-    found = [path]
+def _commands(cmd: object, path: list[str]) -> list[tuple[list[str], object]]:
+    found = [(path, cmd)]
     if isinstance(cmd, TyperGroup):
         for name, sub in cmd.commands.items():
-            found += _paths(sub, path + [name])
+            found += _commands(sub, path + [name])
     return found
 
 
-def test_every_command_and_group_answers_help():
-    paths = _paths(typer.main.get_command(app), [])
-    names = {" ".join(p) for p in paths}
+#: an option name as a whole token: what is left of a name cut to fit
+#: (``--diagnostics-pe…``) is another token
+OPTION_NAME = re.compile(r"(?<![\w-])-{1,2}[\w-]+(?![\w-])")
+
+
+def _listed_options(help_text: str) -> set[str]:
+    """The option names on the lines that list the options: those that start
+    with an option name (in click's layout or in a rich panel)."""
+    listed: set[str] = set()
+    for line in help_text.splitlines():
+        first = line.strip(" │*").split(maxsplit=1)
+        if first and first[0].startswith("-"):
+            listed.update(OPTION_NAME.findall(line))
+    return listed
+
+
+def test_every_command_and_group_answers_help_whole_at_80_columns():
+    commands = _commands(typer.main.get_command(app), [])
+    names = {" ".join(p) for p, _ in commands}
     # the groups and commands of the README are all there
     assert {"node", "submit", "status", "demo", "sim paper", "bench dispatch", "bench metrics", "testbed up",
             "testbed experiment faults", "team init", "report", "top", "ros", "version"} <= names
-    for p in paths:
-        res = runner.invoke(app, [*p, "--help"])
+    for p, cmd in commands:
+        res = runner.invoke(app, [*p, "--help"], env={"COLUMNS": "80"}, terminal_width=80)
         assert res.exit_code == 0, (p, res.output)
         assert "Usage:" in res.output
+        assert max(map(len, res.output.splitlines())) <= 80, (p, res.output)
+        listed = _listed_options(res.output)
+        for param in cmd.params:  # type: ignore[attr-defined]
+            if isinstance(param, TyperOption) and not param.hidden:
+                for name in (*param.opts, *param.secondary_opts):
+                    assert name in listed, (" ".join(["ramps", *p, "--help"]), name, res.output)
 
 
 def test_fault_commands_come_from_the_table_in_its_order():

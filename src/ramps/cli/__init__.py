@@ -25,7 +25,7 @@ import typer
 from ramps import __version__
 from ramps.cli.bench import bench_app
 from ramps.cli.config import register as _register_config
-from ramps.cli.common import out
+from ramps.cli.common import command_group, out
 from ramps.cli.demo import demo
 from ramps.cli.node import node, status, submit
 from ramps.cli.observe import register as _register_observe
@@ -34,10 +34,9 @@ from ramps.cli.team import team_app
 from ramps.cli.testbed import testbed_app
 from ramps.ros.cli import register as _register_ros
 
-app = typer.Typer(
-    help="ramps: share computational work across a robot team, with no central scheduler, "
+app = command_group(
+    "ramps: share computational work across a robot team, with no central scheduler, "
     "and keep it alive when robots fail (Reliable Autonomous Mobile Programs).",
-    no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
 )

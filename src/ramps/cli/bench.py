@@ -18,10 +18,10 @@ from pathlib import Path
 
 import typer
 
-from ramps.cli.common import emit, err, fail, out
+from ramps.cli.common import command_group, emit, err, fail, out
 from ramps.cli.observe import bench_metrics
 
-bench_app = typer.Typer(help="Benchmarks that print figures and save them as JSON.", no_args_is_help=True)
+bench_app = command_group("Benchmarks that print figures and save them as JSON.")
 bench_app.command("metrics")(bench_metrics)
 
 

@@ -44,6 +44,15 @@ DiscoveryOption = Annotated[str, typer.Option("--discovery", help=DISCOVERY_HELP
 LeaseOption = Annotated[Optional[int], typer.Option("--lease-ms", help="Zenoh lease of every node, ms")]
 
 
+def command_group(help: str, **settings: Any) -> typer.Typer:
+    """A ``ramps`` command group whose help is click's plain layout, not rich's
+    panels: rich's option table shrinks the option-name column to fit the
+    terminal, so at 80 columns a long name was cut (``--diagnostics-pe…``),
+    while click's puts such a name on a line of its own and wraps the help
+    below it. Help strings are plain text: no rich markup, no ``\\[`` escapes."""
+    return typer.Typer(help=help, no_args_is_help=True, rich_markup_mode=None, **settings)
+
+
 def fail(message: str, code: int = 2) -> NoReturn:
     err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)  # "[route]" is no markup
     raise typer.Exit(code)

@@ -19,10 +19,10 @@ from typing import Optional
 import msgspec
 import typer
 
-from ramps.cli.common import err, fail, out
+from ramps.cli.common import command_group, err, fail, out
 
-config_app = typer.Typer(help="A node's configuration: check a config file before it runs (ramps node "
-                         "--config), or print the reference of every setting.", no_args_is_help=True)
+config_app = command_group("A node's configuration: check a config file before it runs (ramps node "
+                            "--config), or print the reference of every setting.")
 
 
 @config_app.command("check")
@@ -74,7 +74,7 @@ def check(
 def reference() -> None:
     """Print the configuration reference as Markdown: every setting of a node with its
     TOML key, `ramps node` flag, environment variable, default and meaning, the
-    \\[commands.NAME], \\[core] and \\[zenoh] tables, and the other environment variables
+    [commands.NAME], [core] and [zenoh] tables, and the other environment variables
     (docs/configuration.md is this output)."""
     from ramps.cli.reference import reference as make
 

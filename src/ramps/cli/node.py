@@ -48,7 +48,7 @@ def node(
                                                 "it gets the call's arguments as a JSON object on stdin and prints its result as JSON "
                                                 "on stdout; a non-zero exit is a failure (the tail of its stderr goes to the caller); "
                                                 "'RAMPS_PROGRESS 0.4' lines on stderr report progress; its process group is killed when "
-                                                "the program is withdrawn or after 600 s (another limit: timeout in a \\[commands.NAME] "
+                                                "the program is withdrawn or after 600 s (another limit: timeout in a [commands.NAME] "
                                                 "table of --config)"),
     config_file: Optional[Path] = typer.Option(None, "--config", help="TOML config file (env RAMPS_CONFIG)"),
     lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh session lease: how fast a frozen or cut-off peer is noticed"),

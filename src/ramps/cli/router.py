@@ -22,7 +22,7 @@ MODE_HELP = ("Zenoh mode: peer (default) links straight to every teammate it fin
              "through it, for robots that cannot reach each other or a client of a site behind routers; "
              "see `ramps router --help` (env RAMPS_MODE)")
 ZENOH_HELP = ("raw Zenoh setting KEY=VALUE applied last, e.g. transport/link/tx/batch_size=8192 (repeatable; "
-              "\\[zenoh] table in --config); ramps's own keys and, when secured, TLS and access control are refused")
+              "[zenoh] table in --config); ramps's own keys and, when secured, TLS and access control are refused")
 #: ``--mode`` of ``ramps node``, ``submit`` and ``status``
 ModeOption = Annotated[Optional[str], typer.Option("--mode", help=MODE_HELP)]
 #: ``--zenoh`` of ``ramps node`` and ``ramps router``
@@ -75,7 +75,7 @@ def router(
                                              help="answer multicast scouting, so robots on this network find the "
                                                   "router without --connect (default on)"),
     config_file: Optional[Path] = typer.Option(None, "--config", help="TOML config file, the nodes' format "
-                                               "(team, listen, connect, lease_ms, secure, credentials, \\[zenoh]; "
+                                               "(team, listen, connect, lease_ms, secure, credentials, [zenoh]; "
                                                "env RAMPS_CONFIG)"),
     lease_ms: Optional[int] = typer.Option(None, "--lease-ms", help="Zenoh lease: how fast a dead link is noticed "
                                            "(default 2000, as the nodes)"),

@@ -19,10 +19,9 @@ import msgspec
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn, TimeElapsedColumn
 
-from ramps.cli.common import POLICY_HELP, check_policy, emit, err, fail, fault_plans
+from ramps.cli.common import POLICY_HELP, check_policy, command_group, emit, err, fail, fault_plans
 
-sim_app = typer.Typer(help="Simulate teams and workloads in virtual time (seconds for hours of robot time).",
-                      no_args_is_help=True)
+sim_app = command_group("Simulate teams and workloads in virtual time (seconds for hours of robot time).")
 
 
 @sim_app.command("paper")

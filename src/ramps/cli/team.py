@@ -20,8 +20,10 @@ from typing import NoReturn
 import typer
 from rich.console import Console
 
-team_app = typer.Typer(help="Credentials of a secured team (`ramps node --secure`): a team certificate "
-                            "authority and one certificate per robot.", no_args_is_help=True)
+from ramps.cli.common import command_group
+
+team_app = command_group("Credentials of a secured team (`ramps node --secure`): a team certificate "
+                          "authority and one certificate per robot.")
 _out = Console(highlight=False, soft_wrap=True)
 _err = Console(stderr=True, highlight=False, soft_wrap=True)
 

@@ -29,6 +29,7 @@ from ramps.cli.common import (
     PolicyOption,
     check_discovery,
     check_policy,
+    command_group,
     emit,
     err,
     fail,
@@ -38,8 +39,8 @@ from ramps.cli.common import (
 )
 
 
-testbed_app = typer.Typer(help="Emulated robots on this Linux host (root): one network namespace and cpu cgroup "
-                          "per robot, with fault injection.", no_args_is_help=True)
+testbed_app = command_group("Emulated robots on this Linux host (root): one network namespace and cpu cgroup "
+                            "per robot, with fault injection.")
 TB_HELP = "testbed id (default: the only one up)"
 
 
@@ -190,8 +191,7 @@ for _kind, _fault in FAULTS.items():
     testbed_app.command(_kind)(_fault_command(_kind, _fault))
 
 
-experiment_app = typer.Typer(help="The paper's experiments on real processes (each run starts its own testbed).",
-                             no_args_is_help=True)
+experiment_app = command_group("The paper's experiments on real processes (each run starts its own testbed).")
 testbed_app.add_typer(experiment_app, name="experiment")
 
 
@@ -473,7 +473,7 @@ def testbed_experiment_peers(
     burn programs from r1): idle, 1/2/4 robots busy, several origins, and a robot crashed at 10 s;
     prints every engine's makespan, distribution and lost programs beside the ideal. Each engine
     runs each scenario on a fresh testbed; Ray and Dask need the peers extra, `pip install -e
-    '.\\[peers]'` (skipped without it). 1-3 minutes per scenario and engine with the defaults, but 7-11 minutes where
+    '.[peers]'` (skipped without it). 1-3 minutes per scenario and engine with the defaults, but 7-11 minutes where
     nice-10 programs land beside a busy robot's load (round robin; Ray and Dask at --peer-nice 10),
     so 1.5-2.5 hours for all 24 runs."""
     from ramps.errors import RampsError

@@ -9,7 +9,7 @@ from typing import Optional
 import typer
 import typer.core
 
-ROS_HELP = ("Expose this robot's ramps team to ROS 2 (needs: pip install 'ramps-robotics\\[ros]').\n\n"
+ROS_HELP = ("Expose this robot's ramps team to ROS 2 (needs: pip install 'ramps-robotics[ros]').\n\n"
             "Every registered program becomes runnable from ROS as the action /ROBOT/ramps/run "
             "(ramps_interfaces/action/RunProgram: build it once with --build-interfaces), or over topics: "
             "send a goal as JSON on /ROBOT/ramps/goal "
