@@ -6,7 +6,8 @@ Needs a ROS 2 installation with the ``launch`` package (``ros2 launch``), and
 ramps with the ros extra on the PATH (``pip install 'ramps-robotics[ros]'``).
 Starts ``ramps node`` and ``ramps ros`` as two processes; the face submits
 to this robot's node. Copy it next to your other launch files and adjust.
-(Not run in ramps' CI: the launch package is not on PyPI.)
+(Not run in ramps' CI: the launch package is not on PyPI; tests/test_ros_docs.py
+runs it against a stand-in ``launch`` that records what it would start.)
 """
 
 from launch import LaunchDescription
