@@ -426,3 +426,39 @@ def test_node_cpu_with_two_origins_and_a_crash() -> None:
         crashed = simulate(Scenario(robots=robots, programs=programs,
                                     faults=[FaultSpec(at=10.0, robot="r4", kind="crash")]), policy="ramps", seed=seed)
         assert (crashed.completed, crashed.lost, crashed.duplicated) == (14, 0, 0)
+
+
+def test_robots_whose_speeds_differ_by_measurement_noise_all_get_programs() -> None:
+    """Five identical 4-core robots whose self-measured speeds came out up to 4%
+    apart, two origins submitting 7 each at once: every spread that gives each
+    program a core is as fast, so noise must not decide. Within the 0.5% margin
+    the fastest-measured robots filled up and one robot ran nothing (the peers
+    experiment's 4-3-4-0-3); within the margin of a self-measuring node every
+    robot gets programs, and the team is no slower."""
+    speeds = {"r1": 1.0, "r2": 1.02, "r3": 0.99, "r4": 0.98, "r5": 1.01}
+
+    def run(config: RampsConfig):
+        sc = Scenario(robots=[RobotSpec(name=r, cores=4, speed=v) for r, v in speeds.items()],
+                      programs=[ProgramSpec(origin="r1", count=7, work=20.0, spacing=0.05),
+                                ProgramSpec(origin="r2", count=7, work=20.0, spacing=0.05)],
+                      config=config)
+        return simulate(sc, policy="ramps", seed=3)
+
+    narrow = run(RampsConfig())
+    assert min(narrow.distribution.get(r, 0) for r in speeds) == 0
+    wide = run(RampsConfig(tie_tolerance=RampsConfig().measured_tie_tolerance))
+    assert min(wide.distribution.get(r, 0) for r in speeds) >= 2
+    assert (wide.completed, wide.lost) == (14, 0)
+    assert wide.makespan <= narrow.makespan * 1.05  # the slowest used robot is within the noise
+
+
+def test_a_node_that_measures_its_speed_ties_within_the_noise_of_that_measurement() -> None:
+    from ramps.runtime.node import core_config
+    from ramps.runtime.settings import NodeSettings
+
+    measured = core_config(NodeSettings(robot="r1"))
+    assert measured.tie_tolerance == RampsConfig().measured_tie_tolerance == 0.05
+    told = core_config(NodeSettings(robot="r1", speed=1.0))
+    assert told.tie_tolerance == RampsConfig().tie_tolerance == 0.005
+    wider = core_config(NodeSettings(robot="r1", core=RampsConfig(tie_tolerance=0.1)))
+    assert wider.tie_tolerance == 0.1  # a wider margin asked for is kept

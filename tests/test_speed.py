@@ -23,8 +23,8 @@ CFG = RampsConfig()
 
 
 def test_a_re_measurement_that_moved_replaces_the_estimate():
-    """The driver's figure is already robust (the fastest cluster of every
-    piece it timed): the core takes it when it moved by more than 1%, up or
+    """The driver's figure is already robust (the mean of its measurements,
+    each of the fastest pieces it timed): the core takes it when it moved by more than 1%, up or
     down (a throttled CPU), and ignores nonsense."""
     est = SpeedEstimate(0.7, CFG)
     assert not est.measured(0.705)
@@ -33,21 +33,29 @@ def test_a_re_measurement_that_moved_replaces_the_estimate():
     assert est.measured(0.9) and est.value == 0.9
 
 
-def test_speed_samples_average_the_cpus_and_outvote_an_odd_measurement():
+def test_speed_samples_average_the_cpus_and_outweigh_an_odd_measurement():
     from ramps.runtime.measure import SpeedSamples
 
     s = SpeedSamples()
     assert s.rate() == 0.0
     # one CPU ran at 0.40 (a busy neighbour on its physical core), the other at 0.58;
-    # a piece interrupted now and then (0.1) moves no median
-    s.add({0: [0.40, 0.41, 0.39, 0.1, 0.40], 1: [0.58, 0.57, 0.59, 0.58, 0.95]})
+    # pieces the scheduler cut (0.1, 0.2, 0.3) only get slower: the fastest quarter
+    # of each CPU's pieces is its rate, however many were cut
+    s.add({0: [0.40, 0.1, 0.2, 0.40, 0.3, 0.1, 0.2, 0.1], 1: [0.58, 0.58, 0.3, 0.2]})
     assert s.rate() == pytest.approx(0.49)
     assert s.speed(quota=0.32, cores=4) == pytest.approx(0.49 * 0.08, abs=1e-4)
-    # measured while the neighbours' start-up kept the machine busy, then twice calmly:
-    # the odd one is outvoted
-    s.add({0: [0.30, 0.31], 1: [0.30, 0.29]})
-    s.add({0: [0.50, 0.50], 1: [0.56, 0.56]})
-    assert s.rate() == pytest.approx(0.49)
+    # the same CPUs with no piece cut: the same figure (a median said 0.15 and 0.44 above)
+    s2 = SpeedSamples()
+    s2.add({0: [0.40] * 8, 1: [0.58] * 4})
+    assert s2.rate() == pytest.approx(s.rate())
+    # the node's figure is the mean of its measurements, the fastest and the slowest
+    # left out once there are five: a measurement taken while the neighbours' start-up
+    # kept the machine busy counts for little, then nothing
+    s.add({0: [0.30, 0.30], 1: [0.30, 0.30]})
+    assert s.rate() == pytest.approx((0.49 + 0.30) / 2)
+    for _ in range(3):
+        s.add({0: [0.50, 0.50], 1: [0.48, 0.48]})
+    assert s.rate() == pytest.approx(0.49)  # 0.30 and one 0.49 dropped, 0.49 0.49 0.49 left
     s.add({-1: [float("nan"), -1.0]})  # nothing measurable: no figure
     assert s.rate() == pytest.approx(0.49)
 
@@ -67,8 +75,9 @@ def test_the_boot_measurement_counts_only_until_the_grid_outvotes_it():
     assert s.rate() == pytest.approx(0.50)
     s.add({0: [0.44, 0.44]})
     s.add({0: [0.44, 0.44]})
-    # the grid's 0.50 0.50 0.50 0.44 0.44; with the boot figure among them it would be 0.47
-    assert s.rate() == pytest.approx(0.50)
+    # the grid's 0.50 0.50 0.50 0.44 0.44 without the fastest and the slowest; the
+    # boot's 0.30 counts no more
+    assert s.rate() == pytest.approx((0.50 + 0.50 + 0.44) / 3)
 
 
 def test_a_host_slower_than_it_says_on_the_same_program_gets_a_factor():
@@ -320,3 +329,23 @@ def test_a_host_counts_a_programs_work_from_the_cpu_seconds_it_used():
     # a program that slept through its 10 s did next to no work, whatever its share
     assert _host_result(0.08, cpu_s=0.001).work_done == pytest.approx(0.0005)
     assert _host_result(0.08, cpu_s=float("nan")).work_done == pytest.approx(0.4)
+
+
+def test_robots_started_within_a_second_measure_their_boot_speed_at_one_moment():
+    from ramps.runtime.node import boot_moment
+
+    starts = [1_800_000_000.05, 1_800_000_000.4, 1_800_000_000.97]
+    assert {boot_moment(t) for t in starts} == {1_800_000_001.0}
+    assert all(0 < boot_moment(t) - t <= 1.0 for t in starts)
+    assert boot_moment(1_800_000_002.0) == 1_800_000_002.0  # on the grid already: no wait
+
+
+def test_the_speeds_experiment_reads_each_re_measurement_from_a_trace(tmp_path):
+    import json
+
+    from ramps.testbed.speeds import measurements
+
+    lines = [{"t": 1.0, "what": "placed", "detail": "expected 2.00 s"},
+             {"t": 2.0, "what": "speed_measured", "detail": "0.04123 at 1800000003.0, node figure 0.04101"}]
+    (tmp_path / "r1.trace.jsonl").write_text("".join(json.dumps(x) + "\n" for x in lines))
+    assert measurements(tmp_path, ["r1", "r2"]) == {"r1": [[1800000003.0, 0.04123, 0.04101]], "r2": []}

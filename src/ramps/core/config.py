@@ -41,6 +41,12 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: wider margin keeps programs on their origin where a teammate is a little
     #: faster (docs/lab/2026-11-23-several-origins.md, "Ties")
     tie_tolerance: float = 0.005
+    #: the margin instead, when larger, on a node that measures its own speed
+    #: (no ``--speed``): identical robots that measure themselves differ by
+    #: up to this, and a tie broken by that noise left an idle robot without
+    #: programs while its teammates ran four each
+    #: (docs/lab/2026-11-27-fastest-pieces.md)
+    measured_tie_tolerance: float = 0.05
     #: a host busier than the origin expected still takes a program that
     #: computes there within its time budget plus this relative margin
     #: (ramps negotiation)

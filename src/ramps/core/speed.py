@@ -12,10 +12,10 @@ the share of a CPU each core is under the kernel's quota
   ``REMEASURE_PERIOD``, on one wall-clock grid for the whole team
   (``next_remeasure``), and hands the core its figure
   from its latest measurements: each the mean over the CPUs of each CPU's
-  median piece, timed on a CPU clock, so a quota's throttling and a run
-  queue do not count (``ramps.runtime.measure.SpeedSamples``); the median
-  of the latest measurements outvotes one taken while the neighbours kept
-  the machine busy. This is what fixes a robot that measured itself slow:
+  fastest pieces, timed on a CPU clock, so a quota's throttling and a run
+  queue do not count (``ramps.runtime.measure.SpeedSamples``); the trimmed
+  mean of the latest measurements outweighs one taken while the neighbours
+  kept the machine busy. This is what fixes a robot that measured itself slow:
   it gets no programs, so no result could ever say it is faster. Measured
   on a wall clock instead, a burst that fits in one quota period runs
   faster than the robot's sustained rate.
@@ -75,9 +75,12 @@ MIN_RUN_WORK = 0.1
 #: runtime, and the simulator for robots whose boot measurement was wrong)
 REMEASURE_PERIOD = 30.0
 #: the first re-measurements after boot come this often, so that a boot
-#: measurement taken during the neighbours' start-up is soon outvoted
+#: measurement taken during the neighbours' start-up is soon outvoted, and
+#: for long enough that robots booted seconds apart (a loaded robot's node
+#: starts slowly) fill their windows (``SPEED_MEASUREMENTS``) with the same
+#: moments of the grid
 REMEASURE_EARLY = 3.0
-REMEASURE_EARLY_COUNT = 6
+REMEASURE_EARLY_COUNT = 12
 #: CPU seconds one re-measurement spends (``measure_speed``'s ``seconds``)
 REMEASURE_CPU = 0.2
 
@@ -125,7 +128,7 @@ class SpeedEstimate:
         """A re-measurement; True if the estimate changed (by more than
         ``SPEED_STEP``; ``speed_learning = False`` keeps the boot figure).
         Either way: the driver's figure is already robust to interference
-        (the median of its latest measurements), and a robot that really
+        (the trimmed mean of its latest measurements), and a robot that really
         got slower (a throttled CPU) must say so."""
         if not self.config.speed_learning or not _moved(speed, self.value):
             return False

@@ -132,8 +132,10 @@ SPEED_BLOCK = 5
 #: robots beside 8 busy processes each took 2.4-5.4 s for 0.2 s of CPU and
 #: later moments started late (docs/lab/2026-11-26-speed-under-load.md)
 SPEED_MAX_WALL = 1.0
-#: measurements of a node's life its figure is the median of (the newest)
-SPEED_MEASUREMENTS = 9
+#: measurements of a node's life its figure is the mean of (the newest): few
+#: enough that robots booted seconds apart, measuring on one grid since,
+#: average the same moments of the host 20 s after they are all up
+SPEED_MEASUREMENTS = 6
 #: measurements on the team's grid that outvote the boot measurement for good
 GRID_QUORUM = 3
 
@@ -238,46 +240,63 @@ class SpeedSamples:
     """A node's measurements of what a CPU second computes, and the figure
     they give.
 
-    One measurement's figure is the mean over the CPUs of the median piece
-    on each: what a CPU second of this machine computes at that moment,
-    whichever CPU a program lands on, with a piece interrupted or sped up
-    now and then left out. The node's figure is the median of its latest
-    ``SPEED_MEASUREMENTS`` (boot and every re-measurement): one taken while
-    the robot's neighbours kept the machine busy (their start-up, a burst
-    of their own) moves nothing once there are three. The boot measurement
-    is the one not taken on the team's grid (each node boots when it is
-    started), so it counts only until ``GRID_QUORUM`` measurements of the
-    grid are in. The fastest piece or
-    the fastest cluster of pieces, the rule before, said how lucky a robot
-    had been: identical robots booting together on one host settled 1.02 to
-    1.08 apart that way, as the phases of the host's vCPUs came and went
-    (docs/lab/2026-11-26-self-measured-speed.md)."""
+    One measurement's figure is the mean over the CPUs of the fastest
+    quarter of the pieces timed on each (``fastest_quarter``): a piece the
+    scheduler cut, resumed on cold caches or ran beside a busy hyperthread
+    sibling only gets slower, so the fast pieces are the ones that say what
+    the CPU computes (a median moves with how many pieces were cut).
+    The node's figure is the mean of its latest ``SPEED_MEASUREMENTS``
+    (boot and every re-measurement), without the fastest and the slowest
+    once there are five. Identical robots measure at the same moments of
+    the team's grid, so a mean over the same moments gives them the same
+    figure even on a host whose vCPUs swing 1.4x from one moment to the
+    next, where a median jumps between the moments' levels. The boot measurement is the one not taken on the
+    grid (each node boots when it is started), so it counts only until
+    ``GRID_QUORUM`` measurements of the grid are in
+    (docs/lab/2026-11-27-fastest-pieces.md)."""
 
     def __init__(self) -> None:
         self._boot: float | None = None
+        self._latest = 0.0
         self._figures: deque[float] = deque(maxlen=SPEED_MEASUREMENTS)
 
     def add(self, pieces: dict[int, list[float]], *, boot: bool = False) -> None:
         """One measurement's pieces; ``boot``: the measurement at the node's start."""
-        medians = [statistics.median(good) for v in pieces.values()
-                   if (good := [r for r in v if math.isfinite(r) and r > 0])]
-        if not medians:
+        rates = [fastest_quarter(good) for v in pieces.values()
+                 if (good := [r for r in v if math.isfinite(r) and r > 0])]
+        if not rates:
             return
+        self._latest = statistics.fmean(rates)
         if boot:
-            self._boot = statistics.fmean(medians)
+            self._boot = self._latest
         else:
-            self._figures.append(statistics.fmean(medians))
+            self._figures.append(self._latest)
+
+    @property
+    def latest(self) -> float:
+        """The figure of the latest measurement alone (0.0 before any)."""
+        return self._latest
 
     def rate(self) -> float:
         """Work units per CPU second of this robot's CPUs (0.0 before any measurement)."""
         figures = list(self._figures)
         if self._boot is not None and len(figures) < GRID_QUORUM:
             figures.append(self._boot)
-        return statistics.median(figures) if figures else 0.0
+        if not figures:
+            return 0.0
+        if len(figures) >= 5:
+            figures = sorted(figures)[1:-1]
+        return statistics.fmean(figures)
 
     def speed(self, *, quota: float | None = None, cores: int = 1) -> float:
         """Work units per second of one of this robot's cores."""
         return round(self.rate() * core_fraction(quota, cores), 4)
+
+
+def fastest_quarter(rates: list[float]) -> float:
+    """The mean of the fastest quarter (at least one) of ``rates``."""
+    fast = sorted(rates, reverse=True)
+    return statistics.fmean(fast[:max(1, math.ceil(len(fast) / 4))])
 
 
 def measure_speed(seconds: float = 0.2, *, quota: float | None = None, cores: int = 1,

@@ -31,6 +31,7 @@ lifecycle and the loop only.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import queue
 import random
@@ -39,7 +40,9 @@ from collections import deque
 from pathlib import Path
 from typing import Any, Callable
 
+import msgspec
 
+from ramps.core.config import RampsConfig
 from ramps.core.cost import nice_weight
 from ramps.core.events import (
     CheckpointSaved,
@@ -94,6 +97,28 @@ INSECURE_WARNING = (
     "`ramps team init`, `ramps team add ROBOT`, then `ramps node --secure --credentials DIR` (README, Security).")
 _insecure_warned = False
 
+
+
+#: seconds of the wall-clock grid a node's boot measurement starts on
+BOOT_GRID = 1.0
+
+
+def boot_moment(wall: float) -> float:
+    """When a node starting at ``wall`` measures its speed: the next moment of
+    a ``BOOT_GRID`` grid. The host's vCPUs change speed from one second to
+    the next, so robots started together (a fleet powered on, a testbed)
+    measure alike only if they measure the same second."""
+    return math.ceil(wall / BOOT_GRID) * BOOT_GRID
+
+
+def core_config(s: NodeSettings) -> RampsConfig:
+    """The core's settings for a node of ``s``: on a node that measures its own
+    speed (no ``speed`` given), costs tie within ``measured_tie_tolerance``,
+    the noise of identical robots' self-measured speeds."""
+    core = s.core
+    if not s.speed and core.measured_tie_tolerance > core.tie_tolerance:
+        core = msgspec.structs.replace(core, tie_tolerance=core.measured_tie_tolerance)
+    return core
 
 class NodeRuntime(Inbound, ClientAnswers, Outbound):
     """One robot's node. ``transport`` (default: a Zenoh session opened
@@ -223,6 +248,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             scope = "cgroup" if quota is not None else "host"
         self.cores = s.cores or detect_cores()
         self._speed_samples = SpeedSamples()
+        if not s.speed:  # at the next whole second, so robots started together measure the same one
+            self.clock.sleep(boot_moment(self.clock.time()) - self.clock.time())
         self.speed = s.speed or measure_speed(quota=quota, cores=self.cores, samples=self._speed_samples,
                                                    boot=True)
         # a speed measured at boot is measured again while no program runs, soon
@@ -235,7 +262,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._misdeclared_warned: set[str] = set()
         self.incarnation = self._incarnation or int.from_bytes(os.urandom(6), "big")
         return_freed_memory()
-        self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=s.core,
+        self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=core_config(s),
                          rng=random.Random(self.incarnation), incarnation=self.incarnation,
                          registry=self.registry.names(), program_weight=nice_weight(s.worker_nice),
                          core_fraction=core_fraction(quota, self.cores))

@@ -245,7 +245,12 @@ class Inbound:
             if self.metrics is not None:
                 self.metrics.on_finished(item[1])
             return node.handle(item[1], now)
-        if kind in ("progress", "speed"):
+        if kind == "speed":  # the measurement's moment on the grid, its own figure, the node's
+            if self._trace is not None:
+                self._write_trace("speed_measured", "", "", 0,
+                                  f"{item[3]:.5g} at {item[2]:.1f}, node figure {item[1].speed:.5g}")
+            return node.handle(item[1], now)
+        if kind == "progress":
             return node.handle(item[1], now)
         if kind == "live":
             robot, alive = item[1], item[2]

@@ -51,7 +51,7 @@ from ramps.core.messages import (
 )
 from ramps.core.speed import MIN_RUN_WORK, REMEASURE_CPU, SpeedMeasured, next_remeasure
 from ramps.runtime import keys
-from ramps.runtime.measure import measure_speed
+from ramps.runtime.measure import core_fraction, measure_speed
 from ramps.runtime.transport import Publisher
 
 log = logging.getLogger("ramps.node")
@@ -212,19 +212,25 @@ class Outbound:
         team's grid, ``next_remeasure``), off the driver's thread (briefly:
         ``REMEASURE_CPU`` s of CPU), with every piece timed so far
         (``SpeedSamples``), unless a program started meanwhile; the core
-        takes the figure if it moved. The caller holds ``_remeasuring``."""
+        takes the figure if it moved. A measurement still running when the
+        next one's thread starts (one beside busy processes takes longer than
+        its second) is waited for until the moment: a moment one robot skips
+        and its teammates measure sets their figures apart."""
+        if not self._remeasuring.acquire(timeout=max(0.0, at + 0.5 - self.clock.time())):
+            return
         try:
             self.clock.sleep(max(0.0, at - self.clock.time()))
             if self.pool.busy() or self.pool.queued():
                 return
             speed = measure_speed(REMEASURE_CPU, quota=self._quota, cores=self.cores, samples=self._speed_samples,
                                   apart=True)
+            figure = self._speed_samples.latest * core_fraction(self._quota, self.cores)
         except Exception:  # never worth a node
             log.exception("node %s: measuring its speed again failed", self.robot)
             return
         finally:
             self._remeasuring.release()
-        self._q.put(("speed", SpeedMeasured(speed=speed)))
+        self._q.put(("speed", SpeedMeasured(speed=speed), at, figure))
 
     def _publish(self, now: float) -> None:
         due = self._remeasure_at
@@ -233,8 +239,7 @@ class Outbound:
         # a stall) is skipped for the next on the grid
         wall = self.clock.time()
         if due is not None and wall >= due - REMEASURE_LEAD:
-            if due > wall - 0.5 and not self.pool.busy() and not self.pool.queued() \
-                    and self._remeasuring.acquire(blocking=False):
+            if due > wall - 0.5 and not self.pool.busy() and not self.pool.queued():
                 threading.Thread(target=self._remeasure, args=(due,), name=f"ramps-speed-{self.robot}",
                                  daemon=True).start()
             self._remeasures += 1

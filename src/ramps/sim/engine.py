@@ -311,8 +311,8 @@ class Simulator:
         if r.spec.measured_speed is not None and self.now >= r.remeasure_at and not r.cpu.jobs:
             # a robot that mis-measured at boot measures again while idle, as a
             # node does (ramps.runtime.node); idle, it measures its true speed
-            # (a node's figure is the median of its measurements,
-            # ramps.runtime.measure.SpeedSamples: the odd boot figure is outvoted)
+            # (a node's figure is the mean of its latest measurements,
+            # ramps.runtime.measure.SpeedSamples: the odd boot figure is outweighed)
             r.remeasure_at = self.now + REMEASURE_PERIOD
             self._handle(r, SpeedMeasured(speed=r.spec.speed))
         report = r.node.make_report(cpu_busy=busy, runnable=runnable, ramps_avg=ramps_avg, window=pub.window,

@@ -47,6 +47,9 @@ class SpeedStart(msgspec.Struct, kw_only=True):
     boot: dict[str, float]
     #: seconds after the team was up -> robot -> the speed in its latest report
     reported: dict[str, dict[str, float]]
+    #: robot -> its re-measurements from its trace: [moment on the team's grid
+    #: (Unix time), that measurement's own figure, the node's figure after it]
+    measured: dict[str, list[list[float]]] = {}
 
 
 class SpeedsReport(msgspec.Struct, kw_only=True):
@@ -70,6 +73,28 @@ class SpeedsReport(msgspec.Struct, kw_only=True):
         lines.append(f"within 5% of each other: {within}/{len(self.starts)} at boot, "
                      f"{later}/{len(self.starts)} at +{READ_AT[-1]:g} s")
         return "\n".join(lines)
+
+
+_MEASURED = re.compile(r"([0-9.eE+-]+) at ([0-9.]+), node figure ([0-9.eE+-]+)")
+
+
+def measurements(log_dir, names: list[str]) -> dict[str, list[list[float]]]:
+    """robot -> its re-measurements, from the ``speed_measured`` lines of its trace."""
+    out: dict[str, list[list[float]]] = {}
+    for r in names:
+        rows = []
+        try:
+            lines = (log_dir / f"{r}.trace.jsonl").read_text(errors="replace").splitlines()
+        except OSError:
+            lines = []
+        for line in lines:
+            if '"speed_measured"' not in line:
+                continue
+            m = _MEASURED.search(msgspec.json.decode(line).get("detail", ""))
+            if m:
+                rows.append([float(m.group(2)), float(m.group(1)), float(m.group(3))])
+        out[r] = rows
+    return out
 
 
 def boot_speeds(log_dir, names: list[str]) -> dict[str, float]:
@@ -104,7 +129,8 @@ def run_speeds(*, starts: int = 10, robots: int = 5, cores: int = 4, quota: floa
                 for at in READ_AT:
                     time.sleep(max(0.0, up + at - time.monotonic()))
                     reported[str(at)] = reported_speeds(obs, robots, timeout=0.0)
-        start = SpeedStart(boot=boot, reported=reported)
+            measured = measurements(tb.log_dir, names)
+        start = SpeedStart(boot=boot, reported=reported, measured=measured)
         out.append(start)
         log(f"start {i + 1}/{starts}: boot spread {spread(boot):.3f}, "
             f"+{READ_AT[-1]:g} s {spread(reported[str(READ_AT[-1])]):.3f}")
