@@ -228,6 +228,9 @@ class Team:
 
     # ------------------------------------------------------------ discovery
     def _on_alive(self, key: str, alive: bool) -> None:
+        """A robot's liveliness key came or went. Zenoh tells a key, not each
+        token: two nodes under one name are one key, gone when both are, so a
+        refused clone that leaves takes nothing from the node that stays."""
         robot = keys.robot_of(key)
         with self._lock:
             if alive:

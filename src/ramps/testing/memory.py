@@ -4,13 +4,15 @@ How this works: a ``MemoryBus`` joins several ``MemoryTransport`` (one per
 node or client) in this process. A put is handed at once, synchronously, to
 every subscriber whose key expression intersects the key (as bytes) (Zenoh's own
 ``zenoh.KeyExpr.intersects``), on every transport it can reach.
-Liveliness follows Zenoh: declaring a token tells every liveliness
-subscriber that can reach it (PUT), undeclaring it, closing or ``kill()``-ing
-its transport tells them it went (DELETE); a new liveliness subscriber with
-``history`` hears the tokens there now. ``cut(name)`` isolates one transport
-(its teammates' tokens go for it and its tokens go for them, nothing passes
-either way) and ``restore(name)`` joins it again (the tokens come back), as a
-link that fails and reconnects.
+Liveliness follows Zenoh, whose routing tells a subscriber about a key, not
+about each token: a key is alive for it (PUT) once a token of that key it can
+reach is declared, and gone (DELETE) once the last such token is undeclared,
+or its transport closed or ``kill()``-ed; a second token of a key that is alive
+already (two nodes under one robot name) is not told, nor is its going. A new
+liveliness subscriber with ``history`` hears the keys alive now. ``cut(name)``
+isolates one transport (its teammates' tokens go for it and its tokens go for
+them, nothing passes either way) and ``restore(name)`` joins it again (the
+tokens come back), as a link that fails and reconnects.
 
 ``FakeClock`` is the shared time (``advance()`` moves it; ``sleep()`` too).
 ``MemoryPool`` stands for ``ramps.runtime.workers.WorkerPool``: it runs the
@@ -98,7 +100,7 @@ class MemoryBus:
     def __init__(self) -> None:
         self.transports: dict[str, MemoryTransport] = {}
         self._subs: list[tuple[MemoryTransport, str, Callable[[bytes], None]]] = []
-        self._lsubs: list[tuple[MemoryTransport, str, Callable[[str, bool], None]]] = []
+        self._lsubs: list[_LivelinessSub] = []
         self._tokens: list[tuple[MemoryTransport, str]] = []
         self._cut: set[str] = set()
         #: messages that reached no subscriber because a link was cut
@@ -135,75 +137,81 @@ class MemoryBus:
         return _Declared(lambda: self._drop(self._subs, entry))
 
     # ------------------------------------------------------------ liveliness
-    def _tell(self, token: tuple["MemoryTransport", str], alive: bool, only: "MemoryTransport | None" = None) -> None:
-        owner, key = token
-        for t, expr, cb in list(self._lsubs):
-            if (only is None or t is only) and intersects(expr, key) and self.reaches(owner, t):
-                cb(key, alive)
+    def _alive_for(self, sub: "_LivelinessSub") -> dict[str, None]:
+        """The keys of the tokens a subscriber can reach now, in declaration order."""
+        return dict.fromkeys(key for owner, key in self._tokens
+                             if intersects(sub.expr, key) and self.reaches(owner, sub.t))
+
+    def _sync(self, subs: "list[_LivelinessSub] | None" = None) -> None:
+        """Tell each liveliness subscriber the keys that went (DELETE) and
+        came (PUT) for it since it was last told."""
+        for sub in list(self._lsubs) if subs is None else subs:
+            alive = self._alive_for(sub)
+            gone, new = [k for k in sub.told if k not in alive], [k for k in alive if k not in sub.told]
+            sub.told = alive
+            for key in gone:
+                sub.cb(key, False)
+            for key in new:
+                sub.cb(key, True)
 
     def declare_token(self, t: "MemoryTransport", key: str) -> _Declared:
         token = (t, key)
         self._tokens.append(token)
-        self._tell(token, True)
+        self._sync()
 
         def undeclare() -> None:
-            self._tell(token, False)
             self._tokens.remove(token)
+            self._sync()
 
         return _Declared(undeclare)
 
     def subscribe_liveliness(self, t: "MemoryTransport", key: str, cb: Callable[[str, bool], None],
                              history: bool) -> _Declared:
-        entry = (t, key, cb)
-        self._lsubs.append(entry)
+        sub = _LivelinessSub(t, key, cb)
+        self._lsubs.append(sub)
         if history:
-            for owner, tkey in list(self._tokens):
-                if intersects(key, tkey) and self.reaches(owner, t):
-                    cb(tkey, True)
-        return _Declared(lambda: self._drop(self._lsubs, entry))
+            self._sync([sub])
+        else:  # it hears what comes from now on, and the going of what is there
+            sub.told = self._alive_for(sub)
+        return _Declared(lambda: self._drop(self._lsubs, sub))
 
     @staticmethod
-    def _drop(entries: list, entry: tuple) -> None:
+    def _drop(entries: list, entry: object) -> None:
         if entry in entries:
             entries.remove(entry)
 
     # ------------------------------------------------------------ faults
-    def _others(self, name: str) -> list["MemoryTransport"]:
-        return [t for n, t in self.transports.items() if n != name and not t.closed]
-
     def cut(self, name: str) -> None:
         """Isolate one transport: its links to every other one fail."""
         if name in self._cut:
             return
-        me = self.transports[name]
-        for token in [tk for tk in self._tokens if tk[0] is not me]:  # it hears its teammates go
-            self._tell(token, False, only=me)
-        for token in [tk for tk in self._tokens if tk[0] is me]:  # and they hear it go
-            for other in self._others(name):
-                self._tell(token, False, only=other)
         self._cut.add(name)
+        self._sync()  # it hears its teammates go, and they hear it go
 
     def restore(self, name: str) -> None:
         """Join a cut transport again: the tokens on both sides come back."""
         if name not in self._cut:
             return
         self._cut.discard(name)
-        me = self.transports[name]
-        for token in [tk for tk in self._tokens if tk[0] is not me]:
-            if self.reaches(token[0], me):
-                self._tell(token, True, only=me)
-        for token in [tk for tk in self._tokens if tk[0] is me]:
-            for other in self._others(name):
-                if self.reaches(me, other):
-                    self._tell(token, True, only=other)
+        self._sync()
 
     def kill(self, name: str) -> None:
         """The process behind a transport dies: it hears nothing more, and its
         teammates hear its tokens go."""
         t = self.transports[name]
         self._subs = [e for e in self._subs if e[0] is not t]
-        self._lsubs = [e for e in self._lsubs if e[0] is not t]
+        self._lsubs = [e for e in self._lsubs if e.t is not t]
         t.close()
+
+
+class _LivelinessSub:
+    """A liveliness subscriber on a ``MemoryBus``, with the keys it was told are alive."""
+
+    __slots__ = ("t", "expr", "cb", "told")
+
+    def __init__(self, t: "MemoryTransport", expr: str, cb: Callable[[str, bool], None]) -> None:
+        self.t, self.expr, self.cb = t, expr, cb
+        self.told: dict[str, None] = {}
 
 
 class MemoryTransport:
