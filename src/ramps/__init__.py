@@ -15,11 +15,11 @@ from __future__ import annotations
 import os
 from typing import TYPE_CHECKING
 
+from ramps.version import __version__ as __version__
+
 if TYPE_CHECKING:
     from ramps.runtime.client import Team
     from ramps.runtime.registry import Registry
-
-__version__ = "0.2.0"
 
 
 def connect(team: str | None = None, robot: str | None = None, *, connect: list[str] | None = None,

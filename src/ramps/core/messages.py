@@ -52,7 +52,7 @@ from typing import Annotated, TypeVar, Union
 import msgspec
 from msgspec import Meta
 
-from ramps import __version__
+from ramps.version import __version__
 
 #: the protocol this code speaks, major.minor. 1.0 is ramps 0.1.0 (strict:
 #: it refuses unknown fields and types); 1.1 (ramps 0.2.0) decodes

@@ -32,8 +32,8 @@ from typing import TYPE_CHECKING, Any
 
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, Info
 
-from ramps import __version__
 from ramps.core.events import Deliver, Note, StartProgram
+from ramps.version import __version__
 
 if TYPE_CHECKING:
     import threading
