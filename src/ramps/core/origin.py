@@ -33,7 +33,7 @@ import math
 import random
 import statistics
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import msgspec
@@ -68,7 +68,7 @@ from ramps.core.program import (
 )
 from ramps.core.relink import Relink
 from ramps.core.speed import MIN_RUN_WORK
-from ramps.core.relocation import RELOCATE_BATCH, price_move, relocation_check, worth_moving  # noqa: F401 (re-exported)
+from ramps.core.relocation import relocation_check
 
 S = ProgramState
 E = Event
@@ -132,7 +132,7 @@ class Origin:
         self._relocate_due: float | None = None
         #: relocation checks price moves with a generator of their own, so
         #: turning relocation on leaves every placement's draws unchanged
-        self._reloc_rng = random.Random(f"{me}/relocate")
+        self.relocation_rng = random.Random(f"{me}/relocate")
         self.moves = 0
         self.moves_aborted = 0
         #: this robot's own stalls (``Stalled``, every one the driver saw): the
@@ -498,7 +498,7 @@ class Origin:
         if host is None and sub.local_only:
             host = self.me
         if host is None:
-            policy = self._policies[sub.policy] if sub.policy else self.policy
+            policy = self.policy_for(sub)
             placement = policy.choose(
                 PlacementRequest(program_id=ap.program_id, work=work,
                                  payload_size=sub.payload_size + len(resume or b""), result_size=sub.result_size),
@@ -752,6 +752,11 @@ class Origin:
             return sub.work
         return statistics.median(runs) * (sub.work if sub.work > 0 else 1.0)
 
+    def learned_runs(self, program: str) -> Sequence[float]:
+        """The work each of ``program``'s latest learned runs took per unit it
+        declared, oldest first (none before any ran)."""
+        return self._learned.get(program, ())
+
     def learned_work(self) -> dict[str, float]:
         """Program name -> the work placements now assume for a call declared
         like its latest run (learned ones only)."""
@@ -768,6 +773,15 @@ class Origin:
 
     def _relocation_check(self, now: float, out: list[Action]) -> bool:
         return relocation_check(self, now, out)
+
+    def policy_for(self, sub: Submit) -> Policy:
+        """The policy that places ``sub``: the one it asked for, else this robot's."""
+        return self._policies[sub.policy] if sub.policy else self.policy
+
+    def relocate(self, ap: AutonomousProgram, placement: Placement, now: float, out: list[Action]) -> None:
+        """Move ``ap`` where ``placement`` says (``ramps.core.relocation`` found
+        it worth it): the ``relocate`` event of its state machine."""
+        self._step(ap, E.RELOCATE, now, out, placement)
 
     def _relocate(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Placement, event: Event) -> None:
         """Offer the program to its new host; the old copy runs on meanwhile."""

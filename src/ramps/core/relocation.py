@@ -43,25 +43,30 @@ zero). On top of the thresholds:
   ``relocate_max_spread`` apart per declared unit). The gain must then last
   ``relocate_persist`` again once the doubt is gone.
 
-Rules: functions of the ``Origin`` they decide for (they read its view,
-policies and programs, and step programs through its table); no clock, no
-I/O.
+Rules: functions of the origin they decide for, which they see as a
+``RelocatingOrigin`` (what ``ramps.core.origin.Origin`` offers them: its
+view, programs and figures, the policy of each program, and ``relocate``, the
+one thing they do to it, which steps a program through its table); no clock,
+no I/O.
 """
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+import random
+from collections.abc import Sequence
+from typing import Protocol
 
 import msgspec
 
-from ramps.core.cost import program_share, shared_finish_time
-from ramps.core.events import Action
-from ramps.core.policy import Placement, PlacementRequest
-from ramps.core.program import AutonomousProgram, Event, ProgramState
-
-if TYPE_CHECKING:
-    from ramps.core.origin import Origin
+from ramps.core.config import RampsConfig
+from ramps.core.cost import NetworkEstimate, program_share, shared_finish_time
+from ramps.core.events import Action, Submit
+from ramps.core.links import Links
+from ramps.core.loadview import LoadView
+from ramps.core.policy import Placement, PlacementRequest, Policy
+from ramps.core.program import AutonomousProgram, ProgramState
+from ramps.core.relink import Relink
 
 S = ProgramState
 #: most running programs one relocation check prices against the team (the
@@ -69,7 +74,36 @@ S = ProgramState
 RELOCATE_BATCH = 8
 
 
-def relocation_check(origin: Origin, now: float, out: list[Action]) -> bool:
+class RelocatingOrigin(Protocol):
+    """The origin as relocation sees it (``ramps.core.origin.Origin`` is one)."""
+
+    me: str
+    view: LoadView
+    config: RampsConfig
+    net: NetworkEstimate
+    links: Links | None
+    relink: Relink
+    programs: dict[str, AutonomousProgram]
+    #: relocation's own generator (placements' draws stay as they were)
+    relocation_rng: random.Random
+    #: this robot's latest wake from a stall, and its stalls' seconds in all
+    woke_at: float
+    stalled_s: float
+    #: host -> (its speed correction as relocation last saw it, since when)
+    factor_seen: dict[str, tuple[float, float]]
+    #: moves withheld on an uncertain estimate, by reason
+    withheld: dict[str, int]
+
+    def work_estimate(self, sub: Submit) -> float: ...
+
+    def policy_for(self, sub: Submit) -> Policy: ...
+
+    def learned_runs(self, program: str) -> Sequence[float]: ...
+
+    def relocate(self, ap: AutonomousProgram, placement: Placement, now: float, out: list[Action]) -> None: ...
+
+
+def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) -> bool:
     """Re-evaluate eq. (1) for ``origin``'s running programs (see the module
     docstring). Returns whether any program may still move later."""
     rows = {row[0]: row for row in origin.view.scan(now, frozenset())}
@@ -89,8 +123,7 @@ def relocation_check(origin: Origin, now: float, out: list[Action]) -> bool:
     for ap in origin.programs.values():
         if ap.state is not S.RUNNING and ap.state is not S.MOVING:
             continue
-        policy = origin._policies[ap.submit.policy] if ap.submit.policy else origin.policy
-        if not policy.relocates or ap.submit.local_only or ap.moves >= cfg.relocate_max_moves:
+        if not origin.policy_for(ap.submit).relocates or ap.submit.local_only or ap.moves >= cfg.relocate_max_moves:
             continue
         keep = True
         row = rows.get(ap.host or "")
@@ -138,20 +171,19 @@ def relocation_check(origin: Origin, now: float, out: list[Action]) -> bool:
         placement = price_move(origin, ap, t_here, now)
         if placement is not None:
             moved_off.add(ap.host or "")
-            origin._step(ap, Event.RELOCATE, now, out, placement)
+            origin.relocate(ap, placement, now, out)
     return keep
 
-def price_move(origin: Origin, ap: AutonomousProgram, t_here: float, now: float) -> Placement | None:
+def price_move(origin: RelocatingOrigin, ap: AutonomousProgram, t_here: float, now: float) -> Placement | None:
     """Where ``ap`` would finish sooner by the relocation thresholds, or None."""
     sub = ap.submit
     work = origin.work_estimate(sub) * (1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0))
-    policy = origin._policies[sub.policy] if sub.policy else origin.policy
     # never back where it ran, nor onto a robot whose figures are in doubt
     never = frozenset({ap.host or ""}) | frozenset(ap.ran_on) | unsettled(origin, now)
-    placement = policy.choose(
+    placement = origin.policy_for(sub).choose(
         PlacementRequest(program_id=ap.program_id, work=work,
                          payload_size=sub.payload_size + len(ap.checkpoint or b""), result_size=sub.result_size),
-        origin.view, now, origin._reloc_rng, net=origin.net, config=origin.config,
+        origin.view, now, origin.relocation_rng, net=origin.net, config=origin.config,
         exclude=never | origin.view.short_of_memory(sub.memory) | origin.relink.excluded(origin.view.robots(), now),
         links=origin.links.estimate if origin.links is not None else None,
     )
@@ -167,13 +199,13 @@ def price_move(origin: Origin, ap: AutonomousProgram, t_here: float, now: float)
         budget = min(budget, placement.time_budget)
     return msgspec.structs.replace(placement, time_budget=budget)
 
-def worth_moving(origin: Origin, t_here: float, t_there: float) -> bool:
+def worth_moving(origin: RelocatingOrigin, t_here: float, t_there: float) -> bool:
     """Eq. (1) with hysteresis: the relative AND the absolute gain."""
     cfg = origin.config
     return t_here > t_there * (1.0 + cfg.relocate_gain) and t_here - t_there > cfg.relocate_min_gain
 
 
-def done_bound(origin: Origin, ap: AutonomousProgram, now: float, speed: float) -> float:
+def done_bound(origin: RelocatingOrigin, ap: AutonomousProgram, now: float, speed: float) -> float:
     """The most work ``ap``'s current attempt can have done: its time since
     it was offered (the origin's stalls, taken out of its clock, put back)
     at one whole core of its host's speed, corrected or as it reports it,
@@ -185,7 +217,7 @@ def done_bound(origin: Origin, ap: AutonomousProgram, now: float, speed: float) 
     return min(ap.work, max(ap.done, elapsed * max(speed, reported)))
 
 
-def see_factors(origin: Origin, now: float) -> None:
+def see_factors(origin: RelocatingOrigin, now: float) -> None:
     """Note when each host's speed correction changed (read from the view;
     one first seen away from 1 counts as changed now)."""
     for host, factor in origin.view.speed_factor.items():
@@ -194,12 +226,12 @@ def see_factors(origin: Origin, now: float) -> None:
             origin.factor_seen[host] = (factor, now if seen is not None or factor != 1.0 else -math.inf)
 
 
-def factor_settled(origin: Origin, robot: str, now: float) -> bool:
+def factor_settled(origin: RelocatingOrigin, robot: str, now: float) -> bool:
     seen = origin.factor_seen.get(robot)
     return seen is None or now - seen[1] >= origin.config.relocate_calm
 
 
-def uncertain(origin: Origin, ap: AutonomousProgram, now: float) -> str | None:
+def uncertain(origin: RelocatingOrigin, ap: AutonomousProgram, now: float) -> str | None:
     """Why the estimate of moving ``ap`` is too uncertain to act on now, or None."""
     cfg = origin.config
     host = ap.placed_host
@@ -208,13 +240,13 @@ def uncertain(origin: Origin, ap: AutonomousProgram, now: float) -> str | None:
     age = origin.view.report_age(host, now)
     if host != origin.me and (age is None or age > cfg.relocate_stale):
         return "host report stale"
-    runs = origin._learned.get(ap.submit.program)
+    runs = origin.learned_runs(ap.submit.program)
     if runs and len(runs) >= 2 and max(runs) > cfg.relocate_max_spread * min(runs):
         return "work scattered"
     return None
 
 
-def unsettled(origin: Origin, now: float) -> frozenset[str]:
+def unsettled(origin: RelocatingOrigin, now: float) -> frozenset[str]:
     """Robots no program moves to now: their speed correction changed within
     ``relocate_calm``, or their latest report is older than ``relocate_stale``."""
     cfg = origin.config
