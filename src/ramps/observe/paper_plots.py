@@ -41,8 +41,6 @@ from ramps.experiments.paper import PAPER_5_ROBOTS
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from ramps.observe.report import Report
-
 # ---------------------------------------------------------------- the paper's tables
 #: Table 3 (median run): (programs, team size) -> distribution R1..Rn
 PAPER_TABLE3 = {
@@ -368,28 +366,5 @@ def write_figures(doc, directory: Path, *, dpi: int = 110, workers: int | None =
         return [Path(p) for p in pool.map(_write_one, jobs)]
 
 
-def experiment_report(doc, *, title: str = "") -> Report:
-    """A ``ramps.observe.report.Report`` of saved experiment results."""
-    from ramps.observe.plots import png_bytes
-    from ramps.observe.report import Report
-
-    rep = Report(title=title or "ramps experiments")
-    parts = split_documents(doc)
-    for e in ("unloaded", "loaded"):
-        if e in parts:
-            s = parts[e]["summary"]
-            rep.summary.append((f"{e} ({parts[e]['policy']}, {parts[e]['runs']} runs)",
-                                f"{s['distributions']} distributions: {s['optimal']} optimal, {s['near_optimal']} "
-                                f"near, {s['non_optimal']} non optimal; worst vs round robin "
-                                f"{s['worst_ratio_to_round_robin']:.3f}"))
-    for f in parts["faults"]:
-        rep.summary.append((f"faults {f['mode']} {f['kind']} ({f.get('world', 'simulator')})",
-                            ", ".join(f"{k} {v:.2f}" if isinstance(v, float) else f"{k} {v}"
-                                      for k, v in f["summary"].items() if not isinstance(v, (dict, list)))))
-    for name, caption, fig in figures(doc):
-        rep.figures.append((name, caption, png_bytes(fig)))
-    return rep
-
-
-__all__ = ["run_all", "figures", "write_figures", "experiment_report", "PAPER_TABLE3", "PAPER_TABLE4",
+__all__ = ["run_all", "figures", "write_figures", "split_documents", "PAPER_TABLE3", "PAPER_TABLE4",
            "PAPER_SEQUENTIAL", "PAPER_SIMULTANEOUS"]

@@ -102,6 +102,30 @@ def run_report(tl: Timeline, *, title: str = "") -> Report:
     return rep
 
 
+def experiment_report(doc, *, title: str = "") -> Report:
+    """A report of saved experiment results: their summaries and the paper's
+    figures (``ramps.observe.paper_plots``)."""
+    from ramps.observe.paper_plots import figures, split_documents
+    from ramps.observe.plots import png_bytes
+
+    rep = Report(title=title or "ramps experiments")
+    parts = split_documents(doc)
+    for e in ("unloaded", "loaded"):
+        if e in parts:
+            s = parts[e]["summary"]
+            rep.summary.append((f"{e} ({parts[e]['policy']}, {parts[e]['runs']} runs)",
+                                f"{s['distributions']} distributions: {s['optimal']} optimal, {s['near_optimal']} "
+                                f"near, {s['non_optimal']} non optimal; worst vs round robin "
+                                f"{s['worst_ratio_to_round_robin']:.3f}"))
+    for f in parts["faults"]:
+        rep.summary.append((f"faults {f['mode']} {f['kind']} ({f.get('world', 'simulator')})",
+                            ", ".join(f"{k} {v:.2f}" if isinstance(v, float) else f"{k} {v}"
+                                      for k, v in f["summary"].items() if not isinstance(v, (dict, list)))))
+    for name, caption, fig in figures(doc):
+        rep.figures.append((name, caption, png_bytes(fig)))
+    return rep
+
+
 def make_report(paths: list[Path], *, title: str = "", window: tuple[float, float] | None = None) -> Report:
     """A report of whatever ``paths`` hold (see the module docstring);
     ``window``: of node traces, only the part between these Unix times."""
@@ -109,8 +133,6 @@ def make_report(paths: list[Path], *, title: str = "", window: tuple[float, floa
     if len(paths) == 1:
         doc = _json_document(paths[0])
         if doc is not None and _is_experiment(doc):
-            from ramps.observe.paper_plots import experiment_report
-
             return experiment_report(doc, title=title or paths[0].name)
     events, extra = load_run(paths, window=window)
     return run_report(build_timeline(events, extra), title=title)
@@ -175,4 +197,5 @@ def write_pngs(rep: Report, directory: Path) -> list[Path]:
     return out
 
 
-__all__ = ["Report", "make_report", "run_report", "fault_summary", "write_html", "write_pngs", "ReportError"]
+__all__ = ["Report", "make_report", "run_report", "experiment_report", "fault_summary", "write_html", "write_pngs",
+           "ReportError"]
