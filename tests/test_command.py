@@ -114,7 +114,7 @@ def test_checkpoint_lines_are_saved_and_a_resumed_run_reads_its_state_from_ramps
 @pytest.mark.parametrize("line, why", [("RAMPS_CHECKPOINT {not json", "not one JSON value"),
                                        ("RAMPS_CHECKPOINT \"" + "x" * 300_000 + "\"", "exceeds the limit")])
 def test_a_checkpoint_ramps_cannot_keep_stops_the_program_with_a_clear_error(tmp_path, line, why):
-    from ramps.runtime.worker import save_checkpoint  # what a worker saves with: it checks the size
+    from ramps.runtime.running import save_checkpoint  # what a worker saves with: it checks the size
 
     p = script(tmp_path, f"#!{sys.executable}\nimport sys, time\nprint({line!r}, file=sys.stderr, flush=True)\n"
                          "time.sleep(30)\n")

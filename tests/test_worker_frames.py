@@ -1,5 +1,5 @@
 """Frames between the worker pool and its workers over unbuffered pipes
-(ramps.runtime.worker.read_frame): arguments and results larger than a
+(ramps.runtime.frames.read_frame): arguments and results larger than a
 pipe's 64 KiB arrive whole. Before, one read returned what the pipe held,
 the frame looked cut short, and every program with 100 kB of parameters
 died under its worker on every robot (found by the testbed's slow-link
@@ -13,7 +13,7 @@ import threading
 import msgspec
 import pytest
 
-from ramps.runtime.worker import frame, read_frame
+from ramps.runtime.frames import frame, read_frame
 
 
 @pytest.mark.parametrize("size", [0, 10, 65_536, 1_000_000])

@@ -109,8 +109,8 @@ def progress(fraction: float, detail: str = "") -> bool:
 
     The fraction reaches the caller's future (``fut.progress``), ``ramps
     status`` and ROS action feedback. Outside a ramps worker it does nothing;
-    see ``ramps.runtime.worker.report_progress``."""
-    from ramps.runtime.worker import report_progress
+    see ``ramps.runtime.running.report_progress``."""
+    from ramps.runtime.running import report_progress
 
     return report_progress(fraction, detail)
 
@@ -125,8 +125,8 @@ def checkpoint(state) -> bool:
     ``TypeError`` for what cannot be encoded, also outside a worker). Report
     ``ramps.progress`` before it, so the origin knows how much work is left.
     Returns whether it was sent: at most five a second are, and outside a
-    ramps worker none is. See ``ramps.runtime.worker.save_checkpoint``."""
-    from ramps.runtime.worker import save_checkpoint
+    ramps worker none is. See ``ramps.runtime.running.save_checkpoint``."""
+    from ramps.runtime.running import save_checkpoint
 
     return save_checkpoint(state)
 
@@ -136,6 +136,6 @@ def resume():
     ``ramps.checkpoint`` in an earlier attempt (decoded: bytes come back as
     bytes, other values as their plain msgpack form, e.g. a dict), or None on
     a fresh start (and outside a ramps worker)."""
-    from ramps.runtime.worker import resume_state
+    from ramps.runtime.running import resume_state
 
     return resume_state()

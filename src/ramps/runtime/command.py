@@ -142,19 +142,18 @@ class CommandProgram:
             on_checkpoint: Callable[[Any], Any] | None = None, resume: Any = None) -> Any:
         """Run it once. In a worker, progress and checkpoints go to the
         program's origin and ``resume`` is the state saved in an earlier
-        attempt (``ramps.runtime.worker``); outside one, pass them."""
+        attempt (``ramps.runtime.running``); outside one, pass them."""
         try:
             stdin = json.dumps(kwargs, allow_nan=False).encode()
         except (TypeError, ValueError) as exc:
             raise CommandFailed(f"arguments of {self.name} cannot be passed as JSON: {exc}") from None
-        from ramps.runtime import worker
+        from ramps.runtime import running
 
         if on_progress is None:
-            on_progress = worker.report_progress
+            on_progress = running.report_progress
         if on_checkpoint is None:
-            on_checkpoint = worker.save_checkpoint
-            resume = worker.resume_state() if resume is None else resume
-        from ramps.runtime.registry import MAX_RESULT_BYTES
+            on_checkpoint = running.save_checkpoint
+            resume = running.resume_state() if resume is None else resume
 
         env = dict(os.environ)
         env["RAMPS_PROGRAM"] = self.name
@@ -170,7 +169,7 @@ class CommandProgram:
                 f.write(text)
             env["RAMPS_RESUME"] = resume_file
         try:
-            return self._run(stdin, env, on_progress, on_checkpoint, MAX_RESULT_BYTES)
+            return self._run(stdin, env, on_progress, on_checkpoint, running.MAX_RESULT_BYTES)
         finally:
             if resume_file:
                 try:

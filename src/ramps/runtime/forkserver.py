@@ -61,6 +61,12 @@ import selectors
 import signal
 import socket
 import sys
+from collections.abc import Callable
+from typing import BinaryIO
+
+import msgspec
+
+from ramps.runtime.frames import frame
 
 PR_SET_NAME = 15
 PR_SET_PDEATHSIG = 1
@@ -217,12 +223,9 @@ class _Workers:
         # what it wrote last (a child of the program may still hold the pipe: no end of file)
         while w.err_r >= 0 and _readable(w.err_r) and self._copy(w):
             pass
-        from ramps.runtime import worker
-
         os.set_blocking(w.res_w, False)  # the worker is gone: nobody else writes; never block the server
         try:
-            os.write(w.res_w, worker.frame(worker._enc.encode(
-                {"died": how, "stderr": _last_lines(bytes(w.tail))})))
+            os.write(w.res_w, frame(msgspec.msgpack.encode({"died": how, "stderr": _last_lines(bytes(w.tail))})))
         except OSError:
             pass
         self.sel.unregister(w.pidfd)
@@ -255,16 +258,16 @@ def _pidfds() -> bool:
         return False
 
 
-def serve(sock: socket.socket, parent: int) -> None:
-    from ramps.runtime import worker
-
+def serve(sock: socket.socket, parent: int, run: Callable[[BinaryIO, BinaryIO], None]) -> None:
+    """Fork a worker for each request on ``sock`` until it closes; each runs
+    ``run`` over its two pipes (``ramps.runtime.worker.run``)."""
     die_with_parent(parent)
     name_process(b"ramps-forksrv")
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the node's (see the module's docstring)
     init = sock.recv(1 << 20)
     if not init:
         return
-    targets = worker._dec.decode(init)["targets"]
+    targets = msgspec.msgpack.decode(init)["targets"]
     preload(targets)
     workers = _Workers(sock) if _pidfds() else None
     if workers is None:
@@ -299,7 +302,7 @@ def serve(sock: socket.socket, parent: int) -> None:
                 name_process(b"ramps-worker")
                 inp = os.fdopen(job_r, "rb", buffering=0)
                 out = os.fdopen(res_w, "wb", buffering=0)
-                worker.run(inp, out)
+                run(inp, out)
             except BaseException:  # noqa: BLE001 - a worker never returns into the server loop
                 pass
             finally:
@@ -316,12 +319,13 @@ def serve(sock: socket.socket, parent: int) -> None:
             return
 
 
-def main(parent: int, fd: int) -> None:
-    """``python -m ramps.runtime.worker --fork-server PARENT_PID SOCKET_FD``."""
+def main(parent: int, fd: int, run: Callable[[BinaryIO, BinaryIO], None]) -> None:
+    """``python -m ramps.runtime.worker --fork-server PARENT_PID SOCKET_FD``:
+    ``run`` is what each forked worker runs (``ramps.runtime.worker.run``)."""
     os.dup2(2, 1)  # prints from programs go to stderr, as in any worker
     sys.stdout = sys.stderr
     sock = socket.socket(fileno=fd)
     try:
-        serve(sock, parent)
+        serve(sock, parent, run)
     finally:
         sock.close()

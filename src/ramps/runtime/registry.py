@@ -40,8 +40,6 @@ from ramps.errors import BadArguments, ConfigError, ProgramNotFound
 #: wire message (ramps.core.messages.MAX_MESSAGE_BYTES, 8 MiB) with room for
 #: the offer around them. A node may accept less (``max_args_bytes``).
 MAX_ARGS_BYTES = MAX_MESSAGE_BYTES - 64 * 1024
-#: largest encoded result a program may return: the same bound
-MAX_RESULT_BYTES = MAX_MESSAGE_BYTES - 64 * 1024
 
 _encoder = msgspec.msgpack.Encoder()
 _decoder = msgspec.msgpack.Decoder()

@@ -52,7 +52,7 @@ from typing import Callable
 
 import msgspec
 
-from ramps.runtime.worker import frame
+from ramps.runtime.frames import frame
 
 Key = tuple[str, int]
 #: on_finished(key, ok, value_bytes, error_text, retryable, cpu_seconds or None,
