@@ -18,8 +18,8 @@ import pytest
 from prometheus_client.parser import text_string_to_metric_families
 from runtime_team import LocalTeam
 
-from ramps.observe.metrics import parse_address
 from ramps.runtime.localteam import free_port
+from ramps.runtime.settings import parse_metrics_address
 
 RESULT_TIMEOUT = 60.0
 
@@ -98,14 +98,14 @@ def test_grafana_dashboard_queries_only_metrics_a_node_serves():
         assert wanted in names, wanted
 
 
-def test_parse_address_defaults_and_errors():
-    assert parse_address("9464") == ("127.0.0.1", 9464)
-    assert parse_address(":9464") == ("127.0.0.1", 9464)
-    assert parse_address("0.0.0.0:9100") == ("0.0.0.0", 9100)
-    assert parse_address("[::1]:9100") == ("::1", 9100)
+def test_parse_metrics_address_defaults_and_errors():
+    assert parse_metrics_address("9464") == ("127.0.0.1", 9464)
+    assert parse_metrics_address(":9464") == ("127.0.0.1", 9464)
+    assert parse_metrics_address("0.0.0.0:9100") == ("0.0.0.0", 9100)
+    assert parse_metrics_address("[::1]:9100") == ("::1", 9100)
     for bad in ("localhost:http", "1.2.3.4:70000", ""):
         with pytest.raises(ValueError, match="metrics"):
-            parse_address(bad)
+            parse_metrics_address(bad)
 
 
 @pytest.mark.slow

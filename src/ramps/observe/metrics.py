@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, Info
 
 from ramps.core.events import Deliver, Note, StartProgram
+from ramps.runtime.settings import parse_metrics_address
 from ramps.version import __version__
 
 if TYPE_CHECKING:
@@ -48,25 +49,6 @@ MAX_PENDING = 10_000
 #: why an origin writes an attempt off (ramps.core.program); their series exist from the start at 0,
 #: since Prometheus' rate() and increase() cannot see the first event of a series born at 1
 FAILURE_REASONS = ("host_lost", "heartbeat_timeout", "connect_timeout", "worker_lost")
-
-
-def parse_address(text: str) -> tuple[str, int]:
-    """``"ADDR:PORT"``, ``":PORT"`` or ``"PORT"`` -> (addr, port); addr
-    defaults to 127.0.0.1 (metrics are not for the whole network unless
-    asked: ``0.0.0.0:9464``). Raises ValueError with a message for users."""
-    text = text.strip()
-    host, sep, port = text.rpartition(":")
-    if not sep:
-        host, port = "", text
-    host = host.strip("[]") or "127.0.0.1"
-    try:
-        number = int(port)
-    except ValueError:
-        raise ValueError(f"metrics address {text!r} must look like ADDR:PORT, e.g. 127.0.0.1:9464 "
-                         "or 0.0.0.0:9464") from None
-    if not 0 <= number <= 65535:
-        raise ValueError(f"metrics port {number} is not in 0..65535")
-    return host, number
 
 
 def _reason(detail: str) -> str:
@@ -148,11 +130,12 @@ class NodeMetrics:
 
     # ------------------------------------------------------------ serving
     def serve(self, address: str) -> tuple[str, int]:
-        """Serve ``/metrics`` on ``address`` (see ``parse_address``); returns
+        """Serve ``/metrics`` on ``address`` (``ADDR:PORT``, as the setting
+        ``metrics``: ``ramps.runtime.settings.parse_metrics_address``); returns
         the real (addr, port). Raises OSError when the port is taken."""
         from prometheus_client import start_http_server
 
-        host, port = parse_address(address)
+        host, port = parse_metrics_address(address)
         server, self._thread = start_http_server(port, addr=host, registry=self.registry)
         self._server = server
         self.address = (host, server.server_port)
@@ -281,4 +264,4 @@ def _silence(node: Any, program_id: str, host: str, now: float) -> float | None:
     return max(0.0, min(ages)) if ages else None
 
 
-__all__ = ["NodeMetrics", "parse_address", "LATENCY_BUCKETS"]
+__all__ = ["NodeMetrics", "LATENCY_BUCKETS"]

@@ -322,9 +322,7 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
             raise ValueError(f"max_args_bytes must be 1..{_MAX_ARGS} (arguments travel in one message), "
                              f"got {self.max_args_bytes}")
         if self.metrics:
-            from ramps.observe.metrics import parse_address
-
-            parse_address(self.metrics)  # raises ValueError with a message
+            parse_metrics_address(self.metrics)  # raises ValueError with a message
         self._check_security()
         self._check_mode()
         check_zenoh_overrides(self.zenoh, secure=self.secure)
@@ -386,6 +384,25 @@ def check_endpoint(endpoint: str) -> None:
     host, colon, port = hostport.rpartition(":")
     if not colon or not host.strip("[]") or not port.isdigit() or not 0 <= int(port) <= 65535:
         raise ValueError(f"endpoint {endpoint!r} needs a host and a port 0-65535 after {proto}/, {example}")
+
+
+def parse_metrics_address(text: str) -> tuple[str, int]:
+    """``"ADDR:PORT"``, ``":PORT"`` or ``"PORT"`` -> (addr, port); addr
+    defaults to 127.0.0.1 (metrics are not for the whole network unless
+    asked: ``0.0.0.0:9464``). Raises ValueError with a message for users."""
+    text = text.strip()
+    host, sep, port = text.rpartition(":")
+    if not sep:
+        host, port = "", text
+    host = host.strip("[]") or "127.0.0.1"
+    try:
+        number = int(port)
+    except ValueError:
+        raise ValueError(f"metrics address {text!r} must look like ADDR:PORT, e.g. 127.0.0.1:9464 "
+                         "or 0.0.0.0:9464") from None
+    if not 0 <= number <= 65535:
+        raise ValueError(f"metrics port {number} is not in 0..65535")
+    return host, number
 
 
 #: how an environment variable's text becomes its setting: a type to call, or one of these forms
