@@ -5,8 +5,7 @@ cgroups that make a process tree a small computer of a given number of host
 cores (v1 or v2), and the rule for "every robot sees all the others".
 
 Used by ``ramps.testing.LocalTeam`` (real node processes on loopback: the
-demo, the benchmarks, the end-to-end tests) and by the testbed. The
-``LocalTeam`` class itself moved to ``ramps.testing``.
+demo, the benchmarks, the end-to-end tests) and by the testbed.
 """
 
 from __future__ import annotations
@@ -140,13 +139,3 @@ def _remove_one(d: Path, root: Path) -> None:
             break
         except OSError:
             time.sleep(0.05)
-
-
-def __getattr__(name: str) -> object:
-    # LocalTeam lives in ramps.testing now (one harness for the demo, the
-    # benchmarks and the tests); this name keeps older imports working
-    if name == "LocalTeam":
-        from ramps.testing import LocalTeam
-
-        return LocalTeam
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
