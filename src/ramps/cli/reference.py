@@ -107,12 +107,14 @@ def _documented(cls: type, *, grouped: bool) -> list[tuple[str, str, Any]]:
 
 def node_flags() -> tuple[dict[str, list[str]], list[tuple[list[str], str]]]:
     """The ``ramps node`` flags: those of each setting, and the flags that are
-    no setting (with their help)."""
+    no setting (with their help), read from the command ``ramps node`` runs."""
     import typer
 
-    from ramps.cli import app
+    from ramps.cli.node import node as run_node
 
-    node = typer.main.get_command(app).commands["node"]  # type: ignore[attr-defined]
+    one = typer.Typer(add_completion=False)
+    one.command()(run_node)
+    node = typer.main.get_command(one)  # a group of one command is that command
     by_field: dict[str, list[str]] = {}
     others: list[tuple[list[str], str]] = []
     from ramps.runtime.settings import NodeSettings
@@ -125,7 +127,7 @@ def node_flags() -> tuple[dict[str, list[str]], list[tuple[list[str], str]]]:
         if name in NodeSettings.__struct_fields__:
             by_field[name] = flags
         elif "--help" not in flags:
-            others.append((flags, param.help or ""))
+            others.append((flags, getattr(param, "help", None) or ""))
     return by_field, others
 
 
