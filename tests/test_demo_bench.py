@@ -10,8 +10,8 @@ import psutil
 import pytest
 from typer.testing import CliRunner
 
+from ramps.bench.demo import route_calls, run_demo
 from ramps.cli import app
-from ramps.experiments.demo import route_calls, run_demo
 from ramps.programs.route import ROUTE_SIZES, plan_route
 
 pytestmark = pytest.mark.slow

@@ -3,8 +3,11 @@
 How this works: a benchmark measures, it never asserts (the tests do); each
 returns a plain dict that the CLI (``ramps bench ...``, ``ramps.cli.bench``)
 prints and writes to a JSON file, with the machine it ran on. The paper's
-experiments live in ``ramps.experiments``; these are ours:
+experiments in the simulator live in ``ramps.experiments``; these are ours:
 
+* ``demo``: the paper's scenario on a real team on this machine, placed by
+  ramps, by round robin and on one robot, with an HTML report (``ramps
+  demo``, the main job; it returns a ``DemoReport``);
 * ``simulator``: the simulator's speed (``ramps bench sim``: paper sweeps, a
   1000-robot team) and ``machine()``, the host every benchmark records;
 * ``dispatch``: submit-to-result latency and throughput on a real loopback

@@ -1,6 +1,6 @@
 """``ramps demo``: the main job, a team of real nodes on this machine running the paper's scenario.
 
-The work is done by ``ramps.experiments.demo``; this module parses and
+The work is done by ``ramps.bench.demo``; this module parses and
 prints (rules in ``ramps.cli.common``).
 """
 
@@ -39,7 +39,7 @@ def demo(
     from rich.progress import Progress as _Progress
     from rich.table import Table
 
-    from ramps.experiments.demo import DEMO_ROUTE, run_demo
+    from ramps.bench.demo import DEMO_ROUTE, run_demo
     from ramps.programs.route import ROUTE_SIZES
 
     sizes = {"demo": DEMO_ROUTE, **ROUTE_SIZES}
