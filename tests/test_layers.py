@@ -56,8 +56,6 @@ LAYERS: tuple[tuple[str, ...], ...] = (
 
 #: arrows that break a rule today, (importer, imported): why each stays for now
 KNOWN: dict[tuple[str, str], str] = {
-    ("ramps.runtime.node", "ramps.observe.metrics"):
-        "the node's Prometheus exporter belongs in runtime/: it moves there when node.py is free to edit",
     ("ramps.runtime.measure", "ramps.programs.burn"):
         "the speed probe times burn's loop (what a work unit is): the loop moves below both when measure.py "
         "is free to edit",

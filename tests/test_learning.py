@@ -85,7 +85,7 @@ def test_warm_up_calls_leave_the_real_ones_placed_as_declared():
 def test_a_misdeclared_call_is_counted_in_the_metrics():
     from prometheus_client import generate_latest
 
-    from ramps.observe.metrics import NodeMetrics
+    from ramps.runtime.metrics import NodeMetrics
 
     team = FakeTeam({"o": (4, 1.0)})
     metrics = NodeMetrics("o", "t")

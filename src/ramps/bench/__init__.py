@@ -21,6 +21,8 @@ experiments in the simulator live in ``ramps.experiments``; these are ours:
   core (``ramps bench fuzz``);
 * ``flood``: a real node flooded with malformed messages keeps working
   (``ramps bench flood``);
+* ``metrics_cost``: what serving Prometheus metrics costs an idle node,
+  and the CPU of one ``/metrics`` render (``ramps bench metrics``);
 * ``progbench``: what executables, progress and the ROS face cost
   (``python -m ramps.bench.progbench``);
 * ``workerstart``: how soon programs beyond one per core start

@@ -3,11 +3,11 @@
     common.py    consoles, ``fail``, checks, JSON output, the shared options (--team, --secure, ...)
     node.py      ramps node | submit | status       (the real team)
     sim.py       ramps sim paper | sweep | campaign | run
-    bench.py     ramps bench sim | dispatch | fuzz | flood
+    bench.py     ramps bench metrics | sim | dispatch | first-calls | fuzz | flood
     demo.py      ramps demo
     testbed.py   ramps testbed ...                  (the fault commands come from one table, FAULTS)
     team.py      ramps team init | add | show | revoke
-    observe.py   ramps report | top, ramps bench metrics
+    observe.py   ramps report | top
     config.py    ramps config check                 (a node's config file, with the node's own checks)
     ramps.ros.cli  ramps ros                         (rclpy only when it runs)
 

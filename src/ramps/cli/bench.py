@@ -5,7 +5,7 @@
     ramps bench first-calls  # a fresh team's first calls of a heavy program, at once and one by one
     ramps bench fuzz         # hostile input at the decoders and the core
     ramps bench flood        # a real node under a flood of malformed messages
-    ramps bench metrics      # what --metrics costs (ramps.cli.observe)
+    ramps bench metrics      # what --metrics costs an idle node
 
 This module parses and prints (rules in ``ramps.cli.common``).
 """
@@ -19,10 +19,33 @@ from pathlib import Path
 import typer
 
 from ramps.cli.common import command_group, emit, err, fail, out
-from ramps.cli.observe import bench_metrics
 
 bench_app = command_group("Benchmarks that print figures and save them as JSON.")
-bench_app.command("metrics")(bench_metrics)
+
+
+@bench_app.command("metrics")
+def bench_metrics(
+    seconds: float = typer.Option(60.0, "--seconds", min=5.0, help="how long both nodes are measured"),
+    scrape_every: float = typer.Option(15.0, "--scrape-every", min=0.1,
+                                       help="seconds between scrapes (Prometheus' default is 15)"),
+    out_file: Path = typer.Option(Path("bench-results/metrics.json"), "--out", "-o", help="where to save the JSON"),
+) -> None:
+    """CPU cost of serving Prometheus metrics on an idle node: one node with --metrics (scraped over
+    HTTP) next to one without, for the same seconds, plus the CPU of one /metrics render."""
+    from ramps.bench.metrics_cost import measure_idle_cost
+
+    err.print(f"two idle one-robot teams on loopback, one serving metrics scraped every {scrape_every:g} s; "
+              f"measuring {seconds:g} s ...")
+    r = measure_idle_cost(seconds=seconds, scrape_every=scrape_every)
+    out.print(f"idle node with metrics: {r['node_with_metrics_core_pct']:.2f}% of a core, without: "
+              f"{r['node_without_metrics_core_pct']:.2f}%; serving metrics costs "
+              f"{r['metrics_cost_core_pct']:+.2f}% of a core ({r['scrapes']} scrapes in {r['seconds']:.0f} s)")
+    out.print(f"one /metrics render ({r['render_bytes']} bytes, a busy node's series): {r['render_cpu_ms']:.2f} ms "
+              f"CPU = {r['render_cost_at_15s_core_pct']:.3f}% of a core scraped every 15 s, "
+              f"{r['render_cost_at_1s_core_pct']:.2f}% every 1 s")
+    out_file.parent.mkdir(parents=True, exist_ok=True)
+    out_file.write_text(json.dumps(r, indent=2) + "\n")
+    out.print(f"saved {out_file}")
 
 
 @bench_app.command("sim")

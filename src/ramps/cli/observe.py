@@ -1,13 +1,11 @@
-"""``ramps report``, ``ramps top`` and ``ramps bench metrics``: seeing the team.
+"""``ramps report`` and ``ramps top``: seeing the team.
 
     ramps report r1.trace.jsonl -o run.html     # timeline, load, distribution of a run
     ramps top --connect tcp/192.168.1.12:7447   # live view of the team (Ctrl-C quits)
-    ramps bench metrics                         # what --metrics costs an idle node
 
 Rules as in ``ramps.cli.common``: user mistakes end with a one-line message and exit
 code 2. The work is done by ``ramps.observe``; this module parses and prints.
-``register(app)`` adds report and top to the main app; ``ramps.cli.bench`` adds
-bench metrics.
+``register(app)`` adds report and top to the main app.
 """
 
 from __future__ import annotations
@@ -27,30 +25,6 @@ _err = Console(stderr=True, highlight=False, soft_wrap=True)
 def _fail(message: str) -> NoReturn:
     _err.print(f"[bold red]error:[/] {escape(message)}")
     raise typer.Exit(2)
-
-
-def bench_metrics(
-    seconds: float = typer.Option(60.0, "--seconds", min=5.0, help="how long both nodes are measured"),
-    scrape_every: float = typer.Option(15.0, "--scrape-every", min=0.1,
-                                       help="seconds between scrapes (Prometheus' default is 15)"),
-    out_file: Path = typer.Option(Path("bench-results/metrics.json"), "--out", "-o", help="where to save the JSON"),
-) -> None:
-    """CPU cost of serving Prometheus metrics on an idle node: one node with --metrics (scraped over
-    HTTP) next to one without, for the same seconds, plus the CPU of one /metrics render."""
-    from ramps.observe.metrics_cost import measure_idle_cost
-
-    _err.print(f"two idle one-robot teams on loopback, one serving metrics scraped every {scrape_every:g} s; "
-               f"measuring {seconds:g} s ...")
-    r = measure_idle_cost(seconds=seconds, scrape_every=scrape_every)
-    _out.print(f"idle node with metrics: {r['node_with_metrics_core_pct']:.2f}% of a core, without: "
-               f"{r['node_without_metrics_core_pct']:.2f}%; serving metrics costs "
-               f"{r['metrics_cost_core_pct']:+.2f}% of a core ({r['scrapes']} scrapes in {r['seconds']:.0f} s)")
-    _out.print(f"one /metrics render ({r['render_bytes']} bytes, a busy node's series): {r['render_cpu_ms']:.2f} ms "
-               f"CPU = {r['render_cost_at_15s_core_pct']:.3f}% of a core scraped every 15 s, "
-               f"{r['render_cost_at_1s_core_pct']:.2f}% every 1 s")
-    out_file.parent.mkdir(parents=True, exist_ok=True)
-    out_file.write_text(json.dumps(r, indent=2) + "\n")
-    _out.print(f"saved {out_file}")
 
 
 def report(
@@ -218,4 +192,4 @@ def register(app: typer.Typer) -> None:
     app.command("top")(top)
 
 
-__all__ = ["bench_metrics", "register"]
+__all__ = ["register"]

@@ -2,6 +2,6 @@
 
 It drives the same ``ramps.core`` objects as the simulator; everything here
 is I/O: the Zenoh session, worker processes, the load publisher's
-measurements, the Team API's futures. No placement or recovery decision is
-made in this package.
+measurements, the Prometheus metrics a node serves, the Team API's
+futures. No placement or recovery decision is made in this package.
 """

@@ -218,7 +218,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self.name_taken = ""
         self._same_name_seen: dict[int, int] = {}
         self._same_name_told: set[int] = set()
-        #: Prometheus metrics (``--metrics``), fed from the driver thread (ramps.observe.metrics)
+        #: Prometheus metrics (``--metrics``), fed from the driver thread (ramps.runtime.metrics)
         self.metrics = None
         #: the durable record of the programs this node is origin of (``state_dir``;
         #: ramps.runtime.store), how many it resumed at start, and the outcomes
@@ -364,7 +364,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         log.warning(self.lonely)
 
     def _serve_metrics(self, address: str) -> None:
-        from ramps.observe.metrics import NodeMetrics
+        from ramps.runtime.metrics import NodeMetrics
 
         self.metrics = NodeMetrics(self.robot, self.team, cores=self.cores, speed=self.speed, policy=self.s.policy)
         try:

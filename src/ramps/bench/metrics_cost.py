@@ -7,8 +7,8 @@ seconds over HTTP, the other does not. The CPU time each consumed (node
 plus its idle workers, from psutil) over the window gives the cost as a
 share of one core; running both at once makes the machine's noise hit both.
 The CPU one render of ``/metrics`` takes is measured in-process too (a
-``NodeMetrics`` with the series of a busy node), so the cost at any scrape
-interval can be worked out: render CPU / interval.
+``NodeMetrics`` with the series of a busy node: ``busy_metrics``), so the
+cost at any scrape interval can be worked out: render CPU / interval.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import urllib.request
 import psutil
 
 from ramps.runtime.localteam import free_port
+from ramps.runtime.metrics import NodeMetrics
 from ramps.testing import LocalTeam
 
 
@@ -35,12 +36,9 @@ def _cpu(pid: int) -> float:
     return total
 
 
-def render_cost(renders: int = 300) -> dict:
-    """CPU seconds of one /metrics render of a node that saw 5 hosts, 3 programs and every outcome."""
-    from prometheus_client import generate_latest
-
+def busy_metrics() -> NodeMetrics:
+    """The metrics of a node that saw 5 hosts (r1-r5), 3 programs (prog0-prog2) and every outcome."""
     from ramps.core.events import Deliver, Note, StartProgram
-    from ramps.observe.metrics import NodeMetrics
 
     m = NodeMetrics("r1", "bench", cores=4, speed=1.0, policy="ramps")
     for i in range(200):
@@ -54,6 +52,14 @@ def render_cost(renders: int = 300) -> dict:
         m.on_action(Deliver(program_id=pid, ok=i % 4 != 0, error_kind="program", host=host), None, i + 2)
     m.on_report(cpu_busy=1.0, runnable=2.0, load_avg=1.0, mem_free=1 << 30, running=2, in_flight=3, sees=4,
                 blacklisted=1, dropped=0, reports_received=100)
+    return m
+
+
+def render_cost(renders: int = 300) -> dict:
+    """CPU seconds of one /metrics render of ``busy_metrics()``, and its size in bytes."""
+    from prometheus_client import generate_latest
+
+    m = busy_metrics()
     size = len(generate_latest(m.registry))
     t0 = time.process_time()
     for _ in range(renders):
@@ -109,4 +115,4 @@ def _env() -> dict[str, str]:
     return {k: v for k, v in os.environ.items() if not k.startswith("RAMPS_")}
 
 
-__all__ = ["measure_idle_cost", "render_cost"]
+__all__ = ["busy_metrics", "measure_idle_cost", "render_cost"]

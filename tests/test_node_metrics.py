@@ -76,7 +76,7 @@ def test_grafana_dashboard_queries_only_metrics_a_node_serves():
     import re
     from pathlib import Path
 
-    from ramps.observe.metrics import NodeMetrics
+    from ramps.runtime.metrics import NodeMetrics
 
     dash = json.loads((Path(__file__).resolve().parent.parent / "docs" / "grafana" / "ramps-team.json").read_text())
     served = set()
@@ -106,6 +106,27 @@ def test_parse_metrics_address_defaults_and_errors():
     for bad in ("localhost:http", "1.2.3.4:70000", ""):
         with pytest.raises(ValueError, match="metrics"):
             parse_metrics_address(bad)
+
+
+def test_the_render_benchmark_renders_a_busy_nodes_series():
+    """``ramps bench metrics`` times renders of ``busy_metrics()``: every host, program and outcome it
+    fed is in the exposition, and the size it reports is that exposition's (the creation times in it
+    vary in digits)."""
+    from prometheus_client import generate_latest
+
+    from ramps.bench.metrics_cost import busy_metrics, render_cost
+
+    text = generate_latest(busy_metrics().registry)
+    samples = [s for fam in text_string_to_metric_families(text.decode()) for s in fam.samples]
+
+    def labels(metric: str, label: str) -> set[str]:
+        return {s.labels[label] for s in samples if s.name == metric}
+
+    assert labels("ramps_programs_placed_total", "host") == {f"r{i}" for i in range(1, 6)}
+    assert labels("ramps_programs_run_total", "program") == {"prog0", "prog1", "prog2"}
+    assert labels("ramps_programs_delivered_total", "outcome") == {"ok", "program"}
+    assert labels("ramps_program_attempts_failed_total", "reason") >= {"host_lost"}
+    assert render_cost(renders=2)["bytes"] == pytest.approx(len(text), rel=0.01)
 
 
 @pytest.mark.slow
