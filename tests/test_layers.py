@@ -56,9 +56,6 @@ LAYERS: tuple[tuple[str, ...], ...] = (
 
 #: arrows that break a rule today, (importer, imported): why each stays for now
 KNOWN: dict[tuple[str, str], str] = {
-    ("ramps.runtime.measure", "ramps.programs.burn"):
-        "the speed probe times burn's loop (what a work unit is): the loop moves below both when measure.py "
-        "is free to edit",
     ("ramps.testbed.bed", "ramps.testbed.cleanup"):
         "bed.py's __getattr__ keeps old imports of down_all and leftovers (a circle): it goes when bed.py, "
         "which the peers experiment runs on, is free to edit",

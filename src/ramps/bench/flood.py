@@ -161,7 +161,7 @@ def _legit_calls(n: int) -> list[tuple[str, dict]]:
 
 
 def _check(program: str, args: dict, value: Any) -> bool:
-    from ramps.programs.burn import ITERATIONS_PER_UNIT
+    from ramps.runtime.spin import ITERATIONS_PER_UNIT
 
     if program == "echo":
         return value == args

@@ -1,11 +1,11 @@
 """A calibrated CPU burn, and trivial programs for dispatch benchmarks.
 
-How this works: ``burn`` runs a fixed number of iterations of a pure-Python
-integer loop (a 32-bit linear congruential generator folded into a
-checksum). The amount of work is fixed by the arguments, never by a clock: on
-an idle core ``burn(seconds=s)`` takes about ``s`` CPU seconds on the
-calibration machine, and on a loaded or slower machine it simply takes
-longer, which is what a load-sharing experiment needs.
+How this works: ``burn`` runs a fixed number of iterations of the calibrated
+work loop (``ramps.runtime.spin``: a 32-bit linear congruential generator
+folded into a checksum). The amount of work is fixed by the arguments, never
+by a clock: on an idle core ``burn(seconds=s)`` takes about ``s`` CPU seconds
+on the calibration machine, and on a loaded or slower machine it simply
+takes longer, which is what a load-sharing experiment needs.
 
 Rules:
     * 1 work unit = ``ITERATIONS_PER_UNIT`` iterations ~= 1 CPU second on the
@@ -26,27 +26,9 @@ from __future__ import annotations
 import math
 from typing import Any
 
-# Measured on the development machine (AMD EPYC core, CPython 3.11.7, idle):
-# the loop in _spin ran 14.4-17.2 million iterations per CPU second, median
-# ~16.0 M (15 runs of 2e7-3e7 iterations, time.process_time), so one unit
-# ~= 1.0 CPU s there (expect +-10% run to run).
-ITERATIONS_PER_UNIT = 16_000_000
+from ramps.runtime.spin import ITERATIONS_PER_UNIT, MASK, SEED, spin
 
 MAX_UNITS = 1_000_000.0  # ~11.5 CPU days: anything above is surely a mistake
-
-_A = 1_103_515_245
-_C = 12_345
-_MASK = 0xFFFFFFFF
-
-
-_SEED = 0x2545F491
-
-
-def _spin(iterations: int, x: int = _SEED) -> int:
-    a, c, mask = _A, _C, _MASK  # locals: the loop cost does not depend on global lookups
-    for _ in range(iterations):
-        x = (x * a + c) & mask
-    return x
 
 
 def burn(seconds: float = 1.0, *, units: float | None = None, checkpoint_every: float = 0.0) -> dict[str, Any]:
@@ -63,20 +45,20 @@ def burn(seconds: float = 1.0, *, units: float | None = None, checkpoint_every: 
             raise ValueError(f"{label} must be at most {MAX_UNITS:g}, got {value!r}")
     iterations = round(amount * ITERATIONS_PER_UNIT)
     if not checkpoint_every:
-        return {"units": float(amount), "iterations": iterations, "checksum": _spin(iterations)}
+        return {"units": float(amount), "iterations": iterations, "checksum": spin(iterations)}
     import ramps
 
-    done, x = 0, _SEED
+    done, x = 0, SEED
     saved = ramps.resume()
     if isinstance(saved, dict) and saved.get("iterations") == iterations:  # our own place, not another burn's
         done, x = int(saved["done"]), int(saved["x"])
-        if not (0 <= done <= iterations and 0 <= x <= _MASK):
+        if not (0 <= done <= iterations and 0 <= x <= MASK):
             raise ValueError(f"a checkpoint outside this burn: {saved!r}")
     resumed_at = done
     step = max(1, round(checkpoint_every * ITERATIONS_PER_UNIT))
     while done < iterations:
         n = min(step, iterations - done)
-        x = _spin(n, x)
+        x = spin(n, x)
         done += n
         if done < iterations:
             ramps.progress(done / iterations)

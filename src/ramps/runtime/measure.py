@@ -30,6 +30,8 @@ from typing import Callable
 
 import psutil
 
+from ramps.runtime.spin import ITERATIONS_PER_UNIT, spin
+
 
 def _own_cgroups() -> dict[str, str]:
     """controller -> path of this process, from /proc/self/cgroup."""
@@ -153,8 +155,6 @@ def chunk_rates(seconds: float) -> dict[int, list[float]]:
     VM's two vCPUs ran the same loop at 0.36 and 0.57 units per CPU second
     for seconds on end, so a measurement that stayed on one said which vCPU
     it had landed on."""
-    from ramps.programs.burn import ITERATIONS_PER_UNIT, _spin
-
     iterations = max(1, round(SPEED_CHUNK * ITERATIONS_PER_UNIT))
     pieces: dict[int, list[float]] = {}
     allowed = _affinity()
@@ -169,7 +169,7 @@ def chunk_rates(seconds: float) -> dict[int, list[float]]:
                 _pin({cpu})
             for i in range(SPEED_BLOCK):
                 start = time.thread_time()
-                _spin(iterations)
+                spin(iterations)
                 if i:
                     pieces.setdefault(cpu, []).append(SPEED_CHUNK / max(time.thread_time() - start, 1e-6))
             n += 1

@@ -29,7 +29,7 @@ from typing import Callable
 
 import msgspec
 
-from ramps.programs.burn import ITERATIONS_PER_UNIT
+from ramps.runtime.spin import ITERATIONS_PER_UNIT
 from ramps.testbed import stress as stresses
 
 #: seconds between the testbed being up and the first submit (every robot's load report heard)
