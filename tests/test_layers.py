@@ -19,10 +19,8 @@ other. Two checks on that graph:
 - no arrow back up: none from a lower layer to a higher one, nor between
   packages of one layer.
 
-``KNOWN`` lists the arrows that break a rule today, each with its reason; a
-test fails when the code no longer has one, so the list can only shrink.
-The checker itself is tested on small synthetic graphs, so a broken checker
-cannot pass silently.
+No import is exempt. The checker itself is tested on small synthetic graphs,
+so a broken checker cannot pass silently.
 """
 
 from __future__ import annotations
@@ -53,13 +51,6 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("ramps.bench", "ramps.testbed"),
     ("ramps.cli",),
 )
-
-#: arrows that break a rule today, (importer, imported): why each stays for now
-KNOWN: dict[tuple[str, str], str] = {
-    ("ramps.testbed.bed", "ramps.testbed.cleanup"):
-        "bed.py's __getattr__ keeps old imports of down_all and leftovers (a circle): it goes when bed.py, "
-        "which the peers experiment runs on, is free to edit",
-}
 
 Graph = dict[str, dict[str, int]]  # module -> {imported module: line of the first such import}
 
@@ -209,10 +200,6 @@ def upward(graph: Graph, layers: tuple[tuple[str, ...], ...] = LAYERS) -> list[s
     return bad
 
 
-def without_known(graph: Graph) -> Graph:
-    return {m: {t: line for t, line in arrows.items() if (m, t) not in KNOWN} for m, arrows in graph.items()}
-
-
 def describe(graph: Graph, component: list[str]) -> str:
     inside = set(component)
     return "\n".join(f"  {m} -> {t} (line {line})" for m in component
@@ -240,22 +227,15 @@ def test_every_module_has_a_layer_and_every_entry_a_module() -> None:
 
 
 def test_no_import_circle() -> None:
-    graph = without_known(ramps_graph())
+    graph = ramps_graph()
     found = circles(graph)
     assert not found, "modules that import each other in a loop:\n" + "\n\n".join(
         describe(graph, c) for c in found)
 
 
 def test_no_import_runs_back_up() -> None:
-    bad = upward(without_known(ramps_graph()))
+    bad = upward(ramps_graph())
     assert not bad, "imports against the layers (docs/architecture.md, Layers):\n" + "\n".join(bad)
-
-
-def test_every_known_exception_is_still_there() -> None:
-    graph = ramps_graph()
-    gone = [f"{m} -> {t}" for m, t in KNOWN if t not in graph.get(m, {})]
-    assert not gone, f"no longer in the code: strike them off KNOWN: {gone}"
-    assert all(why.strip() for why in KNOWN.values())
 
 
 def test_the_architecture_page_draws_the_same_layers() -> None:

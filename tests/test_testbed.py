@@ -193,7 +193,7 @@ def test_freeze_and_recover(bed, team):
 
 @serial
 def test_load_runs_inside_the_robot(bed):
-    from ramps.testbed.bed import _cgroup_pids
+    from ramps.testbed.procs import _cgroup_pids
 
     bed.add_load("r2", 2)
     pids = [p for p, _ in bed.robots["r2"]["load_pids"]]
@@ -299,7 +299,7 @@ def test_a_start_whose_robots_do_not_join_is_made_again_and_leaves_nothing(monke
 
 
 def _dead(pid: int) -> bool:
-    from ramps.testbed.bed import _proc_stat
+    from ramps.testbed.procs import _proc_stat
 
     st = _proc_stat(pid)
     return st is None or st[0] == "Z"

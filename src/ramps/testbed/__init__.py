@@ -17,7 +17,8 @@ Rules: root only; everything is removed on ``down()``/leaving the ``with``
 block/SIGINT/SIGTERM; ``down_all()`` clears what crashed runs left.
 """
 
-from ramps.testbed.bed import Testbed, TestbedError
+from ramps.testbed.bed import Testbed
 from ramps.testbed.cleanup import down_all, leftovers
+from ramps.testbed.procs import TestbedError
 
 __all__ = ["Testbed", "TestbedError", "down_all", "leftovers"]

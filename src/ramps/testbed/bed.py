@@ -33,8 +33,7 @@ takes it down (its lifecycle); ``ramps.testbed.faults`` breaks and mends
 robots (crash, cut, lossy, freeze, load; ``Testbed`` inherits its methods);
 ``ramps.testbed.cleanup`` clears a host of testbeds, including those of
 crashed runs (``down_all``, ``leftovers``); ``ramps.testbed.procs`` holds
-the pid and cgroup helpers they share. The names ``ramps.testbed.bed``
-always had still import from here.
+the pid and cgroup helpers they share.
 
 State: every testbed writes ``/run/ramps/testbed-<tb>.json`` (robots, IPs,
 namespaces, cgroups, pids with their start times, faults), so ``ramps
@@ -78,7 +77,7 @@ from ramps.errors import NoTeam
 from ramps.runtime.localteam import RobotCgroup, cgroup_mode, partial_views
 from ramps.testbed import net
 from ramps.testbed.faults import Faults
-from ramps.testbed.procs import TestbedError, _alive, _cgroup, _cgroup_pids, _clean_env, _proc_stat, _signal_all
+from ramps.testbed.procs import TestbedError, _alive, _cgroup, _cgroup_pids, _clean_env, _proc_stat
 
 if TYPE_CHECKING:
     from ramps.runtime.watch import TeamWatcher
@@ -87,8 +86,7 @@ STATE_DIR = Path(os.environ.get("RAMPS_TESTBED_STATE", "/run/ramps"))
 PORT = 7447
 FAULTS = ("crashed", "cut", "frozen", "lossy")
 
-__all__ = ["FAULTS", "PORT", "STATE_DIR", "DidNotJoin", "Testbed", "TestbedError", "watch_team",
-           "_alive", "_cgroup", "_cgroup_pids", "_clean_env", "_proc_stat", "_signal_all"]
+__all__ = ["FAULTS", "PORT", "STATE_DIR", "DidNotJoin", "Testbed", "watch_team"]
 
 
 class DidNotJoin(NoTeam):
@@ -609,12 +607,3 @@ def watch_team(testbed: "Testbed", *, redial: bool = False) -> "TeamWatcher":
     if redial:
         config.insert_json5("connect/retry", "{period_init_ms: 100, period_max_ms: 500, period_increase_factor: 2}")
     return TeamWatcher.open(config, testbed.team)
-
-
-def __getattr__(name: str) -> object:
-    # the host sweep moved to ramps.testbed.cleanup (which imports this module)
-    if name in ("down_all", "leftovers"):
-        from ramps.testbed import cleanup
-
-        return getattr(cleanup, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

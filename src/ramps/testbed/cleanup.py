@@ -24,8 +24,8 @@ from pathlib import Path
 
 from ramps.runtime.localteam import CG_ROOT
 from ramps.testbed import net
-from ramps.testbed.bed import STATE_DIR, Testbed, TestbedError
-from ramps.testbed.procs import _cgroup, _cgroup_pids, _signal_all
+from ramps.testbed.bed import STATE_DIR, Testbed
+from ramps.testbed.procs import TestbedError, _cgroup, _cgroup_pids, _signal_all
 
 _TB_CGROUP = re.compile(r"ramps-t\d+-\w+")
 

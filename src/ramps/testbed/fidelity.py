@@ -216,7 +216,7 @@ def merge_cpu(seen: dict[int, tuple[str, float]], new: dict[int, tuple[str, floa
 def robot_cpu(tb, robot: str = "r1") -> dict[int, tuple[str, float]]:
     """CPU seconds so far (utime + stime) of every process in the robot's
     cgroup tree, with its kind (``_kind``)."""
-    from ramps.testbed.bed import _cgroup_pids
+    from ramps.testbed.procs import _cgroup_pids
 
     rb = tb.robots[robot]
     load = {p for p, _ in rb["load_pids"]}

@@ -52,7 +52,8 @@ from typing import Any
 import msgspec
 
 from ramps.testbed import net
-from ramps.testbed.bed import PORT, Testbed, TestbedError, watch_team
+from ramps.testbed.bed import PORT, Testbed, watch_team
+from ramps.testbed.procs import TestbedError
 
 #: the router's slot among a site's "robots" (its namespace, cgroup and process)
 ROUTER = "rt"

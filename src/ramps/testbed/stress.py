@@ -25,7 +25,7 @@ import os
 import signal
 import time
 
-from ramps.testbed.bed import _alive, _cgroup_pids
+from ramps.testbed.procs import _alive, _cgroup_pids
 
 
 def _descendants(pid: int) -> set[int]:
