@@ -221,7 +221,7 @@ def sim_relocation(
     checkpoint (resume elsewhere), and round robin on the same seeds, and prints each makespan against the
     hindsight optimum: the best static distribution for someone who knew the load would come.
     """
-    from ramps.experiments.relocation import compare_on_campaign, run_relocation
+    from ramps.experiments.late_load import compare_on_campaign, run_relocation
     from ramps.experiments.report import print_relocation, print_relocation_campaign
 
     if campaign:

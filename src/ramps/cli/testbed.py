@@ -334,7 +334,7 @@ def testbed_experiment_relocation(
     a fresh testbed, and prints every makespan beside the simulator's and the hindsight optimum.
     About 4 minutes with the defaults."""
     from ramps.errors import RampsError
-    from ramps.testbed.relocation import VARIANTS, format_report, run_testbed_relocation
+    from ramps.testbed.late_load import VARIANTS, format_report, run_testbed_relocation
 
     if load_at >= seconds:
         fail(f"--load-at ({load_at:g}) must come before the programs end (--seconds {seconds:g})")

@@ -1,4 +1,4 @@
-"""Relocation after placement on real processes, beside the simulator: ``ramps testbed experiment relocation``.
+"""Load that comes after placement, and relocation, on real processes: ``ramps testbed experiment relocation``.
 
 How this works: the same experiment as ``ramps sim relocation``, on a
 testbed of real ``ramps node`` processes. ``robots`` emulated robots of
@@ -33,8 +33,8 @@ from pathlib import Path
 
 import msgspec
 
-from ramps.experiments.relocation import VARIANTS as SIM_VARIANTS
-from ramps.experiments.relocation import hindsight_optimum, scenario
+from ramps.experiments.late_load import VARIANTS as SIM_VARIANTS
+from ramps.experiments.late_load import hindsight_optimum, scenario
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import PublisherSpec
 

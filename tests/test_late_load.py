@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from ramps.experiments.campaign import random_scenario, run_one
-from ramps.experiments.relocation import finish_time, hindsight_optimum, run_relocation
+from ramps.experiments.late_load import finish_time, hindsight_optimum, run_relocation
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import FaultSpec, ProgramSpec, RobotSpec, Scenario, ScenarioError
 
@@ -62,7 +62,7 @@ def test_the_campaign_with_load_changes_keeps_exactly_once():
 
 
 def test_relocation_against_none_on_campaign_scenarios():
-    from ramps.experiments.relocation import compare_on_campaign
+    from ramps.experiments.late_load import compare_on_campaign
     rep = compare_on_campaign(3)
     assert rep.runs == 3 and len(rep.ratios) == 3 and rep.lost == 0 and rep.duplicated == 0
     assert rep.ratios == sorted(rep.ratios) and all(r > 0 for r in rep.ratios)

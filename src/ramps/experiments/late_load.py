@@ -1,4 +1,4 @@
-"""Relocation after placement, measured in the simulator: ``ramps sim relocation``.
+"""Load that comes after placement, and relocation, in the simulator: ``ramps sim relocation``.
 
 How this works: a team of ``robots`` identical robots (4 cores each); robot
 ``r1`` submits ``programs`` programs of ``work`` units at once, and at
