@@ -331,15 +331,6 @@ def test_a_host_counts_a_programs_work_from_the_cpu_seconds_it_used():
     assert _host_result(0.08, cpu_s=float("nan")).work_done == pytest.approx(0.4)
 
 
-def test_robots_started_within_a_second_measure_their_boot_speed_at_one_moment():
-    from ramps.runtime.node import boot_moment
-
-    starts = [1_800_000_000.05, 1_800_000_000.4, 1_800_000_000.97]
-    assert {boot_moment(t) for t in starts} == {1_800_000_001.0}
-    assert all(0 < boot_moment(t) - t <= 1.0 for t in starts)
-    assert boot_moment(1_800_000_002.0) == 1_800_000_002.0  # on the grid already: no wait
-
-
 def test_the_speeds_experiment_reads_each_re_measurement_from_a_trace(tmp_path):
     import json
 

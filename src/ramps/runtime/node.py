@@ -31,7 +31,6 @@ lifecycle and the loop only.
 from __future__ import annotations
 
 import logging
-import math
 import os
 import queue
 import random
@@ -96,19 +95,6 @@ INSECURE_WARNING = (
     "can join it, read its traffic, submit programs and run them on this robot. To secure it: "
     "`ramps team init`, `ramps team add ROBOT`, then `ramps node --secure --credentials DIR` (README, Security).")
 _insecure_warned = False
-
-
-
-#: seconds of the wall-clock grid a node's boot measurement starts on
-BOOT_GRID = 1.0
-
-
-def boot_moment(wall: float) -> float:
-    """When a node starting at ``wall`` measures its speed: the next moment of
-    a ``BOOT_GRID`` grid. The host's vCPUs change speed from one second to
-    the next, so robots started together (a fleet powered on, a testbed)
-    measure alike only if they measure the same second."""
-    return math.ceil(wall / BOOT_GRID) * BOOT_GRID
 
 
 def core_config(s: NodeSettings) -> RampsConfig:
@@ -248,8 +234,6 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             scope = "cgroup" if quota is not None else "host"
         self.cores = s.cores or detect_cores()
         self._speed_samples = SpeedSamples()
-        if not s.speed:  # at the next whole second, so robots started together measure the same one
-            self.clock.sleep(boot_moment(self.clock.time()) - self.clock.time())
         self.speed = s.speed or measure_speed(quota=quota, cores=self.cores, samples=self._speed_samples,
                                                    boot=True)
         # a speed measured at boot is measured again while no program runs, soon
