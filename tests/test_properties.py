@@ -32,6 +32,7 @@ from ramps.core.events import (
     Cancel,
     CheckpointSaved,
     Deliver,
+    NameTaken,
     Note,
     PeerAlive,
     PeerLost,
@@ -344,7 +345,8 @@ def test_node_survives_arbitrary_input_and_never_delivers_twice(policy, seed, da
             if isinstance(ev, Submit):
                 submitted.add(ev.program_id)
         for a in actions:
-            assert isinstance(a, (Send, StartProgram, StopProgram, Deliver, Progress, PublishReport, Note)), a
+            assert isinstance(a, (Send, StartProgram, StopProgram, Deliver, Progress, PublishReport, Note,
+                                  NameTaken)), a
             if isinstance(a, Send):
                 assert a.to != "n", "a message to itself escaped the loopback"
             if isinstance(a, Deliver):

@@ -84,7 +84,7 @@ def test_a_node_refused_for_a_taken_name_does_not_make_the_holder_look_leaving()
     try:
         team.run(3.0)
         client = team.connect("r1")
-        newcomer = clone(team, "r2", 99)  # the newer incarnation leaves
+        newcomer = clone(team, "r2", 99)  # started after r2: it leaves
         team.run(5.0)
         assert newcomer.wait(0) and newcomer.name_taken
         r2 = {r.robot: r for r in client.status().robots}["r2"]

@@ -47,6 +47,7 @@ from ramps.core import messages as m
 from ramps.core.events import (
     Cancel,
     Deliver,
+    NameTaken,
     Note,
     PeerAlive,
     PeerLost,
@@ -284,7 +285,7 @@ class CoreHarness:
 
     def _apply(self, actions: list) -> None:
         for a in actions:
-            if not isinstance(a, (Send, StartProgram, StopProgram, Deliver, Progress, PublishReport, Note)):
+            if not isinstance(a, (Send, StartProgram, StopProgram, Deliver, Progress, PublishReport, Note, NameTaken)):
                 raise AssertionError(f"not an action: {a!r}")
             if isinstance(a, Send):
                 if a.to == ME:

@@ -140,7 +140,7 @@ def node(
         rt.stop()
         service.close()
     if rt.name_taken:
-        fail(f"{rt.name_taken}: this node left the team")
+        fail(f"this node left the team: {rt.name_taken}")
     if rt.revoked_self:
         fail(f"robot {rt.robot} was revoked by team {rt.team} (revocation list {rt.revocations.seq if rt.revocations else '?'}): it left the team")
 

@@ -186,9 +186,20 @@ class Note(_Rec, frozen=True, kw_only=True):
     detail: str = ""
 
 
-Action = Send | StartProgram | StopProgram | Deliver | Progress | PublishReport | Note
+class NameTaken(_Rec, frozen=True, kw_only=True):
+    """Another node runs under this robot's name (``ramps.core.identity``).
+    ``leave``: this node started later and must leave the team (the driver
+    takes it out and says why); else the other node leaves and this one
+    stays. ``other`` is the other node's incarnation."""
+
+    other: int
+    leave: bool
+
+
+Action = Send | StartProgram | StopProgram | Deliver | Progress | PublishReport | Note | NameTaken
 
 __all__ = [
     "Submit", "Cancel", "ProgramFinished", "ProgressReported", "CheckpointSaved", "PeerLost", "PeerAlive", "Received", "Event",
-    "Send", "StartProgram", "StopProgram", "Deliver", "Progress", "PublishReport", "Note", "Action", "ProgramResult",
+    "Send", "StartProgram", "StopProgram", "Deliver", "Progress", "PublishReport", "Note", "NameTaken", "Action",
+    "ProgramResult",
 ]

@@ -166,7 +166,9 @@ class LoadReport(_Msg, frozen=True, kw_only=True, tag="load"):
 
     robot: RobotName
     #: changes whenever the node restarts, so a report from a new life of a
-    #: robot is recognised even though its sequence numbers start over
+    #: robot is recognised even though its sequence numbers start over; since
+    #: 0.2.0 the node's start time then random bits, so of two nodes under one
+    #: name the one started later has the larger (``ramps.core.identity``)
     incarnation: Count
     seq: Count
     cores: Cores

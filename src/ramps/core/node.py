@@ -21,6 +21,10 @@ finished), the node publishes a report of that instant at once
 view of itself is updated at once: an origin always knows exactly what its
 own robot runs. This is the paper's cNAMP (origins learn each other's
 bookings) done by the host, which is the one robot that knows them all.
+
+A load report under this robot's own name from another incarnation is no
+teammate's: ``ramps.core.identity`` tells whether a second node runs under
+this name, and which of the two leaves (``NameTaken``).
 """
 
 from __future__ import annotations
@@ -49,6 +53,7 @@ from ramps.core.events import (
     Submit,
 )
 from ramps.core.executor import Executor
+from ramps.core.identity import SameName
 from ramps.core.links import Links
 from ramps.core.loadview import LoadView, report_problem
 from ramps.core.messages import (
@@ -118,6 +123,8 @@ class Node:
         #: (``cost.nice_weight(worker_nice)`` on a real robot; 1 = equal sharing)
         self.program_weight = program_weight
         self.incarnation = incarnation
+        #: reports under this robot's name from other incarnations (``ramps.core.identity``)
+        self.same_name = SameName(incarnation)
         self.config = config or RampsConfig()
         if not isinstance(rng, random.Random):
             # no silent default: two robots seeded alike back off in step
@@ -272,6 +279,11 @@ class Node:
             raise TypeError(f"not a ramps event: {event!r}")
 
     def _receive(self, sender: str, msg: object, now: float, out: list[Action]) -> None:
+        if isinstance(msg, LoadReport) and msg.robot == self.robot and msg.incarnation != self.incarnation:
+            taken = self.same_name.heard(msg, now)  # another node under this name, or this one's previous process
+            if taken is not None:
+                out.append(taken)
+            return
         if self.origin.relink.active(now) and self.origin.relink.heard(sender, now):
             self.origin.relinked(sender, now)
             out.append(Note(what="relinked", robot=sender, detail="heard again after this robot's stall"))

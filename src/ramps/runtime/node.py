@@ -49,6 +49,7 @@ from ramps.core.events import (
     ProgramFinished,
     ProgressReported,
 )
+from ramps.core.identity import new_incarnation
 from ramps.core.node import Node
 from ramps.core.relink import Stalled
 from ramps.core.speed import next_remeasure
@@ -127,7 +128,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._worker_pool = worker_pool
         self._load_sampler = load_sampler
         self._threaded = True
-        self._incarnation = incarnation  # None: random (tests fix it, so a run repeats)
+        self._incarnation = incarnation  # None: drawn at start (tests fix it, so a run repeats)
         self.robot = settings.robot
         self.team = settings.team
         self.registry = Registry(dict((registry or default_registry)._specs))
@@ -199,11 +200,9 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         #: messages dropped because their sender is revoked; this robot itself was revoked
         self.revoked_dropped = 0
         self.revoked_self = False
-        #: another node runs under this robot's name: why this one left ("" = it did not;
-        #: Inbound._same_name), and the other incarnations heard (their first report's seq)
+        #: another node runs under this robot's name and started first: why this one
+        #: left ("" = it did not; ramps.core.identity, Outbound._name_taken)
         self.name_taken = ""
-        self._same_name_seen: dict[int, int] = {}
-        self._same_name_told: set[int] = set()
         #: Prometheus metrics (``--metrics``), fed from the driver thread (ramps.runtime.metrics)
         self.metrics = None
         #: the durable record of the programs this node is origin of (``state_dir``;
@@ -244,7 +243,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._remeasure_at = None if s.speed else next_remeasure(self.clock.time(), 0)
         #: programs whose calls were found far from their declaration, said once each
         self._misdeclared_warned: set[str] = set()
-        self.incarnation = self._incarnation or int.from_bytes(os.urandom(6), "big")
+        # its start time and random bits: a node started later has a larger one (ramps.core.identity)
+        self.incarnation = self._incarnation or new_incarnation(self.clock.time(), int.from_bytes(os.urandom(4), "big"))
         return_freed_memory()
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=core_config(s),
                          rng=random.Random(self.incarnation), incarnation=self.incarnation,
@@ -440,7 +440,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             keep = self.store.programs()
             self.store.close()
             if not keep:  # nothing to resume: leave no file behind (nor the team's folder, if it was the last)
-                for suffix in ("", "-wal", "-shm"):
+                for suffix in ("", "-wal", "-shm", ".lock"):
                     Path(str(self.store.path) + suffix).unlink(missing_ok=True)
                 try:
                     self.store.path.parent.rmdir()

@@ -140,31 +140,6 @@ class Inbound:
             self._q.put(("stop", threading.Event()))
         return out
 
-    def _same_name(self, report: LoadReport) -> list:
-        """Another node publishes under this robot's name (machines cloned
-        from one image share a host name, the default). One report may be
-        the last of this robot's previous process, still on its way; two of
-        one other incarnation are another node. Then one of the two leaves:
-        the one with the larger incarnation number, so both agree whichever
-        hears the other first; the other says so and stays."""
-        first = self._same_name_seen.setdefault(report.incarnation, report.seq)
-        if report.seq == first or self.name_taken or report.incarnation in self._same_name_told:
-            return []
-        if len(self._same_name_seen) > 64:  # a hostile sender inventing incarnations: forget the oldest
-            self._same_name_seen.pop(next(iter(self._same_name_seen)))
-        self._same_name_told.add(report.incarnation)
-        text = (f"robot name {self.robot!r} is used by two nodes of team {self.team!r} (incarnations "
-                f"{min(report.incarnation, self.incarnation):x} and {max(report.incarnation, self.incarnation):x}): "
-                f"give each robot its own name (--robot, RAMPS_ROBOT; the default is the host name, which machines "
-                f"cloned from one disk image share)")
-        if self.incarnation > report.incarnation:
-            self.name_taken = text
-            log.error("node %s: %s; this node (%x) leaves the team", self.robot, text, self.incarnation)
-            self._q.put(("stop", threading.Event()))
-        else:
-            log.error("node %s: %s; the other node (%x) leaves the team", self.robot, text, report.incarnation)
-        return []
-
     def _republish(self, now: float) -> None:
         if self.revocations is None or now < self._republish_at or self.transport is None:
             return
@@ -235,8 +210,6 @@ class Inbound:
                 return node.handle(Cancel(program_id=pid), now)
             if isinstance(msg, (ProgramOutcome, ProgramUpdate)):
                 return []
-            if isinstance(msg, LoadReport) and msg.robot == self.robot and msg.incarnation != self.incarnation:
-                return self._same_name(msg)
             if isinstance(msg, LoadReport) and msg.robot != env.sender:
                 self.bad_messages += 1
                 return []

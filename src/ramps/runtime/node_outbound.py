@@ -6,8 +6,9 @@ core survives lost messages; a message over 60 KB waits for room instead, on
 a thread of its own destination, ``ramps.runtime.bulk``), ``StartProgram``/``StopProgram`` go to the
 worker pool, ``Deliver`` becomes the client's outcome
 (``ramps.runtime.node_clients``), ``Note`` a client update, a trace line and
-a log line; programs it hosts for other origins are traced as this robot
-runs them (``_trace_hosted``). ``PublishReport`` (a report of the instant:
+a log line, ``NameTaken`` (another node under this robot's name) this
+node's leaving or a line saying the other leaves; programs it hosts for
+other origins are traced as this robot runs them (``_trace_hosted``). ``PublishReport`` (a report of the instant:
 the programs running here changed) is published once per batch of actions,
 the newest after the batch's messages: in a burst each change made one, and
 every teammate and client decoded reports that the next one superseded at
@@ -33,6 +34,7 @@ import msgspec
 from ramps.core.events import (
     Cancel,
     Deliver,
+    NameTaken,
     Note,
     Progress,
     PublishReport,
@@ -40,6 +42,7 @@ from ramps.core.events import (
     StartProgram,
     StopProgram,
 )
+from ramps.core.identity import started_at
 from ramps.core.messages import (
     MAX_LISTED,
     LearnedWork,
@@ -63,6 +66,17 @@ _CLIENT_STATES = {"placed": "placed", "accepted": "running", "failed": "host_fai
 
 #: weight of the latest report period in the node's averaged own CPU (about 10 reports)
 NODE_CPU_ALPHA = 0.1
+
+
+def _started(other: float | None, mine: float | None, order: str) -> str:
+    """When another node started, as its incarnation tells, for a log line:
+    "at 2026-11-27 10:31:05 UTC (12.3 s before this one, by the two machines' clocks)"."""
+    if other is None:
+        return "at a time its incarnation does not tell (ramps 0.1.0)"
+    when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(other))
+    if mine is None:
+        return f"at {when}"
+    return f"at {when} ({abs(mine - other):.1f} s {order} this one, by the two machines' clocks)"
 
 
 class Outbound:
@@ -100,6 +114,8 @@ class Outbound:
             elif isinstance(a, Progress):
                 self._progress[a.program_id] = (a.fraction, a.detail)
                 self._update_client(a.program_id, "progress", a.host, a.attempt)
+            elif isinstance(a, NameTaken):
+                self._name_taken(a)
             elif isinstance(a, Note):
                 if a.what in _CLIENT_STATES and a.program_id in self._clients:
                     state = _CLIENT_STATES[a.what]
@@ -115,6 +131,24 @@ class Outbound:
                     self.on_note(a)
         if prompt is not None:
             self._publish_prompt(prompt)
+
+    def _name_taken(self, a: NameTaken) -> None:
+        """Another node runs under this robot's name (``ramps.core.identity``):
+        the one that started later leaves, and both say why."""
+        mine, theirs = started_at(self.incarnation), started_at(a.other)
+        fix = ("give each machine its own robot name: --robot NAME or RAMPS_ROBOT=NAME (the default name is "
+               "the host name, which machines cloned from one disk image share)")
+        if self._trace is not None:
+            self._write_trace("name_taken", "", self.robot, 0,
+                              f"{'this node leaves' if a.leave else 'the other leaves'}: incarnation {a.other:x}")
+        if a.leave:
+            self.name_taken = (f"robot name {self.robot!r} is taken in team {self.team!r} by another node, started "
+                               f"{_started(theirs, mine, 'before')}; {fix}")
+            log.error("node %s: %s; this node started later and leaves the team", self.robot, self.name_taken)
+            self._q.put(("stop", threading.Event()))
+        else:
+            log.error("node %s: another node of team %s joined under this robot's name, started %s: it leaves the "
+                      "team and this node stays; %s", self.robot, self.team, _started(theirs, mine, "after"), fix)
 
     def _warn_misdeclared(self, note: Note) -> None:
         """A call took far more or less than its program declares: said once

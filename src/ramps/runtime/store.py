@@ -25,8 +25,15 @@ Two tables:
   kept ``OUTCOME_KEEP`` seconds and at most ``OUTCOMES_MAX`` rows, so a
   client that asks again after a restart gets the outcome it may have missed.
 
-A file of another team or robot is refused (``ConfigError``: pointing two
-nodes at one directory is a mistake to fix, not to guess about); a file
+One node at a time holds a record: the store takes a POSIX lock on a file
+beside it (``<robot>.sqlite.lock``, holding the holder's pid) for as long as
+it is open, and a second node of the same robot and team on this machine (a
+second ``ramps node`` started by mistake) is refused (``ConfigError``, exit 2)
+before it reads or writes anything. The kernel drops the lock when its
+process ends, however it ends, and a forked worker does not inherit it, so
+a restarted node always gets it. A file of another team or robot is refused
+(``ConfigError``: pointing two nodes at one directory is a mistake to fix,
+not to guess about); a file
 SQLite cannot read is set aside beside itself (``.corrupt-<time>``) with a
 warning and the node starts with an empty record, so a damaged disk never
 makes a supervised node crash in a loop. A row that does not decode (a
@@ -46,6 +53,11 @@ import msgspec
 
 from ramps.core.durable import RECORD_FORMAT, OriginRecord, decode_record, encode_record
 from ramps.errors import ConfigError
+
+try:
+    import fcntl
+except ImportError:  # not a POSIX system: no lock (one node per robot is then the user's to keep)
+    fcntl = None  # type: ignore[assignment]
 
 log = logging.getLogger("ramps.node")
 #: ``state_sync`` -> SQLite's ``synchronous`` (see the module docstring)
@@ -101,8 +113,19 @@ class OriginStore:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise ConfigError(f"cannot use state directory {self.path.parent}: {exc.strerror or exc}") from None
+        self._lock = self._take_lock()
         try:
-            self._db = self._open()
+            self._db = self._open_or_set_aside()
+        except BaseException:
+            self._release()
+            raise
+        #: outcome rows, at least (a replaced one counts twice): the oldest go once there are too many
+        self._outcome_rows = self._count_outcomes()
+
+    def _open_or_set_aside(self) -> sqlite3.Connection:
+        """The record, opened; one SQLite cannot read is set aside first."""
+        try:
+            return self._open()
         except sqlite3.DatabaseError as exc:  # not a database, or damaged: keep it for a post-mortem, start afresh
             aside = self.path.with_name(f"{self.path.name}.corrupt-{int(time.time())}")
             for suffix in ("", "-wal", "-shm"):
@@ -110,10 +133,39 @@ class OriginStore:
                 if src.exists():
                     src.rename(str(aside) + suffix)
             log.error("node %s: its record %s could not be read (%s): set aside as %s; starting with an empty "
-                      "record (programs it had are lost to it)", robot, self.path, exc, aside)
-            self._db = self._open()
-        #: outcome rows, at least (a replaced one counts twice): the oldest go once there are too many
-        self._outcome_rows = self._count_outcomes()
+                      "record (programs it had are lost to it)", self.robot, self.path, exc, aside)
+            return self._open()
+
+    def _release(self) -> None:
+        if self._lock is not None:  # closing it drops the lock
+            os.close(self._lock)
+            self._lock = None
+
+    @property
+    def lock_path(self) -> Path:
+        return Path(f"{self.path}.lock")
+
+    def _take_lock(self) -> int | None:
+        """Lock the record for this process (see the module docstring):
+        the lock file's descriptor, or ConfigError if another process holds it."""
+        if fcntl is None:
+            return None
+        try:
+            fd = os.open(self.lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise ConfigError(f"cannot use state directory {self.path.parent}: {exc.strerror or exc}") from None
+        try:
+            fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            holder = os.read(fd, 32).decode("ascii", "replace").strip()
+            os.close(fd)
+            raise ConfigError(
+                f"a node of robot {self.robot!r} of team {self.team!r} already runs on this machine"
+                f"{f' (pid {holder})' if holder.isdigit() else ''} and holds its record {self.path}: give this node "
+                f"its own robot name (--robot NAME or RAMPS_ROBOT=NAME), or stop the other one first") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        return fd
 
     def _count_outcomes(self) -> int:
         return int(self._db.execute("SELECT count(*) FROM outcomes").fetchone()[0])
@@ -196,3 +248,4 @@ class OriginStore:
             self._db.close()
         except sqlite3.Error:
             pass
+        self._release()
