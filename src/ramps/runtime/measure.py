@@ -138,8 +138,10 @@ SPEED_MAX_WALL = 1.0
 #: enough that robots booted seconds apart, measuring on one grid since,
 #: average the same moments of the host 20 s after they are all up
 SPEED_MEASUREMENTS = 6
-#: measurements on the team's grid that outvote the boot measurement for good
-GRID_QUORUM = 3
+#: measurements on the team's grid after which the boot measurement no longer
+#: counts: one, since mixing the boot figure (each node's own second) with the
+#: grid's (one second for all) set identical robots apart for longer
+GRID_QUORUM = 1
 
 
 def chunk_rates(seconds: float) -> dict[int, list[float]]:
@@ -250,9 +252,10 @@ class SpeedSamples:
     once there are five. Identical robots measure at the same moments of
     the team's grid, so a mean over the same moments gives them the same
     figure even on a host whose vCPUs swing 1.4x from one moment to the
-    next, where a median jumps between the moments' levels. The boot measurement is the one not taken on the
-    grid (each node boots when it is started), so it counts only until
-    ``GRID_QUORUM`` measurements of the grid are in
+    next, where a median jumps between the moments' levels. The boot
+    measurement is the one not taken on the grid (each node boots when it is
+    started), so it counts only until ``GRID_QUORUM`` measurements of the
+    grid are in
     (docs/lab/2026-11-27-fastest-pieces.md)."""
 
     def __init__(self) -> None:
