@@ -115,7 +115,9 @@ def test_today_leaves_defaults_out_so_the_previous_release_fills_them_in() -> No
     msg = m.OffloadRequest(program_id="p", attempt=1, origin="o", host="h", program="x")
     body = msgspec.msgpack.decode(m.encode("o", msg))["msg"]
     assert sorted(body) == ["attempt", "host", "origin", "program", "program_id", "type"]
-    assert _plain(old.decode(m.encode("o", msg)).msg) == _plain(msg)
+    then = _plain(old.decode(m.encode("o", msg)).msg)
+    assert then == {k: v for k, v in _plain(msg).items() if k in then}
+    assert set(_plain(msg)) - set(then) == {"deadline_in"}  # added since, at its default
 
 
 def test_the_previous_release_refuses_a_field_it_does_not_know() -> None:
@@ -164,3 +166,39 @@ def test_random_honest_messages_of_today_decode_under_the_previous_release(seed:
         env = old.decode(data)
         then = _plain(env.msg)  # the fields the previous release knows (those added since are at their defaults)
         assert env.sender == sender and then == {k: v for k, v in _plain(msg).items() if k in then}, msg
+
+
+@pytest.mark.parametrize("name", ["offload-full", "offload-minimal", "submit-full", "submit-minimal",
+                                  "outcome-full", "outcome-minimal"])
+def test_messages_without_a_deadline_are_what_the_previous_release_sent(name: str) -> None:
+    """Deadlines (protocol 1.1) add ``OffloadRequest.deadline_in``,
+    ``SubmitProgram.deadline`` and ``on_miss``, ``ProgramOutcome.missed_deadline``:
+    a message that sets none of them is the previous release's, byte for
+    byte where that release wrote every field, and its decoder reads it."""
+    old = _old_wire(PREVIOUS)
+    data = (GOLDEN / PREVIOUS / f"{name}.msgpack").read_bytes()
+    msg = m.decode(data).msg
+    new = {"deadline_in", "deadline", "on_miss", "missed_deadline"} & set(msg.__struct_fields__)
+    assert new and all(getattr(msg, f) == msgspec.structs.fields(msg)[msg.__struct_fields__.index(f)].default
+                       for f in new)
+    today = m.encode(MANIFEST["sender"], msg)
+    assert not new & set(msgspec.msgpack.decode(today)["msg"])  # left out at their defaults
+    if name.endswith("-full"):
+        assert today == data
+    assert old.decode(today) == old.decode(data)
+
+
+def test_a_deadline_crosses_today_and_only_today() -> None:
+    """With a deadline set the field is on the wire: today's nodes read it;
+    0.1.0 drops the message (as for every new field it does not know), which
+    is why an origin sends ``deadline_in`` only to hosts in time."""
+    old = _old_wire(PREVIOUS)
+    msg = m.OffloadRequest(program_id="p", attempt=1, origin="o", host="h", program="x", deadline_in=1.5)
+    data = m.encode("o", msg)
+    assert m.decode(data).msg.deadline_in == 1.5
+    with pytest.raises(old.WireError, match="deadline_in"):
+        old.decode(data)
+    sub = m.SubmitProgram(client="c", request_id=1, program="x", deadline=2.0, on_miss="fail")
+    assert m.decode(m.encode("c", sub)).msg == sub
+    with pytest.raises(m.WireError):
+        m.decode(m.encode("c", m.SubmitProgram(client="c", request_id=1, program="x", deadline=-1.0)))

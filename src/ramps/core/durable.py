@@ -80,8 +80,10 @@ def decode_record(data: bytes) -> OriginRecord:
 
 def program_of(rec: OriginRecord, now: float) -> AutonomousProgram:
     """The program a record describes, not yet placed anywhere by this
-    process (``Origin.restore`` decides what happens to it)."""
-    ap = AutonomousProgram(rec.submit, now)
+    process (``Origin.restore`` decides what happens to it). Its deadline,
+    if it had one, is dropped: it was a time of the old process's clock."""
+    sub = rec.submit if rec.submit.deadline is None else msgspec.structs.replace(rec.submit, deadline=None)
+    ap = AutonomousProgram(sub, now)
     ap.attempt = rec.attempt
     ap.host = rec.host or None
     ap.live = dict(rec.live)

@@ -38,6 +38,12 @@ class Submit(_Rec, frozen=True, kw_only=True):
     #: bytes of memory the program needs: a robot reporting less free memory
     #: (after the programs booked there) is not a candidate; 0 = no need stated
     memory: int = 0
+    #: when the result is wanted, in the core's time (absolute, like ``now``);
+    #: None = no deadline. ``on_miss``: what to do when no robot is expected
+    #: to meet it: "run" (where it ends soonest anyway), "local" (on this
+    #: robot) or "fail" (at once, ``error_kind`` "deadline")
+    deadline: float | None = None
+    on_miss: str = "run"
 
 
 class Cancel(_Rec, frozen=True, kw_only=True):
@@ -154,6 +160,8 @@ class Deliver(_Rec, frozen=True, kw_only=True):
     #: relocations after placement, and the progress the last attempt resumed from
     moves: int = 0
     resumed_from: float | None = None
+    #: it had a deadline and was delivered after it (or refused as unmeetable)
+    missed_deadline: bool = False
 
 
 class Progress(_Rec, frozen=True, kw_only=True):
@@ -177,7 +185,7 @@ class Note(_Rec, frozen=True, kw_only=True):
     """Something the core decided, for traces and logs. ``what`` is one of:
     placed, accepted, rejected, blacklisted, unblacklisted, failed, backoff,
     discarded, anomaly, isolated, suspected, moving, moved, move_aborted,
-    checkpoint, restored."""
+    checkpoint, restored, deadline_unmet, deadline_missed."""
 
     what: str
     program_id: str = ""

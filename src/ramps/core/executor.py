@@ -4,7 +4,9 @@ How this works: an ``OffloadRequest`` is accepted (``StartProgram`` for the
 driver, ``OffloadAccepted`` for the origin) or turned away with a reason:
 ``unknown_program`` and ``bad_request`` are permanent, ``busy`` means the
 host has more runnable work than the origin expected (ramps negotiation) and
-the origin should place again at once. While programs run, the executor
+the origin should place again at once, ``late`` that the program would
+compute here for longer than its deadline leaves (``deadline_in``, by the
+work its programs have left). While programs run, the executor
 sends each origin one ``Heartbeat`` per period listing its programs; a
 program's progress goes to its origin at once, or with the next heartbeat if
 some went less than a period ago (``ProgramProgress``, the newest only). A result
@@ -167,6 +169,9 @@ class Executor:
             reject = ("unknown_program", True, f"no program {req.program!r} is registered on {self.me}")
         elif self.closing:
             reject = ("closing", False, f"{self.me} is shutting down")
+        elif req.deadline_in is not None and not req.force and (
+                t_here := self._time_here(req)) > req.deadline_in * (1.0 + self.config.admission_tolerance):
+            reject = ("late", False, f"would end in {t_here:.2f} s here, deadline in {req.deadline_in:.2f} s")
         elif req.expected_runnable is not None and not req.force:
             # turned away only if the program would not get a whole core here
             # and more is running than the origin counted on (several origins
@@ -201,9 +206,13 @@ class Executor:
         (``time_budget``): take it."""
         if req.time_budget is None:
             return False
+        return self._time_here(req) <= req.time_budget * (1.0 + self.config.admission_tolerance)
+
+    def _time_here(self, req: OffloadRequest) -> float:
+        """Seconds the offered program would compute here, under processor
+        sharing with what runs here now (by the work each has left)."""
         others = [max(0.0, job.work - job.done) for job in self.running.values()]
-        t_here = shared_finish_time(req.work, others, self.cores, self.speed, self.background, self.program_weight)
-        return t_here <= req.time_budget * (1.0 + self.config.admission_tolerance)
+        return shared_finish_time(req.work, others, self.cores, self.speed, self.background, self.program_weight)
 
     def on_finished(self, ev: ProgramFinished, now: float, out: list[Action]) -> None:
         self._advance(now)

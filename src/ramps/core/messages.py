@@ -279,6 +279,11 @@ class OffloadRequest(_Msg, frozen=True, kw_only=True, tag="offload"):
     resume: CheckpointState | None = None
     #: how far the program was when it saved ``resume`` (``work`` is what is left)
     resume_fraction: Fraction = 0.0
+    #: seconds left before the program's deadline when the origin sent this
+    #: (relative: the robots' clocks are not compared); a host that expects
+    #: to finish later turns it away ("late"). None: no deadline, or the
+    #: origin runs it here whether in time or not. Added in protocol 1.1
+    deadline_in: Amount | None = None
 
 
 class OffloadAccepted(_Msg, frozen=True, kw_only=True, tag="accept"):
@@ -361,6 +366,11 @@ class SubmitProgram(_Msg, frozen=True, kw_only=True, tag="submit"):
     local_only: bool = False
     #: placement policy for this program ("" = the node's own)
     policy: Word = ""
+    #: seconds from the node's receipt by which the result is wanted (None:
+    #: no deadline), and what to do when no robot can meet it: "run" (or
+    #: ""), "local" or "fail" (``ramps.core.origin``). Added in protocol 1.1
+    deadline: Amount | None = None
+    on_miss: Word = ""
 
 
 class CancelSubmitted(_Msg, frozen=True, kw_only=True, tag="withdraw"):
@@ -385,6 +395,9 @@ class ProgramOutcome(_Msg, frozen=True, kw_only=True, tag="outcome"):
     #: the progress of the checkpoint its last attempt resumed from (None:
     #: it ran from the start)
     resumed_from: Fraction | None = None
+    #: it had a deadline and was delivered after it (or refused as
+    #: unmeetable, ``error_kind`` "deadline"). Added in protocol 1.1
+    missed_deadline: bool = False
 
 
 class ProgramProgress(_Msg, frozen=True, kw_only=True, tag="progress"):

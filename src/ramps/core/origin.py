@@ -15,6 +15,16 @@ the new host accepts, a result from either copy is delivered and the other
 stopped, and a refusal or failure of the new host leaves the old copy
 running.
 
+Deadlines: a program may carry one (``Submit.deadline``, absolute in the
+core's time). The policy keeps to hosts expected to finish in time; when
+none is (``Placement.late``), or the deadline has passed at a re-placement,
+its ``on_miss`` decides: "run" where it ends soonest, "local" here, or
+"fail" at once (``error_kind`` "deadline"). A program offered in time tells
+its host how long it has (``OffloadRequest.deadline_in``), and the host
+turns it away if it would end later ("late"); one run anyway is offered
+without it. A program delivered after its deadline is a miss
+(``Deliver.missed_deadline``, a ``deadline_missed`` note, ``deadline_misses``).
+
 Rules: no clock (``now`` comes in), no I/O, randomness from the injected
 ``rng``. Remote misbehaviour (a message about a program we never had, an
 illegal transition caused by a peer) is counted in ``anomalies`` and never
@@ -88,6 +98,9 @@ LEARN_MIN_PART = 0.2
 #: nothing here (that is a host failure, retried up to ``max_attempts``)
 POISON_ROBOTS = 2
 POISON_DEATHS = 3
+#: what a program with a deadline may do when no robot is expected to meet
+#: it (``Submit.on_miss``): run where it ends soonest, run here, or fail now
+ON_MISS = ("run", "local", "fail")
 
 
 class Origin:
@@ -150,6 +163,8 @@ class Origin:
         self.relink = Relink(me)
         # statistics
         self.delivered = 0
+        #: programs delivered after their deadline or refused as unmeetable
+        self.deadline_misses = 0
         self.discarded = 0
         self.anomalies = 0
         self.placements = 0
@@ -167,6 +182,11 @@ class Origin:
             raise ValueError(f"program id {sub.program_id!r} was already submitted")
         if not (math.isfinite(sub.work) and sub.work >= 0):  # NaN work made every policy's choice fail
             raise ValueError(f"program {sub.program_id!r}: work must be finite and >= 0, got {sub.work!r}")
+        if sub.on_miss not in ON_MISS:
+            raise ValueError(f"program {sub.program_id!r}: on_miss must be one of {', '.join(ON_MISS)}, "
+                             f"got {sub.on_miss!r}")
+        if sub.deadline is not None and not math.isfinite(sub.deadline):
+            raise ValueError(f"program {sub.program_id!r}: a deadline must be finite, got {sub.deadline!r}")
         if sub.policy and sub.policy not in self._policies:
             self._policies[sub.policy] = make_policy(sub.policy)  # ValueError names the known ones
         ap = AutonomousProgram(sub, now)
@@ -492,7 +512,8 @@ class Origin:
         resume = ap.checkpoint
         fraction = ap.checkpoint_fraction if resume is not None else 0.0
         work *= 1.0 - fraction  # what is left from the checkpoint
-        expected = budget = None
+        expected = budget = deadline_in = None
+        left = sub.deadline - now if sub.deadline is not None else None
         if placement is not None:  # a relocation priced it already
             host, expected, budget = placement.host, placement.expected_runnable, placement.time_budget
         if host is None and sub.local_only:
@@ -501,7 +522,8 @@ class Origin:
             policy = self.policy_for(sub)
             placement = policy.choose(
                 PlacementRequest(program_id=ap.program_id, work=work,
-                                 payload_size=sub.payload_size + len(resume or b""), result_size=sub.result_size),
+                                 payload_size=sub.payload_size + len(resume or b""), result_size=sub.result_size,
+                                 deadline=left),
                 self.view, now, self.rng, net=self.net, config=self.config,
                 exclude=frozenset(ap.excluded) | self.view.short_of_memory(sub.memory)
                 | self.relink.excluded(self.view.robots(), now),
@@ -511,6 +533,14 @@ class Origin:
             if policy.negotiates:
                 expected = placement.expected_runnable
                 budget = placement.time_budget
+            if left is not None and (placement.late or left <= 0.0):
+                host = self._deadline_unmet(ap, placement, left, now, out)
+                if host is None:
+                    return
+                if host != placement.host:  # the policy's estimates were for its pick
+                    expected = budget = None
+            elif left is not None and policy.negotiates:
+                deadline_in = left  # the host checks it against its true load
         if ap.host is not None and ap.host not in ap.live.values():
             self._by_host.get(ap.host, {}).pop(ap.program_id, None)
         ap.made += 1
@@ -531,7 +561,7 @@ class Origin:
             if placement.time_budget is not None:
                 detail += f", budget {placement.time_budget:.2f} s"
         out.append(Note(what="placed", program_id=ap.program_id, robot=host, attempt=ap.attempt, detail=detail))
-        self._offer(ap, now, out, expected=expected, budget=budget)
+        self._offer(ap, now, out, expected=expected, budget=budget, deadline_in=deadline_in)
         # the host cannot accept before the parameters have crossed the link,
         # behind those of this robot's other offers to it still on their way
         transfer = 0.0
@@ -542,8 +572,26 @@ class Origin:
             transfer = queued / link.bandwidth
         self._set_timer(ap, now + self.config.connect_timeout + transfer, E.CONNECT_TIMEOUT)
 
+    def _deadline_unmet(self, ap: AutonomousProgram, placement: Placement, left: float, now: float,
+                        out: list[Action]) -> str | None:
+        """No candidate is expected to finish ``ap`` within the ``left``
+        seconds to its deadline: its ``on_miss`` says where it runs anyway
+        (the policy's pick, or this robot), or it fails now (None)."""
+        sub = ap.submit
+        best = placement.expected_time
+        at_best = f"{best:.2f} s at best (on {placement.host})" if best is not None else "too long"
+        why = f"expected {at_best}, {max(0.0, left):.2f} s left to its deadline"
+        if sub.on_miss == "fail":
+            self._deliver(ap, now, out, ok=False, kind="deadline", host=placement.host,
+                          error=f"{sub.program} cannot meet its deadline: {why}")
+            return None
+        host = self.me if sub.on_miss == "local" else placement.host
+        out.append(Note(what="deadline_unmet", program_id=ap.program_id, robot=host, attempt=ap.made + 1,
+                        detail=f"{why}; on_miss={sub.on_miss}"))
+        return host
+
     def _offer(self, ap: AutonomousProgram, now: float, out: list[Action], *, expected: float | None = None,
-               budget: float | None = None) -> None:
+               budget: float | None = None, deadline_in: float | None = None) -> None:
         """Send the current attempt's offer (``OffloadRequest``) to its host,
         with its latest checkpoint: what is left of the work from there."""
         sub = ap.submit
@@ -553,6 +601,7 @@ class Origin:
             program=sub.program, args=sub.args, payload_size=sub.payload_size, work=ap.work,
             expected_runnable=expected, time_budget=budget, force=ap.rejections >= self.config.max_rejections,
             resume=resume, resume_fraction=ap.checkpoint_fraction if resume is not None else 0.0,
+            deadline_in=deadline_in,
         )))
 
     def _on_accepted(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
@@ -586,7 +635,7 @@ class Origin:
         if msg.report is not None and self.view.on_report(msg.report, now, fresh=True):
             out.append(Note(what="unblacklisted", robot=msg.report.robot))
         ap.rejections += 1
-        if msg.reason != "busy" or msg.report is None:
+        if msg.reason not in ("busy", "late") or msg.report is None:
             # a busy host sent its true load, which the view now holds: it may
             # still be the best choice (the origin then expects what it has)
             ap.excluded.add(host)
@@ -872,8 +921,14 @@ class Origin:
         self._finished.append((now, ap.program_id))
         self.delivered += 1
         ap.moving_from = None
+        due = ap.submit.deadline
+        missed = due is not None and (kind == "deadline" or (ok and now > due))
+        if due is not None and missed:
+            self.deadline_misses += 1
+            out.append(Note(what="deadline_missed", program_id=ap.program_id, robot=host, attempt=ap.attempt,
+                            detail="unmeetable" if kind == "deadline" else f"{now - due:.3f} s late"))
         out.append(Deliver(program_id=ap.program_id, ok=ok, value=value, error=error, error_kind=kind, host=host,
-                           attempts=ap.made, moves=ap.moves, resumed_from=ap.resumed_from))
+                           attempts=ap.made, moves=ap.moves, resumed_from=ap.resumed_from, missed_deadline=missed))
 
     def _leave_host(self, ap: AutonomousProgram, host: str | None, finish_seq: int | None,
                     *, attempt: int | None = None) -> None:

@@ -24,6 +24,11 @@ scheduler.
   estimate when the request arrives (``expected_runnable``) and turns the
   program away if it is busier than the origin thought, which fixes the
   greedy "location thrashing" of several origins deciding on the same data.
+  A program with a deadline (``PlacementRequest.deadline``) goes, of the
+  hosts tied on cost, only to those expected to finish in time; the
+  cheapest host is the one with the most slack, so no deadline and a
+  deadline every tied host meets choose alike. ``Placement.late`` says
+  that none can (the origin then applies the program's ``on_miss``).
 * ``round_robin``, ``random``, ``local_only``: baselines.
 """
 
@@ -50,6 +55,9 @@ class PlacementRequest(msgspec.Struct, frozen=True, kw_only=True):
     work: float
     payload_size: int
     result_size: int
+    #: seconds left before the program's deadline (None: none); ``ramps``
+    #: keeps to the hosts expected to finish within it while there are any
+    deadline: float | None = None
 
 
 class Placement(msgspec.Struct, frozen=True, kw_only=True):
@@ -61,6 +69,9 @@ class Placement(msgspec.Struct, frozen=True, kw_only=True):
     #: the longest computation on the host that still beats the best other
     #: candidate, seconds (ramps negotiation, see ``OffloadRequest``)
     time_budget: float | None = None
+    #: the program has a deadline and no candidate is expected to meet it
+    #: (this is the fastest); only policies that estimate times say so
+    late: bool = False
 
 
 class Policy:
@@ -109,7 +120,8 @@ class PaperPolicy(Policy):
             elif t <= best_t + 1e-9:
                 best.append(robot)
         pick = best[0] if len(best) == 1 else rng.choice(best)
-        return Placement(host=pick, expected_time=best_t + comm_time(req.payload_size, req.result_size, net))
+        t = best_t + comm_time(req.payload_size, req.result_size, net)
+        return Placement(host=pick, expected_time=t, late=req.deadline is not None and t > req.deadline)
 
 
 class RampsPolicy(Policy):
@@ -161,6 +173,8 @@ class RampsPolicy(Policy):
         # ramps programs (they end; busy software does not), then this robot,
         # then chance
         limit = t_best * (1.0 + config.tie_tolerance) + 1e-9
+        if req.deadline is not None and t_best <= req.deadline:
+            limit = min(limit, req.deadline)  # of equal costs, only those in time
         tied = [row for row in rows if row[0] <= limit]
         u_best = min(row[1] for row in tied)
         tied = [row for row in tied if row[1] <= u_best + 1e-9]
@@ -173,7 +187,9 @@ class RampsPolicy(Policy):
         budget = None
         if alternative is not None and math.isfinite(alternative):
             budget = alternative - pick[9]
-        return Placement(host=pick[2], expected_runnable=pick[3], expected_time=pick[0], time_budget=budget)
+        late = req.deadline is not None and pick[0] > req.deadline
+        return Placement(host=pick[2], expected_runnable=pick[3], expected_time=pick[0], time_budget=budget,
+                         late=late)
 
 
 class RoundRobinPolicy(Policy):

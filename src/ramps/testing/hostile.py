@@ -34,7 +34,7 @@ ME = "n"
 PEERS = ["p", "q", "r1", ME, "x" * m.MAX_NAME, "o/app-1", "robot.é"]
 PROGRAM_IDS = ["a", "b", "c", "n#1", "p" * m.MAX_NAME]
 PROGRAMS = ["route_plan", "noop", "x"]
-REASONS = ["busy", "unknown_program", "bad_request", "closing", ""]
+REASONS = ["busy", "late", "unknown_program", "bad_request", "closing", ""]
 #: msgpack type bytes that change how what follows is read
 INTERESTING = [0x00, 0x7f, 0x80, 0x8f, 0x90, 0x9f, 0xa0, 0xbf, 0xc0, 0xc1, 0xc2, 0xc3, 0xc4, 0xc5, 0xc6, 0xc7,
                0xc8, 0xc9, 0xca, 0xcb, 0xcc, 0xcf, 0xd0, 0xd3, 0xd4, 0xd8, 0xd9, 0xda, 0xdb, 0xdc, 0xdd, 0xde,
@@ -95,7 +95,8 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
                                 time_budget=None if rng.random() < 0.5 else _amount(rng, 120.0),
                                 force=rng.random() < 0.3,
                                 resume=rng.choice([None, b"", rng.randbytes(8), b"\0" * m.MAX_CHECKPOINT_BYTES]),
-                                resume_fraction=rng.choice([0.0, 1.0, rng.random()]))
+                                resume_fraction=rng.choice([0.0, 1.0, rng.random()]),
+                                deadline_in=None if rng.random() < 0.5 else _amount(rng, 120.0))
     if kind == 2:
         return m.OffloadAccepted(program_id=pid, attempt=attempt, host=host, accept_seq=random_count(rng))
     if kind == 3:
@@ -122,7 +123,9 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
         return m.SubmitProgram(client=rng.choice(PEERS), request_id=random_count(rng), program=rng.choice(PROGRAMS),
                                args=ENCODER.encode({"seed": rng.randint(0, 9)}), work=_amount(rng),
                                result_size=random_count(rng), local_only=rng.random() < 0.3,
-                               policy=rng.choice(["", "ramps", "nope"]))
+                               policy=rng.choice(["", "ramps", "nope"]),
+                               deadline=None if rng.random() < 0.5 else _amount(rng, 60.0),
+                               on_miss=rng.choice(["", "run", "local", "fail", "nope"]))
     if kind == 9:
         return m.CancelSubmitted(client=rng.choice(PEERS), request_id=random_count(rng))
     if kind == 11:
@@ -144,7 +147,7 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
     return m.ProgramOutcome(request_id=random_count(rng), ok=rng.random() < 0.5, value=b"\x01", error="e",
                             error_kind=rng.choice(["", "program", "refused"]), host=rng.choice(["", *PEERS]),
                             attempts=random_count(rng), moves=random_count(rng),
-                            resumed_from=rng.choice([None, 0.0, rng.random()]))
+                            resumed_from=rng.choice([None, 0.0, rng.random()]), missed_deadline=rng.random() < 0.2)
 
 
 # ====================================================================== garbage and mutations

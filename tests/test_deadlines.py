@@ -1,0 +1,156 @@
+"""Deadlines in the core: placement, ``on_miss``, host admission, misses.
+
+Team of ``busy_origin_team``: the origin ``o`` is swamped, ``a`` (speed 2)
+computes a 50-unit program in about 25 s, ``b`` (speed 1) in 50 s.
+"""
+
+from __future__ import annotations
+
+import random
+
+import pytest
+
+from ramps.core.events import Deliver, Received, StartProgram, Submit
+from ramps.core.messages import OffloadRejected, OffloadRequest
+from ramps.core.policy import PlacementRequest, RampsPolicy
+
+from corehelpers import CFG, NET, busy_origin_team, report, submit, view_of
+
+
+def test_no_deadline_and_a_loose_one_place_alike() -> None:
+    plain, loose = busy_origin_team(), busy_origin_team()
+    submit(plain)
+    submit(loose, deadline=100.0)
+    [p] = plain.sent(OffloadRequest)
+    [q] = loose.sent(OffloadRequest)
+    assert p.host == q.host == "a"
+    assert p.deadline_in is None
+    assert q.deadline_in == pytest.approx(100.0)  # the host admits against it
+    assert not loose.notes("deadline_unmet")
+
+
+def test_unmeetable_deadline_runs_where_fastest_by_default() -> None:
+    team = busy_origin_team()
+    submit(team, deadline=10.0)
+    [req] = team.sent(OffloadRequest)
+    assert req.host == "a" and req.deadline_in is None  # run anyway: the host must not turn it away
+    [note] = team.notes("deadline_unmet")
+    assert "on_miss=run" in note.detail and "10.00 s left" in note.detail
+
+
+def test_unmeetable_deadline_with_on_miss_local_runs_on_the_origin() -> None:
+    team = busy_origin_team()
+    submit(team, deadline=10.0, on_miss="local")
+    assert [n.robot for n in team.notes("placed")] == ["o"]
+    assert not team.sent(OffloadRequest)
+    team.deliver()
+    assert [s.program_id for s in team.actions(StartProgram, "o")] == ["p"]
+
+
+def test_unmeetable_deadline_with_on_miss_fail_fails_before_anything_runs() -> None:
+    team = busy_origin_team()
+    submit(team, deadline=10.0, on_miss="fail")
+    assert not team.sent(OffloadRequest)
+    [d] = team.delivered("p")
+    assert (d.ok, d.error_kind, d.missed_deadline, d.host) == (False, "deadline", True, "a")
+    assert "cannot meet its deadline" in d.error and "25." in d.error and "on a" in d.error
+    assert team.nodes["o"].origin.deadline_misses == 1
+    assert [n.detail for n in team.notes("deadline_missed")] == ["unmeetable"]
+
+
+def test_a_meetable_deadline_with_on_miss_fail_runs() -> None:
+    team = busy_origin_team()
+    submit(team, deadline=40.0, on_miss="fail")
+    [req] = team.sent(OffloadRequest)
+    assert req.host == "a" and req.deadline_in == pytest.approx(40.0)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_of_hosts_tied_on_cost_only_those_in_time_are_chosen(seed: int) -> None:
+    # a and b cost the same within the tie tolerance; only a ends by the deadline
+    view = view_of("o", report("o", cores=1, runnable=10.0), report("a", speed=1.0), report("b", speed=0.998),
+                   cores=1)
+    policy = RampsPolicy()
+    req = PlacementRequest(program_id="x", work=53.0, payload_size=1000, result_size=1000)
+    t_a = 53.0 + 3 * NET.latency + 2000 / NET.bandwidth
+    picks = {policy.choose(req, view, 1.0, random.Random(s), net=NET, config=CFG).host for s in range(20)}
+    assert picks == {"a", "b"}  # without a deadline, chance decides between them
+    timed = msgspec_replace(req, deadline=t_a + 0.01)
+    p = policy.choose(timed, view, 1.0, random.Random(seed), net=NET, config=CFG)
+    assert (p.host, p.late) == ("a", False)
+    late = policy.choose(msgspec_replace(req, deadline=10.0), view, 1.0, random.Random(seed), net=NET, config=CFG)
+    assert late.late and late.expected_time == pytest.approx(t_a, rel=0.01)
+
+
+def msgspec_replace(req: PlacementRequest, **kw) -> PlacementRequest:
+    import msgspec
+
+    return msgspec.structs.replace(req, **kw)
+
+
+def _offer(deadline_in: float | None, *, force: bool = False) -> OffloadRequest:
+    return OffloadRequest(program_id="q", attempt=1, origin="o", host="b", program="route_plan", work=50.0,
+                          deadline_in=deadline_in, force=force)
+
+
+@pytest.mark.parametrize("deadline_in, force, admitted", [
+    (None, False, True),     # no deadline: taken
+    (60.0, False, True),     # 50 s here: in time
+    (30.0, False, False),    # 50 s here: "late", turned away
+    (30.0, True, True),      # forced after too many rejections: taken
+])
+def test_host_admits_against_the_deadline(deadline_in, force, admitted) -> None:
+    team = busy_origin_team()
+    team.handle("b", Received(sender="o", msg=_offer(deadline_in, force=force)))
+    rejected = team.sent(OffloadRejected, by="b")
+    assert bool(team.actions(StartProgram, "b")) is admitted
+    if not admitted:
+        [r] = rejected
+        assert (r.reason, r.permanent) == ("late", False)
+        assert r.report is not None  # fresh load, so the origin places again with it
+        assert "50.00 s here" in r.detail
+
+
+def test_a_late_rejection_is_placed_again_without_excluding_the_host() -> None:
+    team = busy_origin_team()
+    team.nodes["a"].executor.background = 8.0  # a is busier than o's view says: 50/(2*4/9) = 56 s
+    submit(team, deadline=40.0)
+    team.deliver()
+    [rej] = team.sent(OffloadRejected, by="a")
+    assert rej.reason == "late"
+    # with a's true load, no host makes 40 s: the program runs anyway where it ends soonest
+    assert team.notes("deadline_unmet")
+    assert "a" not in team.program("p").excluded
+
+
+@pytest.mark.parametrize("finish_at, missed", [(20.0, False), (45.0, True)])
+def test_a_result_after_the_deadline_is_a_miss(finish_at: float, missed: bool) -> None:
+    team = busy_origin_team()
+    submit(team, deadline=30.0)
+    team.deliver()
+    team.advance(finish_at)
+    team.publish()
+    team.finish("a", "p", 1, ok=True, value=b"v")
+    [d] = team.delivered("p")
+    assert d.ok and d.missed_deadline is missed
+    assert team.nodes["o"].origin.deadline_misses == int(missed)
+    notes = team.notes("deadline_missed")
+    assert [n.detail for n in notes] == (["15.000 s late"] if missed else [])
+
+
+def test_deliver_without_deadline_is_never_a_miss() -> None:
+    team = busy_origin_team()
+    submit(team)
+    team.deliver()
+    team.advance(500.0)
+    team.finish("a", "p", 1, ok=True)
+    [d] = team.actions(Deliver)
+    assert not d.missed_deadline
+
+
+def test_bad_on_miss_and_deadline_are_refused() -> None:
+    team = busy_origin_team()
+    with pytest.raises(ValueError, match="on_miss"):
+        team.handle("o", Submit(program_id="p", program="x", work=1.0, on_miss="maybe"))
+    with pytest.raises(ValueError, match="finite"):
+        team.handle("o", Submit(program_id="q", program="x", work=1.0, deadline=float("nan")))
