@@ -13,7 +13,9 @@
     └── RemoteError               a program ended without a result
         ├── ProgramFailed         the program itself raised (remote traceback text)
         ├── ProgramRefused        every robot that was asked refused it
-        └── ProgramLost           it could not be kept alive (gave up, node shut down)
+        ├── ProgramLost           it could not be kept alive (gave up, node shut down)
+        └── DeadlineUnmeetable    no robot was expected to meet its deadline and
+                                  it asked to fail then (on_miss="fail"): nothing ran
 
 Middleware exceptions are translated once, where ramps calls the middleware
 (``raise TransportError(...) from exc``). A cancelled future raises
@@ -75,3 +77,10 @@ class ProgramRefused(RemoteError):
 
 class ProgramLost(RemoteError):
     pass
+
+
+class DeadlineUnmeetable(RemoteError):
+    """A program submitted with a deadline and ``on_miss="fail"`` that no
+    robot was expected to finish in time; the message names the best
+    expected time. It failed before anything ran (or, placed again after a
+    failure, when no robot could still make it)."""

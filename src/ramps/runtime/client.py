@@ -24,7 +24,9 @@ it, and ``fut.add_update_callback(fn)`` calls ``fn(fut)`` on every change.
 Once done, ``fut.host`` names the robot that ran it and ``fut.attempts`` how
 many placements it took. A per-call timeout
 (``team.options(timeout=...)``) cancels the program and raises
-``TimeoutError``. Errors are the ``ramps.errors`` tree.
+``TimeoutError``; a deadline (``team.options(deadline=2.0)``) places it
+where it is expected to end in time and sets ``fut.missed_deadline`` when
+it did not (see ``Team.options``). Errors are the ``ramps.errors`` tree.
 
 The client reaches the team through ``ramps.runtime.transport`` and reads
 time from its injected clock, as the node does (``ramps.testing.memory``
@@ -39,6 +41,7 @@ import asyncio
 import atexit
 import heapq
 import itertools
+import math
 import os
 import socket
 import threading
@@ -61,6 +64,7 @@ from ramps.core.messages import (
 )
 from ramps.errors import (
     BadArguments,
+    DeadlineUnmeetable,
     NoTeam,
     NotAdmitted,
     ProgramFailed,
@@ -91,7 +95,10 @@ HELD_RETRY = 0.05
 #: again after this many seconds; the node runs one program per request
 SUBMIT_RESEND = 1.0
 
-_ERRORS = {"program": ProgramFailed, "refused": ProgramRefused, "bad_arguments": BadArguments}
+_ERRORS = {"program": ProgramFailed, "refused": ProgramRefused, "bad_arguments": BadArguments,
+           "deadline": DeadlineUnmeetable}
+#: what a call with a deadline may do when no robot can meet it (``Team.options``)
+ON_MISS = ("run", "local", "fail")
 
 
 class _ReportAbout(msgspec.Struct, frozen=True):
@@ -340,14 +347,27 @@ class Team:
 
     # ------------------------------------------------------------ submitting
     def options(self, *, timeout: float | None = None, local_only: bool = False, work: float | None = None,
-                policy: str = "") -> "_Options":
+                policy: str = "", deadline: float | None = None, on_miss: str = "run") -> "_Options":
         """Per-call options: ``team.options(timeout=30).submit(...)``.
 
         ``timeout``: withdraw the program and raise TimeoutError after this
         many seconds; ``local_only``: run it on the origin robot only;
         ``work``: expected work units (overrides the program's profile);
-        ``policy``: placement policy for these calls (default: the node's)."""
-        return _Options(self, timeout=timeout, local_only=local_only, work=work, policy=policy)
+        ``policy``: placement policy for these calls (default: the node's);
+        ``deadline``: seconds from submission by which the result is wanted:
+        the program goes to a robot expected to finish in time, and a late
+        result sets ``fut.missed_deadline``; ``on_miss``: what to do when no
+        robot is expected to make it: "run" it where it ends soonest anyway
+        (the default), run it on the "local" robot, or "fail" at once with
+        ``DeadlineUnmeetable`` (nothing runs). A deadline does not withdraw
+        a late program; ``timeout`` does."""
+        if deadline is not None and not (isinstance(deadline, (int, float)) and math.isfinite(deadline)
+                                         and deadline > 0):
+            raise ValueError(f"deadline is seconds from submission, > 0; got {deadline!r}")
+        if on_miss not in ON_MISS:
+            raise ValueError(f"on_miss must be one of {', '.join(ON_MISS)}; got {on_miss!r}")
+        return _Options(self, timeout=timeout, local_only=local_only, work=work, policy=policy,
+                        deadline=deadline, on_miss=on_miss)
 
     def submit(self, program: str, /, **kwargs: Any) -> ProgramFuture:
         """Run ``program`` (a name registered on the team's robots) with these
@@ -389,7 +409,8 @@ class Team:
         return list(await asyncio.gather(*futs))
 
     def _submit(self, program: str, kwargs: dict[str, Any], *, timeout: float | None = None,
-                local_only: bool = False, work: float | None = None, policy: str = "") -> ProgramFuture:
+                local_only: bool = False, work: float | None = None, policy: str = "",
+                deadline: float | None = None, on_miss: str = "run") -> ProgramFuture:
         if self._closed:
             raise RuntimeError("this Team is closed")
         if not isinstance(program, str) or not program:
@@ -414,7 +435,9 @@ class Team:
                 self._timer_cv.notify()
         fut.add_done_callback(lambda f, rid=rid: self._on_done(rid, f))
         msg = SubmitProgram(client=self.client_id, request_id=rid, program=program, args=args,
-                            work=work or 0.0, local_only=local_only, policy=policy)
+                            work=work or 0.0, local_only=local_only, policy=policy,
+                            deadline=None if deadline is None else float(deadline),
+                            on_miss="" if on_miss == "run" else on_miss)
         data = encode(self.client_id, msg)
         # until the node acknowledges it (an update or the outcome), _timeouts sends it again: a
         # submission published while the node's link lapsed (a node stalled, starved of CPU) is lost
@@ -502,6 +525,7 @@ class Team:
         fut.host = o.host  # which robot ran it
         fut.attempts = o.attempts
         fut.moves, fut.resumed_from = o.moves, o.resumed_from
+        fut.missed_deadline = o.missed_deadline
         try:
             if o.ok:
                 try:

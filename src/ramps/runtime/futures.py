@@ -84,7 +84,9 @@ class ProgramFuture(Future):
     "Programs that move" in docs/using-ramps.md; a re-placement after a
     failure is not a move, it shows in ``attempts``), and ``resumed_from``:
     the progress of the checkpoint its last attempt resumed from (None: it
-    ran from the start, see ``ramps.checkpoint``). Updates are advisory
+    ran from the start, see ``ramps.checkpoint``), and ``missed_deadline``:
+    it had a deadline (``team.options(deadline=...)``) and its result came
+    after it. Updates are advisory
     (they may be lost or arrive late); the result, and the state it sets,
     are not."""
 
@@ -99,6 +101,7 @@ class ProgramFuture(Future):
         self.progress_detail = ""
         self.moves = 0
         self.resumed_from: float | None = None
+        self.missed_deadline = False
         self._update_callbacks: list = []
 
     def add_update_callback(self, fn) -> None:

@@ -85,6 +85,9 @@ class NodeMetrics:
         self.misdeclared = Counter("ramps_calls_misdeclared", "completed calls that took more than 4x or less "
                                    "than a quarter of the work their program declares", r + ("program",),
                                    registry=reg)
+        self.deadline_misses = Counter("ramps_deadline_misses", "programs with a deadline delivered after it, "
+                                       "or refused at once as unmeetable (on_miss=fail)", r + ("program",),
+                                       registry=reg)
         self.run = Counter("ramps_programs_run", "programs this robot's executor started (for any origin)",
                            r + ("program", "origin"), registry=reg)
         self.finished = Counter("ramps_programs_finished", "programs this robot's executor finished",
@@ -185,6 +188,8 @@ class NodeMetrics:
                 self.blacklisted.labels(me, a.robot).inc()
             elif what == "misdeclared":
                 self.misdeclared.labels(me, _program(node, a.program_id)).inc()
+            elif what == "deadline_missed":
+                self.deadline_misses.labels(me, _program(node, a.program_id)).inc()
         elif isinstance(a, StartProgram):
             self.run.labels(me, a.program, a.origin).inc()
             self._remember(self._running, (a.program_id, a.attempt), a.program)

@@ -34,6 +34,7 @@ from ramps.core.messages import (
     SubmitProgram,
     encode,
 )
+from ramps.core.origin import ON_MISS
 from ramps.core.policy import POLICIES
 from ramps.core.program import FINAL, ProgramState
 from ramps.errors import ProgramNotFound
@@ -96,17 +97,19 @@ class ClientAnswers:
                 if target is not None:
                     t = self._as_told(a)
                     data = self._outcome(target[1], ok=t.ok, value=t.value, error=t.error, kind=t.error_kind,
-                                         host=t.host, attempts=t.attempts, moves=t.moves, resumed_from=t.resumed_from)
+                                         host=t.host, attempts=t.attempts, moves=t.moves, resumed_from=t.resumed_from,
+                                         missed_deadline=t.missed_deadline)
                 self._outcomes_ready[a.program_id] = data
                 finished.append((a.program_id, target[0] if target else "", target[1] if target else 0, data))
         self.store.save(records, finished)
 
     def _outcome(self, request_id: int, *, ok: bool, value: bytes = b"", error: str = "", kind: str = "",
-                 host: str = "", attempts: int = 0, moves: int = 0, resumed_from: float | None = None) -> bytes:
+                 host: str = "", attempts: int = 0, moves: int = 0, resumed_from: float | None = None,
+                 missed_deadline: bool = False) -> bytes:
         """A request's outcome, encoded as its client receives it."""
         return encode(self.robot, ProgramOutcome(
             request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts,
-            moves=moves, resumed_from=resumed_from))
+            moves=moves, resumed_from=resumed_from, missed_deadline=missed_deadline))
 
     def _client_submit(self, m: SubmitProgram, now: float) -> list:
         rkey = (m.client, m.request_id)
@@ -134,14 +137,20 @@ class ClientAnswers:
         if m.policy and m.policy not in POLICIES:
             return self._tell_client(pid, ok=False, kind="bad_arguments",
                                      error=f"unknown policy {m.policy!r}; choose one of {', '.join(POLICIES)}")
+        on_miss = m.on_miss or "run"
+        if on_miss not in ON_MISS:
+            return self._tell_client(pid, ok=False, kind="bad_arguments",
+                                     error=f"unknown on_miss {m.on_miss!r}; choose one of {', '.join(ON_MISS)}")
         return self.node.handle(Submit(
             program_id=pid, program=m.program, args=m.args, payload_size=len(m.args),
             work=work, result_size=m.result_size or spec.result,
             local_only=m.local_only or spec.local_only, policy=m.policy, memory=spec.memory,
+            deadline=None if m.deadline is None else now + m.deadline, on_miss=on_miss,
         ), now)
 
     def _tell_client(self, pid: str, *, ok: bool, value: bytes = b"", error: str = "", kind: str = "",
-                     host: str = "", attempts: int = 0, moves: int = 0, resumed_from: float | None = None) -> list:
+                     host: str = "", attempts: int = 0, moves: int = 0, resumed_from: float | None = None,
+                     missed_deadline: bool = False) -> list:
         target = self._clients.pop(pid, None)
         if target is None:
             return []
@@ -150,7 +159,7 @@ class ClientAnswers:
         self._progress.pop(pid, None)
         data = self._outcomes_ready.pop(pid, None) or self._outcome(  # the one written to the record, if any
             request_id, ok=ok, value=value, error=error, kind=kind, host=host, attempts=attempts, moves=moves,
-            resumed_from=resumed_from)
+            resumed_from=resumed_from, missed_deadline=missed_deadline)
         self._answered[target] = data  # a resend still in flight must not run it again
         self._kept_outcomes.append(target)
         self._kept_bytes += len(data)

@@ -108,7 +108,8 @@ class Outbound:
                     self._write_trace("delivered", a.program_id, a.host, a.attempts, a.error_kind)
                 t = self._as_told(a)
                 self._tell_client(t.program_id, ok=t.ok, value=t.value, error=t.error, kind=t.error_kind, host=t.host,
-                                  attempts=t.attempts, moves=t.moves, resumed_from=t.resumed_from)
+                                  attempts=t.attempts, moves=t.moves, resumed_from=t.resumed_from,
+                                  missed_deadline=t.missed_deadline)
             elif isinstance(a, PublishReport):
                 prompt = a.report
             elif isinstance(a, Progress):
