@@ -154,3 +154,29 @@ def test_bad_on_miss_and_deadline_are_refused() -> None:
         team.handle("o", Submit(program_id="p", program="x", work=1.0, on_miss="maybe"))
     with pytest.raises(ValueError, match="finite"):
         team.handle("o", Submit(program_id="q", program="x", work=1.0, deadline=float("nan")))
+
+
+def test_host_keeps_the_deadlines_it_admitted() -> None:
+    team = busy_origin_team()
+    for i in range(4):  # b's 4 cores, 50 s each, due in 55 s
+        offer = OffloadRequest(program_id=f"d{i}", attempt=1, origin="o", host="b", program="route_plan",
+                               work=50.0, deadline_in=55.0)
+        team.handle("b", Received(sender="o", msg=offer))
+    assert len(team.actions(StartProgram, "b")) == 4
+    # a fifth, with no deadline of its own, would slow all four to 62.5 s
+    fifth = OffloadRequest(program_id="e", attempt=1, origin="o", host="b", program="route_plan", work=50.0,
+                           expected_runnable=4.0, time_budget=1000.0)
+    team.handle("b", Received(sender="o", msg=fifth))
+    [r] = team.sent(OffloadRejected, by="b")
+    assert (r.reason, r.detail) == ("late", "would make 4 programs here miss their deadline")
+    # an origin that does not negotiate (no expected_runnable), or one forced, is not turned away
+    for msg in (msgspec_replace_offer(fifth, program_id="f", expected_runnable=None, time_budget=None),
+                msgspec_replace_offer(fifth, program_id="g", force=True)):
+        team.handle("b", Received(sender="o", msg=msg))
+    assert len(team.actions(StartProgram, "b")) == 6
+
+
+def msgspec_replace_offer(req: OffloadRequest, **kw) -> OffloadRequest:
+    import msgspec
+
+    return msgspec.structs.replace(req, **kw)

@@ -5,8 +5,10 @@ driver, ``OffloadAccepted`` for the origin) or turned away with a reason:
 ``unknown_program`` and ``bad_request`` are permanent, ``busy`` means the
 host has more runnable work than the origin expected (ramps negotiation) and
 the origin should place again at once, ``late`` that the program would
-compute here for longer than its deadline leaves (``deadline_in``, by the
-work its programs have left). While programs run, the executor
+compute here for longer than its deadline leaves (``deadline_in``), or
+would slow a program running here past a deadline it would have met (by
+processor sharing of the work each has left; checked for offers that
+negotiate, not forced ones). While programs run, the executor
 sends each origin one ``Heartbeat`` per period listing its programs; a
 program's progress goes to its origin at once, or with the next heartbeat if
 some went less than a period ago (``ProgramProgress``, the newest only). A result
@@ -62,9 +64,10 @@ ORIGIN_GONE_AFTER = RampsConfig().origin_hold
 
 class _Job:
     __slots__ = ("origin", "program", "started_at", "progress", "detail", "progress_new", "progress_sent_at",
-                 "work", "done")
+                 "work", "done", "due")
 
-    def __init__(self, origin: str, program: str, started_at: float, work: float = 0.0) -> None:
+    def __init__(self, origin: str, program: str, started_at: float, work: float = 0.0,
+                 due: float | None = None) -> None:
         self.origin = origin
         self.program = program
         self.started_at = started_at
@@ -72,6 +75,8 @@ class _Job:
         #: sharing has done by ``Executor._advanced_at`` (see ``remaining``)
         self.work = work
         self.done = 0.0
+        #: when its origin wants the result, in this robot's time (None: no deadline)
+        self.due = due
         #: the latest progress the program reported, and whether the origin has it yet
         self.progress: float | None = None
         self.detail = ""
@@ -169,9 +174,9 @@ class Executor:
             reject = ("unknown_program", True, f"no program {req.program!r} is registered on {self.me}")
         elif self.closing:
             reject = ("closing", False, f"{self.me} is shutting down")
-        elif req.deadline_in is not None and not req.force and (
-                t_here := self._time_here(req)) > req.deadline_in * (1.0 + self.config.admission_tolerance):
-            reject = ("late", False, f"would end in {t_here:.2f} s here, deadline in {req.deadline_in:.2f} s")
+        elif not req.force and (req.deadline_in is not None or req.expected_runnable is not None) and (
+                late := self._makes_late(req)) is not None:
+            reject = ("late", False, late)
         elif req.expected_runnable is not None and not req.force:
             # turned away only if the program would not get a whole core here
             # and more is running than the origin counted on (several origins
@@ -191,7 +196,8 @@ class Executor:
                 report=report_now() if (report_now is not None and not permanent) else None)))
             return
         self.accepted_total += 1
-        self.running[key] = _Job(req.origin, req.program, now, req.work)
+        due = now + req.deadline_in if req.deadline_in is not None else None
+        self.running[key] = _Job(req.origin, req.program, now, req.work, due)
         out.append(StartProgram(program_id=req.program_id, attempt=req.attempt, origin=req.origin,
                                 program=req.program, args=req.args, work=req.work, resume=req.resume,
                                 resume_fraction=req.resume_fraction))
@@ -207,6 +213,42 @@ class Executor:
         if req.time_budget is None:
             return False
         return self._time_here(req) <= req.time_budget * (1.0 + self.config.admission_tolerance)
+
+    def _makes_late(self, req: OffloadRequest) -> str | None:
+        """Why taking ``req`` would miss a deadline (its own, or that of a
+        program running here that would have made it), by processor sharing
+        of the work each has left; None if it would not. ``_advance`` first."""
+        jobs = list(self.running.values())
+        if req.deadline_in is None and not any(job.due is not None for job in jobs):
+            return None
+        tol = 1.0 + self.config.admission_tolerance
+        left = [max(0.0, job.work - job.done) for job in jobs]
+        after = self._ends(left + [req.work])
+        if req.deadline_in is not None and after[-1] > req.deadline_in * tol:
+            return f"would end in {after[-1]:.2f} s here, deadline in {req.deadline_in:.2f} s"
+        if self._advanced_at is None:
+            return None
+        now = self._advanced_at
+        before = self._ends(left)
+        hurt = sum(1 for job, b, a in zip(jobs, before, after)
+                   if job.due is not None and b <= (job.due - now) * tol < a)
+        if hurt:
+            return f"would make {hurt} program{'s' if hurt > 1 else ''} here miss {'their' if hurt > 1 else 'its'} deadline"
+        return None
+
+    def _ends(self, left: list[float]) -> list[float]:
+        """Seconds until each program with these works left ends here, under
+        processor sharing (equal rates: the smallest ends first)."""
+        out = [0.0] * len(left)
+        t = done = 0.0
+        k = len(left)
+        for i in sorted(range(len(left)), key=left.__getitem__):
+            rate = self.speed * program_share(self.cores, k, self.background, self.program_weight)
+            t += (left[i] - done) / rate
+            done = left[i]
+            out[i] = t
+            k -= 1
+        return out
 
     def _time_here(self, req: OffloadRequest) -> float:
         """Seconds the offered program would compute here, under processor

@@ -138,7 +138,7 @@ _GIVE_UP = (S.FAILED, "max_attempts")
 _ACCEPTED = _t("on_accepted", (S.RUNNING, ""))
 _ACCEPT_LATE = _t("on_accepted", (S.RUNNING, "acceptance lost or reordered"))
 _REJECTED = _t("on_rejected", (S.OFFERED, "re-placed at once"), (S.BACKOFF, "turned away again, or closing here"),
-               (S.FAILED, "permanent, or max_attempts"))
+               (S.FAILED, "permanent, max_attempts, or deadline unmeetable"))
 _HOST_FAILED = _t("on_host_failed", (S.BACKOFF, "host blacklisted"),
                   (S.OFFERED, "host still publishes, or origin cut off: re-placed"), _GIVE_UP)
 _RESULT = _t("on_result", (S.DONE, "ok"), (S.FAILED, "program error, or max_attempts"),
@@ -177,7 +177,7 @@ TRANSITIONS: dict[ProgramState, dict[Event, Transition]] = {
         E.CANCEL: _CANCEL,
     },
     S.BACKOFF: {
-        E.BACKOFF_DONE: _t("place", (S.OFFERED, "")),
+        E.BACKOFF_DONE: _t("place", (S.OFFERED, ""), (S.FAILED, "deadline unmeetable, on_miss fail")),
         E.CANCEL: _CANCEL,
     },
     S.DONE: {},

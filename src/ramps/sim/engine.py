@@ -60,6 +60,10 @@ class ProgramRecord(msgspec.Struct, kw_only=True):
     #: relocations after placement, and the progress the last attempt resumed from
     moves: int = 0
     resumed_from: float | None = None
+    #: when its result was wanted (virtual time; None: no deadline), and
+    #: whether it missed it: not delivered with a result by then
+    deadline: float | None = None
+    missed_deadline: bool = False
 
 
 class TraceEntry(msgspec.Struct, frozen=True, array_like=True):
@@ -95,6 +99,9 @@ class SimResult(msgspec.Struct, kw_only=True):
     end_time: float
     wall_seconds: float
     trace: list[TraceEntry] = []
+    #: programs with a deadline, and those that missed it (late, failed or lost)
+    deadlines: int = 0
+    deadline_misses: int = 0
 
 
 class _Robot:
@@ -131,8 +138,11 @@ class _Robot:
 
 class Simulator:
     def __init__(self, scenario: Scenario, *, policy: str | None = None, seed: int | None = None,
-                 trace: bool = False, snapshots: list[float] | None = None) -> None:
+                 trace: bool = False, snapshots: list[float] | None = None, deadlines: bool = True) -> None:
         self.sc = scenario.check()
+        #: whether origins are told the programs' deadlines (False: placed as
+        #: if they had none, their misses still counted)
+        self.deadlines = deadlines
         self.policy = policy or scenario.policy
         self.seed = scenario.seed if seed is None else seed
         self.rng = random.Random(self.seed)
@@ -373,7 +383,8 @@ class Simulator:
     def _submit(self, entry: ProgramSpec) -> None:
         origin = self.robots[entry.origin]
         pid = f"{entry.origin}#{len(self.records) + 1}"
-        self.records[pid] = ProgramRecord(program_id=pid, origin=entry.origin, submitted_at=self.now)
+        due = None if entry.deadline is None else self.now + entry.deadline
+        self.records[pid] = ProgramRecord(program_id=pid, origin=entry.origin, submitted_at=self.now, deadline=due)
         self._first_submit = min(self._first_submit, self.now)
         if not origin.alive:
             self._pending -= 1  # an origin that is down submits nothing
@@ -387,6 +398,7 @@ class Simulator:
             program_id=pid, program=entry.program, payload_size=entry.payload,
             work=entry.work_estimate if entry.work_estimate is not None else entry.work,
             result_size=entry.result, memory=entry.memory,
+            deadline=due if self.deadlines else None, on_miss=entry.on_miss,
         ))
 
     def _delivered(self, r: _Robot, d: Deliver) -> None:
@@ -492,7 +504,13 @@ class Simulator:
     def _result(self, wall: float) -> SimResult:
         dist = {n: 0 for n in self.names}
         completed = failed = lost = dup = 0
+        deadlines = misses = 0
         for rec in self.records.values():
+            if rec.deadline is not None:
+                deadlines += 1
+                rec.missed_deadline = not (rec.ok and rec.delivered_at is not None
+                                           and rec.delivered_at <= rec.deadline + 1e-9)
+                misses += rec.missed_deadline
             if rec.deliveries:
                 dup += rec.deliveries - 1
                 if rec.ok:
@@ -511,10 +529,14 @@ class Simulator:
             failed=failed, lost=lost, duplicated=dup, programs=list(self.records.values()),
             statistics=stats, snapshots=self.snapshots, events=self.events, messages_sent=self.sent,
             messages_dropped=self.dropped, end_time=self.now, wall_seconds=wall, trace=self.trace,
+            deadlines=deadlines, deadline_misses=misses,
         )
 
 
 def simulate(scenario: Scenario, *, policy: str | None = None, seed: int | None = None,
-             trace: bool = False, snapshots: list[float] | None = None) -> SimResult:
-    """Run one scenario to completion and return what happened."""
-    return Simulator(scenario, policy=policy, seed=seed, trace=trace, snapshots=snapshots).run()
+             trace: bool = False, snapshots: list[float] | None = None, deadlines: bool = True) -> SimResult:
+    """Run one scenario to completion and return what happened
+    (``deadlines=False``: the programs' deadlines are not told to their
+    origins, only counted)."""
+    return Simulator(scenario, policy=policy, seed=seed, trace=trace, snapshots=snapshots,
+                     deadlines=deadlines).run()

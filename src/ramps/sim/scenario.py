@@ -13,12 +13,14 @@ speed 1.0 and one route-planning program is 53 units), sizes in bytes.
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import msgspec
 
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NODE_CPU_MAX
+from ramps.core.origin import ON_MISS
 
 POLICIES = ("ramps", "paper", "round_robin", "random", "local_only")
 FaultKind = Literal["crash", "network", "freeze", "recover", "load"]
@@ -118,6 +120,11 @@ class ProgramSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
     #: (``ramps.checkpoint``); each checkpoint is ``checkpoint_size`` bytes
     checkpoint_every: float = 0.0
     checkpoint_size: int = 0
+    #: each program's result is wanted this many seconds after it is
+    #: submitted (None: no deadline); ``on_miss``: what its origin does when
+    #: no robot is expected to make it: "run", "local" or "fail"
+    deadline: float | None = None
+    on_miss: str = "run"
 
 
 class FaultSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -211,6 +218,10 @@ class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
                         "checkpoint_size"):
                 if getattr(spec, fld) < 0:
                     raise ScenarioError(f"{path}.{fld}", f"must be >= 0, got {getattr(spec, fld)}")
+            if spec.deadline is not None and not (math.isfinite(spec.deadline) and spec.deadline > 0):
+                raise ScenarioError(f"{path}.deadline", f"must be > 0 seconds, got {spec.deadline}")
+            if spec.on_miss not in ON_MISS:
+                raise ScenarioError(f"{path}.on_miss", f"must be one of {', '.join(ON_MISS)}, got {spec.on_miss!r}")
         for i, f in enumerate(self.faults):
             if f.robot not in seen:
                 raise ScenarioError(f"$.faults[{i}].robot", f"unknown robot {f.robot!r}")
