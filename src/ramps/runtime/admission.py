@@ -24,9 +24,14 @@ from __future__ import annotations
 
 import socket
 import ssl
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from ramps.errors import NotAdmitted
 from ramps.runtime.credentials import Credentials
+
+if TYPE_CHECKING:
+    import zenoh
 
 #: every message kind a ramps node or client sends or receives
 ACL_MESSAGES = ["put", "delete", "declare_subscriber", "query", "declare_queryable", "reply",
@@ -108,7 +113,8 @@ def not_admitted_message(team: str, creds: Credentials, refused: dict[str, str])
             f"this robot's CA is {creds.ca}")
 
 
-def open_session(config_for, endpoints: list[str], creds: Credentials, *, team: str, fail_fast: bool):
+def open_session(config_for: Callable[[bool], zenoh.Config], endpoints: list[str], creds: Credentials, *,
+                 team: str, fail_fast: bool) -> zenoh.Session:
     """``zenoh.open(config_for(fail_fast))``, where ``fail_fast`` (from
     ``admission``) sets ``connect/exit_on_failure``. If Zenoh then fails:
     a refusal is ``NotAdmitted``; a teammate that went away since the

@@ -31,9 +31,17 @@ import os
 import stat
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ramps.errors import CredentialsError
 from ramps.runtime import keys
+
+if TYPE_CHECKING:
+    from cryptography import x509
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.hazmat.primitives.asymmetric.types import PrivateKeyTypes, PublicKeyTypes
+
+    from ramps.runtime.settings import NodeSettings
 
 CA_CERT = "ca.pem"
 CA_KEY = "ca.key"
@@ -77,7 +85,7 @@ def _write(path: Path, data: bytes, *, private: bool, force: bool) -> None:
     os.replace(tmp, path)
 
 
-def _name(cn: str, team: str):
+def _name(cn: str, team: str) -> x509.Name:
     from cryptography import x509
     from cryptography.x509.oid import NameOID
 
@@ -86,14 +94,14 @@ def _name(cn: str, team: str):
                       x509.NameAttribute(NameOID.ORGANIZATIONAL_UNIT_NAME, team)])
 
 
-def _key_pem(key) -> bytes:
+def _key_pem(key: PrivateKeyTypes) -> bytes:
     from cryptography.hazmat.primitives import serialization
 
     return key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
                              serialization.NoEncryption())
 
 
-def _cert_pem(cert) -> bytes:
+def _cert_pem(cert: x509.Certificate) -> bytes:
     from cryptography.hazmat.primitives import serialization
 
     return cert.public_bytes(serialization.Encoding.PEM)
@@ -130,9 +138,10 @@ def create_ca(directory: str | os.PathLike, team: str, *, days: int = CA_DAYS, f
     return d
 
 
-def load_ca(directory: str | os.PathLike):
+def load_ca(directory: str | os.PathLike[str]) -> tuple[x509.Certificate, ec.EllipticCurvePrivateKey, str]:
     """The CA certificate, its key and the team name stored in ``directory``."""
     from cryptography.hazmat.primitives import serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
 
     d = Path(directory)
     for f in (d / CA_CERT, d / CA_KEY):
@@ -145,6 +154,8 @@ def load_ca(directory: str | os.PathLike):
         raise CredentialsError(f"{d / CA_KEY} is not a readable private key: {exc}") from None
     if _spki(key.public_key()) != _spki(cert.public_key()):
         raise CredentialsError(f"{d / CA_KEY} is not the key of {d / CA_CERT}")
+    if not isinstance(key, ec.EllipticCurvePrivateKey):  # what create_ca makes, and what signs revocation lists
+        raise CredentialsError(f"{d / CA_KEY} is not an elliptic-curve key; make the CA with `ramps team init`")
     return cert, key, _team_of(cert)
 
 
@@ -172,7 +183,7 @@ def issue(directory: str | os.PathLike, robot: str, *, days: int = ROBOT_DAYS, h
     key = ec.generate_private_key(ec.SECP256R1())
     start = _now(now) - _dt.timedelta(minutes=5)
     end = min(start + _dt.timedelta(days=days), ca_cert.not_valid_after_utc)
-    sans: list = []
+    sans: list[x509.GeneralName] = []
     for h in [robot, "localhost", "127.0.0.1", "::1", *hosts]:
         entry: x509.GeneralName
         try:
@@ -201,13 +212,13 @@ def issue(directory: str | os.PathLike, robot: str, *, days: int = ROBOT_DAYS, h
 
 
 # ====================================================================== checking
-def _spki(public_key) -> bytes:
+def _spki(public_key: PublicKeyTypes) -> bytes:
     from cryptography.hazmat.primitives import serialization
 
     return public_key.public_bytes(serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo)
 
 
-def _load_cert(path: Path, what: str):
+def _load_cert(path: Path, what: str) -> x509.Certificate:
     from cryptography import x509
 
     try:
@@ -222,18 +233,18 @@ def _load_cert(path: Path, what: str):
         raise CredentialsError(f"{what} {path} is not a PEM certificate") from None
 
 
-def _attr(name, oid) -> str:
+def _attr(name: x509.Name, oid: x509.ObjectIdentifier) -> str:
     found = name.get_attributes_for_oid(oid)
     return str(found[0].value) if found else ""
 
 
-def _cn(cert) -> str:
+def _cn(cert: x509.Certificate) -> str:
     from cryptography.x509.oid import NameOID
 
     return _attr(cert.subject, NameOID.COMMON_NAME)
 
 
-def _team_of(cert) -> str:
+def _team_of(cert: x509.Certificate) -> str:
     from cryptography.x509.oid import NameOID
 
     return _attr(cert.subject, NameOID.ORGANIZATIONAL_UNIT_NAME)
@@ -314,7 +325,7 @@ def check_credentials(ca: str | os.PathLike, cert: str | os.PathLike, key: str |
 
 
 
-def settings_credentials(s, *, robot: str | None = None) -> Credentials:
+def settings_credentials(s: NodeSettings, *, robot: str | None = None) -> Credentials:
     """The checked credentials of ``NodeSettings`` ``s`` (a node passes its
     robot name: its certificate must be for that robot)."""
     ca, cert, key = credential_paths(s.credentials or None, ca=s.ca or None, cert=s.cert or None, key=s.key or None)

@@ -78,7 +78,7 @@ TAIL_LINES = 20
 TAIL_LINE_CHARS = 150
 
 
-def _prctl(option: int, arg) -> None:
+def _prctl(option: int, arg: int | ctypes.c_char_p) -> None:
     try:
         ctypes.CDLL(None, use_errno=True).prctl(option, arg, 0, 0, 0)
     except (OSError, AttributeError):  # not Linux

@@ -43,12 +43,16 @@ from __future__ import annotations
 import datetime as _dt
 import os
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import msgspec
 
 from ramps.errors import CredentialsError
 from ramps.runtime import keys
+
+if TYPE_CHECKING:
+    from cryptography import x509
+    from cryptography.hazmat.primitives.asymmetric import ec
 
 REVOKED_FILE = "revoked.json"
 #: the most robots one list may name
@@ -78,7 +82,7 @@ def _signed_bytes(rl: RevocationList) -> bytes:
     return msgspec.msgpack.encode(msgspec.structs.replace(rl, sig=b""))
 
 
-def sign(rl: RevocationList, ca_key) -> RevocationList:
+def sign(rl: RevocationList, ca_key: ec.EllipticCurvePrivateKey) -> RevocationList:
     from cryptography.hazmat.primitives import hashes
     from cryptography.hazmat.primitives.asymmetric import ec
 
@@ -86,7 +90,7 @@ def sign(rl: RevocationList, ca_key) -> RevocationList:
     return msgspec.structs.replace(rl, sig=ca_key.sign(_signed_bytes(rl), ec.ECDSA(hashes.SHA256())))
 
 
-def verify(rl: RevocationList, ca_cert, team: str) -> RevocationList:
+def verify(rl: RevocationList, ca_cert: x509.Certificate, team: str) -> RevocationList:
     """``rl`` if it is for ``team`` and signed by its CA, else ``CredentialsError``."""
     from cryptography.exceptions import InvalidSignature
     from cryptography.hazmat.primitives import hashes
@@ -94,14 +98,17 @@ def verify(rl: RevocationList, ca_cert, team: str) -> RevocationList:
 
     if rl.team != team:
         raise CredentialsError(f"revocation list is for team {rl.team!r}, not {team!r}")
+    ca_public = ca_cert.public_key()
     try:
-        ca_cert.public_key().verify(rl.sig, _signed_bytes(rl), ec.ECDSA(hashes.SHA256()))
+        if not isinstance(ca_public, ec.EllipticCurvePublicKey):  # not a CA ramps makes: it signed nothing
+            raise InvalidSignature
+        ca_public.verify(rl.sig, _signed_bytes(rl), ec.ECDSA(hashes.SHA256()))
     except (InvalidSignature, TypeError, ValueError):
         raise CredentialsError(f"revocation list {rl.seq} of team {team!r} is not signed by the team CA") from None
     return rl
 
 
-def decode(data: bytes, ca_cert, team: str) -> RevocationList:
+def decode(data: bytes, ca_cert: x509.Certificate, team: str) -> RevocationList:
     """A list received from the network: size, schema, team and signature
     checked; any failure is ``CredentialsError`` (remote bad input)."""
     if len(data) > MAX_LIST_BYTES:
@@ -117,7 +124,7 @@ def encode(rl: RevocationList) -> bytes:
     return msgspec.msgpack.encode(rl)
 
 
-def load(path: str | os.PathLike, ca_cert, team: str) -> RevocationList | None:
+def load(path: str | os.PathLike[str], ca_cert: x509.Certificate, team: str) -> RevocationList | None:
     """The list in ``path`` (None if there is no such file), checked."""
     p = Path(path)
     try:

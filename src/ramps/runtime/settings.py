@@ -47,7 +47,7 @@ import os
 import socket
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import msgspec
 
@@ -55,6 +55,11 @@ from ramps.core.config import RampsConfig
 from ramps.errors import ConfigError
 from ramps.runtime import keys
 from ramps.runtime.registry import MAX_ARGS_BYTES as _MAX_ARGS
+
+if TYPE_CHECKING:
+    import zenoh
+
+    from ramps.runtime.credentials import Credentials
 
 
 class CommandEntry(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -492,8 +497,8 @@ AUTOCONNECT_STRATEGY = '{peer: {to_router: "always", to_peer: "greater-zid"}}'
 AUTOCONNECT_ALWAYS = '{peer: {to_router: "always", to_peer: "always"}}'
 
 
-def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credentials=None,
-                 exit_on_failure: bool = False):
+def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credentials: Credentials | None = None,
+                 exit_on_failure: bool = False) -> zenoh.Config:
     """A Zenoh peer or client configuration for these settings (``s.mode``).
 
     Secure mode needs the checked ``credentials``
@@ -523,7 +528,8 @@ def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credential
     return c
 
 
-def _links_security_overrides(c, s: NodeSettings, credentials, exit_on_failure: bool, caller: str) -> None:
+def _links_security_overrides(c: zenoh.Config, s: NodeSettings, credentials: Credentials | None,
+                              exit_on_failure: bool, caller: str) -> None:
     """What a robot's and a router's configurations share: the team's lease
     and keep-alives, shared memory off when asked (two routers on one host,
     the testbed, would pass large messages around their link), on a secured
@@ -563,7 +569,8 @@ def router_listen(s: NodeSettings) -> list[str]:
     return [default if e in (DEFAULT_LISTEN, DEFAULT_TLS_LISTEN) else e for e in s.listen]
 
 
-def router_config(s: NodeSettings, *, credentials=None, exit_on_failure: bool = False):
+def router_config(s: NodeSettings, *, credentials: Credentials | None = None,
+                  exit_on_failure: bool = False) -> zenoh.Config:
     """A Zenoh router configuration for these settings (``ramps router``):
     listen on ``router_listen(s)``, link to the routers of ``s.connect``
     (other sites), the team's lease, and on a secured team the same TLS and
