@@ -38,6 +38,7 @@ and reports nothing: the core already knows.
 
 from __future__ import annotations
 
+import io
 import os
 import select
 import selectors
@@ -48,7 +49,7 @@ import sys
 import threading
 import time
 from collections import deque
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import msgspec
 
@@ -78,12 +79,23 @@ _enc = msgspec.msgpack.Encoder()
 _dec = msgspec.msgpack.Decoder()
 
 
+class _Job(NamedTuple):
+    """A program waiting for a worker."""
+
+    key: Key
+    program: str
+    args: bytes
+    queued_at: float
+    #: the checkpoint it resumes from, if any
+    resume: bytes | None
+
+
 class _Forked:
     """A worker forked by the fork server (``ramps.runtime.forkserver``): not
     this process's child, so it is watched and signalled through a pidfd
-    (no pid reuse race); what ``_Worker`` uses of ``subprocess.Popen``."""
+    (no pid reuse race). ``stdin`` carries its jobs, ``stdout`` its replies."""
 
-    def __init__(self, pid: int, stdin, stdout) -> None:
+    def __init__(self, pid: int, stdin: io.FileIO, stdout: io.FileIO) -> None:
         self.pid = pid
         self.stdin = stdin
         self.stdout = stdout
@@ -126,22 +138,24 @@ class _Forked:
             pass
 
     def wait(self, timeout: float | None = None) -> int:
-        end = None if timeout is None else time.monotonic() + timeout
-        while self.poll() is None:
-            left = None if end is None else end - time.monotonic()
-            if left is not None and left <= 0:
-                raise subprocess.TimeoutExpired(f"worker {self.pid}", timeout)
+        started = time.monotonic()
+        while (code := self.poll()) is None:
+            left: float | None = None
+            if timeout is not None:
+                left = timeout - (time.monotonic() - started)
+                if left <= 0:
+                    raise subprocess.TimeoutExpired(f"worker {self.pid}", timeout)
             if self._pidfd is not None:
                 select.select([self._pidfd], [], [], left)
             else:
                 time.sleep(0.01 if left is None else min(0.01, left))
-        return self.returncode
+        return code
 
 
 class _Worker:
     __slots__ = ("proc", "fd", "buf", "job", "cancelled", "retiring", "idle_since", "ended")
 
-    def __init__(self, proc: subprocess.Popen | _Forked) -> None:
+    def __init__(self, proc: _Forked) -> None:
         self.proc = proc
         self.fd = proc.stdout.fileno()
         self.buf = bytearray()
@@ -150,10 +164,10 @@ class _Worker:
         self.retiring = False
         self.idle_since = time.monotonic()
         #: how it ended, from the fork server: {"died": "exit code 3", "stderr": "..."}
-        self.ended: dict | None = None
+        self.ended: dict[str, object] | None = None
 
 
-def death_text(ended: dict | None) -> str:
+def death_text(ended: dict[str, object] | None) -> str:
     """A dead worker's program error: how it ended and, if it wrote any,
     the last ``STDERR_LINES`` lines of its stderr."""
     if ended is None:
@@ -184,7 +198,7 @@ class WorkerPool:
         self._lock = threading.Lock()
         self._sel = selectors.DefaultSelector()
         self._workers: list[_Worker] = []
-        self._queue: deque[tuple[Key, str, bytes, float]] = deque()  # key, program, args, queued at
+        self._queue: deque[_Job] = deque()
         self._wake_r, self._wake_w = os.pipe()
         self._sel.register(self._wake_r, selectors.EVENT_READ, None)
         self._stopping = False
@@ -193,7 +207,7 @@ class WorkerPool:
         self.died = 0
         #: workers forked by the fork server (all of them, unless it failed)
         self.forked = 0
-        self._server: subprocess.Popen | None = None
+        self._server: subprocess.Popen[bytes] | None = None
         self._server_sock: socket.socket | None = None
         #: when a worker last finished a program or was started (growth waits GROW_AFTER after it)
         self._last_progress = 0.0
@@ -205,8 +219,9 @@ class WorkerPool:
                 self._add_worker()
         self._thread.start()
 
-    def _start_server(self) -> None:
-        """The fork server (``ramps.runtime.forkserver``), with the programs' modules imported."""
+    def _start_server(self) -> socket.socket:
+        """The fork server (``ramps.runtime.forkserver``), with the programs'
+        modules imported; returns the socket that asks it for workers."""
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:
             self._server = subprocess.Popen(
@@ -218,6 +233,7 @@ class WorkerPool:
         ours.settimeout(FORK_TIMEOUT)
         ours.send(_enc.encode({"targets": self.targets}))
         self._server_sock = ours
+        return ours
 
     def _stop_server(self) -> None:
         if self._server_sock is not None:
@@ -235,14 +251,15 @@ class WorkerPool:
     def _fork(self) -> _Forked:
         """A new worker from the fork server (restarted once if it is gone)."""
         for attempt in (1, 2):
-            if self._server is None or self._server.poll() is not None:
+            sock = self._server_sock
+            if sock is None or self._server is None or self._server.poll() is not None:
                 self._stop_server()
-                self._start_server()
+                sock = self._start_server()
             job_r, job_w = os.pipe()
             res_r, res_w = os.pipe()
             try:
-                socket.send_fds(self._server_sock, [b"fork"], [job_r, res_w])
-                reply = self._server_sock.recv(16)
+                socket.send_fds(sock, [b"fork"], [job_r, res_w])
+                reply = sock.recv(16)
                 if len(reply) != 8:
                     raise OSError("the fork server closed")
             except OSError:
@@ -312,7 +329,7 @@ class WorkerPool:
         with self._lock:
             if self._stopping:
                 return
-            self._queue.append((key, program, args, time.monotonic(), resume))
+            self._queue.append(_Job(key, program, args, time.monotonic(), resume))
             self._dispatch_locked()
             waiting = bool(self._queue)
         if waiting:
@@ -321,7 +338,7 @@ class WorkerPool:
     def cancel(self, key: Key) -> None:
         with self._lock:
             for i, queued in enumerate(self._queue):
-                if queued[0] == key:
+                if queued.key == key:
                     del self._queue[i]
                     return
             for w in self._workers:
@@ -348,7 +365,7 @@ class WorkerPool:
         now = time.monotonic()
         while self._queue:
             if not idle:
-                if (len(self._workers) >= self.max_size or now - self._queue[0][3] < GROW_AFTER
+                if (len(self._workers) >= self.max_size or now - self._queue[0].queued_at < GROW_AFTER
                         or now - self._last_progress < GROW_AFTER):
                     return
                 try:
@@ -357,10 +374,11 @@ class WorkerPool:
                     return
                 idle.append(self._workers[-1])
             w = idle.pop(0)
-            key, program, args, _, resume = self._queue.popleft()
-            w.job, w.cancelled = key, False
+            job = self._queue.popleft()
+            w.job, w.cancelled = job.key, False
+            message = [job.program, job.args] if job.resume is None else [job.program, job.args, job.resume]
             try:
-                w.proc.stdin.write(frame(_enc.encode([program, args] if resume is None else [program, args, resume])))
+                w.proc.stdin.write(frame(_enc.encode(message)))
             except (BrokenPipeError, OSError):
                 pass  # the monitor sees the dead worker and reports the job
 
@@ -401,7 +419,7 @@ class WorkerPool:
                 if self._stopping:
                     return
                 for skey, _ in events:
-                    w = skey.data
+                    w: _Worker | None = skey.data  # None: the wake-up pipe
                     if w is None:
                         os.read(self._wake_r, 4096)
                         continue
@@ -441,7 +459,7 @@ class WorkerPool:
                     # end of file: the worker is gone
                     self._sel.unregister(w.fd)
                     self._workers.remove(w)
-                    code = w.proc.wait()
+                    w.proc.wait()
                     for f in (w.proc.stdin, w.proc.stdout):
                         try:
                             f.close()
@@ -449,10 +467,7 @@ class WorkerPool:
                             pass
                     if w.job is not None and not w.cancelled:
                         self.died += 1
-                        ended = w.ended
-                        if ended is None and isinstance(w.proc, subprocess.Popen):
-                            ended = {"died": f"exit code {code}"}
-                        finished.append((w.job, False, b"", death_text(ended), True, None, w.ended is not None))
+                        finished.append((w.job, False, b"", death_text(w.ended), True, None, w.ended is not None))
                     if len(self._workers) < self.size:
                         self._add_worker()
                 self._dispatch_locked()  # idle extra workers retire at the top of the loop

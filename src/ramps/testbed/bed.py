@@ -69,17 +69,21 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 from ramps.errors import NoTeam
 from ramps.runtime.localteam import RobotCgroup, cgroup_mode, partial_views
 from ramps.testbed import net
 from ramps.testbed.faults import Faults
-from ramps.testbed.procs import TestbedError, _alive, _cgroup, _cgroup_pids, _clean_env, _proc_stat
+from ramps.testbed.procs import (RobotRecord, TestbedError, _alive, _cgroup, _cgroup_pids, _clean_env, _proc_stat,
+                                 robot_record)
 
 if TYPE_CHECKING:
+    import zenoh
+
     from ramps.runtime.watch import TeamWatcher
 
 STATE_DIR = Path(os.environ.get("RAMPS_TESTBED_STATE", "/run/ramps"))
@@ -87,6 +91,9 @@ PORT = 7447
 FAULTS = ("crashed", "cut", "frozen", "lossy")
 
 __all__ = ["FAULTS", "PORT", "STATE_DIR", "DidNotJoin", "Testbed", "watch_team"]
+
+#: a signal's handler as ``signal.getsignal`` returns it
+_Handler = Callable[[int, FrameType | None], Any] | int | signal.Handlers | None
 
 
 class DidNotJoin(NoTeam):
@@ -111,9 +118,10 @@ class Testbed(Faults):
                  discovery: str = "both", caps: bool = True, python: str | None = None,
                  state_dir: Path | None = None, config: Mapping[str, Any] | None = None) -> None:
         net.need_root()
-        self.mode = cgroup_mode()
-        if self.mode is None:
+        mode = cgroup_mode()
+        if mode is None:
             raise PermissionError("the testbed needs root and writable cpu cgroups (v1 /sys/fs/cgroup/cpu or v2)")
+        self.mode = mode
         names = [f"r{i}" for i in range(1, robots + 1)] if isinstance(robots, int) else list(robots)
         if not names:
             raise ValueError("a testbed needs at least one robot")
@@ -129,7 +137,10 @@ class Testbed(Faults):
             raise ValueError(f"quota must be > 0 host cores, got {quota}")
         self.names = names
         self.team_name = team
-        self.cores, self.speed, self.policy, self.lease_ms = cores, speed, policy, lease_ms
+        self.cores: int | None = cores
+        self.speed: float | None = speed
+        self.policy: str | None = policy
+        self.lease_ms: int | None = lease_ms
         self.programs = list(programs or [])
         #: every node's config file, as a dict: node settings, and RampsConfig fields under "core",
         #: e.g. {"worker_nice": 0, "core": {"relocate": False}}
@@ -140,11 +151,11 @@ class Testbed(Faults):
         self.python = python or sys.executable
         self.state_dir = Path(state_dir or STATE_DIR)
         self.loaded = dict(loaded or {})
-        self._popen: dict[int, subprocess.Popen] = {}
+        self._popen: dict[int, subprocess.Popen[bytes]] = {}
         self._lock = threading.RLock()
         self._not_made()
         self._attached = False
-        self._old_handlers: dict[int, Any] = {}
+        self._old_handlers: dict[int, _Handler] = {}
         self._atexit = False
 
     # ------------------------------------------------------------ attach (another process)
@@ -166,10 +177,10 @@ class Testbed(Faults):
         st = json.loads(files[0].read_text())
         self = cls.__new__(cls)
         self.names = [r["name"] for r in st["robots"]]
-        self.robots = {r["name"]: r for r in st["robots"]}
-        for key in ("tb", "x", "quota", "cores", "speed", "policy", "lease_ms", "programs", "discovery",
-                    "python", "mode", "loaded"):
-            setattr(self, key, st[key])
+        self.robots = {r["name"]: robot_record(r) for r in st["robots"]}
+        self.tb, self.x, self.quota, self.mode = st["tb"], st["x"], st["quota"], st["mode"]
+        self.cores, self.speed, self.policy, self.lease_ms = st["cores"], st["speed"], st["policy"], st["lease_ms"]
+        self.programs, self.discovery, self.python, self.loaded = st["programs"], st["discovery"], st["python"], st["loaded"]
         self.caps, self.caps_pid = st.get("caps", False), st.get("caps_pid", [None, None])
         self.config = st.get("config", {})
         self.team_name = st["team"]
@@ -201,7 +212,7 @@ class Testbed(Faults):
     def state_file(self) -> Path:
         return self.state_dir / f"testbed-{self.tb}.json"
 
-    def _robot(self, robot: str) -> dict[str, Any]:
+    def _robot(self, robot: str) -> RobotRecord:
         if robot not in self.robots:
             raise TestbedError(f"unknown robot {robot!r}; this testbed has {', '.join(self.names)}")
         return self.robots[robot]
@@ -231,7 +242,7 @@ class Testbed(Faults):
         """What a testbed not made yet holds (at construction, and before ``up`` tries again)."""
         self.tb: str | None = None
         self.x = 0
-        self.robots: dict[str, dict[str, Any]] = {}
+        self.robots: dict[str, RobotRecord] = {}
         self.log_dir: Path | None = None
         self.caps_pid: list[int | None] = [None, None]  # the capper: pid, start time
         self._created = False
@@ -256,9 +267,9 @@ class Testbed(Faults):
                 self.log_dir = Path(tempfile.mkdtemp(prefix=f"ramps-testbed-{self.tb}-"))
                 for i, r in enumerate(self.names, 1):
                     ns = net.ns_name(self.tb, r)
-                    self.robots[r] = dict(name=r, index=i, ip=net.robot_ip(self.x, i), ns=ns,
-                                          veth=net.veth_name(self.tb, r), cgroup=[], pid=None, start=None,
-                                          load=self.loaded.get(r, 0), load_pids=[], faults=[])
+                    self.robots[r] = RobotRecord(name=r, index=i, ip=net.robot_ip(self.x, i), ns=ns,
+                                                 veth=net.veth_name(self.tb, r), cgroup=[], pid=None, start=None,
+                                                 load=self.loaded.get(r, 0), load_pids=[], faults=[])
                 self._save()  # from here on, down_all() finds it even if we die
                 net.make_bridge(self.tb, self.x)
                 for r in self.names:
@@ -327,12 +338,12 @@ class Testbed(Faults):
         # no Zenoh shared memory between robots that share this host: it carried their
         # large messages around the emulated network (NodeSettings.shared_memory)
         env = dict(_clean_env(), RAMPS_ROBOT=robot, RAMPS_SHARED_MEMORY="0")
-        out = open(log, "ab") if log else subprocess.DEVNULL
+        out = open(log, "ab") if log else None
         try:
-            p = subprocess.Popen(full, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT, env=env,
-                                 start_new_session=True, close_fds=True)
+            p = subprocess.Popen(full, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL if out is None else out,
+                                 stderr=subprocess.STDOUT, env=env, start_new_session=True, close_fds=True)
         finally:
-            if log:
+            if out is not None:
                 out.close()
         self._popen[p.pid] = p
         st = _proc_stat(p.pid)
@@ -349,13 +360,13 @@ class Testbed(Faults):
     def _start_caps(self) -> None:
         """The per-program CPU caps of every robot: one process for the testbed
         (ramps.testbed.caps), in the root namespace; it ends with the state file."""
-        log = open(self.log_dir / "caps.log", "ab") if self.log_dir else subprocess.DEVNULL
+        log = open(self.log_dir / "caps.log", "ab") if self.log_dir else None
         try:
             p = subprocess.Popen([self.python, "-m", "ramps.testbed.caps", str(self.state_file)],
-                                 stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=_clean_env(),
-                                 start_new_session=True, close_fds=True)
+                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL if log is None else log,
+                                 stderr=subprocess.STDOUT, env=_clean_env(), start_new_session=True, close_fds=True)
         finally:
-            if self.log_dir:
+            if log is not None:
                 log.close()
         self._popen[p.pid] = p
         st = _proc_stat(p.pid)
@@ -377,7 +388,11 @@ class Testbed(Faults):
     def _start_load(self, robot: str, n: int) -> None:
         rb = self.robots[robot]
         for _ in range(n):
-            rb["load_pids"].append(list(self._spawn(robot, [self.python, "-c", "while True: pass"], None)))
+            rb["load_pids"].append(self._spawn_load(robot))
+
+    def _spawn_load(self, robot: str) -> tuple[int, int | None]:
+        """One busy process in ``robot`` (the paper's ``stress``)."""
+        return self._spawn(robot, [self.python, "-c", "while True: pass"], None)
 
     def wait_alive(self, robots: list[str] | None = None, timeout: float = 60.0) -> float:
         """Wait until ``robots`` (default all) are alive in the team and publish
@@ -395,9 +410,10 @@ class Testbed(Faults):
                 # ready: alive (liveliness token) and publishing load (a report since we started looking),
                 # and every ready robot counts all the others as candidates in its own view
                 ready = obs.ready()
-                blind = {}
+                blind: dict[str, int | None] = {}
                 if set(robots) <= ready:
-                    blind = partial_views({r: obs.report(r).sees for r in sorted(ready)}, len(ready))
+                    sees = {r: rep.sees for r in sorted(ready) if (rep := obs.report(r)) is not None}
+                    blind = partial_views(sees, len(ready))
                     if not blind:
                         return time.monotonic() - t0
                 if time.monotonic() > deadline:
@@ -408,13 +424,16 @@ class Testbed(Faults):
                 time.sleep(0.05)
 
     def log_tail(self, robot: str, lines: int = 15) -> str:
+        if self.log_dir is None:
+            return "(no log)"
         try:
             return "\n".join((self.log_dir / f"{robot}.log").read_text(errors="replace").splitlines()[-lines:])
-        except (OSError, TypeError):
+        except OSError:
             return "(no log)"
 
     # ------------------------------------------------------------ clients
-    def client(self, robot: str = "r1", *, timeout: float = 10.0, lease_ms: int | None = None, **options):
+    def client(self, robot: str = "r1", *, timeout: float = 10.0, lease_ms: int | None = None,
+               **options: Any) -> Any:  # a Team: typed so, mypy cannot infer callers' lambdas with defaults
         """A ``ramps.runtime.client.Team`` in the root namespace, connected to
         every robot over the bridge, whose programs start on ``robot``
         (``options``: more of ``Team``'s, e.g. ``origin_grace``)."""
@@ -422,14 +441,14 @@ class Testbed(Faults):
         from ramps.runtime.settings import load_settings
 
         self._robot(robot)
-        flags = {"team": self.team, "connect": self.endpoints(), "multicast": False, "listen": [],
+        flags: dict[str, object] = {"team": self.team, "connect": self.endpoints(), "multicast": False, "listen": [],
                  "shared_memory": False}
         if lease_ms is not None:
             flags["lease_ms"] = lease_ms
         s = load_settings(flags=flags, default_robot=False, environ={})
         return Team(s, robot=robot, timeout=timeout, **options)
 
-    def zenoh_config(self):
+    def zenoh_config(self) -> zenoh.Config:
         """A plain Zenoh peer config for the root namespace (connects to every robot)."""
         import zenoh
 
@@ -448,6 +467,8 @@ class Testbed(Faults):
     def status(self, *, team_view: bool = False, timeout: float = 2.0) -> dict[str, Any]:
         """Per robot: namespace present, link state, node process state, load,
         faults; with ``team_view``, the team as a client in the root namespace sees it."""
+        if self.tb is None:
+            raise TestbedError("the testbed is not up")
         have_ns = set(net.namespaces())
         robots = []
         for r in self.names:
@@ -541,7 +562,7 @@ class Testbed(Faults):
             prev = signal.getsignal(sig)
             self._old_handlers[sig] = prev
 
-            def handler(signum, frame, prev=prev):
+            def handler(signum: int, frame: FrameType | None, prev: _Handler = prev) -> Any:
                 self.down()
                 if callable(prev):
                     return prev(signum, frame)
@@ -566,7 +587,7 @@ class Testbed(Faults):
     def __enter__(self) -> "Testbed":
         return self.up()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.down()
 
 

@@ -28,10 +28,10 @@ import math
 import os
 import signal
 import time
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from ramps.testbed import net
-from ramps.testbed.procs import TestbedError, _alive, _cgroup_pids, _proc_stat, _signal_all
+from ramps.testbed.procs import RobotRecord, TestbedError, _alive, _cgroup_pids, _proc_stat, _signal_all
 
 if TYPE_CHECKING:
     import subprocess
@@ -42,13 +42,13 @@ class Faults:
     """The fault-injection methods of ``Testbed`` (a mixin: ``self`` is a Testbed)."""
 
     if TYPE_CHECKING:  # what the mixin uses of ``Testbed`` (ramps.testbed.bed)
-        robots: dict[str, dict[str, Any]]
-        _popen: dict[int, subprocess.Popen]
+        robots: dict[str, RobotRecord]
+        _popen: dict[int, subprocess.Popen[bytes]]
         _lock: threading.RLock
         _created: bool
         _down: bool
 
-        def _robot(self, robot: str) -> dict[str, Any]: ...
+        def _robot(self, robot: str) -> RobotRecord: ...
         def _save(self) -> None: ...
         def _start_node(self, robot: str) -> None: ...
         def _start_load(self, robot: str, n: int) -> None: ...
@@ -57,17 +57,20 @@ class Faults:
     def process_state(self, robot: str) -> str:
         """'running', 'stopped' or 'dead' of the robot's node."""
         rb = self._robot(robot)
-        p = self._popen.get(rb["pid"])
+        pid = rb["pid"]
+        if pid is None:
+            return "dead"
+        p = self._popen.get(pid)
         if p is not None and p.poll() is not None:
             return "dead"
-        return _alive(rb["pid"], rb["start"])
+        return _alive(pid, rb["start"])
 
     def _pids(self, robot: str) -> list[int]:
         """Every live process of the robot: its cgroup's members and its recorded pids."""
         rb = self.robots[robot]
         pids = set(_cgroup_pids(rb["cgroup"]))
-        for pid, start in [(rb["pid"], rb["start"]), *[tuple(x) for x in rb["load_pids"]]]:
-            if _alive(pid, start) != "dead":
+        for pid, start in [(rb["pid"], rb["start"]), *rb["load_pids"]]:
+            if pid is not None and _alive(pid, start) != "dead":
                 pids.add(pid)
         return sorted(pids)
 
@@ -103,7 +106,7 @@ class Faults:
             self._live()
             rb = self._robot(robot)
             pid = rb["pid"]
-            p = self._popen.get(pid)
+            p = self._popen.get(pid) if pid is not None else None
             if pid and _alive(pid, rb["start"]) != "dead":
                 os.kill(pid, signal.SIGTERM)
                 deadline = time.monotonic() + timeout

@@ -7,6 +7,7 @@ members of its cpu cgroup and of the per-program cgroups under it
 (``_cgroup_pids``); ``_cgroup`` is a handle on a cgroup that exists already
 (``RobotCgroup()`` would create it). The nodes get a clean environment:
 their settings come from their command line, not the caller's ``RAMPS_*``.
+``RobotRecord`` is one robot as the testbed and its state file hold it.
 
 Used by ``ramps.testbed.bed`` (lifecycle), ``ramps.testbed.faults``,
 ``ramps.testbed.cleanup`` and the measuring tools (stress, fidelity); ``TestbedError`` lives here so all
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any, TypedDict
 
 from ramps.errors import RampsError
 from ramps.runtime.localteam import RobotCgroup
@@ -27,6 +29,36 @@ class TestbedError(RampsError):
     """A testbed cannot be built, found or driven (no testbed up, unknown robot, ...)."""
 
     __test__ = False  # not a pytest test class
+
+
+class RobotRecord(TypedDict):
+    """One robot of a testbed (``Testbed.robots``; ``robots`` in its state file)."""
+
+    name: str
+    #: its place in the testbed, from 1: the last byte of its address
+    index: int
+    ip: str
+    #: its network namespace
+    ns: str
+    #: the host's end of its veth pair
+    veth: str
+    #: its cpu cgroup's directories (one on v2; cpu and cpuacct on v1)
+    cgroup: list[str]
+    #: its node's process and that process's start time (``_proc_stat``); None before it starts
+    pid: int | None
+    start: int | None
+    #: how many busy processes load it, and each one's (pid, start time)
+    load: int
+    load_pids: list[tuple[int, int | None]]
+    #: the faults it is under: "crashed", "cut", "frozen", "lossy"
+    faults: list[str]
+
+
+def robot_record(saved: dict[str, Any]) -> RobotRecord:
+    """A ``RobotRecord`` read back from a state file (JSON has no tuples)."""
+    return RobotRecord(name=saved["name"], index=saved["index"], ip=saved["ip"], ns=saved["ns"], veth=saved["veth"],
+                       cgroup=list(saved["cgroup"]), pid=saved["pid"], start=saved["start"], load=saved["load"],
+                       load_pids=[(pid, start) for pid, start in saved["load_pids"]], faults=list(saved["faults"]))
 
 
 def _proc_stat(pid: int) -> tuple[str, int] | None:
