@@ -31,7 +31,7 @@ import os
 import stat
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 from ramps.errors import CredentialsError
 from ramps.runtime import keys
@@ -40,8 +40,6 @@ if TYPE_CHECKING:
     from cryptography import x509
     from cryptography.hazmat.primitives.asymmetric import ec
     from cryptography.hazmat.primitives.asymmetric.types import PrivateKeyTypes, PublicKeyTypes
-
-    from ramps.runtime.settings import NodeSettings
 
 CA_CERT = "ca.pem"
 CA_KEY = "ca.key"
@@ -325,8 +323,24 @@ def check_credentials(ca: str | os.PathLike, cert: str | os.PathLike, key: str |
 
 
 
-def settings_credentials(s: NodeSettings, *, robot: str | None = None) -> Credentials:
-    """The checked credentials of ``NodeSettings`` ``s`` (a node passes its
+class CredentialSettings(Protocol):
+    """What ``settings_credentials`` reads of a node's settings
+    (``ramps.runtime.settings.NodeSettings``, which imports this module)."""
+
+    @property
+    def credentials(self) -> str: ...
+    @property
+    def ca(self) -> str: ...
+    @property
+    def cert(self) -> str: ...
+    @property
+    def key(self) -> str: ...
+    @property
+    def team(self) -> str: ...
+
+
+def settings_credentials(s: CredentialSettings, *, robot: str | None = None) -> Credentials:
+    """The checked credentials of a node's settings ``s`` (a node passes its
     robot name: its certificate must be for that robot)."""
     ca, cert, key = credential_paths(s.credentials or None, ca=s.ca or None, cert=s.cert or None, key=s.key or None)
     return check_credentials(ca, cert, key, robot=robot, team=s.team)
