@@ -9,9 +9,9 @@ import random
 import pytest
 
 from ramps.experiments.metrics import Machine, finish_time
-from ramps.experiments.optimum import (anneal, exact_optimum, finish, improve, makespan_of, online_bound, online_limit,
-                                       simple_bound, solve,
-                                       shared_window_end, window_bound, window_end)
+from ramps.experiments.optimum import anneal, exact_optimum, finish, improve, makespan_of, solve
+from ramps.experiments.optimum_bounds import shared_window_end, simple_bound, window_bound, window_end
+from ramps.experiments.optimum_online import online_bound, online_limit
 from ramps.experiments.sweep import generate, lower_bound, machines, oracle, oracle_schedule, releases
 
 W = 53.0

@@ -40,7 +40,9 @@ import msgspec
 
 from ramps.core.config import RampsConfig
 from ramps.experiments.metrics import Machine, rate
-from ramps.experiments.optimum import online_bound, online_limit, simple_bound, solve
+from ramps.experiments.optimum import solve
+from ramps.experiments.optimum_bounds import simple_bound
+from ramps.experiments.optimum_online import online_bound, online_limit
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario
 
@@ -94,7 +96,7 @@ class SweepScenario(msgspec.Struct, kw_only=True):
     #: where the policy is more than ``ONLINE_ABOVE`` above the best bound and
     #: --online-seconds asks: no placement that decides each program at its
     #: release is within this ratio of the optimum on the scenario and all its
-    #: prefixes (``ramps.experiments.optimum.online_bound``; 1.0: nothing shown)
+    #: prefixes (``ramps.experiments.optimum_online.online_bound``; 1.0: nothing shown)
     online_ratio: float | None = None
 
 
