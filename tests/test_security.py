@@ -21,7 +21,8 @@ from ramps.cli import app
 from ramps.errors import ConfigError, CredentialsError, NotAdmitted, NoTeam
 from ramps.runtime import security as sec
 from ramps.runtime.localteam import free_port
-from ramps.runtime.settings import NodeSettings, load_settings, zenoh_config
+from ramps.runtime.settings import NodeSettings, load_settings
+from ramps.runtime.zenoh_configs import zenoh_config
 
 runner = CliRunner()
 UTC = dt.UTC

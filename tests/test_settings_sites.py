@@ -17,10 +17,8 @@ from ramps.runtime.settings import (
     flatten_zenoh,
     load_settings,
     parse_zenoh_overrides,
-    router_config,
-    router_listen,
-    zenoh_config,
 )
+from ramps.runtime.zenoh_configs import router_config, router_listen, zenoh_config
 
 
 def get(c, key: str):

@@ -7,7 +7,8 @@ import json
 import pytest
 
 from ramps.errors import ConfigError
-from ramps.runtime.settings import NodeSettings, load_settings, zenoh_config
+from ramps.runtime.settings import NodeSettings, load_settings
+from ramps.runtime.zenoh_configs import zenoh_config
 
 
 def shared_memory(s: NodeSettings) -> bool:

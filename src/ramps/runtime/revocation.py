@@ -187,7 +187,8 @@ def publish(rl: RevocationList, *, team: str, connect: list[str], credentials: s
     import zenoh
 
     from ramps.runtime.security import check_credentials, credential_paths
-    from ramps.runtime.settings import NodeSettings, zenoh_config
+    from ramps.runtime.settings import NodeSettings
+    from ramps.runtime.zenoh_configs import zenoh_config
 
     creds = check_credentials(*credential_paths(credentials), team=team)
     s = NodeSettings(robot=keys.keys_safe_id(f"revoker-{creds.robot}"), team=team, connect=list(connect),

@@ -35,7 +35,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from ramps.errors import TransportError
-from ramps.runtime.settings import NodeSettings, router_config, router_listen
+from ramps.runtime.settings import NodeSettings
+from ramps.runtime.zenoh_configs import router_config, router_listen
 
 
 @dataclass(frozen=True)

@@ -135,7 +135,7 @@ class ZenohTransport:
         import zenoh
 
         from ramps.runtime.security import open_session
-        from ramps.runtime.settings import zenoh_config
+        from ramps.runtime.zenoh_configs import zenoh_config
 
         zenoh.try_init_log_from_env()  # RUST_LOG=zenoh=debug shows Zenoh's own view (links, leases)
         extra: dict[str, Any] = {} if listen is None else {"listen": listen}

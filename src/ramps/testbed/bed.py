@@ -452,7 +452,7 @@ class Testbed(Faults):
         """A plain Zenoh peer config for the root namespace (connects to every robot)."""
         import zenoh
 
-        from ramps.runtime.settings import zenoh_runtime_defaults
+        from ramps.runtime.zenoh_configs import zenoh_runtime_defaults
 
         zenoh_runtime_defaults()  # a lost robot must not make the observer deaf either
         c = zenoh.Config()

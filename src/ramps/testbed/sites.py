@@ -139,7 +139,7 @@ class SiteTestbed(Testbed):
         """An observer in the root namespace: a client of this site's router."""
         import zenoh
 
-        from ramps.runtime.settings import zenoh_runtime_defaults
+        from ramps.runtime.zenoh_configs import zenoh_runtime_defaults
 
         zenoh_runtime_defaults()
         c = zenoh.Config()

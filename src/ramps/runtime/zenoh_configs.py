@@ -1,0 +1,143 @@
+"""Zenoh configurations from a node's settings: a robot's peer or client, a router.
+
+How this works: ``zenoh_config`` and ``router_config`` build a ``zenoh.Config``
+from ``NodeSettings`` (``ramps.runtime.settings``): mode, listen and connect
+endpoints, multicast scouting and who dials whom, then what both share
+(``_links_security_overrides``): the team's lease and keep-alives, shared
+memory, on a secured team its TLS and access control, and last the raw
+``zenoh`` overrides the operator wrote. ``zenoh_runtime_defaults`` sizes
+Zenoh's thread pools before its first session opens in the process.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import TYPE_CHECKING
+
+from ramps.runtime.settings import DEFAULT_LISTEN, DEFAULT_TLS_LISTEN, NodeSettings, flatten_zenoh
+
+if TYPE_CHECKING:
+    import zenoh
+
+    from ramps.runtime.credentials import Credentials
+
+
+AUTOCONNECT_STRATEGY = '{peer: {to_router: "always", to_peer: "greater-zid"}}'
+AUTOCONNECT_ALWAYS = '{peer: {to_router: "always", to_peer: "always"}}'
+
+
+def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credentials: Credentials | None = None,
+                 exit_on_failure: bool = False) -> zenoh.Config:
+    """A Zenoh peer or client configuration for these settings (``s.mode``).
+
+    Secure mode needs the checked ``credentials``
+    (``ramps.runtime.security.Credentials``); ``exit_on_failure`` then makes
+    ``zenoh.open`` fail within 3 s unless it links to every connect endpoint."""
+    import json
+
+    import zenoh
+
+    zenoh_runtime_defaults()
+    c = zenoh.Config()
+    c.insert_json5("mode", json.dumps(s.mode))
+    # a client links to its router only: it never listens
+    listening = [] if s.mode == "client" else s.listen_endpoints(listen)
+    c.insert_json5("listen/endpoints", json.dumps(listening))
+    c.insert_json5("connect/endpoints", json.dumps(s.connect))
+    c.insert_json5("scouting/multicast/enabled", "true" if s.multicast else "false")
+    # of two robots that find each other (multicast, gossip) only one dials: when both
+    # did, a lease that expired on one side only (a robot cut or frozen just past it)
+    # could leave the pair deaf to each other for good (eclipse-zenoh/zenoh#2806;
+    # seen here once in about 50 cut/freeze/crash recoveries on the testbed). A peer
+    # that listens nowhere (an application) cannot be dialled: it dials everyone.
+    strategy = AUTOCONNECT_STRATEGY if listening else AUTOCONNECT_ALWAYS
+    for how in ("multicast", "gossip"):
+        c.insert_json5(f"scouting/{how}/autoconnect_strategy", strategy)
+    _links_security_overrides(c, s, credentials, exit_on_failure, "zenoh_config")
+    return c
+
+
+def _links_security_overrides(c: zenoh.Config, s: NodeSettings, credentials: Credentials | None,
+                              exit_on_failure: bool, caller: str) -> None:
+    """What a robot's and a router's configurations share: the team's lease
+    and keep-alives, shared memory off when asked (two routers on one host,
+    the testbed, would pass large messages around their link), on a secured
+    team its TLS and access control (``credentials``: the checked bundle;
+    ``exit_on_failure``: ``zenoh.open`` fails within 3 s unless it links to
+    every connect endpoint), and last ``s.zenoh``: what the operator wrote
+    wins over ramps's defaults."""
+    import json
+
+    c.insert_json5("transport/link/tx/lease", str(s.lease_ms))
+    c.insert_json5("transport/link/tx/keep_alive", "4")
+    if not s.shared_memory:
+        c.insert_json5("transport/shared_memory/enabled", "false")
+    if s.secure:
+        from ramps.runtime.security import secure_zenoh_json
+
+        if credentials is None:
+            raise ValueError(f"secure mode: {caller} needs the checked credentials")
+        for key, value in secure_zenoh_json(s.team, credentials, members=s.members).items():
+            c.insert_json5(key, json.dumps(value))
+        if exit_on_failure and s.connect:
+            c.insert_json5("connect/exit_on_failure", "true")
+            c.insert_json5("connect/timeout_ms", str(CONNECT_TIMEOUT_MS))
+    for key, value in flatten_zenoh(s.zenoh).items():
+        c.insert_json5(key, json.dumps(value))
+
+
+#: where a router listens unless told (Zenoh's usual router port)
+DEFAULT_ROUTER_LISTEN = "tcp/0.0.0.0:7447"
+DEFAULT_ROUTER_TLS_LISTEN = "tls/0.0.0.0:7447"
+
+
+def router_listen(s: NodeSettings) -> list[str]:
+    """A router's listen endpoints: ``s.listen``, the node default (any port)
+    made the router's port 7447 (TLS on a secured team)."""
+    default = DEFAULT_ROUTER_TLS_LISTEN if s.secure else DEFAULT_ROUTER_LISTEN
+    return [default if e in (DEFAULT_LISTEN, DEFAULT_TLS_LISTEN) else e for e in s.listen]
+
+
+def router_config(s: NodeSettings, *, credentials: Credentials | None = None,
+                  exit_on_failure: bool = False) -> zenoh.Config:
+    """A Zenoh router configuration for these settings (``ramps router``):
+    listen on ``router_listen(s)``, link to the routers of ``s.connect``
+    (other sites), the team's lease, and on a secured team the same TLS and
+    access control as its robots (``credentials``: the router's own bundle
+    from ``ramps team add``). ``s.mode`` is not used: this is a router."""
+    import json
+
+    import zenoh
+
+    zenoh_runtime_defaults()
+    c = zenoh.Config()
+    c.insert_json5("mode", '"router"')
+    c.insert_json5("listen/endpoints", json.dumps(router_listen(s)))
+    c.insert_json5("connect/endpoints", json.dumps(s.connect))
+    c.insert_json5("scouting/multicast/enabled", "true" if s.multicast else "false")
+    _links_security_overrides(c, s, credentials, exit_on_failure, "router_config")
+    return c
+
+
+#: Zenoh's thread pools, unless ZENOH_RUNTIME is set already. When Zenoh gives
+#: up on a peer (its lease expired: the robot dropped off the network), it
+#: closes that peer's TCP link with a blocking close() on one of its receive
+#: threads. The socket has SO_LINGER 10 s and holds data the dead peer can
+#: never acknowledge, so the thread is stuck for 10 s (eclipse-zenoh/zenoh#1101;
+#: linger is a compile-time constant). With Zenoh's default of 2 receive
+#: threads a robot's one or two links to the lost peer took both, and the
+#: robot heard nobody for 10 s from about 1.6 s after the loss: on the testbed
+#: every teammate did, and wrote healthy robots off for missing heartbeats.
+#: 16 receive threads keep receiving while up to 8 such links close at once
+#: (4 robots lost together); idle threads cost next to nothing.
+ZENOH_RUNTIME_DEFAULT = "(rx: (worker_threads: 16))"
+
+
+def zenoh_runtime_defaults() -> None:
+    """Apply ZENOH_RUNTIME_DEFAULT unless the user set ZENOH_RUNTIME. Zenoh
+    reads it when its first session opens in this process."""
+    os.environ.setdefault("ZENOH_RUNTIME", ZENOH_RUNTIME_DEFAULT)
+
+
+#: secure mode: how long ``zenoh.open`` may try to link to the connect endpoints
+CONNECT_TIMEOUT_MS = 3000
