@@ -118,6 +118,7 @@ def node(
         rt = NodeRuntime(s).start()
     except RampsError as exc:
         fail(str(exc))
+    served = rt.metrics.address if rt.metrics is not None else None
     err.print(f"[bold]ramps node {rt.robot}[/] joined team [bold]{rt.team}[/]: {rt.cores} cores, speed {rt.speed:g}, "
               f"policy {s.policy}, load measured on the {rt.load_scope}; "
               + ("client of a router" if s.mode == "client"
@@ -125,7 +126,7 @@ def node(
               + (f"; connecting to {', '.join(s.connect)}" if s.connect else "")
               + ("; multicast discovery on" if s.multicast else "")
               + ("; secured: TLS with team certificates" if s.secure else "")
-              + (f"; metrics on http://{rt.metrics.address[0]}:{rt.metrics.address[1]}/metrics" if rt.metrics else ""),
+              + (f"; metrics on http://{served[0]}:{served[1]}/metrics" if served else ""),
               highlight=False, soft_wrap=True)
     err.print(f"programs: {', '.join(sorted(rt.registry.names()))}. Ctrl-C to leave the team.", highlight=False,
               soft_wrap=True)

@@ -1,8 +1,9 @@
 """Local events that drive a node's core, and the actions it asks for.
 
-Rules: the core's inputs are wire messages (``ramps.core.messages``) plus the
-local events below, each with ``now`` passed alongside; its outputs are the
-actions below. A driver (the simulator, or the Zenoh runtime) applies the
+Rules: the core's inputs are wire messages (``ramps.core.messages``) and
+the local events of ``Event`` (those below, ``Stalled`` from
+``ramps.core.relink`` and ``SpeedMeasured`` from ``ramps.core.speed``), each
+with ``now`` passed alongside; its outputs are the actions below. A driver (the simulator, or the Zenoh runtime) applies the
 actions: it sends, starts and stops programs, and hands results to the
 application. ``Note`` actions carry no obligation: they exist so a driver can
 trace what the core decided (placements, blacklisting) without the core
@@ -14,6 +15,8 @@ from __future__ import annotations
 import msgspec
 
 from ramps.core.messages import LoadReport, Message, ProgramResult
+from ramps.core.relink import Stalled
+from ramps.core.speed import SpeedMeasured
 
 
 class _Rec(msgspec.Struct, frozen=True, kw_only=True):
@@ -114,7 +117,8 @@ class Received(_Rec, frozen=True, kw_only=True):
     msg: Message
 
 
-Event = Submit | Cancel | ProgramFinished | ProgressReported | CheckpointSaved | PeerLost | PeerAlive | Received
+Event = (Submit | Cancel | ProgramFinished | ProgressReported | CheckpointSaved | PeerLost | PeerAlive | Received
+         | Stalled | SpeedMeasured)
 
 
 # ---------------------------------------------------------------- actions out

@@ -37,13 +37,14 @@ import random
 import threading
 from collections import deque
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import msgspec
 
 from ramps.core.config import RampsConfig
 from ramps.core.cost import nice_weight
 from ramps.core.events import (
+    Action,
     CheckpointSaved,
     Note,
     ProgramFinished,
@@ -68,6 +69,10 @@ from ramps.runtime.workers import WorkerPool
 from ramps.runtime.node_clients import OUTCOME_HOLD, OUTCOME_RETRY, ClientAnswers
 from ramps.runtime.node_inbound import DROP_LOG_PERIOD, STALL_GRACE, Inbound
 from ramps.runtime.node_outbound import Outbound
+from ramps.runtime.node_state import Key, SamplerLike, WorkerPoolLike
+
+if TYPE_CHECKING:
+    from ramps.runtime.credentials import Credentials
 
 log = logging.getLogger("ramps.node")
 #: bytes of received messages waiting for the driver before new ones are dropped
@@ -118,8 +123,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
 
     def __init__(self, settings: NodeSettings, *, registry: Registry | None = None,
                  on_note: Callable[[Note], None] | None = None, transport: Transport | None = None,
-                 clock: Clock = REAL_CLOCK, worker_pool: Callable[..., Any] = WorkerPool,
-                 load_sampler: Callable[..., Any] = LoadSampler, incarnation: int | None = None) -> None:
+                 clock: Clock = REAL_CLOCK, worker_pool: Callable[..., WorkerPoolLike] = WorkerPool,
+                 load_sampler: Callable[..., SamplerLike] = LoadSampler, incarnation: int | None = None) -> None:
         if not settings.robot:
             raise ValueError("a node needs a robot name")
         self.s = settings
@@ -139,20 +144,20 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             self.registry.add_command(name, cmd.path, timeout=cmd.timeout, args=cmd.args, work=cmd.work,
                                       local_only=cmd.local_only)
         self.on_note = on_note
-        self._q: queue.SimpleQueue = queue.SimpleQueue()
-        self._clients: dict[str, tuple[str, int]] = {}
-        self._requests: dict[tuple[str, int], str] = {}
+        self._q = queue.SimpleQueue()
+        self._clients = {}
+        self._requests = {}
         #: requests already answered (the newest ANSWERED_KEPT), in answer order, with
         #: their outcome as sent while it is among the newest OUTCOMES_KEPT_BYTES
-        self._answered: dict[tuple[str, int], bytes | None] = {}
-        self._kept_outcomes: deque[tuple[str, int]] = deque()
+        self._answered = {}
+        self._kept_outcomes = deque()
         self._kept_bytes = 0
         #: the newest progress of programs this node is origin of, until delivered
-        self._progress: dict[str, tuple[float, str]] = {}
+        self._progress = {}
         self._seq = 0
-        self._pubs: dict[str, Any] = {}
+        self._pubs = {}
         #: publishers of clients' advisory updates (never blocking), apart from their outcomes' (blocking)
-        self._update_pubs: dict[str, Any] = {}
+        self._update_pubs = {}
         #: large messages to teammates: sent whole, in order, off the driver's thread
         self._bulk = OrderedSender(self._bulk_put, name=self.robot)
         self._stopped = threading.Event()
@@ -160,7 +165,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self.bad_messages = 0
         #: messages dropped because the driver's backlog was full, and its size
         self.overflow = 0
-        self._sees: frozenset[str] = frozenset()  # teammates in this robot's view at the last report
+        self._sees = frozenset()  # teammates in this robot's view at the last report
         self._backlog_bytes = 0
         self.heap = HeapTrimmer()  # gives the memory of a drained burst back (ramps.runtime.heap)
         #: a flood of bad messages is logged one line per DROP_LOG_PERIOD
@@ -168,15 +173,15 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._drops_unlogged = 0
         self._trace = None
         self._trace_wire = False
-        self.transport: Transport | None = None
-        self.node: Node | None = None
+        self.transport = None
+        self.node = None
         #: the driver's stalls (see _clock): how many, seconds in all
         self.stalls = 0
         self.stalled_s = 0.0
         self._stall_offset = 0.0
         self._stalled_at = 0.0
         #: the wall-clock time of the next re-measurement (None: told its speed)
-        self._remeasure_at: float | None = None
+        self._remeasure_at = None
         self._remeasures = 0
         self._remeasuring = threading.Lock()
         #: stalls not yet told to the core (seconds), and whether one was long enough to close links
@@ -188,14 +193,14 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._last_read = 0.0
         self._sleep_until = 0.0
         #: teammates whose liveliness went just after a stall: robot -> core time it counts as lost
-        self._held_lost: dict[str, float] = {}
+        self._held_lost = {}
         #: messages waiting for their receiver to be reachable: (key, bytes, monotonic deadline, block)
-        self._held_outcomes: list[tuple[str, bytes, float, bool]] = []
+        self._held_outcomes = []
         #: secured team: the newest revocation list, the robots it names, the CA that signs it
-        self.revocations: revocation.RevocationList | None = None
-        self._revoked: frozenset[str] = frozenset()
+        self.revocations = None
+        self._revoked = frozenset()
         self._ca_cert = None
-        self._revocation_file: str | None = None
+        self._revocation_file = None
         self._republish_at = 0.0
         #: messages dropped because their sender is revoked; this robot itself was revoked
         self.revoked_dropped = 0
@@ -208,9 +213,12 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         #: the durable record of the programs this node is origin of (``state_dir``;
         #: ramps.runtime.store), how many it resumed at start, and the outcomes
         #: written to it that are about to be sent
-        self.store: OriginStore | None = None
+        self.store = None
         self.restored = 0
-        self._outcomes_ready: dict[str, bytes] = {}
+        self._outcomes_ready = {}
+        #: the last periodic load report, and the origins of the programs this robot hosts for others
+        self._last_report = None
+        self._hosted_origins = {}
         #: called on the driver thread after every round of its loop (systemd's watchdog, ramps.runtime.service)
         self.on_turn: Callable[[], None] | None = None
         #: when to look whether this node has heard any teammate (None: looked, or no need)
@@ -242,7 +250,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._remeasures = 0
         self._remeasure_at = None if s.speed else next_remeasure(self.clock.time(), 0)
         #: programs whose calls were found far from their declaration, said once each
-        self._misdeclared_warned: set[str] = set()
+        self._misdeclared_warned = set()
         # its start time and random bits: a node started later has a larger one (ramps.core.identity)
         self.incarnation = self._incarnation or new_incarnation(self.clock.time(), int.from_bytes(os.urandom(4), "big"))
         return_freed_memory()
@@ -267,7 +275,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
                             else 1.0)
         #: this process's CPU seconds and the time when last read, and the cores it used
         #: (averaged), for load reports: the cost model takes them off a full robot's cores
-        self._node_cpu_at: tuple[float, float] | None = None
+        self._node_cpu_at = None
         self.node_cpu = 0.0
         if s.trace:
             try:
@@ -319,6 +327,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         """LONELY_AFTER seconds after start: if no teammate was ever heard
         (no load report, no liveliness), log one warning saying what this
         node tried and what to check. It runs on: a lone robot is legal."""
+        assert self.node is not None
         if any(r != self.robot for r in self.node.view.robots()):
             return
         s = self.s
@@ -352,14 +361,14 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
 
         self.metrics = NodeMetrics(self.robot, self.team, cores=self.cores, speed=self.speed, policy=self.s.policy)
         try:
-            self.metrics.serve(address)
+            served = self.metrics.serve(address)
         except (OSError, ValueError) as exc:
             self.metrics = None
             self._teardown()
             raise ConfigError(f"cannot serve metrics on {address}: {getattr(exc, 'strerror', None) or exc}") from None
-        log.info("node %s serves Prometheus metrics on http://%s:%d/metrics", self.robot, *self.metrics.address)
+        log.info("node %s serves Prometheus metrics on http://%s:%d/metrics", self.robot, *served)
 
-    def _join_checks(self):
+    def _join_checks(self) -> tuple[Credentials | None, bool]:
         """Secure mode: this robot's checked credentials, and whether Zenoh may
         fail fast (every connect endpoint admitted them; see
         ``security.admission``, which raises ``NotAdmitted`` when the team
@@ -399,7 +408,12 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         """Run ``fn`` on the driver thread (which owns the core) and return its result."""
         box: list[Any] = []
         ev = threading.Event()
-        self._q.put(("call", lambda: (box.append(fn()), ev.set())))
+
+        def run() -> None:
+            box.append(fn())
+            ev.set()
+
+        self._q.put(("call", run))
         if not ev.wait(timeout):
             raise TimeoutError("the node's driver did not answer")
         return box[0]
@@ -466,17 +480,17 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._backlog_bytes += len(data)
         self._q.put(("wire", data, self.clock.monotonic()))
 
-    def _finished(self, key, ok: bool, value: bytes, error: str, retryable: bool, cpu_s: float | None = None,
+    def _finished(self, key: Key, ok: bool, value: bytes, error: str, retryable: bool, cpu_s: float | None = None,
                   died: bool = False) -> None:
         self._q.put(("finished", ProgramFinished(program_id=key[0], attempt=key[1], ok=ok, value=value, error=error,
                                                  result_size=len(value), retryable=retryable, cpu_s=cpu_s,
                                                  worker_died=died)))
 
-    def _checkpoint_saved(self, key, state: bytes, fraction: float | None) -> None:
+    def _checkpoint_saved(self, key: Key, state: bytes, fraction: float | None) -> None:
         self._q.put(("progress", CheckpointSaved(program_id=key[0], attempt=key[1], state=state,
                                                  fraction=fraction if isinstance(fraction, float) else None)))
 
-    def _progress_reported(self, key, fraction: float, detail: str) -> None:
+    def _progress_reported(self, key: Key, fraction: float, detail: str) -> None:
         self._q.put(("progress", ProgressReported(program_id=key[0], attempt=key[1], fraction=fraction,
                                                   detail=detail)))
 
@@ -510,12 +524,13 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._sleep_until = 0.0
         return t - self._stall_offset
 
-    def _stall_told(self, now: float) -> list:
+    def _stall_told(self, now: float) -> list[Action]:
         """Tell the core about stalls, before anything that arrived meanwhile:
         a host's silence counts from the wake (``Origin.on_stalled``), and after
         one that may have closed links, teammates relink (``ramps.core.relink``)."""
         seconds, self._stall_pending = self._stall_pending, 0.0
         links, self._stall_links = self._stall_links, False
+        assert self.node is not None
         return self.node.handle(Stalled(seconds=seconds, links=links), now)
 
     def _drive(self) -> None:
@@ -537,6 +552,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
 
     def _round(self, *, block: bool) -> bool:
         node = self.node
+        assert node is not None
         clock = self._clock
         q = self._q
         now = clock()
@@ -553,7 +569,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             item = None
         # every message queued before the timers fire: heartbeats and
         # results that piled up while the node stalled count first
-        actions: list = []
+        actions: list[Action] = []
         budget = MAX_ITEMS_PER_ROUND
         until = self.clock.monotonic() + ROUND_SECONDS
         behind = False  # items left queued: this robot's duties first, the origin's timeouts after them

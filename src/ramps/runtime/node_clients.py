@@ -25,6 +25,7 @@ import logging
 
 from ramps.core.durable import program_of, record_of
 from ramps.core.events import (
+    Action,
     Deliver,
     Submit,
 )
@@ -40,6 +41,7 @@ from ramps.core.program import FINAL, ProgramState
 from ramps.errors import ProgramNotFound
 from ramps.runtime import keys
 from ramps.runtime.registry import decode_args
+from ramps.runtime.node_state import DriverState
 
 log = logging.getLogger("ramps.node")
 #: answered client requests remembered, so a resent submission is not run twice
@@ -52,11 +54,12 @@ OUTCOME_HOLD = 30.0
 OUTCOME_RETRY = 0.05
 
 
-class ClientAnswers:
+class ClientAnswers(DriverState):
     """The driver's answers to clients (mixed into ``NodeRuntime``)."""
 
-    def _restore(self, now: float) -> list:
+    def _restore(self, now: float) -> list[Action]:
         """Resume what the durable record holds (at start, before the driver runs)."""
+        assert self.store is not None and self.node is not None
         found = self.store.load()
         prefix = f"{self.robot}#{self.incarnation % 100000}-"
         aps = []
@@ -69,7 +72,7 @@ class ClientAnswers:
                 self._seq = max(self._seq, int(tail) if tail.isdigit() else 0)
         for rkey, data in found.outcomes.items():
             self._answered[rkey] = data
-        out: list = []
+        out: list[Action] = []
         self.node.origin.restore(aps, now, out)  # as recorded: nothing to write back
         if aps or found.skipped:
             log.warning("node %s resumed %d program(s) from its record %s%s", self.robot, len(aps), self.store.path,
@@ -77,10 +80,11 @@ class ClientAnswers:
         self.restored = len(aps)
         return out
 
-    def _persist(self, actions: list) -> None:
+    def _persist(self, actions: list[Action]) -> None:
         """Write what changed to the durable record, before ``actions`` are
         applied: programs as they now stand, and the outcome of each one
         delivered (sent once written, by ``_tell_client``)."""
+        assert self.store is not None and self.node is not None
         origin = self.node.origin
         changed, origin.changed = origin.changed or set(), set()
         records = {}
@@ -111,7 +115,7 @@ class ClientAnswers:
             request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts,
             moves=moves, resumed_from=resumed_from, missed_deadline=missed_deadline))
 
-    def _client_submit(self, m: SubmitProgram, now: float) -> list:
+    def _client_submit(self, m: SubmitProgram, now: float) -> list[Action]:
         rkey = (m.client, m.request_id)
         if rkey in self._requests or rkey in self._answered:
             # a repeated request (clients resend until acknowledged, and ask again after
@@ -141,6 +145,7 @@ class ClientAnswers:
         if on_miss not in ON_MISS:
             return self._tell_client(pid, ok=False, kind="bad_arguments",
                                      error=f"unknown on_miss {m.on_miss!r}; choose one of {', '.join(ON_MISS)}")
+        assert self.node is not None
         return self.node.handle(Submit(
             program_id=pid, program=m.program, args=m.args, payload_size=len(m.args),
             work=work, result_size=m.result_size or spec.result,
@@ -150,7 +155,7 @@ class ClientAnswers:
 
     def _tell_client(self, pid: str, *, ok: bool, value: bytes = b"", error: str = "", kind: str = "",
                      host: str = "", attempts: int = 0, moves: int = 0, resumed_from: float | None = None,
-                     missed_deadline: bool = False) -> list:
+                     missed_deadline: bool = False) -> list[Action]:
         target = self._clients.pop(pid, None)
         if target is None:
             return []
@@ -176,7 +181,7 @@ class ClientAnswers:
         self._send_outcome(keys.client(self.team, client), data)
         return []
 
-    def _answer_again(self, rkey: tuple[str, int]) -> list:
+    def _answer_again(self, rkey: tuple[str, int]) -> list[Action]:
         """A client asked again about a request: its program's state if it
         runs (an update acknowledges the request), its outcome again if this
         node still keeps it (the first may have gone nowhere: the client's
@@ -184,6 +189,7 @@ class ClientAnswers:
         match through another peer), else an outcome saying it is lost."""
         pid = self._requests.get(rkey)
         if pid is not None:
+            assert self.node is not None
             ap = self.node.origin.programs.get(pid)
             if ap is None:
                 self._update_client(pid, "placed", "", 0)

@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import logging
 import threading
+from typing import TYPE_CHECKING, Any
 
 from ramps.core.events import (
+    Action,
     Cancel,
     PeerAlive,
     PeerLost,
@@ -40,6 +42,10 @@ from ramps.core.messages import (
 from ramps.core.relink import RELINK_TIMEOUT
 from ramps.errors import NotAdmitted
 from ramps.runtime import revocation
+from ramps.runtime.node_state import DriverState
+
+if TYPE_CHECKING:
+    from ramps.runtime.credentials import Credentials
 
 log = logging.getLogger("ramps.node")
 #: seconds between two log lines about dropped messages (each is counted)
@@ -53,7 +59,7 @@ STALL_GRACE = RELINK_TIMEOUT
 VERSION_LOG_KEYS = 64
 
 
-class Inbound:
+class Inbound(DriverState):
     """The driver's inputs (mixed into ``NodeRuntime``)."""
 
     #: of the messages dropped (``bad_messages``), those refused as another
@@ -61,9 +67,9 @@ class Inbound:
     #: minor (docs/wire-compatibility.md): logged as such, not as malformed
     version_refused = 0
     unknown_types = 0
-    _version_logged: frozenset = frozenset()
+    _version_logged: frozenset[tuple[str, str]] = frozenset()
 
-    def _on_liveliness(self, robot: str, alive: bool, now: float) -> list:
+    def _on_liveliness(self, robot: str, alive: bool, now: float) -> list[Action]:
         """A teammate's liveliness token came or went. Just after this node
         stalled, every teammate's lease on it may have run out: their links
         close and their tokens vanish here, then come back as soon as Zenoh
@@ -80,13 +86,14 @@ class Inbound:
             return self._peer_event(robot, True, now)  # its link is back: the core counts its silence again
         return self._peer_event(robot, alive, now)
 
-    def _peer_event(self, robot: str, alive: bool, now: float) -> list:
+    def _peer_event(self, robot: str, alive: bool, now: float) -> list[Action]:
         """A teammate's liveliness, to the core: its origin (the teammate as a
         host) and its executor (the teammate as an origin: one gone for good
         has its programs here stopped, see ``Executor.on_origin_lost``)."""
+        assert self.node is not None
         return self.node.handle(PeerAlive(robot=robot) if alive else PeerLost(robot=robot), now)
 
-    def _load_revocations(self, creds) -> None:
+    def _load_revocations(self, creds: Credentials) -> None:
         """Secured team: the list saved beside this robot's credentials, if
         any. A robot on it does not join (``NotAdmitted``)."""
         from ramps.runtime.security import _load_cert
@@ -101,10 +108,13 @@ class Inbound:
                               f"of {rl.issued}, {self._revocation_file}): it may not join the team")
         self.revocations, self._revoked = rl, frozenset(rl.robots)
 
-    def _on_revocations(self, data: bytes, now: float) -> list:
+    def _on_revocations(self, data: bytes, now: float) -> list[Action]:
         """A revocation list from the team: adopt it if it is newer and signed
         by the team CA; shut the newly revoked robots out (or leave, if this
-        robot is one of them). Anything else is remote bad input: counted."""
+        robot is one of them). Anything else is remote bad input: counted.
+        Only a node with the team CA (a secured team) subscribes to them."""
+        if self._ca_cert is None or self._revocation_file is None:
+            return []
         try:
             rl = revocation.decode(data, self._ca_cert, self.team)
         except Exception as exc:  # CredentialsError, or anything odd in a foreign message
@@ -123,7 +133,7 @@ class Inbound:
         except OSError as exc:
             log.warning("node %s could not save revocation list %d to %s: %s", self.robot, rl.seq,
                         self._revocation_file, exc)
-        out: list = []
+        out: list[Action] = []
         for robot in new:
             if self._trace is not None:
                 self._write_trace("revoked", "", robot, 0, f"list {rl.seq}")
@@ -132,6 +142,7 @@ class Inbound:
                 continue
             log.warning("node %s: robot %s is revoked by the team (list %d): shut out", self.robot, robot, rl.seq)
             self._held_lost.pop(robot, None)
+            assert self.node is not None
             self.node.executor.stop_origin(robot, now, out)
             out.extend(self.node.handle(PeerLost(robot=robot), now))
         if self.revoked_self:
@@ -149,8 +160,8 @@ class Inbound:
     def _next_release(self) -> float:
         return min(self._held_lost.values())
 
-    def _release_lost(self, now: float) -> list:
-        out: list = []
+    def _release_lost(self, now: float) -> list[Action]:
+        out: list[Action] = []
         for robot, when in list(self._held_lost.items()):
             if when <= now:
                 del self._held_lost[robot]
@@ -165,9 +176,10 @@ class Inbound:
         self._version_logged = self._version_logged | {key}
         log.warning("%s", line)
 
-    def _handle(self, item: tuple, now: float) -> list:
+    def _handle(self, item: tuple[Any, ...], now: float) -> list[Action]:
         kind = item[0]
         node = self.node
+        assert node is not None
         if kind == "wire":
             self._backlog_bytes -= len(item[1])
             try:

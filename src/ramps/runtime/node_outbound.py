@@ -32,6 +32,7 @@ from typing import Any
 import msgspec
 
 from ramps.core.events import (
+    Action,
     Cancel,
     Deliver,
     NameTaken,
@@ -47,6 +48,7 @@ from ramps.core.messages import (
     MAX_LISTED,
     LearnedWork,
     LinkSeen,
+    LoadReport,
     ProgramCheckpoint,
     ProgramResult,
     RunningProgram,
@@ -56,6 +58,7 @@ from ramps.core.speed import MIN_RUN_WORK, REMEASURE_CPU, SpeedMeasured, next_re
 from ramps.runtime import keys
 from ramps.runtime.measure import core_fraction, measure_speed
 from ramps.runtime.transport import Publisher
+from ramps.runtime.node_state import DriverState
 
 log = logging.getLogger("ramps.node")
 #: how long before its moment a re-measurement's thread starts (more than a report period)
@@ -79,10 +82,10 @@ def _started(other: float | None, mine: float | None, order: str) -> str:
     return f"at {when} ({abs(mine - other):.1f} s {order} this one, by the two machines' clocks)"
 
 
-class Outbound:
+class Outbound(DriverState):
     """The driver's outputs (mixed into ``NodeRuntime``)."""
 
-    def _apply(self, actions: list) -> None:
+    def _apply(self, actions: list[Action]) -> None:
         if self.store is not None:  # written before anything of it is sent
             self._persist(actions)
         mnow = self.clock.monotonic() - self._stall_offset  # the core's clock, for metrics' latencies
@@ -154,6 +157,7 @@ class Outbound:
     def _warn_misdeclared(self, note: Note) -> None:
         """A call took far more or less than its program declares: said once
         per program (every call is in the trace and the metric)."""
+        assert self.node is not None
         ap = self.node.origin.programs.get(note.program_id)
         program = ap.submit.program if ap is not None else note.program_id
         if program in self._misdeclared_warned or len(self._misdeclared_warned) >= 1024:
@@ -168,11 +172,14 @@ class Outbound:
         """One JSON line per decision: ``t`` is self.clock.monotonic() (one clock for
         every process of a host), ``wall`` the Unix time, fields as the
         simulator's trace (``ramps.sim.engine.TraceEntry``)."""
+        trace = self._trace
+        if trace is None:  # closed meanwhile (a write failed, or the node was torn down)
+            return
         rec = {"t": round(self.clock.monotonic() if at is None else at, 6), "wall": round(self.clock.time(), 6),
                "robot": self.robot, "what": what, "program_id": program_id, "other": other, "attempt": attempt,
                "detail": detail}
         try:
-            self._trace.write(json.dumps(rec) + "\n")
+            trace.write(json.dumps(rec) + "\n")
         except OSError as exc:  # a full disk must not stop the node
             log.warning("node %s: trace file write failed, trace off: %s", self.robot, exc)
             self._trace = None
@@ -187,7 +194,7 @@ class Outbound:
         its error's last line) or ``stopped`` (no longer wanted: withdrawn,
         another copy won, its origin gone; "handed back" when this node
         leaves)."""
-        hosted: dict[tuple[str, int], str] = self.__dict__.setdefault("_hosted_origins", {})
+        hosted = self._hosted_origins
         if isinstance(a, StartProgram):
             if a.origin != self.robot:
                 hosted[(a.program_id, a.attempt)] = a.origin
@@ -196,8 +203,8 @@ class Outbound:
         elif isinstance(a, StopProgram):
             origin = hosted.pop((a.program_id, a.attempt), None)
             if origin is not None:
-                self._write_trace("stopped", a.program_id, origin, a.attempt,
-                                  "handed back" if self.node.executor.closing else "")
+                closing = self.node is not None and self.node.executor.closing
+                self._write_trace("stopped", a.program_id, origin, a.attempt, "handed back" if closing else "")
         elif isinstance(a.msg, ProgramResult):  # the first send only: resends find it gone
             origin = hosted.pop((a.msg.program_id, a.msg.attempt), None)
             if origin is not None:
@@ -279,17 +286,19 @@ class Outbound:
                                  daemon=True).start()
             self._remeasures += 1
             self._remeasure_at = next_remeasure(due, self._remeasures)
+        node = self.node
+        assert node is not None
         busy, runnable, ramps_avg = self.sampler.averages()
         per_core, load1, mem_free = self.sampler.extras()
-        self.node.executor.background = max(0.0, runnable - ramps_avg)
+        node.executor.background = max(0.0, runnable - ramps_avg)
         if self.load_scope == "cgroup":
             busy = min(busy * self._busy_scale, float(self.cores))
         self._measure_node_cpu()
-        report = self.node.make_report(cpu_busy=busy,
+        report = node.make_report(cpu_busy=busy,
                                        runnable=runnable, ramps_avg=ramps_avg, window=self.s.window,
                                        mem_free=mem_free, cpu_per_core=per_core, load_avg=load1,
                                        node_cpu=round(self.node_cpu, 4))
-        sees = frozenset(self.node.view.candidates(now)) - {self.robot}
+        sees = frozenset(node.view.candidates(now)) - {self.robot}
         if sees != self._sees:
             self._log_view_change(self._sees, sees)
             self._sees = sees
@@ -297,7 +306,7 @@ class Outbound:
                                          sees=len(sees), running=self._running_list(), **self._learned())
         self._last_report = report
         if self.metrics is not None:
-            st = self.node.statistics()
+            st = node.statistics()
             self.metrics.on_report(cpu_busy=busy, runnable=runnable, load_avg=load1, mem_free=mem_free,
                                    running=st.running, in_flight=st.active_programs, sees=len(sees),
                                    blacklisted=len(st.blacklisted), dropped=report.bad_messages,
@@ -310,13 +319,14 @@ class Outbound:
             log.warning("node %s could not publish its load: %s", self.robot, exc)
         self._republish(now)
 
-    def _publish_prompt(self, report) -> None:
+    def _publish_prompt(self, report: LoadReport) -> None:
         """A report of the instant from the core (its programs changed), with
         what only the sampler measures taken from the last periodic report."""
         # what it runs and whom it wrote off, as the periodic report says: without them
         # `ramps status`, `ramps top` and ROS diagnostics saw both flap to empty
+        assert self.node is not None
         fields: dict[str, Any] = dict(running=self._running_list(), blacklisted=self.node.view.blacklisted())
-        last = getattr(self, "_last_report", None)
+        last = self._last_report
         if last is not None:
             fields.update(mem_free=last.mem_free, cpu_per_core=last.cpu_per_core, load_avg=last.load_avg,
                           bad_messages=last.bad_messages, sees=last.sees, links=last.links, learned=last.learned)
@@ -345,17 +355,20 @@ class Outbound:
         def ok(x: float | None) -> float | None:  # within the schema, or the whole report would be refused
             return x if x is not None and math.isfinite(x) and x >= 0 else None
 
-        measured = self.node.links.measured()
-        factors = self.node.host_speeds.factor if self.node.host_speeds is not None else {}
+        node = self.node
+        assert node is not None
+        measured = node.links.measured()
+        factors = node.host_speeds.factor if node.host_speeds is not None else {}
         # teammates only: an origin also compares the runs on its own robot
         links = [(r, measured.get(r)) for r in sorted((set(measured) | set(factors)) - {self.robot})[:MAX_LISTED]]
-        work = sorted(self.node.origin.learned_work().items())[:MAX_LISTED]
+        work = sorted(node.origin.learned_work().items())[:MAX_LISTED]
         return dict(links=[LinkSeen(r, ok(e.latency) if e else None, ok(e.bandwidth) if e else None,
                                     ok(factors.get(r))) for r, e in links],
                     learned=[LearnedWork(p, w) for p, w in work if ok(w) is not None])
 
     def _running_list(self) -> list[RunningProgram]:
         """The programs this robot runs, with their progress (``ramps status``)."""
+        assert self.node is not None
         jobs = islice(self.node.executor.running.values(), MAX_LISTED)
         return [RunningProgram(j.program, j.origin, j.progress) for j in jobs]
 
@@ -373,6 +386,7 @@ class Outbound:
     def _as_told(self, a: Deliver) -> Deliver:
         """An outcome as its client is told it: a program cancelled because
         this node is shutting down ends as ``shutdown``."""
+        assert self.node is not None
         if self.node.executor.closing and a.error_kind == "cancelled":
             return msgspec.structs.replace(a, error_kind="shutdown", error=f"origin {self.robot} shut down")
         return a
@@ -387,7 +401,8 @@ class Outbound:
                 log.warning("node %s could not say it is leaving: %s", self.robot, exc)
         now = self._clock()
         node = self.node
-        out: list = []
+        assert node is not None
+        out: list[Action] = []
         handed = node.executor.hand_back(now, out)
         if self.store is None:  # nothing keeps them: tell their clients
             for pid, ap in list(node.origin.programs.items()):
