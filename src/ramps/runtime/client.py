@@ -433,7 +433,7 @@ class Team:
             if timeout is not None:
                 heapq.heappush(self._timers, (self.clock.monotonic() + timeout, rid))
                 self._timer_cv.notify()
-        fut.add_done_callback(lambda f, rid=rid: self._on_done(rid, f))
+        fut.add_done_callback(lambda f: self._on_done(rid, f))
         msg = SubmitProgram(client=self.client_id, request_id=rid, program=program, args=args,
                             work=work or 0.0, local_only=local_only, policy=policy,
                             deadline=None if deadline is None else float(deadline),
@@ -585,9 +585,10 @@ class Team:
             names = sorted(self._alive | set(self._reports))
             rows = []
             for name in names:
-                rep, at = self._reports.get(name, (None, None))
-                base = dict(robot=name, alive=name in self._alive, leaving=name in self._leaving)
-                if rep is not None:
+                got = self._reports.get(name)
+                base: dict[str, Any] = dict(robot=name, alive=name in self._alive, leaving=name in self._leaving)
+                if got is not None:
+                    rep, at = got
                     base.update(cores=rep.cores, speed=rep.speed, cpu_busy=rep.cpu_busy, runnable=rep.runnable,
                                 ramps_running=rep.ramps_running, accepted_total=rep.accepted_total,
                                 finished_total=rep.finished_total, blacklisted=list(rep.blacklisted),
@@ -636,7 +637,7 @@ class Team:
     def __enter__(self) -> "Team":
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
 

@@ -12,6 +12,7 @@ robot, from its latest load report and liveliness.
 from __future__ import annotations
 
 from concurrent.futures import Future
+from typing import Any, Callable
 
 import msgspec
 
@@ -102,9 +103,9 @@ class ProgramFuture(Future):
         self.moves = 0
         self.resumed_from: float | None = None
         self.missed_deadline = False
-        self._update_callbacks: list = []
+        self._update_callbacks: list[Callable[[Future[Any]], object]] = []
 
-    def add_update_callback(self, fn) -> None:
+    def add_update_callback(self, fn: Callable[[Future[Any]], object]) -> None:
         """Call ``fn(future)`` (on a ramps thread: do not block) whenever the
         state, host or progress changes, and once when the future is done."""
         self._update_callbacks.append(fn)

@@ -26,7 +26,7 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterable
 
 import psutil
 
@@ -380,7 +380,7 @@ def cgroup_usage(cpu: Path, acct: Path | None) -> float:
     return 0.0
 
 
-def _running(paths) -> int:
+def _running(paths: Iterable[str]) -> int:
     """How many of these ``/proc/.../stat`` files say state R (running or runnable).
     Plain ``os.open``/``os.read``: the sampler reads one per thread of the robot
     ten times a second, and ``open()``'s buffered file objects doubled its CPU."""

@@ -243,7 +243,7 @@ class NodeMetrics:
         self.duration.labels(me, prog)
 
     @staticmethod
-    def _remember(table: dict, key, value) -> None:
+    def _remember(table: dict[Any, Any], key: Any, value: Any) -> None:
         table[key] = value
         if len(table) > MAX_PENDING:
             table.pop(next(iter(table)))
