@@ -192,7 +192,7 @@ def test_failure_experiment_plan_on_the_testbed():
 
 @serial
 def test_testbed_campaign_one_run():
-    from ramps.testbed.experiments import run_campaign
+    from ramps.testbed.campaign import run_campaign
 
     rep = run_campaign(1, seed=3, robots=3, duration=12.0)
     assert rep.runs == 1 and rep.lost == 0 and rep.duplicated == 0 and rep.not_rejoined == 0, rep.failed_runs
@@ -205,7 +205,7 @@ def test_testbed_stress_campaign_one_run():
     node killed alone, the origin r2 stalled, 4 busy processes on r3: nothing
     lost or duplicated, no restart that a fault does not explain, no orphan,
     nothing left running."""
-    from ramps.testbed.experiments import run_campaign
+    from ramps.testbed.campaign import run_campaign
 
     rep = run_campaign(1, seed=0, only_seed=221, robots=3, duration=12.0, stress=True)
     run = rep.all_runs[0]

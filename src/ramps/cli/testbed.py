@@ -273,7 +273,7 @@ def testbed_campaign(
     pressure, and the checks that no program was restarted without cause and nothing was left running."""
     from ramps.errors import RampsError
     from ramps.experiments.report import print_campaign
-    from ramps.testbed.experiments import run_campaign
+    from ramps.testbed.campaign import run_campaign
 
     check_policy(policy)
     check_discovery(discovery)
