@@ -24,7 +24,8 @@ Zenoh session in production, ``ramps.testing.memory`` in tests) and reads
 time only from its injected clock. This module is its lifecycle and loop;
 what it does with each input is ``node_inbound``, with the core's actions and
 load reports ``node_outbound``, with clients' requests and outcomes
-``node_clients`` (mixed into ``NodeRuntime``). About 500 lines: the
+``node_clients`` (bases of ``NodeRuntime``; the state and methods they
+share are declared, typed, in ``node_state``). About 500 lines: the
 lifecycle and the loop only.
 """
 
