@@ -37,7 +37,8 @@ def testbed_experiment_sites(
     while r1 and the first robot of site B submit, and started again: both sites keep running
     their programs while apart, none is lost, and the team heals. Root; about 5 minutes."""
     from ramps.errors import RampsError
-    from ramps.testbed.sites import format_report, run_sites
+    from ramps.testbed.sites import run_sites
+    from ramps.testbed.sites_report import format_report
 
     if mode not in ("peer", "client"):
         fail(f"unknown mode {mode!r}; choose peer or client")
