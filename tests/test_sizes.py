@@ -30,7 +30,6 @@ KNOWN_MODULES: dict[str, tuple[int, str]] = {
     "core/messages.py": (625, "the wire records, being edited for deadlines"),
     "sim/engine.py": (542, "the simulator, being edited for deadlines"),
     "runtime/measure.py": (534, "the speed measurement, being edited by another engineer"),
-    "testbed/bed.py": (630, "Testbed and its robots' processes and state file: to split next"),
 }
 
 #: functions over the limit without a reason yet: "path:qualified name" -> (ceiling, why)

@@ -12,25 +12,19 @@ How this works: each robot is
   process group), plus optional background load: busy processes in the
   same namespace and cgroup (the paper's ``stress``).
 
-Processes enter the cgroup with ``RobotCgroup.wrap`` (a shell joins the
-cgroup, then execs) and the namespace with ``nsenter --net`` rather than
-``ip netns exec``: the latter remounts ``/sys`` in a new mount namespace,
-which would hide ``/sys/fs/cgroup`` from the node, so it could not see its
-quota nor measure its load within its cgroup.
-
 Discovery: multicast scouting (``--multicast``) inside the bridge *and* an
-explicit ``--connect`` to a seed (r1, for every robot but r1). Multicast
-alone finds everyone at start-up, but the explicit seed makes rejoining after
-a cut deterministic (the side holding a ``connect`` endpoint redials by
-itself: docs/lab/2026-11-23-failures.md, zenoh#2806) instead of depending on the scouting period. r1
-dials nobody: everyone dials it. (r1 used to dial r2 as its seed; with r2
-dialing r1 too, stalls of both overlapping left them deaf to each other for
-good, zenoh#2806: the stressed campaign, seed 25000000.)
-``discovery="multicast"`` or ``"connect"`` picks just one of the two.
+explicit ``--connect`` to a seed, r1, which every other robot dials and
+which dials nobody. Multicast alone finds everyone at start-up; the seed
+makes rejoining after a cut deterministic (the side holding a ``connect``
+endpoint redials by itself: docs/lab/2026-11-23-failures.md, zenoh#2806)
+instead of depending on the scouting period. ``discovery="multicast"`` or
+``"connect"`` picks just one of the two.
 
-The testbed is three modules, by concern: this one builds a testbed and
-takes it down (its lifecycle); ``ramps.testbed.faults`` breaks and mends
-robots (crash, cut, lossy, freeze, load; ``Testbed`` inherits its methods);
+The testbed is five modules, by concern: this one builds a testbed and
+takes it down (its lifecycle), waits for its team and reports its status;
+``ramps.testbed.robots`` starts the robots' processes and writes the state
+file; ``ramps.testbed.faults`` breaks and mends robots (crash, cut, lossy,
+freeze, load); ``Testbed`` inherits the methods of both.
 ``ramps.testbed.cleanup`` clears a host of testbeds, including those of
 crashed runs (``down_all``, ``leftovers``); ``ramps.testbed.procs`` holds
 the pid and cgroup helpers they share.
@@ -50,10 +44,6 @@ SIGINT/SIGTERM of the creating process and at interpreter exit (unless
 (``t<X>``, subnet ``10.201.X.0/24``) is reserved by creating its state file
 exclusively, so testbeds started at once by parallel processes (pytest-xdist
 workers) never take the same one.
-
-About 500 lines: the lifecycle only (faults are ``ramps.testbed.faults``,
-the host sweep ``ramps.testbed.cleanup``, process and cgroup helpers
-``ramps.testbed.procs``).
 """
 
 from __future__ import annotations
@@ -78,16 +68,14 @@ from ramps.errors import NoTeam
 from ramps.runtime.localteam import RobotCgroup, cgroup_mode, partial_views
 from ramps.testbed import net
 from ramps.testbed.faults import Faults
-from ramps.testbed.procs import (RobotRecord, TestbedError, _alive, _cgroup, _cgroup_pids, _clean_env, _proc_stat,
-                                 robot_record)
+from ramps.testbed.procs import RobotRecord, TestbedError, _alive, _cgroup, robot_record
+from ramps.testbed.robots import PORT, STATE_DIR, Robots, _check_config
 
 if TYPE_CHECKING:
     import zenoh
 
     from ramps.runtime.watch import TeamWatcher
 
-STATE_DIR = Path(os.environ.get("RAMPS_TESTBED_STATE", "/run/ramps"))
-PORT = 7447
 FAULTS = ("crashed", "cut", "frozen", "lossy")
 
 __all__ = ["FAULTS", "PORT", "STATE_DIR", "DidNotJoin", "Testbed", "watch_team"]
@@ -101,7 +89,7 @@ class DidNotJoin(NoTeam):
 
 
 # ====================================================================== the testbed
-class Testbed(Faults):
+class Testbed(Robots, Faults):
     """Emulated robots on this host; see the module docstring.
 
     >>> with Testbed(3, lease_ms=1000) as tb:
@@ -208,9 +196,6 @@ class Testbed(Faults):
     def namespace(self, robot: str) -> str:
         return self._robot(robot)["ns"]
 
-    @property
-    def state_file(self) -> Path:
-        return self.state_dir / f"testbed-{self.tb}.json"
 
     def _robot(self, robot: str) -> RobotRecord:
         if robot not in self.robots:
@@ -290,110 +275,6 @@ class Testbed(Faults):
             raise
         return self
 
-    def _node_cmd(self, robot: str) -> list[str]:
-        rb = self.robots[robot]
-        cmd = [self.python, "-m", "ramps.cli", "node", "--robot", robot, "--team", self.team,
-               "--listen", f"tcp/{rb['ip']}:{PORT}"]
-        if self.discovery in ("both", "connect") and robot != self.names[0]:
-            cmd += ["--connect", f"tcp/{self.robots[self.names[0]]['ip']}:{PORT}"]
-        cmd += ["--multicast" if self.discovery in ("both", "multicast") else "--no-multicast"]
-        return cmd + self._node_options(robot)
-
-    def _node_options(self, robot: str) -> list[str]:
-        """What every robot's node is told whatever its network: cores, speed,
-        policy, lease, programs, config file, trace and durable record."""
-        cmd: list[str] = []
-        for flag, value in (("--cores", self.cores), ("--speed", self.speed), ("--policy", self.policy),
-                            ("--lease-ms", self.lease_ms)):
-            if value is not None:
-                cmd += [flag, str(value)]
-        for p in self.programs:
-            cmd += ["--program", p]
-        if self.config and self.log_dir:
-            cmd += ["--config", str(self._config_file())]
-        if self.log_dir:  # every decision, for experiments and post-mortems: <log_dir>/<robot>.trace.jsonl
-            cmd += ["--trace", str(self.log_dir / f"{robot}.trace.jsonl")]
-        cmd += ["--state-dir", str(self.records_dir)]  # each robot's durable record, removed with the testbed
-        return cmd
-
-    @property
-    def records_dir(self) -> Path:
-        """Where the robots' nodes keep their durable records (``ramps.runtime.store``)."""
-        return self.state_dir / f"records-{self.tb}"
-
-    def _config_file(self) -> Path:
-        """``config`` as every node's config file, in the log directory."""
-        assert self.log_dir is not None
-        path = self.log_dir / "node-config.toml"
-        if not path.exists():
-            top = [f"{k} = {json.dumps(v)}" for k, v in sorted(self.config.items()) if k != "core"]
-            core = [f"{k} = {json.dumps(v)}" for k, v in sorted(self.config.get("core", {}).items())]
-            path.write_text("\n".join(top + (["[core]"] + core if core else [])) + "\n")
-        return path
-
-    def _spawn(self, robot: str, argv: list[str], log: Path | None) -> tuple[int, int | None]:
-        rb = self.robots[robot]
-        cg = _cgroup(rb["cgroup"], self.mode)
-        full = cg.wrap(["nsenter", f"--net={net.NETNS_DIR / rb['ns']}", *argv])
-        # no Zenoh shared memory between robots that share this host: it carried their
-        # large messages around the emulated network (NodeSettings.shared_memory)
-        env = dict(_clean_env(), RAMPS_ROBOT=robot, RAMPS_SHARED_MEMORY="0")
-        out = open(log, "ab") if log else None
-        try:
-            p = subprocess.Popen(full, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL if out is None else out,
-                                 stderr=subprocess.STDOUT, env=env, start_new_session=True, close_fds=True)
-        finally:
-            if out is not None:
-                out.close()
-        self._popen[p.pid] = p
-        st = _proc_stat(p.pid)
-        deadline = time.monotonic() + 2.0  # joined the cgroup (the shell's first step) before we return
-        while p.pid not in _cgroup_pids(rb["cgroup"][:1]) and p.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.002)
-        return p.pid, st[1] if st else None
-
-    def _start_node(self, robot: str) -> None:
-        rb = self.robots[robot]
-        log = self.log_dir / f"{robot}.log" if self.log_dir else None
-        rb["pid"], rb["start"] = self._spawn(robot, self._node_cmd(robot), log)
-
-    def _start_caps(self) -> None:
-        """The per-program CPU caps of every robot: one process for the testbed
-        (ramps.testbed.caps), in the root namespace; it ends with the state file."""
-        log = open(self.log_dir / "caps.log", "ab") if self.log_dir else None
-        try:
-            p = subprocess.Popen([self.python, "-m", "ramps.testbed.caps", str(self.state_file)],
-                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL if log is None else log,
-                                 stderr=subprocess.STDOUT, env=_clean_env(), start_new_session=True, close_fds=True)
-        finally:
-            if log is not None:
-                log.close()
-        self._popen[p.pid] = p
-        st = _proc_stat(p.pid)
-        self.caps_pid = [p.pid, st[1] if st else None]
-        self._save()
-
-    def _stop_caps(self) -> None:
-        pid, start = self.caps_pid
-        if pid and _alive(pid, start) != "dead":
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
-            p = self._popen.pop(pid, None)
-            if p is not None:
-                p.wait(2)
-        self.caps_pid = [None, None]
-
-    def _start_load(self, robot: str, n: int) -> None:
-        rb = self.robots[robot]
-        for _ in range(n):
-            rb["load_pids"].append(self._spawn_load(robot))
-
-    def _spawn_load(self, robot: str) -> tuple[int, int | None]:
-        """One busy process in ``robot`` (the paper's ``stress``)."""
-        return self._spawn(robot, [self.python, "-c", "while True: pass"], None)
-
     def wait_alive(self, robots: list[str] | None = None, timeout: float = 60.0) -> float:
         """Wait until ``robots`` (default all) are alive in the team and publish
         their load, seen from the root namespace, and every robot that does
@@ -422,14 +303,6 @@ class Testbed(Faults):
                     raise DidNotJoin(f"robots {', '.join(robots)} did not all join team {self.team} within "
                                  f"{timeout:g} s{seeing}\n{tails}")
                 time.sleep(0.05)
-
-    def log_tail(self, robot: str, lines: int = 15) -> str:
-        if self.log_dir is None:
-            return "(no log)"
-        try:
-            return "\n".join((self.log_dir / f"{robot}.log").read_text(errors="replace").splitlines()[-lines:])
-        except OSError:
-            return "(no log)"
 
     # ------------------------------------------------------------ clients
     def client(self, robot: str = "r1", *, timeout: float = 10.0, lease_ms: int | None = None,
@@ -493,17 +366,6 @@ class Testbed(Faults):
             except Exception as exc:  # a Zenoh error: report it, the rest of the status stands
                 out["team_view_error"] = f"no team view: {exc}"
         return out
-
-    # ------------------------------------------------------------ state file
-    def _save(self) -> None:
-        st = dict(tb=self.tb, x=self.x, team=self.team, quota=self.quota, cores=self.cores, speed=self.speed,
-                  policy=self.policy, lease_ms=self.lease_ms, programs=self.programs, discovery=self.discovery,
-                  python=self.python, mode=self.mode, loaded=self.loaded, caps=self.caps, caps_pid=self.caps_pid, config=self.config,
-                  log_dir=str(self.log_dir) if self.log_dir else None, created_by=os.getpid(),
-                  robots=[self.robots[r] for r in self.names if r in self.robots])
-        tmp = self.state_file.with_suffix(".tmp")
-        tmp.write_text(json.dumps(st, indent=1))
-        tmp.replace(self.state_file)
 
     # ------------------------------------------------------------ down
     def down(self) -> None:
@@ -589,24 +451,6 @@ class Testbed(Faults):
 
     def __exit__(self, *exc: object) -> None:
         self.down()
-
-
-def _check_config(config: Mapping[str, Any]) -> dict[str, Any]:
-    """Node settings for every robot of a testbed: known names, scalar values (a typo is an
-    error here, not a node that will not start)."""
-    from ramps.core.config import RampsConfig
-    from ramps.runtime.settings import NodeSettings
-
-    core = config.get("core", {})
-    bad = sorted(set(config) - set(NodeSettings.__struct_fields__) - {"core"})
-    bad += sorted(f"core.{k}" for k in set(core) - set(RampsConfig.__struct_fields__))
-    if bad:
-        raise ValueError(f"unknown node settings {', '.join(bad)} (see ramps.runtime.settings.NodeSettings "
-                         "and ramps.core.config.RampsConfig)")
-    for k, v in [*((k, v) for k, v in config.items() if k != "core"), *core.items()]:
-        if not isinstance(v, (bool, int, float, str)):
-            raise ValueError(f"node setting {k} must be a number, a string or a boolean, got {v!r}")
-    return {**{k: v for k, v in config.items() if k != "core"}, **({"core": dict(core)} if core else {})}
 
 
 def watch_team(testbed: "Testbed", *, redial: bool = False) -> "TeamWatcher":
