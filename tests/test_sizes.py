@@ -36,7 +36,6 @@ KNOWN_MODULES: dict[str, tuple[int, str]] = {
 KNOWN_FUNCTIONS: dict[str, tuple[int, str]] = {
     "runtime/node.py:NodeRuntime.__init__": (104, "the node driver, being recomposed into parts"),
     "runtime/node.py:NodeRuntime.start": (95, "the node driver, being recomposed into parts"),
-    "runtime/command.py:_communicate": (90, "to split into steps (one returned record)"),
     "bench/flood.py:flood_team": (122, "to split into set-up, flood and report"),
     "bench/fuzz.py:run_fuzz": (85, "to split into steps"),
     "bench/demo.py:run_demo": (84, "to split into steps"),

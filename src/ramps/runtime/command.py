@@ -53,6 +53,7 @@ import struct
 import subprocess
 import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any, Callable, cast
 
@@ -200,13 +201,12 @@ class CommandProgram:
             pass
         deadline = time.monotonic() + self.timeout
         try:
-            out, err_tail, timed_out, too_big, bad_checkpoint = _communicate(
-                proc, stdin, deadline, max_result, on_progress, on_checkpoint)
-            if not (timed_out or too_big or bad_checkpoint):
+            got = _communicate(proc, stdin, deadline, max_result, on_progress, on_checkpoint)
+            if not got.stopped:
                 try:  # it may close its output and go on running
                     proc.wait(timeout=max(0.0, deadline - time.monotonic()))
                 except subprocess.TimeoutExpired:
-                    timed_out = True
+                    got.timed_out = True
         finally:
             _kill_group(proc.pid)  # strays the executable left behind, before its group id can be reused
             proc.wait()
@@ -220,14 +220,14 @@ class CommandProgram:
                     os.waitpid(guardian, 0)
                 except ChildProcessError:
                     pass
-        tail = err_tail.decode("utf-8", "replace")[-STDERR_TAIL:]
-        if bad_checkpoint:
-            raise CommandFailed(f"{self.name} wrote a checkpoint ramps cannot keep ({bad_checkpoint}) and was stopped"
-                                + _stderr(tail))
-        if timed_out:
+        tail = got.err_tail.decode("utf-8", "replace")[-STDERR_TAIL:]
+        if got.bad_checkpoint:
+            raise CommandFailed(f"{self.name} wrote a checkpoint ramps cannot keep ({got.bad_checkpoint}) and was "
+                                "stopped" + _stderr(tail))
+        if got.timed_out:
             raise CommandFailed(f"{self.name} did not finish within its time limit of {self.timeout:g} s and was "
                                 f"killed" + _stderr(tail))
-        if too_big:
+        if got.too_big:
             raise CommandFailed(f"{self.name} wrote more than {max_result} bytes on stdout (results must fit "
                                 "one message: write a file and return its path)")
         code = proc.returncode
@@ -240,7 +240,7 @@ class CommandProgram:
             else:
                 how = f"exited with code {code}"
             raise CommandFailed(f"{self.name} {how}" + _stderr(tail))
-        text = out.strip()
+        text = bytes(got.out).strip()
         if not text:
             return None
         try:
@@ -320,16 +320,35 @@ class NotACheckpoint:
 _MAX_CHECKPOINT_LINE = 6 * 256 * 1024
 
 
+@dataclass(slots=True)
+class _Exchange:
+    """What ``_communicate`` read from an executable, and why it stopped reading early if it did."""
+
+    out: bytearray = field(default_factory=bytearray)
+    #: stderr without its progress and checkpoint lines, its last ``2 * STDERR_TAIL`` bytes or more
+    err_tail: bytearray = field(default_factory=bytearray)
+    #: stderr's last line, not ended yet
+    line: bytearray = field(default_factory=bytearray)
+    timed_out: bool = False
+    #: stdout grew over the largest result
+    too_big: bool = False
+    #: why a checkpoint cannot be kept; empty when none was refused
+    bad_checkpoint: str = ""
+
+    @property
+    def stopped(self) -> bool:
+        """Reading stopped before the executable closed its output."""
+        return self.timed_out or self.too_big or bool(self.bad_checkpoint)
+
+
 def _communicate(proc: subprocess.Popen, stdin: bytes, deadline: float, max_out: int,
                  on_progress: Callable[[float, str], object],
-                 on_checkpoint: Callable[[Any], Any]) -> tuple[bytes, bytes, bool, bool, str]:
+                 on_checkpoint: Callable[[Any], Any]) -> _Exchange:
     """Feed stdin, collect stdout and stderr (progress and checkpoint lines
     parsed out, stderr kept as a bounded tail) until both close, the time is
-    up or a checkpoint cannot be kept (its reason is the last item)."""
+    up, stdout grows over ``max_out`` bytes or a checkpoint cannot be kept."""
+    got = _Exchange()
     sel = selectors.DefaultSelector()
-    out = bytearray()
-    err_tail = bytearray()
-    line = bytearray()
     pos = 0
     assert proc.stdin and proc.stdout and proc.stderr
     for f in (proc.stdin, proc.stdout, proc.stderr):
@@ -340,23 +359,16 @@ def _communicate(proc: subprocess.Popen, stdin: bytes, deadline: float, max_out:
         proc.stdin.close()
     sel.register(proc.stdout, selectors.EVENT_READ)
     sel.register(proc.stderr, selectors.EVENT_READ)
-    timed_out = too_big = False
     try:
-        while sel.get_map():
+        while sel.get_map() and not got.stopped:
             left = deadline - time.monotonic()
             if left <= 0:
-                timed_out = True
+                got.timed_out = True
                 break
             for key, _ in sel.select(min(left, 1.0)):
                 f = cast(IO[bytes], key.fileobj)  # only the process's pipes are registered
                 if f is proc.stdin:
-                    try:
-                        pos += os.write(f.fileno(), stdin[pos:pos + 65536])
-                    except (BrokenPipeError, OSError):
-                        pos = len(stdin)  # it does not read its input: fine
-                    if pos >= len(stdin):
-                        sel.unregister(f)
-                        f.close()
+                    pos = _feed(sel, f, stdin, pos)
                     continue
                 try:
                     chunk = os.read(f.fileno(), 65536)
@@ -364,43 +376,13 @@ def _communicate(proc: subprocess.Popen, stdin: bytes, deadline: float, max_out:
                     continue
                 if not chunk:
                     sel.unregister(f)
-                    continue
-                if f is proc.stdout:
-                    out += chunk
-                    if len(out) > max_out:
-                        too_big = True
-                        return bytes(out), bytes(err_tail), False, True, ""
-                    continue
-                line += chunk
-                while True:
-                    nl = line.find(b"\n")
-                    if nl < 0:
-                        # a very long line without a newline: no progress in it
-                        # (a checkpoint may be long, up to its own limit)
-                        limit = _MAX_CHECKPOINT_LINE if line.startswith(CHECKPOINT_PREFIX) else 4096
-                        if len(line) > limit:
-                            if limit == _MAX_CHECKPOINT_LINE:
-                                return bytes(out), bytes(err_tail), False, False, "a line over 1.5 MiB"
-                            err_tail += line
-                            line.clear()
-                        break
-                    one = bytes(line[:nl + 1])
-                    del line[:nl + 1]
-                    stripped = one.strip()
-                    prog = parse_progress(stripped)
-                    if prog is not None:
-                        on_progress(*prog)
-                        continue
-                    try:
-                        state = parse_checkpoint(stripped)
-                        if state is not NotACheckpoint:
-                            on_checkpoint(state)
-                            continue
-                    except (ValueError, TypeError) as exc:
-                        return bytes(out), bytes(err_tail), False, False, str(exc)[:500]
-                    err_tail += one
-                if len(err_tail) > 4 * STDERR_TAIL:
-                    del err_tail[:-STDERR_TAIL * 2]
+                elif f is proc.stdout:
+                    got.out += chunk
+                    got.too_big = len(got.out) > max_out
+                else:
+                    _take_stderr(got, chunk, on_progress, on_checkpoint)
+                if got.stopped:
+                    break
     finally:
         sel.close()
         for f in (proc.stdin, proc.stdout, proc.stderr):
@@ -408,5 +390,53 @@ def _communicate(proc: subprocess.Popen, stdin: bytes, deadline: float, max_out:
                 f.close()
             except OSError:
                 pass
-    err_tail += line
-    return bytes(out), bytes(err_tail), timed_out, too_big, ""
+    if not (got.too_big or got.bad_checkpoint):
+        got.err_tail += got.line
+    return got
+
+
+def _feed(sel: selectors.BaseSelector, f: IO[bytes], data: bytes, pos: int) -> int:
+    """Write the next piece of ``data`` from ``pos`` to the executable's stdin; close it
+    when all is written or it does not read. Returns the new position."""
+    try:
+        pos += os.write(f.fileno(), data[pos:pos + 65536])
+    except (BrokenPipeError, OSError):
+        pos = len(data)  # it does not read its input: fine
+    if pos >= len(data):
+        sel.unregister(f)
+        f.close()
+    return pos
+
+
+def _take_stderr(got: _Exchange, chunk: bytes, on_progress: Callable[[float, str], object],
+                 on_checkpoint: Callable[[Any], Any]) -> None:
+    """Add a piece of stderr: each whole progress or checkpoint line goes to its callback,
+    any other line to the tail; a checkpoint that cannot be kept sets ``bad_checkpoint``."""
+    got.line += chunk
+    while (nl := got.line.find(b"\n")) >= 0:
+        one = bytes(got.line[:nl + 1])
+        del got.line[:nl + 1]
+        stripped = one.strip()
+        prog = parse_progress(stripped)
+        if prog is not None:
+            on_progress(*prog)
+            continue
+        try:
+            state = parse_checkpoint(stripped)
+            if state is not NotACheckpoint:
+                on_checkpoint(state)
+                continue
+        except (ValueError, TypeError) as exc:
+            got.bad_checkpoint = str(exc)[:500]
+            return
+        got.err_tail += one
+    # a very long line without a newline: no progress in it (a checkpoint may be long, up to its own limit)
+    limit = _MAX_CHECKPOINT_LINE if got.line.startswith(CHECKPOINT_PREFIX) else 4096
+    if len(got.line) > limit:
+        if limit == _MAX_CHECKPOINT_LINE:
+            got.bad_checkpoint = "a line over 1.5 MiB"
+            return
+        got.err_tail += got.line
+        got.line.clear()
+    if len(got.err_tail) > 4 * STDERR_TAIL:
+        del got.err_tail[:-STDERR_TAIL * 2]
