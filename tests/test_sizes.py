@@ -39,10 +39,6 @@ KNOWN_FUNCTIONS: dict[str, tuple[int, str]] = {
     "bench/flood.py:flood_team": (122, "to split into set-up, flood and report"),
     "bench/fuzz.py:run_fuzz": (85, "to split into steps"),
     "bench/demo.py:run_demo": (84, "to split into steps"),
-    "cli/demo.py:demo": (87, "a CLI command with many options: to give its reason"),
-    "cli/node.py:node": (110, "a CLI command with many options; cli/node.py is being edited"),
-    "cli/observe.py:top": (84, "a CLI command with many options: to give its reason"),
-    "cli/reference.py:reference": (102, "draws the whole reference page: to split by section"),
     "testbed/fidelity.py:run_fidelity": (81, "to split into steps"),
     "testbed/late_load.py:run_testbed_relocation": (85, "to split into steps"),
 }

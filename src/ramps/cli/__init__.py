@@ -25,7 +25,7 @@ import typer
 from ramps import __version__
 from ramps.cli.bench import bench_app
 from ramps.cli.config import register as _register_config
-from ramps.cli.common import command_group, out
+from ramps.cli.common import command_group, command_help, out
 from ramps.cli.demo import demo
 from ramps.cli.node import node, status, submit
 from ramps.cli.observe import register as _register_observe
@@ -69,7 +69,7 @@ def _ramps(show_version: bool = typer.Option(False, "--version", callback=_versi
     pass
 
 
-app.command()(node)
+app.command(help=command_help(node))(node)  # its docstring says why it is long
 app.command()(submit)
 app.command()(status)
 app.command()(demo)

@@ -1,5 +1,5 @@
 """What every ``ramps`` command group shares: the consoles, the error exit,
-argument checks, JSON output, the node settings, and the options several
+argument checks, JSON output, the node settings, commands' help, and the options several
 commands take (``--team``, ``--connect``, ``--secure``, ``--credentials``...),
 declared once here as ``Annotated`` types.
 
@@ -11,6 +11,7 @@ scenario file, an unknown policy) end with a one-line message and exit code
 
 from __future__ import annotations
 
+import inspect
 import sys
 from pathlib import Path
 from typing import Annotated, Any, Callable, NoReturn, Optional
@@ -51,6 +52,13 @@ def command_group(help: str, **settings: Any) -> typer.Typer:
     while click's puts such a name on a line of its own and wraps the help
     below it. Help strings are plain text: no rich markup, no ``\\[`` escapes."""
     return typer.Typer(help=help, no_args_is_help=True, rich_markup_mode=None, **settings)
+
+
+def command_help(command: Callable[..., Any]) -> str:
+    """A command's ``--help`` text: its docstring without the paragraph that starts "Long because",
+    which tells the code's readers why the function is long (docs/architecture.md, "Development")."""
+    paragraphs = (inspect.getdoc(command) or "").split("\n\n")
+    return "\n\n".join(p for p in paragraphs if not p.startswith("Long because"))
 
 
 def fail(message: str, code: int = 2) -> NoReturn:

@@ -8,13 +8,16 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import msgspec
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, TaskID, TextColumn, TimeElapsedColumn
 
 from ramps.cli.common import err, fail, out
+
+if TYPE_CHECKING:
+    from ramps.bench.demo import DemoReport
 
 
 def demo(
@@ -37,7 +40,6 @@ def demo(
     (an equal share of this host), so the team really is several small computers.
     """
     from rich.progress import Progress as _Progress
-    from rich.table import Table
 
     from ramps.bench.demo import DEMO_ROUTE, run_demo
     from ramps.programs.route import ROUTE_SIZES
@@ -73,6 +75,13 @@ def demo(
     if as_json:
         sys.stdout.write(msgspec.json.encode(rep).decode() + "\n")
         return
+    _print_report(rep)
+
+
+def _print_report(rep: DemoReport) -> None:
+    """The demo's result: its workload, a table of its placements side by side, what went wrong."""
+    from rich.table import Table
+
     out.print(f"[bold]mode:[/] {rep.mode}", highlight=False)
     extra = []
     if rep.loaded:
@@ -104,4 +113,3 @@ def demo(
         out.print(f"report of the ramps run: {rep.report} (open it in a browser); the nodes' trace of the whole "
                   f"session, warm-up and baselines included: {rep.trace} (`ramps report {rep.trace}`)",
                   highlight=False, soft_wrap=True)
-

@@ -71,6 +71,8 @@ def node(
 ) -> None:
     """Run this robot's ramps node until Ctrl-C: load publisher, load server, program executor.
 
+    Long because of its 21 options: typer reads each from a parameter of this function.
+
     On shutdown (Ctrl-C, SIGTERM) running programs are handed back to their origins, which
     place them elsewhere at once. Programs submitted to this node are kept in its durable
     record (--state-dir): a node restarted, after a crash or a stop, resumes them, and

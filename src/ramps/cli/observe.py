@@ -12,11 +12,16 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import NoReturn, Optional
+from typing import TYPE_CHECKING, Callable, NoReturn, Optional
 
 import typer
 from rich.console import Console
 from rich.markup import escape
+
+if TYPE_CHECKING:
+    import threading
+
+    from ramps.observe.top import TopModel
 
 _out = Console(highlight=False, soft_wrap=True)
 _err = Console(stderr=True, highlight=False, soft_wrap=True)
@@ -127,10 +132,8 @@ def top(
     import threading
     import time
 
-    from rich.live import Live
-
     from ramps.errors import ConfigError, RampsError
-    from ramps.observe.top import TopModel, render
+    from ramps.observe.top import TopModel
     from ramps.runtime.client import Team
     from ramps.runtime.settings import load_settings
 
@@ -162,22 +165,9 @@ def top(
     previous = signal.signal(signal.SIGINT, lambda *_: stop.set())
     try:
         if once or frames:
-            if once:
-                stop.wait(wait)
-            for i in range(1 if once else frames):
-                going = step()
-                _out.print(render(model, time.monotonic(), events=events))
-                if not going or stop.is_set():
-                    break
-                if i + 1 < frames:
-                    stop.wait(interval)
+            _print_frames(model, step, stop, once=once, frames=frames, wait=wait, interval=interval, events=events)
         else:
-            with Live(render(model, time.monotonic(), events=events, interval=interval), console=_out,
-                      refresh_per_second=max(2.0, 1 / interval), transient=False) as live:
-                while not stop.is_set() and step():
-                    live.update(render(model, time.monotonic(), events=events, interval=interval))
-                    stop.wait(interval)
-                live.update(render(model, time.monotonic(), events=events, interval=interval))
+            _live(model, step, stop, interval=interval, events=events)
     finally:
         signal.signal(signal.SIGINT, previous)
         t.close()
@@ -185,6 +175,42 @@ def top(
         reason = "interrupted"
     if reason:
         _err.print(reason)
+
+
+def _print_frames(model: TopModel, step: Callable[[], bool], stop: threading.Event, *, once: bool, frames: int,
+                  wait: float, interval: float, events: int) -> None:
+    """``ramps top --frames N``: N frames printed one after another, ``interval`` apart;
+    ``--once``: one frame after listening ``wait`` seconds. Fewer when the team is gone or Ctrl-C."""
+    import time
+
+    from ramps.observe.top import render
+
+    if once:
+        stop.wait(wait)
+    for i in range(1 if once else frames):
+        going = step()
+        _out.print(render(model, time.monotonic(), events=events))
+        if not going or stop.is_set():
+            break
+        if i + 1 < frames:
+            stop.wait(interval)
+
+
+def _live(model: TopModel, step: Callable[[], bool], stop: threading.Event, *, interval: float,
+          events: int) -> None:
+    """``ramps top``: one frame redrawn in place every ``interval`` until the team is gone or Ctrl-C."""
+    import time
+
+    from rich.live import Live
+
+    from ramps.observe.top import render
+
+    with Live(render(model, time.monotonic(), events=events, interval=interval), console=_out,
+              refresh_per_second=max(2.0, 1 / interval), transient=False) as live:
+        while not stop.is_set() and step():
+            live.update(render(model, time.monotonic(), events=events, interval=interval))
+            stop.wait(interval)
+        live.update(render(model, time.monotonic(), events=events, interval=interval))
 
 
 def register(app: typer.Typer) -> None:

@@ -140,13 +140,14 @@ def _env_by_field() -> dict[str, tuple[str, str]]:
 
 
 def reference() -> str:
-    """The whole of docs/configuration.md."""
-    from ramps.core.config import RampsConfig
-    from ramps.runtime.settings import OWN_ZENOH_KEYS, SECURE_ZENOH_PREFIXES, CommandEntry, NodeSettings
+    """The whole of docs/configuration.md: its introduction, then a section per table."""
+    lines = _introduction() + _settings() + _commands() + _core() + _zenoh_and_environment()
+    return "\n".join(lines) + "\n"
 
-    flags, other_flags = node_flags()
-    env = _env_by_field()
-    lines = [
+
+def _introduction() -> list[str]:
+    """The page's title, where settings come from, an example file."""
+    return [
         "# Configuration reference",
         "",
         f"<!-- Generated from the settings' own comments by `{COMMAND}`;",
@@ -177,6 +178,16 @@ def reference() -> str:
         "[zenoh]",
         "\"transport/link/tx/batch_size\" = 8192",
         "```",
+    ]
+
+
+def _settings() -> list[str]:
+    """The node's settings, one row each, and the flags of ``ramps node`` that are no setting."""
+    from ramps.runtime.settings import NodeSettings
+
+    flags, other_flags = node_flags()
+    env = _env_by_field()
+    lines = [
         "",
         "## Settings",
         "",
@@ -193,7 +204,14 @@ def reference() -> str:
     lines += ["", "Flags of `ramps node` that are no setting:", ""]
     for fl, helptext in other_flags:
         lines.append(f"- {', '.join(f'`{f}`' for f in fl)}: {_markdown(helptext)}")
-    lines += [
+    return lines
+
+
+def _commands() -> list[str]:
+    """The keys of a ``[commands.NAME]`` table."""
+    from ramps.runtime.settings import CommandEntry
+
+    lines = [
         "",
         "## `[commands.NAME]`: executables as programs",
         "",
@@ -208,7 +226,14 @@ def reference() -> str:
     ]
     for name, text, default in _documented(CommandEntry, grouped=False):
         lines.append(f"| `{name}` | {'required' if default is None else _toml(default)} | {text} |")
-    lines += [
+    return lines
+
+
+def _core() -> list[str]:
+    """The decision core's settings, the ``[core]`` table."""
+    from ramps.core.config import RampsConfig
+
+    lines = [
         "",
         "## `[core]`: the decision core",
         "",
@@ -222,7 +247,14 @@ def reference() -> str:
     ]
     for name, text, default in _documented(RampsConfig, grouped=True):
         lines.append(f"| `{name}` | {_toml(default)} | {text} |")
-    lines += [
+    return lines
+
+
+def _zenoh_and_environment() -> list[str]:
+    """What ``[zenoh]`` may set, and the environment variables that are no setting."""
+    from ramps.runtime.settings import OWN_ZENOH_KEYS, SECURE_ZENOH_PREFIXES
+
+    lines = [
         "",
         "## `[zenoh]`: raw Zenoh settings",
         "",
@@ -240,7 +272,7 @@ def reference() -> str:
     ]
     for var, text in OTHER_ENVIRONMENT:
         lines.append(f"| `{var}` | {text} |")
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 if __name__ == "__main__":
