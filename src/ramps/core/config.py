@@ -65,7 +65,7 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: remote copies it wrote off just before: the first result is delivered
     isolation_timeout: float = 5.0
     #: robots' speeds are corrected (``ramps.core.speed``, policies that
-    #: share load only): a node's own by a faster re-measurement while idle,
+    #: share load only): a node's own by its re-measurements while idle,
     #: a host's at its origins by comparing its results with the same
     #: program's runs on other robots, once the median of its last figures is
     #: off by more than ``speed_deadband`` and within ``speed_max_correction``
