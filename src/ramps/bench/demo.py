@@ -106,31 +106,15 @@ def run_demo(*, robots: int = 5, programs: int = 15, program: str = "route_plan"
     """``report``: where to save an HTML report of the ramps phase (its
     nodes' trace is kept beside it, ``<name>.trace.jsonl``); None: none."""
     started = time.perf_counter()
-    host_cores = len(os.sched_getaffinity(0))
-    can_emulate = cgroup_mode() is not None
-    if emulate and not can_emulate:
-        raise PermissionError("emulated robots need root and writable cpu cgroups; run with --shared")
-    emulate = can_emulate if emulate is None else emulate
-    quota = host_cores / robots if emulate else None
-    mode = (f"emulated robots: each node in its own cpu cgroup of {quota:.2f} of a host core "
-            f"({robots} robots on this {host_cores}-core host)" if emulate else
-            f"shared host: {robots} nodes share this machine's {host_cores} cores (no cgroups: not root, or "
-            "--shared); speedups are bounded by the host's cores")
+    host_cores, quota, mode = _emulation(robots, emulate)
     loaded = list(loaded or [])
     args = dict(arguments or {})
     calls = route_calls(args, programs) if program == "route_plan" else [dict(args) for _ in range(programs)]
     names = [f"r{i}" for i in range(1, robots + 1)]
-    for name in loaded + ([kill] if kill else []):
-        if name not in names:
-            raise ValueError(f"no robot {name!r} in this team ({', '.join(names)})")
-    if kill == names[0]:
-        raise ValueError("the origin r1 cannot be killed: its programs would be nobody's concern (paper 3.3)")
+    _check_robots(names, loaded, kill)
     phases = []
     windows: dict[str, tuple[float, float]] = {}  # phase -> Unix times, to cut its part of the trace
-    trace = str(Path(report).with_suffix(".trace.jsonl").resolve()) if report else None  # absolute: the nodes run in their own directory
-    if trace:
-        Path(trace).parent.mkdir(parents=True, exist_ok=True)
-        Path(trace).write_text("")
+    trace = _fresh_trace(report)
     env = dict(os.environ, RAMPS_TRACE=trace) if trace else None  # every node appends its decisions
     with LocalTeam(names, cpu_quota=quota, env=env) as team:
         for name in loaded:
@@ -171,14 +155,53 @@ def run_demo(*, robots: int = 5, programs: int = 15, program: str = "route_plan"
     ramps_t, rr_t, single_t = (p.makespan for p in phases)
     saved = ""
     if report and trace:  # trace: set whenever report is
-        from ramps.observe.report import make_report, write_html
-
         what = (f"{programs} x {program} from r1 placed by ramps on {robots} robots"
                 + (f", {kill} killed at {kill_at:g} s" if kill else "") + (f", loaded: {', '.join(loaded)}" if loaded
                                                                            else ""))
-        rep = make_report([Path(trace)], title=f"ramps demo: {what}", window=windows["ramps"])
-        saved = str(write_html(rep, Path(report)))
+        saved = _save_report(report, trace, what, windows["ramps"])
     return DemoReport(mode=mode, robots=names, robot_cores=quota or host_cores, programs=programs, program=program,
                       arguments=args, loaded=loaded, killed=kill, phases=phases,
                       speedup_vs_single=single_t / ramps_t, ratio_to_round_robin=ramps_t / rr_t,
                       wall_seconds=time.perf_counter() - started, report=saved, trace=trace or "")
+
+
+def _emulation(robots: int, emulate: bool | None) -> tuple[int, float | None, str]:
+    """(host cores, each robot's cgroup quota or None, the mode in words): emulated robots
+    when asked, or by default where cpu cgroups can be written."""
+    host_cores = len(os.sched_getaffinity(0))
+    can_emulate = cgroup_mode() is not None
+    if emulate and not can_emulate:
+        raise PermissionError("emulated robots need root and writable cpu cgroups; run with --shared")
+    emulate = can_emulate if emulate is None else emulate
+    quota = host_cores / robots if emulate else None
+    mode = (f"emulated robots: each node in its own cpu cgroup of {quota:.2f} of a host core "
+            f"({robots} robots on this {host_cores}-core host)" if emulate else
+            f"shared host: {robots} nodes share this machine's {host_cores} cores (no cgroups: not root, or "
+            "--shared); speedups are bounded by the host's cores")
+    return host_cores, quota, mode
+
+
+def _check_robots(names: list[str], loaded: list[str], kill: str | None) -> None:
+    """The loaded and the killed robot are in the team, and the killed one is not the origin."""
+    for name in loaded + ([kill] if kill else []):
+        if name not in names:
+            raise ValueError(f"no robot {name!r} in this team ({', '.join(names)})")
+    if kill == names[0]:
+        raise ValueError("the origin r1 cannot be killed: its programs would be nobody's concern (paper 3.3)")
+
+
+def _fresh_trace(report: str | None) -> str | None:
+    """An empty trace file beside ``report`` (absolute: the nodes run in their own directory)."""
+    trace = str(Path(report).with_suffix(".trace.jsonl").resolve()) if report else None
+    if trace:
+        Path(trace).parent.mkdir(parents=True, exist_ok=True)
+        Path(trace).write_text("")
+    return trace
+
+
+def _save_report(report: str, trace: str, what: str, window: tuple[float, float]) -> str:
+    """The HTML report of the ramps phase, drawn from its part of the trace; where it was saved."""
+    from ramps.observe.report import make_report, write_html
+
+    rep = make_report([Path(trace)], title=f"ramps demo: {what}", window=window)
+    return str(write_html(rep, Path(report)))

@@ -188,22 +188,11 @@ def flood_team(*, team: str, endpoints: list[str], target: str, pids: dict[str, 
     with raw_session(endpoints) as session:
         watcher = TeamWatcher(session, team)
         try:
-            # warm up: the programs' code paths, the workers, the Zenoh routes
-            warm = [client.submit(p, **a) for p, a in calls[:min(len(calls), 10)]]
-            for f in warm:
-                f.result(timeout=result_timeout)
             inbox = f"ramps/{team}/msg/{target}"
-            # a put made before Zenoh matched the subscriber may vanish: probe until counted
-            deadline = time.monotonic() + 30
-            while (watcher.bad_messages(target) or 0) < 1:
-                if time.monotonic() > deadline:
-                    raise RuntimeError(f"{target} never counted a probe message (no load reports heard?)")
-                session.put(inbox, b"\xc1probe")
-                time.sleep(0.3)
+            _warm_up(client, calls, session, watcher, inbox, target, result_timeout)
             before = wait_settled(watcher, robots)
             time.sleep(1.0)
-            rss_before = {r: _rss(pid) for r, pid in pids.items()}
-            private_before = {r: _private(pid) for r, pid in pids.items()}
+            rss_before, private_before = _memory(pids)
             say(f"flooding {target}: {messages} messages in {seconds:g} s while {programs} programs run ...")
             futures: list = []
             sent = {"inbox": 0, "load": 0, "big": 0, "bytes": 0, "errors": 0}
@@ -219,46 +208,11 @@ def flood_team(*, team: str, endpoints: list[str], target: str, pids: dict[str, 
             with RssSampler(pids[target]) as sampler:
                 started = time.monotonic()
                 submitter.start()
-                import zenoh
-
-                cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
-                pub_inbox = session.declare_publisher(inbox, congestion_control=cc)
-                for i in range(messages):
-                    if rng.random() < big_share:
-                        data = big[sent["big"] % len(big)]
-                        sent["big"] += 1
-                    else:
-                        data = small[i % len(small)]
-                    try:
-                        if rng.random() < load_share:
-                            session.put(f"ramps/{team}/load/{rng.choice([target, 'r9', 'x'])}", data,
-                                        congestion_control=cc)
-                            sent["load"] += 1
-                        else:
-                            pub_inbox.put(data)
-                            sent["inbox"] += 1
-                        sent["bytes"] += len(data)
-                    except Exception:
-                        sent["errors"] += 1
-                    if i % 50 == 49:  # pace: the whole flood over `seconds`
-                        time.sleep(max(0.0, started + (i + 1) * seconds / messages - time.monotonic()))
-                flood_seconds = time.monotonic() - started
-                pub_inbox.undeclare()
+                flood_seconds = _send_flood(session, team, target, inbox, sent, small, big, rng, started=started,
+                                            messages=messages, seconds=seconds, big_share=big_share,
+                                            load_share=load_share, block=block)
                 submitter.join()
-                ok = wrong = failed = 0
-                failures: list[str] = []
-                for p, a, f in futures:
-                    try:
-                        value = f.result(timeout=result_timeout)
-                    except Exception as exc:
-                        failed += 1
-                        failures.append(f"{p}: {type(exc).__name__}: {exc}"[:300])
-                        continue
-                    if _check(p, a, value):
-                        ok += 1
-                    else:
-                        wrong += 1
-                        failures.append(f"{p}({a}) returned {value!r}"[:300])
+                ok, wrong, failed, failures = _outcomes(futures, result_timeout)
                 programs_seconds = time.monotonic() - started
             hosts: dict[str, int] = {}
             for _p, _a, f in futures:
@@ -266,8 +220,7 @@ def flood_team(*, team: str, endpoints: list[str], target: str, pids: dict[str, 
                 hosts[h] = hosts.get(h, 0) + 1
             after = wait_settled(watcher, robots)
             time.sleep(1.0)
-            rss_after = {r: _rss(pid) for r, pid in pids.items()}
-            private_after = {r: _private(pid) for r, pid in pids.items()}
+            rss_after, private_after = _memory(pids)
             counted = {r: (after[r] or 0) - (before[r] or 0) for r in robots}
         finally:
             watcher.close()
@@ -290,6 +243,78 @@ def flood_team(*, team: str, endpoints: list[str], target: str, pids: dict[str, 
         "rss_peak_mb": sampler.peak / MB,
         "alive": {r: _alive(pid) for r, pid in pids.items()},
     }
+
+
+def _warm_up(client: Any, calls: list[tuple[str, dict]], session: Any, watcher: TeamWatcher, inbox: str,
+             target: str, result_timeout: float) -> None:
+    """Run a few of the programs (their code paths, the workers, the Zenoh routes), then probe
+    ``target``'s inbox until it counts a bad message: a put made before Zenoh matched the
+    subscriber may vanish."""
+    warm = [client.submit(p, **a) for p, a in calls[:min(len(calls), 10)]]
+    for f in warm:
+        f.result(timeout=result_timeout)
+    deadline = time.monotonic() + 30
+    while (watcher.bad_messages(target) or 0) < 1:
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"{target} never counted a probe message (no load reports heard?)")
+        session.put(inbox, b"\xc1probe")
+        time.sleep(0.3)
+
+
+def _send_flood(session: Any, team: str, target: str, inbox: str, sent: dict[str, int], small: list[bytes],
+                big: list[bytes], rng: random.Random, *, started: float, messages: int, seconds: float,
+                big_share: float, load_share: float, block: bool) -> float:
+    """Send the flood, paced over ``seconds`` from ``started``, counting what went where in
+    ``sent``; return the seconds it took."""
+    import zenoh
+
+    cc = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
+    pub_inbox = session.declare_publisher(inbox, congestion_control=cc)
+    for i in range(messages):
+        if rng.random() < big_share:
+            data = big[sent["big"] % len(big)]
+            sent["big"] += 1
+        else:
+            data = small[i % len(small)]
+        try:
+            if rng.random() < load_share:
+                session.put(f"ramps/{team}/load/{rng.choice([target, 'r9', 'x'])}", data, congestion_control=cc)
+                sent["load"] += 1
+            else:
+                pub_inbox.put(data)
+                sent["inbox"] += 1
+            sent["bytes"] += len(data)
+        except Exception:
+            sent["errors"] += 1
+        if i % 50 == 49:  # pace: the whole flood over `seconds`
+            time.sleep(max(0.0, started + (i + 1) * seconds / messages - time.monotonic()))
+    flood_seconds = time.monotonic() - started
+    pub_inbox.undeclare()
+    return flood_seconds
+
+
+def _outcomes(futures: list, result_timeout: float) -> tuple[int, int, int, list[str]]:
+    """The legitimate programs' outcomes: (right, wrong, failed, what went wrong)."""
+    ok = wrong = failed = 0
+    failures: list[str] = []
+    for p, a, f in futures:
+        try:
+            value = f.result(timeout=result_timeout)
+        except Exception as exc:
+            failed += 1
+            failures.append(f"{p}: {type(exc).__name__}: {exc}"[:300])
+            continue
+        if _check(p, a, value):
+            ok += 1
+        else:
+            wrong += 1
+            failures.append(f"{p}({a}) returned {value!r}"[:300])
+    return ok, wrong, failed, failures
+
+
+def _memory(pids: dict[str, int]) -> tuple[dict[str, int], dict[str, int]]:
+    """Each node's resident and private memory now, bytes."""
+    return {r: _rss(pid) for r, pid in pids.items()}, {r: _private(pid) for r, pid in pids.items()}
 
 
 def _rss(pid: int) -> int:

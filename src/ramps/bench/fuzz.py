@@ -82,6 +82,12 @@ from ramps.testing.hostile import (
     random_message,
     random_object,
 )
+
+#: the wire input's kinds, their weights and their makers, from ``WIRE_KINDS``
+_WIRE_NAMES = [k[0] for k in WIRE_KINDS]
+_WIRE_WEIGHTS = [k[1] for k in WIRE_KINDS]
+_WIRE_MAKERS = {k[0]: k[2] for k in WIRE_KINDS}
+
 # ====================================================================== the decoders
 class _Tally:
     def __init__(self, keep: int = 10) -> None:
@@ -307,8 +313,6 @@ def run_fuzz(*, inputs: int = 100_000, seed: int = 0, core_share: float = 0.35, 
              revocation_share: float = 0.02) -> dict:
     """Feed ``inputs`` generated inputs to the decoders and the core; return the figures."""
     rng = random.Random(seed)
-    kinds, weights = [k[0] for k in WIRE_KINDS], [k[1] for k in WIRE_KINDS]
-    makers = {k[0]: k[2] for k in WIRE_KINDS}
     tally = _Tally()
     counts: Counter = Counter()
     by_kind: Counter = Counter()
@@ -328,11 +332,7 @@ def run_fuzz(*, inputs: int = 100_000, seed: int = 0, core_share: float = 0.35, 
                 tally.failed("core", "event", exc)
             core_steps += 1
             if core_steps % fresh_node_every == 0:
-                try:
-                    harness.shutdown()
-                except Exception as exc:
-                    tally.failed("core", "shutdown", exc)
-                counts["core_delivered"] += sum(harness.delivered.values())
+                _retire(harness, tally, counts)
                 harness = CoreHarness(rng, rng.choice(policies))
                 nodes += 1
         elif r < core_share + args_share:
@@ -345,33 +345,11 @@ def run_fuzz(*, inputs: int = 100_000, seed: int = 0, core_share: float = 0.35, 
             fuzz_revocations(rng, signed[0], signed[1], tally, counts)
         else:
             target = "decode"
-            n_wire = counts["decode_inputs"]
-            if n_wire % OVERSIZED_EVERY == OVERSIZED_EVERY - 1:
-                kind, data = "oversized", oversized(rng)
-            elif n_wire % BIG_FIELDS_EVERY == BIG_FIELDS_EVERY // 2:
-                kind, data = "big_fields", big_fields(rng)
-            else:
-                kind = rng.choices(kinds, weights)[0]
-                data = makers[kind](rng)
-            by_kind[kind] += 1
-            counts["decode_inputs"] += 1
-            env = fuzz_decode(rng, data, kind, tally, counts)
-            if env is not None and not isinstance(env.msg, (m.SubmitProgram, m.CancelSubmitted, m.ProgramOutcome,
-                                                             m.ProgramUpdate)):
-                # what survived the decoder goes on to the core, as in a node
-                try:
-                    harness.step(env)
-                except Exception as exc:
-                    tally.failed("core", f"decoded:{kind}", exc)
-                counts["core_from_decoder"] += 1
+            _fuzz_wire(rng, harness, tally, counts, by_kind)
         counts[target] += 1
         if progress is not None and (i + 1) % 10_000 == 0:
             progress(i + 1)
-    try:
-        harness.shutdown()
-    except Exception as exc:
-        tally.failed("core", "shutdown", exc)
-    counts["core_delivered"] += sum(harness.delivered.values())
+    _retire(harness, tally, counts)
     seconds = time.perf_counter() - started
     from ramps.bench.simulator import machine
 
@@ -387,6 +365,38 @@ def run_fuzz(*, inputs: int = 100_000, seed: int = 0, core_share: float = 0.35, 
         "programs_delivered": counts["core_delivered"], "wire_kinds": dict(sorted(by_kind.items())),
         "exceptions": tally.exceptions, "exception_samples": tally.samples,
     }
+
+
+def _fuzz_wire(rng: random.Random, harness: CoreHarness, tally: _Tally, counts: Counter, by_kind: Counter) -> None:
+    """One input for the wire decoder (now and then an oversized one or one with big fields);
+    what it decodes goes on to the core, as in a node."""
+    n_wire = counts["decode_inputs"]
+    if n_wire % OVERSIZED_EVERY == OVERSIZED_EVERY - 1:
+        kind, data = "oversized", oversized(rng)
+    elif n_wire % BIG_FIELDS_EVERY == BIG_FIELDS_EVERY // 2:
+        kind, data = "big_fields", big_fields(rng)
+    else:
+        kind = rng.choices(_WIRE_NAMES, _WIRE_WEIGHTS)[0]
+        data = _WIRE_MAKERS[kind](rng)
+    by_kind[kind] += 1
+    counts["decode_inputs"] += 1
+    env = fuzz_decode(rng, data, kind, tally, counts)
+    if env is not None and not isinstance(env.msg, (m.SubmitProgram, m.CancelSubmitted, m.ProgramOutcome,
+                                                     m.ProgramUpdate)):
+        try:
+            harness.step(env)
+        except Exception as exc:
+            tally.failed("core", f"decoded:{kind}", exc)
+        counts["core_from_decoder"] += 1
+
+
+def _retire(harness: CoreHarness, tally: _Tally, counts: Counter) -> None:
+    """Shut a fuzzed node's core down and count the programs it delivered."""
+    try:
+        harness.shutdown()
+    except Exception as exc:
+        tally.failed("core", "shutdown", exc)
+    counts["core_delivered"] += sum(harness.delivered.values())
 
 
 __all__ = ["CoreHarness", "fuzz_args", "fuzz_decode", "fuzz_revocations", "run_fuzz"]
