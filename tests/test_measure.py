@@ -137,3 +137,33 @@ def test_a_measurement_apart_runs_in_a_child_and_brings_its_pieces_back():
     assert sum(len(v) for v in pieces.values()) >= 2 * len(pieces)
     with pytest.raises(ChildProcessError):
         os.waitpid(-1, os.WNOHANG)  # no child left behind
+
+
+def test_the_measuring_child_is_the_nodes_own_work_not_the_robots_load(tmp_path, monkeypatch):
+    """While a re-measurement's child runs, the robot's run queue leaves it out,
+    as it leaves out the node's threads: counted, every idle robot looked busy
+    for a second to the origins placing then."""
+    import os
+
+    seen: dict[str, object] = {}
+    real_waitpid = os.waitpid
+
+    def waitpid(pid: int, flags: int):  # the parent, its child's pieces read: what does the run queue read now?
+        (tmp_path / "tasks").write_text(f"{os.getpid()}\n{pid}\n4242424\n")
+        paths: list[str] = []
+        monkeypatch.setattr(measure, "_running", lambda ps: paths.extend(ps) or 0)
+        measure._cgroup_usage_and_runnable(tmp_path, None)
+        measure.own_running()
+        monkeypatch.setattr(measure, "_running", real_running)
+        seen.update(pid=pid, paths=paths, during=set(measure._measuring))
+        return real_waitpid(pid, flags)
+
+    real_running = measure._running
+    monkeypatch.setattr(os, "waitpid", waitpid)
+    measure.chunk_rates_apart(0.02)
+    pid = seen["pid"]
+    assert seen["during"] == {str(pid)}
+    # the robot's queue reads the other process, not the child; the node's own count reads the child
+    assert "/proc/4242424/stat" in seen["paths"]
+    assert seen["paths"].count(f"/proc/{pid}/stat") == 1  # once: as the node's own (own_running)
+    assert measure._measuring == set()  # gone with its child

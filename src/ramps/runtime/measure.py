@@ -181,6 +181,13 @@ def chunk_rates(seconds: float) -> dict[int, list[float]]:
     return pieces
 
 
+#: pids of this process's measuring children (``chunk_rates_apart``) now
+#: running: the node's own work, like its threads, not load of the robot's
+#: (counted, a re-measurement made every idle robot look busy for a second to
+#: origins placing then, which put their programs elsewhere)
+_measuring: set[str] = set()
+
+
 def chunk_rates_apart(seconds: float) -> dict[int, list[float]]:
     """``chunk_rates`` in a forked child of this process: a node's other
     threads (its driver, Zenoh's callbacks, the load sampler) take the GIL
@@ -197,6 +204,8 @@ def chunk_rates_apart(seconds: float) -> dict[int, list[float]]:
         return chunk_rates(seconds)
     r, w = os.pipe()
     pid = os.fork()
+    if pid:
+        _measuring.add(str(pid))
     if pid == 0:  # the child: no locks, no logging, no imports; computes and leaves
         code = 1
         try:
@@ -219,6 +228,7 @@ def chunk_rates_apart(seconds: float) -> dict[int, list[float]]:
             os.waitpid(pid, 0)
         except ChildProcessError:  # reaped already (SIGCHLD ignored by the embedding process)
             pass
+        _measuring.discard(str(pid))
     got = msgspec.msgpack.decode(b"".join(chunks)) if chunks else {}
     return {int(k): [float(x) for x in v] for k, v in got.items()}
 
@@ -436,8 +446,10 @@ def _own_threads() -> set[str]:
 
 
 def own_running() -> int:
-    """This process's threads in state R now (the sampler itself included)."""
-    return _running(f"/proc/self/task/{tid}/stat" for tid in _own_threads())
+    """This process's threads in state R now (the sampler itself included),
+    and its measuring child if it runs one."""
+    return _running([f"/proc/self/task/{tid}/stat" for tid in _own_threads()]
+                    + [f"/proc/{pid}/stat" for pid in list(_measuring)])
 
 
 def _cgroup_usage_and_runnable(cpu: Path, acct: Path | None) -> tuple[float, int]:
@@ -451,15 +463,15 @@ def _cgroup_usage_and_runnable(cpu: Path, acct: Path | None) -> tuple[float, int
             tids += _read_all(os.path.join(sub, "tasks" if v1 else "cgroup.threads")).decode().split()
         except OSError:
             continue
-    own = _own_threads()
+    own = _own_threads() | _measuring
     return usage, _running(f"/proc/{tid}/stat" for tid in tids if tid not in own)
 
 
 class LoadSampler:
     """Samples busy cores and runnable tasks every ``interval`` seconds.
 
-    The node's own threads (this sampler, Zenoh's) are not counted as
-    runnable: they wake together with every sample and report, so they
+    The node's own threads (this sampler, Zenoh's) and its speed
+    measurement's child are not counted as runnable: they wake together with every sample and report, so they
     biased an idle emulated robot's run queue to 0.1-0.6 tasks, which the
     weighted cost model reads as competing work. Worker processes (programs)
     are counted.
