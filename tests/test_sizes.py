@@ -36,8 +36,6 @@ KNOWN_MODULES: dict[str, tuple[int, str]] = {
 KNOWN_FUNCTIONS: dict[str, tuple[int, str]] = {
     "runtime/node.py:NodeRuntime.__init__": (104, "the node driver, being recomposed into parts"),
     "runtime/node.py:NodeRuntime.start": (95, "the node driver, being recomposed into parts"),
-    "testbed/fidelity.py:run_fidelity": (81, "to split into steps"),
-    "testbed/late_load.py:run_testbed_relocation": (85, "to split into steps"),
 }
 
 

@@ -33,12 +33,16 @@ import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 
 from ramps.core.cost import nice_weight, program_cores, program_share
 from ramps.runtime.measure import cgroup_usage, proc_cpu, proc_stat_fields
 from ramps.runtime.settings import NodeSettings
+
+if TYPE_CHECKING:
+    from ramps.testbed import Testbed
 
 CASES = [(1, 0), (2, 0), (4, 0), (6, 0), (8, 0), (1, 2), (4, 2), (6, 2)]
 
@@ -108,7 +112,7 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
                  cases: list[tuple[int, int]] | None = None, told_speed: bool = False,
                  log: Callable[[str], None] | None = None) -> FidelityReport:
     from ramps.testbed import Testbed
-    from ramps.testbed.experiments import SETTLE, identical_speed, wait_futures
+    from ramps.testbed.experiments import SETTLE, identical_speed
 
     log = log or (lambda _m: None)
     weight = nice_weight(NodeSettings().worker_nice)  # the testbed's nodes run with the default
@@ -118,64 +122,11 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
     with Testbed(["r1"], cores=cores, quota=quota, speed=speed if told_speed else None, caps=caps) as tb, \
             tb.client("r1", timeout=30.0) as team:
         time.sleep(SETTLE)
-        dirs = [Path(d) for d in tb.robots["r1"]["cgroup"]]
-        cpu_dir, acct_dir = dirs[0], (dirs[1] if len(dirs) > 1 else None)
         for k, b in cases or CASES:
             tb.add_load("r1", b)
             time.sleep(1.5 if b else 0.2)  # the load is adopted, capped and seen by the node
-            before = robot_cpu(tb)
-            t0, u0 = time.monotonic(), cgroup_usage(cpu_dir, acct_dir)
-            futures = [team.options(work=work).submit("burn", units=work) for _ in range(k)]
-            took: list[float] = []
-            for f in futures:
-                f.add_done_callback(lambda _f, took=took, t0=t0: took.append(time.monotonic() - t0))
-            seen = dict(before)  # workers come and go (extra ones exit 2 s after they fall idle): sample
-            deadline = time.monotonic() + 600.0
-            while not all(f.done() for f in futures) and time.monotonic() < deadline:
-                merge_cpu(seen, robot_cpu(tb))
-                time.sleep(0.1)
-            done, pending = wait_futures(futures, timeout=1.0)
-            used = cgroup_usage(cpu_dir, acct_dir) - u0
-            node_cores = next((r.node_cpu for r in team.status().robots if r.robot == "r1"), 0.0)
-            cpu = used / max(time.monotonic() - t0, 1e-3)
-            merge_cpu(seen, robot_cpu(tb))
-            by: dict[str, float] = {}
-            for p, (kind, secs) in seen.items():
-                by[kind] = by.get(kind, 0.0) + secs - before.get(p, (kind, 0.0))[1]
-            spent = by.get("worker", 0.0)
-            unit = spent / (k * work)
-            bad = [f for f in done if f.exception() is not None]
-            if pending or bad:
-                raise RuntimeError(f"case {k} programs + {b} busy: {len(pending)} unfinished, "
-                                   f"{len(bad)} failed ({bad[0].exception() if bad else ''})")
-            time.sleep(0.05)
-            m = model_time(work, speed, cores, k, b, weight)
-            mean = statistics.fmean(took)
-            cpu_m = quota / cores * min(k + b, cores)
-            calib = quota / (cores * speed)  # CPU seconds of a unit when the speed was measured
-            mc = m * unit / calib
-            # the cost model's own time: the cores the node reports using itself taken off (LoadView.scan)
-            cm = model_time(work, speed, program_cores(cores, node_cores), k, b, weight)
-            case = FidelityCase(programs=k, busy=b, model=round(m, 2), mean=round(mean, 2), first=round(min(took), 2),
-                                last=round(max(took), 2), error=round((mean - m) / m, 3), cpu=round(cpu, 3),
-                                cpu_model=round(cpu_m, 3), unit_cpu=round(unit, 3),
-                                corrected_error=round((mean - mc) / mc, 3),
-                                corrected_last_error=round((max(took) - mc) / mc, 3), robot_cpu_s=round(used, 2),
-                                program_cpu_s=round(spent, 2), load_cpu_s=round(by.get("load", 0.0), 2),
-                                overhead_cpu_s=round(used - spent - by.get("load", 0.0), 2),
-                                overhead_by={kk: round(v, 2) for kk, v in sorted(by.items())
-                                             if kk not in ("worker", "load")},
-                                node_cores=round(node_cores, 3), cost_model=round(cm, 2),
-                                cost_model_last_error=round((max(took) - cm * unit / calib) / (cm * unit / calib), 3))
-            log(f"  {k} programs + {b} busy: model {m:.1f} s, measured {mean:.1f} s "
-                f"({min(took):.1f}-{max(took):.1f}), error {case.error:+.0%}; "
-                f"robot CPU {cpu:.2f} host cores, model {cpu_m:.2f}; a unit cost {unit:.2f} CPU s "
-                f"(calibration {calib:.2f}), corrected error {case.corrected_error:+.0%} "
-                f"(last {case.corrected_last_error:+.0%}); robot {used:.1f} CPU s, "
-                f"programs {spent:.1f}, outside them {case.overhead_cpu_s:.1f} {case.overhead_by}; the node "
-                f"reported using {node_cores:.2f} cores itself, so the cost model says {cm:.1f} s: last "
-                f"{case.cost_model_last_error:+.0%} of it, corrected")
-            out.append(case)
+            out.append(_measure_case(tb, team, k, b, work=work, speed=speed, cores=cores, quota=quota,
+                                     weight=weight, log=log))
             if b:
                 tb.remove_load("r1")
     unit1 = _unit_cpu()
@@ -185,6 +136,69 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
                                                                     for c in out), 3),
                           mean_abs_corrected_error=round(statistics.fmean(abs(c.corrected_error) for c in out), 3),
                           unit_cpu_s=(unit0, unit1))
+
+
+def _measure_case(tb: Testbed, team: Any, k: int, b: int, *, work: float, speed: float, cores: int, quota: float,
+                  weight: float, log: Callable[[str], None]) -> FidelityCase:
+    """One case on robot r1, its ``b`` busy processes already running: ``k`` programs of
+    ``work`` units at once, their times and the robot's CPU beside the model's."""
+    from ramps.testbed.experiments import wait_futures
+
+    dirs = [Path(d) for d in tb.robots["r1"]["cgroup"]]
+    cpu_dir, acct_dir = dirs[0], (dirs[1] if len(dirs) > 1 else None)
+    before = robot_cpu(tb)
+    t0, u0 = time.monotonic(), cgroup_usage(cpu_dir, acct_dir)
+    futures = [team.options(work=work).submit("burn", units=work) for _ in range(k)]
+    took: list[float] = []
+    for f in futures:
+        f.add_done_callback(lambda _f, took=took, t0=t0: took.append(time.monotonic() - t0))
+    seen = dict(before)  # workers come and go (extra ones exit 2 s after they fall idle): sample
+    deadline = time.monotonic() + 600.0
+    while not all(f.done() for f in futures) and time.monotonic() < deadline:
+        merge_cpu(seen, robot_cpu(tb))
+        time.sleep(0.1)
+    done, pending = wait_futures(futures, timeout=1.0)
+    used = cgroup_usage(cpu_dir, acct_dir) - u0
+    node_cores = next((r.node_cpu for r in team.status().robots if r.robot == "r1"), 0.0)
+    cpu = used / max(time.monotonic() - t0, 1e-3)
+    merge_cpu(seen, robot_cpu(tb))
+    by: dict[str, float] = {}
+    for p, (kind, secs) in seen.items():
+        by[kind] = by.get(kind, 0.0) + secs - before.get(p, (kind, 0.0))[1]
+    spent = by.get("worker", 0.0)
+    unit = spent / (k * work)
+    bad = [f for f in done if f.exception() is not None]
+    if pending or bad:
+        raise RuntimeError(f"case {k} programs + {b} busy: {len(pending)} unfinished, "
+                           f"{len(bad)} failed ({bad[0].exception() if bad else ''})")
+    time.sleep(0.05)
+    m = model_time(work, speed, cores, k, b, weight)
+    mean = statistics.fmean(took)
+    cpu_m = quota / cores * min(k + b, cores)
+    calib = quota / (cores * speed)  # CPU seconds of a unit when the speed was measured
+    mc = m * unit / calib
+    # the cost model's own time: the cores the node reports using itself taken off (LoadView.scan)
+    cm = model_time(work, speed, program_cores(cores, node_cores), k, b, weight)
+    case = FidelityCase(programs=k, busy=b, model=round(m, 2), mean=round(mean, 2), first=round(min(took), 2),
+                        last=round(max(took), 2), error=round((mean - m) / m, 3), cpu=round(cpu, 3),
+                        cpu_model=round(cpu_m, 3), unit_cpu=round(unit, 3),
+                        corrected_error=round((mean - mc) / mc, 3),
+                        corrected_last_error=round((max(took) - mc) / mc, 3), robot_cpu_s=round(used, 2),
+                        program_cpu_s=round(spent, 2), load_cpu_s=round(by.get("load", 0.0), 2),
+                        overhead_cpu_s=round(used - spent - by.get("load", 0.0), 2),
+                        overhead_by={kk: round(v, 2) for kk, v in sorted(by.items())
+                                     if kk not in ("worker", "load")},
+                        node_cores=round(node_cores, 3), cost_model=round(cm, 2),
+                        cost_model_last_error=round((max(took) - cm * unit / calib) / (cm * unit / calib), 3))
+    log(f"  {k} programs + {b} busy: model {m:.1f} s, measured {mean:.1f} s "
+        f"({min(took):.1f}-{max(took):.1f}), error {case.error:+.0%}; "
+        f"robot CPU {cpu:.2f} host cores, model {cpu_m:.2f}; a unit cost {unit:.2f} CPU s "
+        f"(calibration {calib:.2f}), corrected error {case.corrected_error:+.0%} "
+        f"(last {case.corrected_last_error:+.0%}); robot {used:.1f} CPU s, "
+        f"programs {spent:.1f}, outside them {case.overhead_cpu_s:.1f} {case.overhead_by}; the node "
+        f"reported using {node_cores:.2f} cores itself, so the cost model says {cm:.1f} s: last "
+        f"{case.cost_model_last_error:+.0%} of it, corrected")
+    return case
 
 
 def _kind(pid: int, argv: bytes, load: set[int]) -> str:

@@ -30,6 +30,7 @@ import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 
@@ -37,6 +38,9 @@ from ramps.experiments.late_load import VARIANTS as SIM_VARIANTS
 from ramps.experiments.late_load import hindsight_optimum, scenario
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import PublisherSpec
+
+if TYPE_CHECKING:
+    from ramps.testbed import Testbed
 
 VARIANTS = tuple(v for v in SIM_VARIANTS if v != "round robin")
 SPACING = 0.05
@@ -118,11 +122,7 @@ def run_testbed_relocation(*, robots: int = 3, cores: int = 4, quota: float = 0.
     from ramps.testbed.experiments import SETTLE, _keep, identical_speed
 
     log = log or (lambda _m: None)
-    bad = [v for v in variants if v not in VARIANTS]
-    if bad or not variants:
-        raise ValueError(f"variants must be some of {', '.join(VARIANTS)}, got {list(variants)}")
-    if robots < 2 or programs < 1 or not 0 < load_at < seconds or busy < 1:
-        raise ValueError("need robots >= 2, programs >= 1, busy >= 1 and 0 < load_at < seconds")
+    _check(variants, robots=robots, programs=programs, load_at=load_at, seconds=seconds, busy=busy)
     started = time.monotonic()
     speed = identical_speed(1, cores, quota)
     units = round(seconds * speed, 4)
@@ -142,23 +142,9 @@ def run_testbed_relocation(*, robots: int = 3, cores: int = 4, quota: float = 0.
             try:
                 time.sleep(SETTLE)  # every robot has reported
                 kwargs = {"units": units, **({"checkpoint_every": every} if "checkpoints" in variant else {})}
-                futures, submitted = [], []
-                ends: dict[int, float] = {}
-                t0 = time.monotonic()
-                for i in range(programs):
-                    submitted.append(time.monotonic())
-                    futures.append(team.options(work=units).submit("burn", **kwargs))
-                    futures[-1].add_done_callback(lambda _f, i=i: ends.setdefault(i, time.monotonic()))
-                    time.sleep(max(0.0, t0 + (i + 1) * SPACING - time.monotonic()))
-                time.sleep(max(0.0, t0 + load_at - time.monotonic()))
-                tb.add_load("r1", busy)
-                deadline = t0 + timeout
-                while not all(f.done() for f in futures) and time.monotonic() < deadline:
-                    time.sleep(0.2)
-                ok = [f for f in futures if f.done() and f.exception() is None]
-                for f in futures:
-                    if not f.done():
-                        f.cancel()
+                futures, ok, submitted, ends, t0 = _run_programs(tb, team, programs=programs, units=units,
+                                                                 kwargs=kwargs, load_at=load_at, busy=busy,
+                                                                 timeout=timeout)
                 span = (max(ends.values()) - t0) if len(ok) == programs else float("nan")
                 # programs that ran where no load came, start to end: how fast the host really ran them
                 clean = [ends[i] - submitted[i] for i, f in enumerate(futures)
@@ -191,6 +177,42 @@ def run_testbed_relocation(*, robots: int = 3, cores: int = 4, quota: float = 0.
                             seconds=seconds, load_at=load_at, busy=busy, checkpoint_every=checkpoint_every,
                             hindsight_optimum=round(opt, 2), optimum_distribution=split, cases=cases,
                             wall_seconds=round(time.monotonic() - started, 1))
+
+
+def _check(variants: tuple[str, ...], *, robots: int, programs: int, load_at: float, seconds: float,
+           busy: int) -> None:
+    """The experiment's arguments make sense, before any testbed starts."""
+    bad = [v for v in variants if v not in VARIANTS]
+    if bad or not variants:
+        raise ValueError(f"variants must be some of {', '.join(VARIANTS)}, got {list(variants)}")
+    if robots < 2 or programs < 1 or not 0 < load_at < seconds or busy < 1:
+        raise ValueError("need robots >= 2, programs >= 1, busy >= 1 and 0 < load_at < seconds")
+
+
+def _run_programs(tb: Testbed, team: Any, *, programs: int, units: float, kwargs: dict[str, Any], load_at: float,
+                  busy: int, timeout: float) -> tuple[list[Any], list[Any], list[float], dict[int, float], float]:
+    """Submit ``programs`` burns from r1, ``SPACING`` apart; load r1 with ``busy`` processes
+    ``load_at`` seconds in; wait for them all, cancelling those unfinished after ``timeout``.
+    Returns (futures, those that succeeded, submission times, end times by index, start)."""
+    futures: list[Any] = []
+    submitted: list[float] = []
+    ends: dict[int, float] = {}
+    t0 = time.monotonic()
+    for i in range(programs):
+        submitted.append(time.monotonic())
+        futures.append(team.options(work=units).submit("burn", **kwargs))
+        futures[-1].add_done_callback(lambda _f, i=i: ends.setdefault(i, time.monotonic()))
+        time.sleep(max(0.0, t0 + (i + 1) * SPACING - time.monotonic()))
+    time.sleep(max(0.0, t0 + load_at - time.monotonic()))
+    tb.add_load("r1", busy)
+    deadline = t0 + timeout
+    while not all(f.done() for f in futures) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    ok = [f for f in futures if f.done() and f.exception() is None]
+    for f in futures:
+        if not f.done():
+            f.cancel()
+    return futures, ok, submitted, ends, t0
 
 
 def format_report(rep: RelocationReport) -> str:
