@@ -3,9 +3,9 @@
 How this works: a node's transport callback turns every message into a
 Python ``bytes`` object; under a flood of 1-9 MB messages the driver's
 backlog holds up to ``MAX_BACKLOG_BYTES`` of them, and Zenoh and the
-decoder hold a few more in flight. The node already makes every block over
-256 KiB its own mapping, unmapped when freed (``node.return_freed_memory``),
-yet glibc's heap kept 30-60 MB after ``ramps bench flood`` (the node's
+decoder hold a few more in flight. The node makes every block over
+256 KiB its own mapping, unmapped when freed (``return_freed_memory``, at
+start), yet glibc's heap kept 30-60 MB after ``ramps bench flood`` (the node's
 private memory, measured, for as long as it ran; presumably the thousands
 of smaller messages and their objects queued behind the big ones), so a
 robot that weathered one flood would carry its high-water mark for good.
@@ -65,4 +65,22 @@ class HeapTrimmer:
         return True
 
 
-__all__ = ["TRIM_AFTER_BYTES", "HeapTrimmer"]
+
+def return_freed_memory(threshold: int = 256 * 1024) -> None:
+    """Make glibc hand large freed blocks back to the system at once.
+
+    By default glibc raises its mmap threshold each time a large block is
+    freed (up to 32 MiB), so later multi-megabyte messages are carved from the
+    heap and stay resident after they are dropped: a flood with 1-9 MB garbage
+    left a node 36-50 MB bigger (``ramps bench flood``), 1-22 MB with this. A
+    fixed threshold keeps every block over ``threshold`` bytes (Python's and
+    Zenoh's) in its own mapping, unmapped when freed. Other C libraries: no-op."""
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):
+        return
+    m_mmap_threshold = -3  # glibc's M_MMAP_THRESHOLD
+    mallopt(ctypes.c_int(m_mmap_threshold), ctypes.c_int(threshold))
+
+
+__all__ = ["TRIM_AFTER_BYTES", "HeapTrimmer", "return_freed_memory"]

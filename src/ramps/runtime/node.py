@@ -60,8 +60,8 @@ from ramps.runtime import keys, revocation
 from ramps.runtime.bulk import OrderedSender
 from ramps.runtime.measure import (LoadSampler, SpeedSamples, cgroup_dirs, core_fraction, cpu_limit, detect_cores,
                                    measure_speed)
-from ramps.runtime.heap import HeapTrimmer
-from ramps.runtime.registry import Registry, default_registry
+from ramps.runtime.heap import HeapTrimmer, return_freed_memory
+from ramps.runtime.registry import Registry, default_registry, node_registry
 from ramps.runtime.security import admission, settings_credentials
 from ramps.runtime.settings import NodeSettings
 from ramps.runtime.store import OriginStore
@@ -126,6 +126,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
                  on_note: Callable[[Note], None] | None = None, transport: Transport | None = None,
                  clock: Clock = REAL_CLOCK, worker_pool: Callable[..., WorkerPoolLike] = WorkerPool,
                  load_sampler: Callable[..., SamplerLike] = LoadSampler, incarnation: int | None = None) -> None:
+        """Long because it gives every attribute of the driver's state (ramps.runtime.node_state) its
+        first value, one a line with its comment; nothing starts before ``start``."""
         if not settings.robot:
             raise ValueError("a node needs a robot name")
         self.s = settings
@@ -137,13 +139,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._incarnation = incarnation  # None: drawn at start (tests fix it, so a run repeats)
         self.robot = settings.robot
         self.team = settings.team
-        self.registry = Registry(dict((registry or default_registry)._specs))
-        self.registry.load_entry_points()  # packages that declare ramps.programs
-        for target in settings.programs:
-            self.registry.add_target(target)
-        for name, cmd in settings.commands.items():  # executables (ramps.runtime.command)
-            self.registry.add_command(name, cmd.path, timeout=cmd.timeout, args=cmd.args, work=cmd.work,
-                                      local_only=cmd.local_only)
+        self.registry = node_registry(registry or default_registry, settings.programs, settings.commands)
         self.on_note = on_note
         self._q = queue.SimpleQueue()
         self._clients = {}
@@ -235,21 +231,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         creds, exit_on_failure = self._join_checks()
         if creds is not None:
             self._load_revocations(creds)
-        cg, acct = cgroup_dirs()
-        quota = cpu_limit(cg)
-        scope = s.load_scope
-        if scope == "auto":
-            scope = "cgroup" if quota is not None else "host"
-        self.cores = s.cores or detect_cores()
-        self._speed_samples = SpeedSamples()
-        self.speed = s.speed or measure_speed(quota=quota, cores=self.cores, samples=self._speed_samples,
-                                                   boot=True)
-        # a speed measured at boot is measured again while no program runs, soon
-        # after boot and then now and then (robots booting together measure
-        # each other's start-up; ramps.core.speed)
-        self._quota = quota
-        self._remeasures = 0
-        self._remeasure_at = None if s.speed else next_remeasure(self.clock.time(), 0)
+        cg, acct, quota, scope = self._measure_robot()
         #: programs whose calls were found far from their declaration, said once each
         self._misdeclared_warned = set()
         # its start time and random bits: a node started later has a larger one (ramps.core.identity)
@@ -287,8 +269,46 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             self._trace_wire = s.trace_wire
         if s.metrics:
             self._serve_metrics(s.metrics)
+        self._join_team(creds, exit_on_failure)
+        self._threaded = threaded
+        self._last_read = self.clock.monotonic()
+        self._next_pub = self._clock()
+        if s.connect or not s.multicast:  # else a lone robot on a LAN with multicast is no surprise
+            self._lonely_at = self.clock.monotonic() + LONELY_AFTER
+        if self.store is not None:
+            self._apply(self._restore(self._clock()))
+        if threaded:
+            self._driver = threading.Thread(target=self._drive, name=f"ramps-node-{self.robot}", daemon=True)
+            self._driver.start()
+        self._started = True
+        log.info("node %s joined team %s: %d cores, speed %.2f, load scope %s", self.robot, self.team,
+                 self.cores, self.speed, scope)
+        return self
+
+    def _measure_robot(self) -> tuple[Path | None, Path | None, float | None, str]:
+        """Cores, speed, and where load is measured: (cpu cgroup, its accounting, quota, scope)."""
+        s = self.s
+        cg, acct = cgroup_dirs()
+        quota = cpu_limit(cg)
+        scope = s.load_scope
+        if scope == "auto":
+            scope = "cgroup" if quota is not None else "host"
+        self.cores = s.cores or detect_cores()
+        self._speed_samples = SpeedSamples()
+        self.speed = s.speed or measure_speed(quota=quota, cores=self.cores, samples=self._speed_samples,
+                                                   boot=True)
+        # a speed measured at boot is measured again while no program runs, soon
+        # after boot and then now and then (robots booting together measure
+        # each other's start-up; ramps.core.speed)
+        self._quota = quota
+        self._remeasures = 0
+        self._remeasure_at = None if s.speed else next_remeasure(self.clock.time(), 0)
+        return cg, acct, quota, scope
+
+    def _join_team(self, creds: Credentials | None, exit_on_failure: bool) -> None:
+        """Open the transport, subscribe, declare this robot's load publisher and liveliness token."""
         try:
-            self.transport = self._given_transport or ZenohTransport.open(s, credentials=creds,
+            self.transport = self._given_transport or ZenohTransport.open(self.s, credentials=creds,
                                                                           fail_fast=exit_on_failure)
             put = self._q.put
             t = self.transport
@@ -309,20 +329,6 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         except NotAdmitted:
             self._teardown()
             raise
-        self._threaded = threaded
-        self._last_read = self.clock.monotonic()
-        self._next_pub = self._clock()
-        if s.connect or not s.multicast:  # else a lone robot on a LAN with multicast is no surprise
-            self._lonely_at = self.clock.monotonic() + LONELY_AFTER
-        if self.store is not None:
-            self._apply(self._restore(self._clock()))
-        if threaded:
-            self._driver = threading.Thread(target=self._drive, name=f"ramps-node-{self.robot}", daemon=True)
-            self._driver.start()
-        self._started = True
-        log.info("node %s joined team %s: %d cores, speed %.2f, load scope %s", self.robot, self.team,
-                 self.cores, self.speed, scope)
-        return self
 
     def _lonely(self) -> None:
         """LONELY_AFTER seconds after start: if no teammate was ever heard
@@ -659,25 +665,6 @@ def worker_increment(worker_nice: int) -> int:
         return max(0, worker_nice - os.getpriority(os.PRIO_PROCESS, 0))
     except (OSError, AttributeError):
         return worker_nice
-
-
-def return_freed_memory(threshold: int = 256 * 1024) -> None:
-    """Make glibc hand large freed blocks back to the system at once.
-
-    By default glibc raises its mmap threshold each time a large block is
-    freed (up to 32 MiB), so later multi-megabyte messages are carved from the
-    heap and stay resident after they are dropped: a flood with 1-9 MB garbage
-    left a node 36-50 MB bigger (``ramps bench flood``), 1-22 MB with this. A
-    fixed threshold keeps every block over ``threshold`` bytes (Python's and
-    Zenoh's) in its own mapping, unmapped when freed. Other C libraries: no-op."""
-    import ctypes
-
-    try:
-        mallopt = ctypes.CDLL(None).mallopt
-    except (OSError, AttributeError):
-        return
-    m_mmap_threshold = -3  # glibc's M_MMAP_THRESHOLD
-    mallopt(ctypes.c_int(m_mmap_threshold), ctypes.c_int(threshold))
 
 
 def run_node(settings: NodeSettings, *, install_signals: bool = True) -> NodeRuntime:

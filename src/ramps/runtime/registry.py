@@ -28,7 +28,8 @@ import math
 import traceback
 from dataclasses import dataclass, field
 from importlib.metadata import entry_points
-from typing import Any, Callable
+from collections.abc import Iterable, Mapping
+from typing import Any, Callable, Protocol
 
 import msgspec
 
@@ -287,3 +288,32 @@ def decode_args(data: bytes) -> dict[str, Any]:
     if not isinstance(args, dict) or not all(isinstance(k, str) for k in args):
         raise BadArguments("program arguments must be a mapping of names to values")
     return args
+
+
+class CommandSpec(Protocol):
+    """An executable to register as a program (``ramps.runtime.settings.CommandEntry``)."""
+
+    @property
+    def path(self) -> str: ...
+    @property
+    def timeout(self) -> float: ...
+    @property
+    def args(self) -> list[str]: ...
+    @property
+    def work(self) -> float: ...
+    @property
+    def local_only(self) -> bool: ...
+
+
+def node_registry(base: Registry, programs: Iterable[str], commands: Mapping[str, CommandSpec]) -> Registry:
+    """The programs a node runs: ``base``'s, those of installed packages that declare
+    ``ramps.programs``, its own ``programs`` (``package.module:function``) and its
+    ``commands`` (executables, ``ramps.runtime.command``)."""
+    registry = Registry(dict(base._specs))
+    registry.load_entry_points()
+    for target in programs:
+        registry.add_target(target)
+    for name, cmd in commands.items():
+        registry.add_command(name, cmd.path, timeout=cmd.timeout, args=cmd.args, work=cmd.work,
+                             local_only=cmd.local_only)
+    return registry
