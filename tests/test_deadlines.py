@@ -17,16 +17,21 @@ from ramps.core.policy import PlacementRequest, RampsPolicy
 from corehelpers import CFG, NET, busy_origin_team, report, submit, view_of
 
 
-def test_no_deadline_and_a_loose_one_place_alike() -> None:
-    plain, loose = busy_origin_team(), busy_origin_team()
+def test_a_loose_deadline_goes_to_the_slowest_host_in_time_with_room() -> None:
+    # best fit: b (50 s) meets 100 s with room and leaves a to tighter programs;
+    # 60 s leaves b no room (50 s * 1.5), so a (25 s) takes it, as with none
+    plain, loose, tighter = busy_origin_team(), busy_origin_team(), busy_origin_team()
     submit(plain)
     submit(loose, deadline=100.0)
+    submit(tighter, deadline=60.0)
     [p] = plain.sent(OffloadRequest)
     [q] = loose.sent(OffloadRequest)
-    assert p.host == q.host == "a"
+    [r] = tighter.sent(OffloadRequest)
+    assert (p.host, q.host, r.host) == ("a", "b", "a")
     assert p.deadline_in is None
     assert q.deadline_in == pytest.approx(100.0)  # the host admits against it
-    assert not loose.notes("deadline_unmet")
+    assert q.time_budget == pytest.approx(100.0, abs=0.1)  # what the deadline leaves
+    assert not loose.notes("deadline_unmet") and not tighter.notes("deadline_unmet")
 
 
 def test_unmeetable_deadline_runs_where_fastest_by_default() -> None:
@@ -111,16 +116,19 @@ def test_host_admits_against_the_deadline(deadline_in, force, admitted) -> None:
         assert "50.00 s here" in r.detail
 
 
-def test_a_late_rejection_is_placed_again_without_excluding_the_host() -> None:
+def test_a_late_rejection_leaves_the_host_out_and_places_again_at_once() -> None:
     team = busy_origin_team()
     team.nodes["a"].executor.background = 8.0  # a is busier than o's view says: 50/(2*4/9) = 56 s
     submit(team, deadline=40.0)
     team.deliver()
     [rej] = team.sent(OffloadRejected, by="a")
     assert rej.reason == "late"
-    # with a's true load, no host makes 40 s: the program runs anyway where it ends soonest
+    # a would only turn it away again; no other host makes 40 s either: it
+    # runs anyway on b, where it ends soonest without a
     assert team.notes("deadline_unmet")
-    assert "a" not in team.program("p").excluded
+    assert [req.host for req in team.sent(OffloadRequest)] == ["a", "b"]
+    assert team.actions(StartProgram, "b")
+    assert not team.notes("backoff")
 
 
 @pytest.mark.parametrize("finish_at, missed", [(20.0, False), (45.0, True)])

@@ -17,10 +17,10 @@ def _two_robots(deadline: float, on_miss: str = "run") -> Scenario:
 
 
 def test_a_deadline_met_and_one_missed_are_counted() -> None:
-    met = simulate(_two_robots(20.0), seed=1)
-    assert (met.deadlines, met.deadline_misses) == (1, 0)  # about 5 s on w
+    met = simulate(_two_robots(12.0), seed=1)
+    assert (met.deadlines, met.deadline_misses) == (1, 0)  # about 5 s on w (10 s on o leaves no room)
     [rec] = met.programs
-    assert rec.host == "w" and rec.deadline == pytest.approx(rec.submitted_at + 20.0) and not rec.missed_deadline
+    assert rec.host == "w" and rec.deadline == pytest.approx(rec.submitted_at + 12.0) and not rec.missed_deadline
     missed = simulate(_two_robots(2.0), seed=1)
     assert (missed.deadlines, missed.deadline_misses, missed.completed) == (1, 1, 1)  # runs anyway, late
 
@@ -71,3 +71,28 @@ def test_the_bound_sees_an_impossible_deadline() -> None:
     assert len(jobs_of(sc)) == 2
     assert miss_bound(sc) == (1, True)
     assert simulate(sc, seed=1).deadline_misses >= 1
+
+
+def test_the_exact_optimum_under_processor_sharing_and_the_bound() -> None:
+    from ramps.experiments.deadlines_optimum import optimum
+
+    # two 10 s programs due 12 s after release on one core: sharing it, both
+    # end at 20 s; the bound (any schedule) leaves one miss
+    sc = Scenario(robots=[RobotSpec(name="o", cores=1)],
+                  programs=[ProgramSpec(origin="o", count=2, work=10.0, deadline=12.0)])
+    assert optimum(sc).misses == 2 and miss_bound(sc)[0] == 1
+    # a second robot takes one: none misses
+    two = msgspec.structs.replace(sc, robots=[*sc.robots, RobotSpec(name="w", cores=1)])
+    best = optimum(two)
+    assert best.misses == 0 and sorted(best.hosts) == ["o", "w"]
+    assert best.makespan == pytest.approx(10.0 + 0.016, abs=0.01)
+
+
+def test_told_deadlines_miss_fewer_than_ignored_ones_on_the_family() -> None:
+    from ramps.experiments.deadlines_optimum import small_scenarios
+
+    told = ignored = 0
+    for sc in small_scenarios(12):
+        told += simulate(sc, policy="ramps", seed=1).deadline_misses
+        ignored += simulate(sc, policy="ramps", seed=1, deadlines=False).deadline_misses
+    assert told < ignored

@@ -21,8 +21,8 @@ none is (``Placement.late``), or the deadline has passed at a re-placement,
 its ``on_miss`` decides: "run" where it ends soonest, "local" here, or
 "fail" at once (``error_kind`` "deadline"). A program offered in time tells
 its host how long it has (``OffloadRequest.deadline_in``), and the host
-turns it away if it would end later ("late"); one run anyway is offered
-without it. A program delivered after its deadline is a miss
+turns it away as "late" if it or a program it runs would miss (the program is then placed
+at once elsewhere); one run anyway is offered without it. A program delivered after its deadline is a miss
 (``Deliver.missed_deadline``, a ``deadline_missed`` note, ``deadline_misses``).
 
 Rules: no clock (``now`` comes in), no I/O, randomness from the injected
@@ -635,7 +635,7 @@ class Origin:
         if msg.report is not None and self.view.on_report(msg.report, now, fresh=True):
             out.append(Note(what="unblacklisted", robot=msg.report.robot))
         ap.rejections += 1
-        if msg.reason not in ("busy", "late") or msg.report is None:
+        if msg.reason != "busy" or msg.report is None:
             # a busy host sent its true load, which the view now holds: it may
             # still be the best choice (the origin then expects what it has)
             ap.excluded.add(host)
@@ -645,7 +645,7 @@ class Origin:
             # turned away forever; wait instead (the driver cancels it)
             self._backoff(ap, now, out)
             return
-        if ap.rejections >= 2 and self.config.contention_backoff > 0:
+        if ap.rejections >= 2 and self.config.contention_backoff > 0 and msg.reason != "late":
             # turned away again: several origins are placing on the same few
             # robots at this moment; wait a random moment (doubling) so their
             # prompt reports arrive before this program tries again

@@ -24,11 +24,13 @@ scheduler.
   estimate when the request arrives (``expected_runnable``) and turns the
   program away if it is busier than the origin thought, which fixes the
   greedy "location thrashing" of several origins deciding on the same data.
-  A program with a deadline (``PlacementRequest.deadline``) goes, of the
-  hosts tied on cost, only to those expected to finish in time; the
-  cheapest host is the one with the most slack, so no deadline and a
-  deadline every tied host meets choose alike. ``Placement.late`` says
-  that none can (the origin then applies the program's ``on_miss``).
+  A program with a deadline (``PlacementRequest.deadline``) goes to the
+  slowest host expected to finish within it with a margin
+  (``DEADLINE_MARGIN``; best fit, which keeps the faster hosts for tighter
+  programs, then the ties as above), else to the cheapest host if it is in
+  time; its budget is then what the deadline leaves. No deadline places as
+  before. ``Placement.late`` says that no host is expected in time (the
+  origin then applies the program's ``on_miss``).
 * ``round_robin``, ``random``, ``local_only``: baselines.
 """
 
@@ -48,6 +50,10 @@ from ramps.core.loadview import LoadView
 
 #: how many of the cheapest hosts by count get the finer estimate by work left
 REFINE = 16
+#: a program with a deadline goes to the slowest host expected to end it
+#: this much earlier than its deadline (a fraction of its expected time):
+#: room for programs that come later to the same host
+DEADLINE_MARGIN = 0.5
 
 
 class PlacementRequest(msgspec.Struct, frozen=True, kw_only=True):
@@ -176,6 +182,13 @@ class RampsPolicy(Policy):
         if req.deadline is not None and t_best <= req.deadline:
             limit = min(limit, req.deadline)  # of equal costs, only those in time
         tied = [row for row in rows if row[0] <= limit]
+        if req.deadline is not None:
+            # best fit: of the hosts that meet the deadline with a margin, the
+            # slowest, which leaves the faster ones to tighter programs
+            fit = [row for row in rows if row[0] * (1.0 + DEADLINE_MARGIN) <= req.deadline]
+            if fit:
+                t_fit = max(row[0] for row in fit)
+                tied = [row for row in fit if row[0] * (1.0 + config.tie_tolerance) >= t_fit - 1e-9]
         u_best = min(row[1] for row in tied)
         tied = [row for row in tied if row[1] <= u_best + 1e-9]
         b_best = min(row[4] for row in tied)
@@ -187,6 +200,8 @@ class RampsPolicy(Policy):
         budget = None
         if alternative is not None and math.isfinite(alternative):
             budget = alternative - pick[9]
+        if req.deadline is not None and pick[0] <= req.deadline:
+            budget = max(budget or 0.0, req.deadline - pick[9])  # what the deadline leaves
         late = req.deadline is not None and pick[0] > req.deadline
         return Placement(host=pick[2], expected_runnable=pick[3], expected_time=pick[0], time_budget=budget,
                          late=late)
