@@ -18,7 +18,7 @@ import time
 import pytest
 from runtime_team import RobotCgroup, cgroup_mode, cgroup_support
 
-from ramps.runtime import measure
+from ramps.runtime import measure, speed_probe
 
 SPIN = '''
 import hashlib, json, subprocess, sys, threading, time
@@ -89,9 +89,9 @@ def test_own_running_counts_this_processes_busy_threads():
 
 @pytest.mark.slow
 def test_speed_is_scaled_to_the_quota_of_a_core():
-    full = measure.measure_speed(0.1)
+    full = speed_probe.measure_speed(0.1)
     assert 0.05 < full < 20
-    assert measure.measure_speed(0.1, quota=0.25, cores=1) < full
+    assert speed_probe.measure_speed(0.1, quota=0.25, cores=1) < full
 
 
 def test_the_cpu_limit_is_the_smallest_quota_on_the_cgroups_path(tmp_path):
@@ -115,8 +115,8 @@ def test_the_cpu_limit_is_the_smallest_quota_on_the_cgroups_path(tmp_path):
 
 
 def test_a_core_under_a_quota_is_its_share_of_a_cpu():
-    assert measure.core_fraction(0.32, 4) == pytest.approx(0.08)
-    assert measure.core_fraction(None, 4) == measure.core_fraction(8.0, 4) == 1.0
+    assert speed_probe.core_fraction(0.32, 4) == pytest.approx(0.08)
+    assert speed_probe.core_fraction(None, 4) == speed_probe.core_fraction(8.0, 4) == 1.0
 
 
 def test_a_measurement_apart_runs_in_a_child_and_brings_its_pieces_back():
@@ -128,7 +128,7 @@ def test_a_measurement_apart_runs_in_a_child_and_brings_its_pieces_back():
     t = threading.Thread(target=lambda: busy.wait(5), daemon=True)  # a node has other threads
     t.start()
     try:
-        pieces = measure.chunk_rates_apart(0.05)
+        pieces = speed_probe.chunk_rates_apart(0.05)
     finally:
         busy.set()
     allowed = os.sched_getaffinity(0)
@@ -155,15 +155,15 @@ def test_the_measuring_child_is_the_nodes_own_work_not_the_robots_load(tmp_path,
         measure._cgroup_usage_and_runnable(tmp_path, None)
         measure.own_running()
         monkeypatch.setattr(measure, "_running", real_running)
-        seen.update(pid=pid, paths=paths, during=set(measure._measuring))
+        seen.update(pid=pid, paths=paths, during=set(measure.MEASURING_PIDS))
         return real_waitpid(pid, flags)
 
     real_running = measure._running
     monkeypatch.setattr(os, "waitpid", waitpid)
-    measure.chunk_rates_apart(0.02)
+    speed_probe.chunk_rates_apart(0.02)
     pid = seen["pid"]
     assert seen["during"] == {str(pid)}
     # the robot's queue reads the other process, not the child; the node's own count reads the child
     assert "/proc/4242424/stat" in seen["paths"]
     assert seen["paths"].count(f"/proc/{pid}/stat") == 1  # once: as the node's own (own_running)
-    assert measure._measuring == set()  # gone with its child
+    assert measure.MEASURING_PIDS == set()  # gone with its child

@@ -34,7 +34,7 @@ def test_a_re_measurement_that_moved_replaces_the_estimate():
 
 
 def test_speed_samples_average_the_cpus_and_outweigh_an_odd_measurement():
-    from ramps.runtime.measure import SpeedSamples
+    from ramps.runtime.speed_probe import SpeedSamples
 
     s = SpeedSamples()
     assert s.rate() == 0.0
@@ -61,7 +61,7 @@ def test_speed_samples_average_the_cpus_and_outweigh_an_odd_measurement():
 
 
 def test_the_boot_measurement_counts_only_until_the_grid_outvotes_it():
-    from ramps.runtime.measure import GRID_QUORUM, SpeedSamples
+    from ramps.runtime.speed_probe import GRID_QUORUM, SpeedSamples
 
     s = SpeedSamples()
     # the node booted half a second after its teammates, on another phase of the vCPUs

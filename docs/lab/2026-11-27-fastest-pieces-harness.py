@@ -29,7 +29,7 @@ for i in range(robots):
 import json, os, time
 open('{d}/cgroup.procs', 'w').write(str(os.getpid()))
 os.nice(-5)
-from ramps.runtime.measure import chunk_rates
+from ramps.runtime.speed_probe import chunk_rates
 res = []
 for m in range({moments}):
     at = {start} + 3 * m

@@ -5,7 +5,7 @@ How this works: a node starts from the speed it measured at boot (work
 units per second of one of its cores, 1.0 = the reference core): what a CPU
 second computes here, timed on the measuring thread's own CPU clock, times
 the share of a CPU each core is under the kernel's quota
-(``ramps.runtime.measure.measure_speed``). Two corrections, one per side:
+(``ramps.runtime.speed_probe.measure_speed``). Two corrections, one per side:
 
 - **Re-measurement, on the host** (``SpeedEstimate``): the driver measures
   again while no program runs there, soon after boot and then every
@@ -13,7 +13,7 @@ the share of a CPU each core is under the kernel's quota
   (``next_remeasure``), and hands the core its figure
   from its latest measurements: each the mean over the CPUs of each CPU's
   fastest pieces, timed on a CPU clock, so a quota's throttling and a run
-  queue do not count (``ramps.runtime.measure.SpeedSamples``); the trimmed
+  queue do not count (``ramps.runtime.speed_probe.SpeedSamples``); the trimmed
   mean of the latest measurements outweighs one taken while the neighbours
   kept the machine busy. This is what fixes a robot that measured itself slow:
   it gets no programs, so no result could ever say it is faster. Measured
@@ -111,7 +111,7 @@ def _moved(speed: float, before: float) -> bool:
 class SpeedMeasured(msgspec.Struct, frozen=True, kw_only=True):
     """The driver measured this robot's speed again (driver -> core), while
     no program ran here: its figure from every measurement so far (on a
-    robot, ``ramps.runtime.measure.SpeedSamples``); see
+    robot, ``ramps.runtime.speed_probe.SpeedSamples``); see
     ``SpeedEstimate.measured``."""
 
     speed: float

@@ -58,12 +58,12 @@ from ramps.core.speed import next_remeasure
 from ramps.errors import ConfigError, NotAdmitted, TransportError
 from ramps.runtime import keys, revocation
 from ramps.runtime.bulk import OrderedSender
-from ramps.runtime.measure import (LoadSampler, SpeedSamples, cgroup_dirs, core_fraction, cpu_limit, detect_cores,
-                                   measure_speed)
 from ramps.runtime.heap import HeapTrimmer, return_freed_memory
+from ramps.runtime.measure import LoadSampler, cgroup_dirs, cpu_limit, detect_cores
 from ramps.runtime.registry import Registry, default_registry, node_registry
 from ramps.runtime.security import admission, settings_credentials
 from ramps.runtime.settings import NodeSettings
+from ramps.runtime.speed_probe import SpeedSamples, core_fraction, measure_speed
 from ramps.runtime.store import OriginStore
 from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
 from ramps.runtime.workers import WorkerPool

@@ -56,7 +56,7 @@ from ramps.core.messages import (
 )
 from ramps.core.speed import MIN_RUN_WORK, REMEASURE_CPU, SpeedMeasured, next_remeasure
 from ramps.runtime import keys
-from ramps.runtime.measure import core_fraction, measure_speed
+from ramps.runtime.speed_probe import core_fraction, measure_speed
 from ramps.runtime.transport import Publisher
 from ramps.runtime.node_state import DriverState
 

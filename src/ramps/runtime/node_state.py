@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from ramps.core.messages import LoadReport, SubmitProgram
     from ramps.core.node import Node
     from ramps.runtime.bulk import OrderedSender
-    from ramps.runtime.measure import SpeedSamples
+    from ramps.runtime.speed_probe import SpeedSamples
     from ramps.runtime.metrics import NodeMetrics
     from ramps.runtime.registry import Registry
     from ramps.runtime.revocation import RevocationList

@@ -322,7 +322,7 @@ class Simulator:
             # a robot that mis-measured at boot measures again while idle, as a
             # node does (ramps.runtime.node); idle, it measures its true speed
             # (a node's figure is the mean of its latest measurements,
-            # ramps.runtime.measure.SpeedSamples: the odd boot figure is outweighed)
+            # ramps.runtime.speed_probe.SpeedSamples: the odd boot figure is outweighed)
             r.remeasure_at = self.now + REMEASURE_PERIOD
             self._handle(r, SpeedMeasured(speed=r.spec.speed))
         report = r.node.make_report(cpu_busy=busy, runnable=runnable, ramps_avg=ramps_avg, window=pub.window,

@@ -117,7 +117,7 @@ def identical_speed(robots: int, cores: int, quota: float | None = None) -> floa
     itself, as on a robot)."""
     import os
 
-    from ramps.runtime.measure import measure_speed
+    from ramps.runtime.speed_probe import measure_speed
 
     q = quota if quota is not None else max(0.05, len(os.sched_getaffinity(0)) / robots)
     return round(measure_speed(0.5, quota=q, cores=cores), 4)
