@@ -15,6 +15,7 @@ from ramps.core.messages import OffloadRejected, OffloadRequest
 from ramps.core.policy import PlacementRequest, RampsPolicy
 
 from corehelpers import CFG, NET, busy_origin_team, report, submit, view_of
+from ramps.testing import FakeTeam
 
 
 def test_a_loose_deadline_goes_to_the_slowest_host_in_time_with_room() -> None:
@@ -188,3 +189,54 @@ def msgspec_replace_offer(req: OffloadRequest, **kw) -> OffloadRequest:
     import msgspec
 
     return msgspec.structs.replace(req, **kw)
+
+
+@pytest.mark.parametrize("deadline, told", [(200.0, True), (65.0, False)])
+def test_a_move_tells_the_new_host_the_seconds_left(deadline: float, told: bool) -> None:
+    # p (60 s alone on a or b) runs on one of them, whose own software then
+    # starts 8 busy processes (135 s there): it moves. In time on the new
+    # host, the offer carries what is left of the deadline; not in time
+    # (65 s: 56 s left at the move), it moves anyway without one
+    team = FakeTeam({"o": (1, 1.0), "a": (4, 1.0), "b": (4, 1.0)})
+    team.nodes["o"].executor.background = 10.0
+    team.publish()
+    submit(team, work=60.0, deadline=deadline)
+    team.deliver()
+    first = team.program("p").host
+    other = "b" if first == "a" else "a"
+    team.advance(1.0)
+    team.nodes[first].executor.background = 8.0
+    for t in range(1, 12):
+        team.advance(float(t))
+        team.publish()
+    [move] = team.sent(OffloadRequest, to=other)
+    [note] = team.notes("moving")
+    moved_at = next(when for when, _, a in team.log if a is note)
+    if told:
+        assert move.deadline_in == pytest.approx(deadline - moved_at)
+        assert team.program("p").moves == 1 and team.actions(StartProgram, other)  # the new host took it
+    else:
+        assert move.deadline_in is None
+
+
+def test_a_host_protecting_the_deadlines_it_runs_is_left_out_and_the_origin_places_elsewhere() -> None:
+    # a (4 cores, speed 2) runs z's four 50-unit programs due in 28 s (25 s
+    # each); a fifth would slow them to 31.25 s. o's view, fresh from a's
+    # report, still puts p (no deadline of its own) on a: 31 s there, 50 s
+    # on b. a turns it away as "late", and o places it on b at once
+    team = FakeTeam({"o": (1, 1.0), "a": (4, 2.0), "b": (4, 1.0), "z": (1, 1.0)})
+    for swamped in ("o", "z"):
+        team.nodes[swamped].executor.background = 10.0
+    for i in range(4):
+        team.handle("a", Received(sender="z", msg=OffloadRequest(
+            program_id=f"d{i}", attempt=1, origin="z", host="a", program="route_plan", work=50.0, deadline_in=28.0)))
+    team.deliver()
+    team.publish()
+    submit(team)
+    team.deliver()
+    [rej] = team.sent(OffloadRejected, by="a")
+    assert (rej.reason, rej.detail) == ("late", "would make 4 programs here miss their deadline")
+    assert [req.host for req in team.sent(OffloadRequest, by="o")] == ["a", "b"]
+    assert [s.program_id for s in team.actions(StartProgram, "b")] == ["p"]
+    assert sorted(pid for pid, _ in team.nodes["a"].executor.running) == ["d0", "d1", "d2", "d3"]
+    assert not team.notes("backoff") and not team.notes("deadline_unmet")

@@ -15,15 +15,13 @@ the new host accepts, a result from either copy is delivered and the other
 stopped, and a refusal or failure of the new host leaves the old copy
 running.
 
-Deadlines: a program may carry one (``Submit.deadline``, absolute in the
-core's time). The policy keeps to hosts expected to finish in time; when
-none is (``Placement.late``), or the deadline has passed at a re-placement,
-its ``on_miss`` decides: "run" where it ends soonest, "local" here, or
-"fail" at once (``error_kind`` "deadline"). A program offered in time tells
-its host how long it has (``OffloadRequest.deadline_in``), and the host
-turns it away as "late" if it or a program it runs would miss (the program is then placed
-at once elsewhere); one run anyway is offered without it. A program delivered after its deadline is a miss
-(``Deliver.missed_deadline``, a ``deadline_missed`` note, ``deadline_misses``).
+Deadlines: a program may carry one (``Submit.deadline``, absolute in the core's time, a finite number).
+The policy keeps to hosts expected to finish in time; when none is (``Placement.late``), or the deadline
+has passed at a re-placement, its ``on_miss`` decides: "run" where it ends soonest, "local" here, or
+"fail" at once (``error_kind`` "deadline"). Offered in time, placed or moved, a program tells its host
+how long it has (``OffloadRequest.deadline_in``); the host turns it away as "late" if it or a program it
+runs would miss (then it is placed at once elsewhere, or stays where it runs); one run anyway is offered
+without it. Delivered after its deadline, it is a miss (``Deliver.missed_deadline``, ``deadline_misses``).
 
 Rules: no clock (``now`` comes in), no I/O, randomness from the injected
 ``rng``. Remote misbehaviour (a message about a program we never had, an
@@ -42,6 +40,7 @@ import heapq
 import math
 import random
 import statistics
+import sys
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
@@ -183,10 +182,10 @@ class Origin:
         if not (math.isfinite(sub.work) and sub.work >= 0):  # NaN work made every policy's choice fail
             raise ValueError(f"program {sub.program_id!r}: work must be finite and >= 0, got {sub.work!r}")
         if sub.on_miss not in ON_MISS:
-            raise ValueError(f"program {sub.program_id!r}: on_miss must be one of {', '.join(ON_MISS)}, "
-                             f"got {sub.on_miss!r}")
-        if sub.deadline is not None and not math.isfinite(sub.deadline):
-            raise ValueError(f"program {sub.program_id!r}: a deadline must be finite, got {sub.deadline!r}")
+            raise ValueError(f"program {sub.program_id!r}: on_miss is one of {', '.join(ON_MISS)}, got {sub.on_miss!r}")
+        if sub.deadline is not None and not (type(sub.deadline) in (int, float)
+                                             and abs(sub.deadline) <= sys.float_info.max):  # not NaN, inf, 10**400
+            raise ValueError(f"program {sub.program_id!r}: a deadline must be a finite number, got {sub.deadline!r}")
         if sub.policy and sub.policy not in self._policies:
             self._policies[sub.policy] = make_policy(sub.policy)  # ValueError names the known ones
         ap = AutonomousProgram(sub, now)
@@ -514,8 +513,9 @@ class Origin:
         work *= 1.0 - fraction  # what is left from the checkpoint
         expected = budget = deadline_in = None
         left = sub.deadline - now if sub.deadline is not None else None
-        if placement is not None:  # a relocation priced it already
+        if placement is not None:  # a relocation priced it already (and tells the new host the time left)
             host, expected, budget = placement.host, placement.expected_runnable, placement.time_budget
+            deadline_in = left if left is not None and (placement.expected_time or 0.0) < left else None
         if host is None and sub.local_only:
             host = self.me
         if host is None:
