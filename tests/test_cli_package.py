@@ -1,6 +1,7 @@
 """The ``ramps`` command as a package: every command and group answers
-``--help``, whole on an 80-column terminal, and the testbed's fault commands,
-generated from one table, take the arguments they document."""
+``--help``, whole on an 80-column terminal, its values named for what to type
+(``--timeout SECONDS``, no typer ``<float range>``), and the testbed's fault
+commands, generated from one table, take the arguments they document."""
 
 from __future__ import annotations
 
@@ -40,6 +41,11 @@ def _listed_options(help_text: str) -> set[str]:
     return listed
 
 
+#: typer's own placeholders for a value and its range notation, none of which ``--help`` may show
+TYPER_PLACEHOLDERS = ("<list[", "<int range>", "<float range>", "<bool>", "<str>", "<path>", "<int>",
+                      "<float>", "<=x", "x>=", "x<=")
+
+
 def test_every_command_and_group_answers_help_whole_at_80_columns():
     commands = _commands(typer.main.get_command(app), [])
     names = {" ".join(p) for p, _ in commands}
@@ -56,6 +62,37 @@ def test_every_command_and_group_answers_help_whole_at_80_columns():
             if isinstance(param, TyperOption) and not param.hidden:
                 for name in (*param.opts, *param.secondary_opts):
                     assert name in listed, (" ".join(["ramps", *p, "--help"]), name, res.output)
+                # a value is named (``--connect ENDPOINT``); a flag shows none
+                long_name = max(param.opts, key=len)
+                if param.is_flag:
+                    assert not re.search(rf"(?<![\w-]){re.escape(long_name)} [A-Z<]", res.output), (p, long_name)
+                else:
+                    assert param.metavar and param.metavar.upper() == param.metavar, (p, long_name)
+                    assert f"{long_name} {param.metavar}" in res.output, (p, long_name, res.output)
+        for placeholder in TYPER_PLACEHOLDERS:
+            assert placeholder not in res.output, (" ".join(["ramps", *p, "--help"]), placeholder, res.output)
+
+
+def _help(*words: str) -> str:
+    res = runner.invoke(app, [*words, "--help"], env={"COLUMNS": "80"}, terminal_width=80)
+    assert res.exit_code == 0, res.output
+    return " ".join(res.output.split())  # the help text as one line, unwrapped
+
+
+def test_help_names_what_to_type_and_ranges_in_words():
+    peers = _help("testbed", "experiment", "peers")
+    for shown in ("-s, --scenario NAME", "--programs N", "--quota CORES", "--timeout SECONDS", "--keep-logs DIR",
+                  "--out FILE", "[1 to 500]", "[default: 0.32; 0.05 to 4]", "[default: 1500.0; at least 10]"):
+        assert shown in peers, (shown, peers)
+    node = _help("node")
+    for shown in ("-c, --connect ENDPOINT", "--config FILE", "--cores N", "--lease-ms MS", "--secure secured team"):
+        assert shown in node, (shown, node)
+    assert "--cores N cores offered to programs (default: detected) --speed" in node  # x>=1 says nothing new
+    # an argument is named by its value alone, a name of its own overrides the table
+    assert "Arguments: PROGRAM registered program name" in _help("submit")
+    assert "Arguments: ROBOT robot, e.g. r3 [required] PROBABILITY drop probability" in _help("testbed", "lossy")
+    assert "--loaded ROBOT[=N]" in _help("testbed", "up")
+    assert "--loaded N" in _help("testbed", "experiment", "speeds")
 
 
 def test_fault_commands_come_from_the_table_in_its_order():

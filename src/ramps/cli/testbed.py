@@ -57,7 +57,7 @@ def testbed_up(
     robots: int = typer.Option(5, "--robots", "-n", min=1, max=250, help="number of robots r1..rN"),
     quota: Optional[float] = typer.Option(None, "--quota", help="host cores per robot (default: host cores / robots)"),
     cores: Optional[int] = typer.Option(None, "--cores", min=1, help="cores each node offers (default: quota rounded)"),
-    loaded: Optional[list[str]] = typer.Option(None, "--loaded", help="robot with background load, ROBOT or ROBOT=N busy processes (repeatable; N default 4)"),
+    loaded: Optional[list[str]] = typer.Option(None, "--loaded", metavar="ROBOT[=N]", help="robot with background load, ROBOT or ROBOT=N busy processes (repeatable; N default 4)"),
     team: Optional[str] = typer.Option(None, "--team", "-t", help="team name (default: tb-<id>)"),
     lease_ms: LeaseOption = None,
     policy: PolicyOption = None,

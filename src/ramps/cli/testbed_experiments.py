@@ -198,7 +198,7 @@ def testbed_experiment_speeds(
     robots: int = typer.Option(5, "--robots", min=2, max=20, help="identical robots in each"),
     cores: int = typer.Option(4, "--cores", min=1, max=16, help="emulated cores of each robot"),
     quota: float = typer.Option(0.32, "--quota", min=0.05, max=4.0, help="host cores of each robot"),
-    loaded: int = typer.Option(0, "--loaded", min=0, max=32, help="busy processes each robot's own software starts beside its node"),
+    loaded: int = typer.Option(0, "--loaded", metavar="N", min=0, max=32, help="busy processes each robot's own software starts beside its node"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
 ) -> None:
