@@ -279,6 +279,9 @@ STEPS = ["hostile", "hostile", "aimed", "aimed", "replay_sent", "replay_heard", 
          "submit", "finish", "progress", "cancel", "peer", "tick", "to_deadline"]
 
 
+deadlines = st.sampled_from(hostile.GOOD_DEADLINES + hostile.BAD_DEADLINES) | st.floats()
+
+
 @pytest.mark.slow
 @CORE
 @given(policy=st.sampled_from(sorted(POLICIES)), seed=st.integers(0, 1000), data=st.data())
@@ -310,17 +313,15 @@ def test_core_survives_hostile_input_and_delivers_each_program_once(policy: str,
                 continue
             if not isinstance(env.msg, (m.SubmitProgram, m.CancelSubmitted, m.ProgramOutcome, m.ProgramUpdate)):
                 h._receive(env.sender, env.msg)
-        elif step == "submit":
+        elif step == "submit":  # with a deadline, valid or one the core must refuse (CoreHarness.submit)
             n_submitted += 1
-            pid = f"n#{n_submitted}"
-            lo = data.draw(st.booleans())
-            h.submitted.add(pid)
-            if lo:
-                h.local_only.add(pid)
-            h._apply(node.handle(Submit(program_id=pid, program=data.draw(st.sampled_from(["route_plan", "x"])),
-                                        work=data.draw(st.floats(0.0, 1e6)), local_only=lo,
-                                        payload_size=data.draw(st.integers(0, 10**9)),
-                                        policy=data.draw(st.sampled_from(["", "paper", "round_robin"]))), h.now))
+            h.submit(Submit(program_id=f"n#{n_submitted}", program=data.draw(st.sampled_from(["route_plan", "x"])),
+                            work=data.draw(st.floats(0.0, 1e6)), local_only=data.draw(st.booleans()),
+                            payload_size=data.draw(st.integers(0, 10**9)),
+                            policy=data.draw(st.sampled_from(["", "paper", "round_robin"])),
+                            deadline=data.draw(deadlines) if data.draw(st.booleans()) else h.now + data.draw(
+                                st.floats(-5.0, 100.0)),
+                            on_miss=data.draw(st.sampled_from(["run", "local", "fail", *hostile.BAD_ON_MISS]))))
         elif step == "finish" and node.executor.running:
             pid, attempt = data.draw(st.sampled_from(sorted(node.executor.running)))
             ok = data.draw(st.booleans())
@@ -365,6 +366,26 @@ def test_the_harness_catches_a_double_delivery() -> None:
         h._apply([Send(to="p", msg=m.OffloadRequest(program_id="b", attempt=1, origin=ME, host="p", program="x"))])
 
 
+def test_the_harness_catches_wrong_deadline_answers() -> None:
+    """A miss flag that disagrees with the deadline, an offer the wire would
+    refuse, a bad deadline taken: each is caught."""
+    from ramps.core.events import Deliver, Send
+
+    h = CoreHarness(random.Random(0), "ramps")
+    h.submit(Submit(program_id="a", program="x", work=1.0, deadline=5.0))
+    h.now = 6.0
+    with pytest.raises(AssertionError, match="missed_deadline False"):
+        h._apply([Deliver(program_id="a", ok=True)])
+    with pytest.raises(AssertionError, match="wire refuses"):
+        h._apply([Send(to="p", msg=m.OffloadRequest(program_id="a", attempt=1, origin=ME, host="p", program="x",
+                                                    deadline_in=float("nan")))])
+    h.submit(Submit(program_id="b", program="x", work=1.0, deadline=float("inf")))  # refused: counted
+    assert h.refused == 1 and "b" not in h.node.origin.programs
+    h.node.origin.submit = lambda sub, now, out: None  # a core that takes anything
+    with pytest.raises(AssertionError, match="took a deadline of 'soon'"):
+        h.submit(Submit(program_id="c", program="x", work=1.0, deadline="soon"))  # type: ignore[arg-type]
+
+
 # =================================================================== the long run's generator
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_fuzz_benchmark_short_run_finds_nothing(seed: int) -> None:
@@ -374,8 +395,8 @@ def test_fuzz_benchmark_short_run_finds_nothing(seed: int) -> None:
             == res["inputs"] == 4000)
     assert res["revocations_ok"] > 0 and res["revocations_refused"] > 0  # signed lists pass, the rest is refused
     assert res["decoded"] > 0 and res["wire_errors"] > 0 and res["core_from_decoder"] > 0
-    assert res["programs_delivered"] > 0
-    kinds = {"truncated", "bit_flips", "wrong_version", "wrong_shape", "deep_nesting", "pickle"}
+    assert res["programs_delivered"] > 0 and res["submits_refused"] > 0 and res["deadline_misses"] > 0
+    kinds = {"truncated", "bit_flips", "wrong_version", "wrong_shape", "deep_nesting", "pickle", "bad_deadlines"}
     assert kinds <= set(res["wire_kinds"])
 
 

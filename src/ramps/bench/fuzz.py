@@ -24,6 +24,13 @@ Four targets, in shares of the input count:
   and found, and time moving on to its timers. The core must never raise, must
   deliver each program once, and must never offer a ``local_only`` program
   to another robot. A fresh node (another policy) is started now and then.
+  Submissions carry deadlines and ``on_miss`` (``random_deadline``): the core
+  must refuse one that is not a finite number, or an unknown ``on_miss``,
+  with ``ValueError`` and nothing changed; a delivery is a miss exactly when
+  an ok result comes after its deadline, or (``on_miss`` "fail", ``error_kind``
+  "deadline") it was refused as unmeetable; and everything it sends decodes
+  (no NaN, infinite or negative ``deadline_in`` or ``time_budget``). What the
+  wire decoder accepts keeps every deadline field within its limits.
 
 The inputs come from ``ramps.testing.hostile`` (the generators, shipped for
 your own tests); this module is the runner. Every input counts once; exceptions are counted and the first few kept with
@@ -36,6 +43,7 @@ from __future__ import annotations
 import functools
 import math
 import random
+import sys
 import time
 import traceback
 from collections import Counter, deque
@@ -62,6 +70,7 @@ from ramps.core.events import (
     Submit,
 )
 from ramps.core.node import Node
+from ramps.core.origin import ON_MISS
 from ramps.core.policy import POLICIES
 from ramps.errors import BadArguments
 from ramps.runtime.registry import decode_args
@@ -79,6 +88,7 @@ from ramps.testing.hostile import (
     big_fields,
     oversized,
     random_count,
+    random_deadline,
     random_message,
     random_object,
 )
@@ -119,7 +129,24 @@ def fuzz_decode(rng: random.Random, data: bytes, kind: str, tally: _Tally, out: 
         tally.failed("decode", kind, exc, data)
         return None
     out["decoded"] += 1
+    broken = _out_of_limits(env.msg)
+    if broken:
+        tally.failed("decode", kind, AssertionError(f"decoded a deadline field out of its limits: {broken}"), data)
     return env
+
+
+def _out_of_limits(msg: m.Message) -> str:
+    """What in ``msg`` breaks a deadline field's limits (a finite number >= 0, a short word, a bool), or ""."""
+    for name in ("deadline_in", "deadline", "time_budget"):
+        x = getattr(msg, name, None)
+        if x is not None and not (type(x) is float and 0.0 <= x <= sys.float_info.max):
+            return f"{type(msg).__name__}.{name} = {x!r}"
+    on_miss = getattr(msg, "on_miss", "")
+    if type(on_miss) is not str or len(on_miss) > m.MAX_NAME:
+        return f"on_miss = {on_miss!r}"[:200]
+    if type(getattr(msg, "missed_deadline", False)) is not bool:
+        return f"missed_deadline = {msg.missed_deadline!r}"  # type: ignore[union-attr]
+    return ""
 
 
 @functools.lru_cache(maxsize=1)
@@ -190,6 +217,10 @@ class CoreHarness:
         self.submitted: set[str] = set()
         self.local_only: set[str] = set()
         self.delivered: Counter[str] = Counter()
+        #: each submitted program's deadline and on_miss
+        self.deadlines: dict[str, tuple[float | None, str]] = {}
+        #: submissions the core refused (a deadline not a finite number, an unknown on_miss)
+        self.refused = 0
         self.sent: deque[tuple[str, m.Message]] = deque(maxlen=64)
         self.heard: deque[tuple[str, m.Message]] = deque(maxlen=64)
         self._ids = 0
@@ -217,14 +248,12 @@ class CoreHarness:
             pid = f"n#{self._ids}" if rng.random() < 0.8 else rng.choice(PROGRAM_IDS)
             if pid in self.submitted:
                 pid = f"n#{self._ids}-again"
-            lo = rng.random() < 0.3
-            sub = Submit(program_id=pid, program=rng.choice(PROGRAMS), work=rng.choice([0.0, 1e-9, 1.0, 50.0, 1e12]),
-                         local_only=lo, payload_size=random_count(rng), result_size=random_count(rng),
-                         policy=rng.choice(["", "", "paper", "round_robin"]))
-            self.submitted.add(pid)
-            if lo:
-                self.local_only.add(pid)
-            self._apply(node.handle(sub, self.now))
+            deadline, on_miss = random_deadline(rng, self.now)
+            self.submit(Submit(program_id=pid, program=rng.choice(PROGRAMS), work=rng.choice([0.0, 1e-9, 1.0, 50.0,
+                                                                                             1e12]),
+                               local_only=rng.random() < 0.3, payload_size=random_count(rng),
+                               result_size=random_count(rng), policy=rng.choice(["", "", "paper", "round_robin"]),
+                               deadline=deadline, on_miss=on_miss))
         elif k < 72 and node.executor.running:
             pid, attempt = rng.choice(sorted(node.executor.running))
             ok = rng.random() < 0.8
@@ -267,6 +296,30 @@ class CoreHarness:
         if left:
             raise AssertionError(f"{left} program(s) still active after shutdown")
 
+    def submit(self, sub: Submit) -> None:
+        """What the runtime does with a submission: one whose deadline is not a
+        finite number, or whose ``on_miss`` is unknown, must be refused with
+        ``ValueError`` and leave no trace; any other must be taken."""
+        d = sub.deadline
+        bad = (d is not None and not (type(d) in (int, float) and abs(d) <= sys.float_info.max)
+               or sub.on_miss not in ON_MISS)
+        try:
+            actions = self.node.handle(sub, self.now)
+        except ValueError:
+            if not bad:
+                raise
+            if sub.program_id in self.node.origin.programs:
+                raise AssertionError(f"refused {sub.program_id!r} but kept it") from None
+            self.refused += 1
+            return
+        if bad:
+            raise AssertionError(f"took a deadline of {d!r}, on_miss {sub.on_miss!r}")
+        self.submitted.add(sub.program_id)
+        self.deadlines[sub.program_id] = (d, sub.on_miss)
+        if sub.local_only:
+            self.local_only.add(sub.program_id)
+        self._apply(actions)
+
     # ------------------------------------------------------------ helpers
     def _aimed(self) -> m.Message:
         """A message about one of this node's programs, with its real (or a
@@ -298,6 +351,10 @@ class CoreHarness:
                     raise AssertionError(f"a message to itself escaped the loopback: {a!r}")
                 if isinstance(a.msg, m.OffloadRequest) and a.msg.program_id in self.local_only:
                     raise AssertionError(f"local_only program {a.msg.program_id} offered to {a.to}")
+                try:
+                    m.decode(m.encode(ME, a.msg))
+                except m.WireError as exc:
+                    raise AssertionError(f"sent what the wire refuses ({exc}): {a.msg!r}"[:500]) from None
                 self.sent.append((a.to, a.msg))
             elif isinstance(a, Deliver):
                 if a.program_id not in self.submitted:
@@ -305,6 +362,17 @@ class CoreHarness:
                 self.delivered[a.program_id] += 1
                 if self.delivered[a.program_id] > 1:
                     raise AssertionError(f"program {a.program_id!r} delivered twice")
+                self._check_miss(a)
+
+    def _check_miss(self, a: Deliver) -> None:
+        """A delivery is a miss exactly when an ok result comes after its
+        deadline, or it was refused as unmeetable (on_miss "fail")."""
+        due, on_miss = self.deadlines.get(a.program_id, (None, "run"))
+        if a.error_kind == "deadline":
+            if due is None or on_miss != "fail" or not a.missed_deadline or a.ok:
+                raise AssertionError(f"refused as unmeetable: {a!r}, deadline {due!r}, on_miss {on_miss!r}")
+        elif a.missed_deadline != (a.ok and due is not None and self.now > due):
+            raise AssertionError(f"missed_deadline {a.missed_deadline} at {self.now}, deadline {due!r}: {a!r}")
 
 
 # ====================================================================== the run
@@ -363,6 +431,7 @@ def run_fuzz(*, inputs: int = 100_000, seed: int = 0, core_share: float = 0.35, 
         "revocation_inputs": counts["revocation"], "revocations_ok": counts["revocations_ok"],
         "revocations_refused": counts["revocations_refused"],
         "programs_delivered": counts["core_delivered"], "wire_kinds": dict(sorted(by_kind.items())),
+        "submits_refused": counts["core_refused"], "deadline_misses": counts["core_misses"],
         "exceptions": tally.exceptions, "exception_samples": tally.samples,
     }
 
@@ -397,6 +466,8 @@ def _retire(harness: CoreHarness, tally: _Tally, counts: Counter) -> None:
     except Exception as exc:
         tally.failed("core", "shutdown", exc)
     counts["core_delivered"] += sum(harness.delivered.values())
+    counts["core_refused"] += harness.refused
+    counts["core_misses"] += harness.node.origin.deadline_misses
 
 
 __all__ = ["CoreHarness", "fuzz_args", "fuzz_decode", "fuzz_revocations", "run_fuzz"]

@@ -54,11 +54,11 @@ from msgspec import Meta
 
 from ramps.version import __version__
 
-#: the protocol this code speaks, major.minor. 1.0 is ramps 0.1.0 (strict:
-#: it refuses unknown fields and types); 1.1 (ramps 0.2.0) decodes
-#: tolerantly and adds one field, ``ProgramResult.worker_died``, set only
-#: when a program killed its own worker. The envelope's ``v`` carries the major
-#: only, since 1.0 checks ``v == 1`` and refuses any other envelope field.
+#: the protocol this code speaks, major.minor. 1.0 is ramps 0.1.0 (strict: it refuses unknown fields
+#: and types); 1.1 (ramps 0.2.0) decodes tolerantly and adds optional fields, left out at their defaults
+#: (docs/wire-compatibility.md): ``ProgramResult.worker_died`` (a program killed its own worker); with
+#: a deadline, ``OffloadRequest.deadline_in``, ``SubmitProgram.deadline``, ``SubmitProgram.on_miss``,
+#: ``ProgramOutcome.missed_deadline``. The envelope's ``v`` is the major only (1.0 checks ``v == 1``).
 PROTOCOL_MAJOR = 1
 PROTOCOL_MINOR = 1
 #: the envelope's ``v`` (kept under its old name for the fuzzers and tests)

@@ -41,9 +41,9 @@ import asyncio
 import atexit
 import heapq
 import itertools
-import math
 import os
 import socket
+import sys
 import threading
 import weakref
 from concurrent.futures import Future
@@ -361,8 +361,8 @@ class Team:
         (the default), run it on the "local" robot, or "fail" at once with
         ``DeadlineUnmeetable`` (nothing runs). A deadline does not withdraw
         a late program; ``timeout`` does."""
-        if deadline is not None and not (isinstance(deadline, (int, float)) and math.isfinite(deadline)
-                                         and deadline > 0):
+        if deadline is not None and not (isinstance(deadline, (int, float)) and not isinstance(deadline, bool)
+                                         and 0 < deadline <= sys.float_info.max):  # not NaN, inf, 10**400
             raise ValueError(f"deadline is seconds from submission, > 0; got {deadline!r}")
         if on_miss not in ON_MISS:
             raise ValueError(f"on_miss must be one of {', '.join(ON_MISS)}; got {on_miss!r}")

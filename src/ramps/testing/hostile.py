@@ -7,10 +7,13 @@ and beyond their limits (names of the longest length, zero, NaN, the
 largest counts) and from any sender, the receiving robot ``ME`` included.
 ``WIRE_KINDS`` lists the makers of wire input, with weights: random bytes,
 valid encodings truncated, bit-flipped, edited and spliced, other protocol
-versions, valid msgpack of the wrong shape, fields out of their limits,
+versions, valid msgpack of the wrong shape, fields out of their limits
+(deadline fields among them: NaN, infinite, negative, of the wrong type),
 huge declared lengths, msgpack extension types, deep nesting, pickles and
 JSON; ``oversized`` and ``big_fields`` make messages of megabytes (rare and
 costly: draw them once per ``OVERSIZED_EVERY``/``BIG_FIELDS_EVERY`` inputs).
+``random_deadline`` draws a submission's deadline and ``on_miss``, valid or
+one the core must refuse (``GOOD_DEADLINES``, ``BAD_DEADLINES``, ``BAD_ON_MISS``).
 
 Use them to test your own code that handles ramps messages, as ramps does:
 ``ramps bench fuzz`` (``ramps.bench.fuzz``) runs them at the decoders and
@@ -43,6 +46,29 @@ FLOATS = [0.0, -0.0, 1.0, 0.5, 1e-300, 5e-324, 1e300, sys.float_info.max, float(
            float("-inf"), -1.0, m.MIN_SPEED, m.MAX_SPEED, m.MAX_LOAD]
 _INTS = [0, 1, -1, 2, 2**31, 2**32, 2**63 - 1, -(2**63), 2**64 - 1, m.MAX_CORES, m.MAX_CORES + 1]
 ENCODER = msgspec.msgpack.Encoder()
+#: ``Submit.deadline`` values the core must take (absolute times: past, now, soon, huge) and refuse
+#: with ValueError (not a finite number); ``on_miss`` values it must refuse
+GOOD_DEADLINES = [None, 0.0, -1.0, 1.0, 30.0, 1e300, -1e300, sys.float_info.max, -sys.float_info.max, 5, -(2**63)]
+BAD_DEADLINES = [float("nan"), float("inf"), float("-inf"), "2", b"1", True, 10**400, [1.0]]
+BAD_ON_MISS = ["nope", "", "RUN", None, 3]
+#: deadline fields as a hostile peer may write them on the wire; only finite numbers >= 0 (and None) decode
+WIRE_DEADLINES = [float("nan"), float("inf"), float("-inf"), -1.0, -1e-300, "2", True, [], {}, 2**64 - 1, 0.0,
+                  sys.float_info.max, None]
+
+
+def random_deadline(rng: random.Random, now: float) -> tuple[Any, Any]:
+    """A ``Submit``'s deadline and ``on_miss``: mostly valid (none, or around ``now``), now and then
+    a value the core must refuse."""
+    k = rng.random()
+    deadline: Any
+    if k < 0.4:
+        deadline = None
+    elif k < 0.8:
+        deadline = now + rng.choice([-5.0, 0.0, 0.5, 2.0, 10.0, 60.0, 1e6])
+    else:
+        deadline = rng.choice(GOOD_DEADLINES + BAD_DEADLINES)
+    on_miss = rng.choice(["run", "run", "local", "fail"]) if rng.random() < 0.95 else rng.choice(BAD_ON_MISS)
+    return deadline, on_miss
 
 
 # ====================================================================== valid messages
@@ -248,6 +274,23 @@ def _bad_fields(rng):
     return ENCODER.encode(d)
 
 
+def _bad_deadlines(rng: random.Random) -> bytes:
+    """A message with a deadline field (``OffloadRequest.deadline_in``, ``SubmitProgram.deadline``,
+    ``on_miss``, ``ProgramOutcome.missed_deadline``) set to a hostile value."""
+    field = rng.choice(["deadline_in", "deadline", "on_miss", "missed_deadline"])
+    msg: m.Message
+    if field == "deadline_in":
+        msg = m.OffloadRequest(program_id="a", attempt=1, origin="p", host=ME, program="noop", deadline_in=1.0)
+    elif field == "missed_deadline":
+        msg = m.ProgramOutcome(request_id=1, ok=True, missed_deadline=True)
+    else:
+        msg = m.SubmitProgram(client="p", request_id=1, program="noop", deadline=1.0, on_miss="fail")
+    d = msgspec.to_builtins(m.Envelope(v=m.PROTOCOL_VERSION, sender=rng.choice(PEERS), msg=msg),
+                            builtin_types=(bytes,))
+    d["msg"][field] = rng.choice(WIRE_DEADLINES + ["x" * (m.MAX_NAME + 1), 1.5])
+    return ENCODER.encode(d)
+
+
 def oversized(rng):
     """Over the total limit (checked before parsing) or near it."""
     n = m.MAX_MESSAGE_BYTES + rng.choice([1, 2, 1000, 1 << 20])
@@ -339,6 +382,7 @@ WIRE_KINDS: list[tuple[str, int, Callable[[random.Random], bytes]]] = [
     ("wrong_version", 6, _wrong_version),
     ("wrong_shape", 8, _wrong_shape),
     ("bad_fields", 14, _bad_fields),
+    ("bad_deadlines", 4, _bad_deadlines),
     ("huge_lengths", 3, _huge_lengths),
     ("ext_types", 2, _ext),
     ("deep_nesting", 1, _deep),
@@ -350,5 +394,7 @@ OVERSIZED_EVERY = 500
 BIG_FIELDS_EVERY = 1000
 
 
-__all__ = ["BIG_FIELDS_EVERY", "ENCODER", "FLOATS", "INTERESTING", "ME", "OVERSIZED_EVERY", "PEERS", "PROGRAMS", "PROGRAM_IDS", "REASONS", "WIRE_KINDS",
-           "big_fields", "oversized", "random_count", "random_message", "random_object", "random_report"]
+__all__ = ["BAD_DEADLINES", "BAD_ON_MISS", "BIG_FIELDS_EVERY", "ENCODER", "FLOATS", "GOOD_DEADLINES", "INTERESTING", "ME",
+           "OVERSIZED_EVERY", "PEERS", "PROGRAMS", "PROGRAM_IDS", "REASONS", "WIRE_DEADLINES", "WIRE_KINDS",
+           "big_fields", "oversized", "random_count", "random_deadline", "random_message", "random_object",
+           "random_report"]
