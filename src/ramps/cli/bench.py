@@ -163,7 +163,8 @@ def bench_fuzz_cmd(
                       f"seed {r['seed']}: {r['decoder_inputs']} at the wire decoder ({r['decoded']} decoded, "
                       f"{r['wire_errors']} refused), {r['args_inputs']} at the argument decoder, "
                       f"{r['core_events']} core events (+{r['core_from_decoder']} decoded messages) on "
-                      f"{r['core_nodes']} nodes, {r['programs_delivered']} programs delivered; "
+                      f"{r['core_nodes']} nodes, {r['programs_delivered']} programs delivered ({r['deadline_misses']} missed "
+                      f"their deadline, {r['submits_refused']} submissions refused); "
                       f"unhandled exceptions: {r['exceptions']}", highlight=False)
         for x in r["exception_samples"]:
             console.print(f"  {x['target']} ({x['kind']}): {x['error']}", highlight=False)
