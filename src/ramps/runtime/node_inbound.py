@@ -179,8 +179,7 @@ class Inbound(DriverState):
     def _handle(self, item: tuple[Any, ...], now: float) -> list[Action]:
         kind = item[0]
         node = self.node
-        assert node is not None
-        if kind == "wire":
+        if kind == "wire":  # a message the wire refuses needs no core to be dropped and counted
             self._backlog_bytes -= len(item[1])
             try:
                 env = decode(item[1])  # the wire limit; client arguments are checked on submit
@@ -207,6 +206,7 @@ class Inbound(DriverState):
                     self._drop_logged_at, self._drops_unlogged = now, 0
                 return []
             msg = env.msg
+            assert node is not None
             if env.sender in self._revoked:  # refused at the ramps layer (see ramps.runtime.revocation)
                 self.revoked_dropped += 1
                 return []
@@ -226,6 +226,7 @@ class Inbound(DriverState):
                 self.bad_messages += 1
                 return []
             return node.handle(Received(sender=env.sender, msg=msg), now)
+        assert node is not None
         if kind == "finished":
             if self.metrics is not None:
                 self.metrics.on_finished(item[1])
