@@ -148,6 +148,20 @@ def miss_bound(sc: Scenario, *, time_limit: float = 2.0) -> tuple[int, bool]:
     return len(jobs) - int(on_time + 1e-6), proven
 
 
+def simulate_variants(sc: Scenario, variants: Sequence[tuple[str, str, bool, str]],
+                      sim_seed: int) -> tuple[dict[str, int], dict[str, float]]:
+    """(misses, makespan) per variant name of ``sc`` simulated with each
+    variant (name, policy, deadlines told, on_miss) on one seed."""
+    misses: dict[str, int] = {}
+    makespan: dict[str, float] = {}
+    for name, policy, told, on_miss in variants:
+        run = sc if on_miss == "run" else msgspec.structs.replace(
+            sc, programs=[msgspec.structs.replace(p, on_miss=on_miss) for p in sc.programs])
+        res = simulate(run, policy=policy, seed=sim_seed, deadlines=told)
+        misses[name], makespan[name] = res.deadline_misses, res.makespan
+    return misses, makespan
+
+
 def run_family(count: int = 40, *, seed: int = 0, sim_seed: int = 1, bound: bool = True,
                variants: Sequence[tuple[str, str, bool, str]] = VARIANTS) -> DeadlineReport:
     """Simulate ``count`` scenarios of the family with every variant on the
@@ -155,14 +169,7 @@ def run_family(count: int = 40, *, seed: int = 0, sim_seed: int = 1, bound: bool
     rows = []
     for i in range(count):
         sc = generate(i, seed)
-        misses: dict[str, int] = {}
-        makespan: dict[str, float] = {}
-        for name, policy, told, on_miss in variants:
-            run = sc if on_miss == "run" else msgspec.structs.replace(
-                sc, programs=[msgspec.structs.replace(p, on_miss=on_miss) for p in sc.programs])
-            res = simulate(run, policy=policy, seed=sim_seed, deadlines=told)
-            misses[name] = res.deadline_misses
-            makespan[name] = res.makespan
+        misses, makespan = simulate_variants(sc, variants, sim_seed)
         row = DeadlineRow(scenario=sc.name, programs=sum(p.count for p in sc.programs), misses=misses,
                           makespan=makespan)
         if bound:

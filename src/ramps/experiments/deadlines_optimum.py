@@ -35,8 +35,7 @@ import msgspec
 import numpy as np
 
 from ramps.core.cost import NetworkEstimate
-from ramps.experiments.deadlines import VARIANTS, Job, generate, jobs_of, miss_bound
-from ramps.sim.engine import simulate
+from ramps.experiments.deadlines import VARIANTS, Job, generate, jobs_of, miss_bound, simulate_variants
 from ramps.sim.scenario import Scenario
 
 #: the largest instance ``optimum`` takes (3**12 splits per robot)
@@ -174,13 +173,7 @@ def compare(count: int, *, seed: int = 0, sim_seed: int = 1) -> list[SmallRow]:
     ``run_family`` on the same seed, with their ``optimum`` and ``miss_bound``."""
     rows = []
     for sc in small_scenarios(count, seed=seed):
-        misses: dict[str, int] = {}
-        makespan: dict[str, float] = {}
-        for name, policy, told, on_miss in VARIANTS:
-            run = sc if on_miss == "run" else msgspec.structs.replace(
-                sc, programs=[msgspec.structs.replace(p, on_miss=on_miss) for p in sc.programs])
-            res = simulate(run, policy=policy, seed=sim_seed, deadlines=told)
-            misses[name], makespan[name] = res.deadline_misses, res.makespan
+        misses, makespan = simulate_variants(sc, VARIANTS, sim_seed)
         best = optimum(sc)
         misses["optimum"], makespan["optimum"] = best.misses, best.makespan
         misses["bound"] = miss_bound(sc)[0]
