@@ -56,8 +56,10 @@ def test_speed_samples_average_the_cpus_and_outweigh_an_odd_measurement():
     for _ in range(3):
         s.add({0: [0.50, 0.50], 1: [0.48, 0.48]})
     assert s.rate() == pytest.approx(0.49)  # 0.30 and one 0.49 dropped, 0.49 0.49 0.49 left
+    assert s.latest == pytest.approx(0.49)
     s.add({-1: [float("nan"), -1.0]})  # nothing measurable: no figure
     assert s.rate() == pytest.approx(0.49)
+    assert s.latest == 0.0  # not the measurement before it
 
 
 def test_the_boot_measurement_counts_only_until_the_grid_outvotes_it():

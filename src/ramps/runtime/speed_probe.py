@@ -176,9 +176,9 @@ class SpeedSamples:
         """One measurement's pieces; ``boot``: the measurement at the node's start."""
         rates = [fastest_quarter(good) for v in pieces.values()
                  if (good := [r for r in v if math.isfinite(r) and r > 0])]
+        self._latest = statistics.fmean(rates) if rates else 0.0
         if not rates:
             return
-        self._latest = statistics.fmean(rates)
         if boot:
             self._boot = self._latest
         else:
@@ -186,7 +186,8 @@ class SpeedSamples:
 
     @property
     def latest(self) -> float:
-        """The figure of the latest measurement alone (0.0 before any)."""
+        """The figure of the latest measurement alone (0.0 before any, or when
+        it timed nothing measurable)."""
         return self._latest
 
     def rate(self) -> float:
