@@ -30,6 +30,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ramps.core import messages as m
+from ramps.core.battery import BatteryMeasured
 from ramps.core.events import (
     Cancel,
     PeerAlive,
@@ -276,7 +277,7 @@ def aimed(h: CoreHarness):
 
 
 STEPS = ["hostile", "hostile", "aimed", "aimed", "replay_sent", "replay_heard", "reorder", "from_the_wire",
-         "submit", "finish", "progress", "cancel", "peer", "tick", "to_deadline"]
+         "submit", "finish", "progress", "cancel", "peer", "tick", "to_deadline", "battery"]
 
 
 deadlines = st.sampled_from(hostile.GOOD_DEADLINES + hostile.BAD_DEADLINES) | st.floats()
@@ -333,6 +334,9 @@ def test_core_survives_hostile_input_and_delivers_each_program_once(policy: str,
                                                   detail=data.draw(texts)), h.now))
         elif step == "cancel" and node.origin.programs:
             h._apply(node.handle(Cancel(program_id=data.draw(st.sampled_from(sorted(node.origin.programs)))), h.now))
+        elif step == "battery":  # any reading the driver may pass on (ramps.core.battery)
+            h._apply(node.handle(BatteryMeasured(charge=data.draw(st.none() | st.floats()),
+                                                 power=data.draw(st.none() | st.floats())), h.now))
         elif step == "peer":
             robot = data.draw(st.sampled_from(PEERS))
             h._apply(node.handle(PeerLost(robot=robot) if data.draw(st.booleans()) else PeerAlive(robot=robot), h.now))
@@ -396,7 +400,8 @@ def test_fuzz_benchmark_short_run_finds_nothing(seed: int) -> None:
     assert res["revocations_ok"] > 0 and res["revocations_refused"] > 0  # signed lists pass, the rest is refused
     assert res["decoded"] > 0 and res["wire_errors"] > 0 and res["core_from_decoder"] > 0
     assert res["programs_delivered"] > 0 and res["submits_refused"] > 0 and res["deadline_misses"] > 0
-    kinds = {"truncated", "bit_flips", "wrong_version", "wrong_shape", "deep_nesting", "pickle", "bad_deadlines"}
+    kinds = {"truncated", "bit_flips", "wrong_version", "wrong_shape", "deep_nesting", "pickle", "bad_deadlines",
+             "bad_battery"}
     assert kinds <= set(res["wire_kinds"])
 
 

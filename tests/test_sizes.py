@@ -27,7 +27,8 @@ KNOWN_MODULES: dict[str, tuple[int, str]] = {
     "testbed/peers.py": (801, "being reworked by another engineer (peer baselines)"),
     "runtime/node.py": (688, "the node driver, being recomposed into parts"),
     "runtime/client.py": (685, "the Team client, being edited for deadlines"),
-    "core/messages.py": (625, "the wire records, being edited for deadlines"),
+    "core/messages.py": (680, "the wire records, accelerator and battery fields being added; "
+                              "the field types and limits are the next to move out"),
     "sim/engine.py": (542, "the simulator, being edited for deadlines"),
 }
 

@@ -52,6 +52,7 @@ from typing import Any, Callable
 import msgspec
 
 from ramps.core import messages as m
+from ramps.core.battery import BatteryMeasured
 from ramps.core.events import (
     Cancel,
     Deliver,
@@ -268,10 +269,13 @@ class CoreHarness:
         elif k < 75 and node.origin.programs:  # (cancelling what it never had is local misuse)
             pid = rng.choice(sorted(node.origin.programs))
             self._apply(node.handle(Cancel(program_id=pid), self.now))
-        elif k < 80:
+        elif k < 79:
             robot = rng.choice(PEERS)
             self._apply(node.handle(PeerLost(robot=robot) if rng.random() < 0.5 else PeerAlive(robot=robot),
                                     self.now))
+        elif k < 80:  # this robot's battery, any reading (ramps.core.battery)
+            self._apply(node.handle(BatteryMeasured(charge=rng.choice([None, 0.05, 0.22, 0.9, *FLOATS]),
+                                                    power=rng.choice([None, 6.0, *FLOATS])), self.now))
         elif k < 90:
             self.now += rng.choice([0.0, 0.01, 0.3, 1.0, 2.5, 11.0])
             self._apply(node.tick(self.now))

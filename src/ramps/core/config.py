@@ -129,6 +129,16 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: no move of a program whose learned work is scattered: its latest runs'
     #: largest per declared unit over their smallest above this
     relocate_max_spread: float = 1.5
+    #: a robot whose battery is below this state of charge (0..1) takes no
+    #: teammates' programs and hands back those it runs for them, which
+    #: their origins place elsewhere at once (``ramps.core.battery``); its
+    #: own programs still run, here or on teammates. No effect on a robot
+    #: that reports no battery; 0: off
+    battery_reserve: float = 0.2
+    #: a robot below its reserve takes teammates' programs again once its
+    #: charge is back at the reserve plus this, so one whose charge hovers
+    #: at the reserve does not flip with every report
+    battery_hysteresis: float = 0.05
 
     def __post_init__(self) -> None:
         for name in self.__struct_fields__:
@@ -146,6 +156,9 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             raise ValueError(f"relocate_max_done must be 0..1, got {self.relocate_max_done}")
         if self.relocate_max_spread < 1:
             raise ValueError(f"relocate_max_spread must be >= 1, got {self.relocate_max_spread}")
+        for name in ("battery_reserve", "battery_hysteresis"):
+            if not getattr(self, name) <= 1:
+                raise ValueError(f"{name} must be 0..1, got {getattr(self, name)}")
         if self.speed_max_correction < 1:
             raise ValueError(f"speed_max_correction must be >= 1, got {self.speed_max_correction}")
 

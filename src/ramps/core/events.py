@@ -2,7 +2,8 @@
 
 Rules: the core's inputs are wire messages (``ramps.core.messages``) and
 the local events of ``Event`` (those below, ``Stalled`` from
-``ramps.core.relink`` and ``SpeedMeasured`` from ``ramps.core.speed``), each
+``ramps.core.relink`` and ``SpeedMeasured`` from ``ramps.core.speed``,
+``BatteryMeasured`` from ``ramps.core.battery``), each
 with ``now`` passed alongside; its outputs are the actions below. A driver (the simulator, or the Zenoh runtime) applies the
 actions: it sends, starts and stops programs, and hands results to the
 application. ``Note`` actions carry no obligation: they exist so a driver can
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import msgspec
 
+from ramps.core.battery import BatteryMeasured
 from ramps.core.messages import LoadReport, Message, ProgramResult
 from ramps.core.relink import Stalled
 from ramps.core.speed import SpeedMeasured
@@ -118,7 +120,7 @@ class Received(_Rec, frozen=True, kw_only=True):
 
 
 Event = (Submit | Cancel | ProgramFinished | ProgressReported | CheckpointSaved | PeerLost | PeerAlive | Received
-         | Stalled | SpeedMeasured)
+         | Stalled | SpeedMeasured | BatteryMeasured)
 
 
 # ---------------------------------------------------------------- actions out
@@ -189,7 +191,7 @@ class Note(_Rec, frozen=True, kw_only=True):
     """Something the core decided, for traces and logs. ``what`` is one of:
     placed, accepted, rejected, blacklisted, unblacklisted, failed, backoff,
     discarded, anomaly, isolated, suspected, moving, moved, move_aborted,
-    checkpoint, restored, deadline_unmet, deadline_missed."""
+    checkpoint, restored, deadline_unmet, deadline_missed, battery_low, battery_ok."""
 
     what: str
     program_id: str = ""

@@ -121,6 +121,8 @@ class Executor:
         self.refused = 0
         #: the node is shutting down: take nothing new
         self.closing = False
+        #: below its battery reserve (``ramps.core.battery``): no teammates' programs
+        self.low_battery = False
         #: this robot's capacity, for admission (a program that gets a whole
         #: core is never turned away; see ``_still_best_here``)
         self.cores = cores
@@ -174,6 +176,8 @@ class Executor:
             reject = ("unknown_program", True, f"no program {req.program!r} is registered on {self.me}")
         elif self.closing:
             reject = ("closing", False, f"{self.me} is shutting down")
+        elif self.low_battery and req.origin != self.me:
+            reject = ("battery", False, f"{self.me} is below its battery reserve: it runs no teammates' programs")
         elif not req.force and (req.deadline_in is not None or req.expected_runnable is not None) and (
                 late := self._makes_late(req)) is not None:
             reject = ("late", False, late)
@@ -412,15 +416,17 @@ class Executor:
             program_id=pid, attempt=attempt, host=self.me, fraction=0.0 if job.progress is None else job.progress,
             detail=job.detail)))
 
-    def hand_back(self, now: float, out: list[Action]) -> int:
+    def hand_back(self, now: float, out: list[Action], *, why: str = "") -> int:
         """Shutting down: end every running program with a retryable result so
-        each origin places it elsewhere at once. Returns how many."""
-        self.closing = True
-        keys = list(self.running)
+        each origin places it elsewhere at once. Returns how many. With
+        ``why`` (below its battery reserve, ``ramps.core.battery``): only
+        teammates' programs, with ``why`` as their error, and it stays open."""
+        self.closing = self.closing or not why
+        keys = [key for key, job in self.running.items() if not why or job.origin != self.me]
         for pid, attempt in keys:
             out.append(StopProgram(program_id=pid, attempt=attempt))
             self.on_finished(ProgramFinished(program_id=pid, attempt=attempt, ok=False, retryable=True,
-                                             error=f"{self.me} is shutting down"), now, out)
+                                             error=why or f"{self.me} is shutting down"), now, out)
         return len(keys)
 
     def unacked_results(self) -> int:

@@ -137,6 +137,9 @@ class LoadView:
         self.speed_factor: dict[str, float] = {}
         #: tie-breaks of the bookings waiting for a report (``_Robot.waiting_accept``)
         self._ties = itertools.count()
+        #: teammates whose latest report says they are below their battery
+        #: reserve (``ramps.core.battery``): origins leave them out of placement
+        self.low_battery: set[str] = set()
 
     # ------------------------------------------------------------ reports
     def on_report(self, report: LoadReport, now: float, *, fresh: bool = False) -> bool:
@@ -169,6 +172,10 @@ class LoadView:
             rob.stale = True
         rob.report = report
         rob.received_at = now
+        if report.low_battery and report.robot != self.me:
+            self.low_battery.add(report.robot)
+        else:
+            self.low_battery.discard(report.robot)
         rob.paper_booked = 0
         rob.lost = False
         self.reports_received += 1

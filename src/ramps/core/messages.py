@@ -58,7 +58,8 @@ from ramps.version import __version__
 #: and types); 1.1 (ramps 0.2.0) decodes tolerantly and adds optional fields, left out at their defaults
 #: (docs/wire-compatibility.md): ``ProgramResult.worker_died`` (a program killed its own worker); with
 #: a deadline, ``OffloadRequest.deadline_in``, ``SubmitProgram.deadline``, ``SubmitProgram.on_miss``,
-#: ``ProgramOutcome.missed_deadline``. The envelope's ``v`` is the major only (1.0 checks ``v == 1``).
+#: ``ProgramOutcome.missed_deadline``; with a battery, ``LoadReport.battery``,
+#: ``LoadReport.low_battery`` and ``LoadReport.power``. The envelope's ``v`` is the major only (1.0 checks ``v == 1``).
 PROTOCOL_MAJOR = 1
 PROTOCOL_MINOR = 1
 #: the envelope's ``v`` (kept under its old name for the fuzzers and tests)
@@ -223,6 +224,14 @@ class LoadReport(_Msg, frozen=True, kw_only=True, tag="load"):
     #: abandoned (the new host refused or failed), for ``ramps status``
     moves: Count = 0
     moves_aborted: Count = 0
+    #: this robot's battery, its state of charge 0..1 (None: it reports
+    #: none), and whether it is below its battery reserve: it then takes no
+    #: teammates' programs, and origins leave it out (``ramps.core.battery``)
+    battery: Fraction | None = None
+    low_battery: bool = False
+    #: watts one busy core of this robot draws (None: not known), which
+    #: placement weighs with ``RampsConfig.energy_weight``
+    power: Load | None = None
 
 
 class LinkSeen(msgspec.Struct, frozen=True, array_like=True):

@@ -11,7 +11,9 @@ so running locally is just another placement and needs no special path.
 measured (CPU, run queue) and what the executor knows (programs running,
 accepted and finished counts). Drivers publish it to every teammate and
 feed it to this node too, as the paper's local load server hears the local
-load publisher.
+load publisher. The driver reads the robot's battery before each report
+(``BatteryMeasured``): below its reserve it hands back its teammates'
+programs and takes no more (``ramps.core.battery``).
 
 Prompt reports (policies that share load, ``Policy.shares_load``): several
 origins deciding at once on reports up to a period old pile onto the same
@@ -35,6 +37,7 @@ from typing import Any
 
 import msgspec
 
+from ramps.core.battery import BatteryMeasured, Reserve, sane_power
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate
 from ramps.core.events import (
@@ -162,6 +165,9 @@ class Node:
         self._published = (0, 0)
         self._prompted_at = -float("inf")
         self._prompt_due: float | None = None
+        #: this robot's battery: below its reserve or not, and the watts a busy core draws (None: not known)
+        self.reserve = Reserve(self.config.battery_reserve, self.config.battery_hysteresis)
+        self.power: float | None = None
 
     # ------------------------------------------------------------ driving
     def handle(self, event: Event, now: float) -> list[Action]:
@@ -275,8 +281,28 @@ class Node:
             self.origin.relink.stalled(now)
             out.append(Note(what="relinking", robot=self.robot, detail=f"stalled {event.seconds:.3f} s: teammates' "
                             f"silence counts once their links are back (at most {self.origin.relink.timeout} s)"))
+        elif isinstance(event, BatteryMeasured):
+            self._battery(event, now, out)
         else:
             raise TypeError(f"not a ramps event: {event!r}")
+
+    def _battery(self, ev: BatteryMeasured, now: float, out: list[Action]) -> None:
+        """The driver read this robot's battery: below its reserve, hand back
+        the teammates' programs running here and take no more; above it
+        again (with the hysteresis), take them again (``ramps.core.battery``)."""
+        self.power = sane_power(ev.power)
+        if not self.reserve.update(ev.charge):
+            return
+        r = self.reserve
+        self.executor.low_battery = r.low
+        charge = "none" if r.charge is None else f"{r.charge:.0%}"
+        if r.low:
+            why = f"{self.robot} is below its battery reserve ({charge} < {r.reserve:.0%}): handed back"
+            handed = self.executor.hand_back(now, out, why=why)
+            out.append(Note(what="battery_low", robot=self.robot, detail=f"charge {charge}, reserve {r.reserve:.0%}: "
+                            f"{handed} teammates' programs handed back, none taken until {min(1.0, r.reserve + r.hysteresis):.0%}"))
+        else:
+            out.append(Note(what="battery_ok", robot=self.robot, detail=f"charge {charge}: takes teammates' programs again"))
 
     def _receive(self, sender: str, msg: object, now: float, out: list[Action]) -> None:
         if isinstance(msg, LoadReport) and msg.robot == self.robot and msg.incarnation != self.incarnation:
@@ -368,6 +394,7 @@ class Node:
             speed=self.speed, program_weight=self.program_weight, ramps_running=len(self.executor.running),
             accepted_total=self.executor.accepted_total, finished_total=self.executor.finished_total,
             remaining=self.executor.remaining(self._now), moves=self.origin.moves,
+            battery=self.reserve.charge, low_battery=self.reserve.low, power=self.power,
             moves_aborted=self.origin.moves_aborted, **measured,
         )
 

@@ -525,7 +525,7 @@ class Origin:
                                  payload_size=sub.payload_size + len(resume or b""), result_size=sub.result_size,
                                  deadline=left),
                 self.view, now, self.rng, net=self.net, config=self.config,
-                exclude=frozenset(ap.excluded) | self.view.short_of_memory(sub.memory)
+                exclude=frozenset(ap.excluded) | self.view.short_of_memory(sub.memory) | self.view.low_battery
                 | self.relink.excluded(self.view.robots(), now),
                 links=self.links.estimate if self.links is not None else None,
             )

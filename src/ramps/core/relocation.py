@@ -179,7 +179,7 @@ def price_move(origin: RelocatingOrigin, ap: AutonomousProgram, t_here: float, n
     sub = ap.submit
     work = origin.work_estimate(sub) * (1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0))
     # never back where it ran, nor onto a robot whose figures are in doubt
-    never = frozenset({ap.host or ""}) | frozenset(ap.ran_on) | unsettled(origin, now)
+    never = frozenset({ap.host or ""}) | frozenset(ap.ran_on) | unsettled(origin, now) | origin.view.low_battery
     placement = origin.policy_for(sub).choose(
         PlacementRequest(program_id=ap.program_id, work=work,
                          payload_size=sub.payload_size + len(ap.checkpoint or b""), result_size=sub.result_size),

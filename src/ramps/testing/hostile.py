@@ -37,7 +37,7 @@ ME = "n"
 PEERS = ["p", "q", "r1", ME, "x" * m.MAX_NAME, "o/app-1", "robot.é"]
 PROGRAM_IDS = ["a", "b", "c", "n#1", "p" * m.MAX_NAME]
 PROGRAMS = ["route_plan", "noop", "x"]
-REASONS = ["busy", "late", "unknown_program", "bad_request", "closing", ""]
+REASONS = ["busy", "late", "unknown_program", "bad_request", "closing", "battery", ""]
 #: msgpack type bytes that change how what follows is read
 INTERESTING = [0x00, 0x7f, 0x80, 0x8f, 0x90, 0x9f, 0xa0, 0xbf, 0xc0, 0xc1, 0xc2, 0xc3, 0xc4, 0xc5, 0xc6, 0xc7,
                0xc8, 0xc9, 0xca, 0xcb, 0xcc, 0xcf, 0xd0, 0xd3, 0xd4, 0xd8, 0xd9, 0xda, 0xdb, 0xdc, 0xdd, 0xde,
@@ -101,6 +101,8 @@ def random_report(rng: random.Random, robot: str | None = None) -> m.LoadReport:
                for _ in range(rng.choice([0, 1, 3, m.MAX_LISTED if extreme else 2]))],
         learned=[m.LearnedWork(rng.choice(PROGRAMS), _amount(rng, 100.0)) for _ in range(rng.choice([0, 1, 2]))],
         moves=random_count(rng), moves_aborted=random_count(rng), node_cpu=_amount(rng, 2.0),
+        battery=rng.choice([None, None, 0.0, 1.0, rng.random()]), low_battery=rng.random() < 0.1,
+        power=rng.choice([None, None, _amount(rng, 40.0)]),
     )
 
 
@@ -291,6 +293,17 @@ def _bad_deadlines(rng: random.Random) -> bytes:
     return ENCODER.encode(d)
 
 
+def _bad_battery(rng: random.Random) -> bytes:
+    """A load report whose battery fields (``battery``, ``low_battery``,
+    ``power``) hold a hostile value: only a charge 0..1, a boolean and
+    finite watts 0..MAX_LOAD (or None) decode."""
+    field = rng.choice(["battery", "low_battery", "power"])
+    msg = random_report(rng, robot=rng.choice(PEERS))
+    d = msgspec.to_builtins(m.Envelope(v=m.PROTOCOL_VERSION, sender=msg.robot, msg=msg), builtin_types=(bytes,))
+    d["msg"][field] = rng.choice(WIRE_DEADLINES + [1.5, -0.5, 1.0 + 1e-9, m.MAX_LOAD * 2, "x", None, 0.5])
+    return ENCODER.encode(d)
+
+
 def oversized(rng):
     """Over the total limit (checked before parsing) or near it."""
     n = m.MAX_MESSAGE_BYTES + rng.choice([1, 2, 1000, 1 << 20])
@@ -383,6 +396,7 @@ WIRE_KINDS: list[tuple[str, int, Callable[[random.Random], bytes]]] = [
     ("wrong_shape", 8, _wrong_shape),
     ("bad_fields", 14, _bad_fields),
     ("bad_deadlines", 4, _bad_deadlines),
+    ("bad_battery", 2, _bad_battery),
     ("huge_lengths", 3, _huge_lengths),
     ("ext_types", 2, _ext),
     ("deep_nesting", 1, _deep),
