@@ -49,6 +49,13 @@ class Submit(_Rec, frozen=True, kw_only=True):
     #: robot) or "fail" (at once, ``error_kind`` "deadline")
     deadline: float | None = None
     on_miss: str = "run"
+    #: the kind of accelerator the program can use ("" = none) and its work
+    #: there (work units at slot speed 1); robots that have one run it there,
+    #: the others on a CPU (``work``) unless ``cpu_fallback`` is False, when
+    #: only robots with one are candidates (``ramps.core.accelerators``)
+    accelerator: str = ""
+    accelerator_work: float = 0.0
+    cpu_fallback: bool = True
 
 
 class Cancel(_Rec, frozen=True, kw_only=True):
@@ -142,6 +149,9 @@ class StartProgram(_Rec, frozen=True, kw_only=True):
     resume: bytes | None = None
     #: how far the program was at that checkpoint (0..1)
     resume_fraction: float = 0.0
+    #: the kind of accelerator it runs on here ("" = a CPU): the driver gives
+    #: the program one of that kind's devices (``ramps.accelerator()``)
+    accelerator: str = ""
 
 
 class StopProgram(_Rec, frozen=True, kw_only=True):

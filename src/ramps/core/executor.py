@@ -24,6 +24,11 @@ results dropped, instead of running for nobody and being resent for
 incarnation included (a node restarted with its durable record,
 ``ramps.core.durable``), receives their heartbeats and results as before.
 
+A program offered for one of this robot's accelerators (``OffloadRequest.accelerator``)
+runs there: it shares that kind's slots with the programs on them, not the
+cores, and is neither in the CPU counts nor in ``remaining``; a robot
+without that kind turns it away (``accelerator``).
+
 Requests are idempotent: the same (program, attempt) twice is accepted once.
 ``accepted_total`` and ``finished_total`` only ever grow; the load publisher
 puts them in every report so origins can tell what a report includes.
@@ -34,8 +39,9 @@ from __future__ import annotations
 import heapq
 import math
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
+from ramps.core.accelerators import Accelerator, slot_share
 from ramps.core.config import RampsConfig
 from ramps.core.cost import program_share, shared_finish_time
 from ramps.core.events import (Action, CheckpointSaved, Note, ProgramFinished, ProgressReported, Send, StartProgram,
@@ -64,11 +70,13 @@ ORIGIN_GONE_AFTER = RampsConfig().origin_hold
 
 class _Job:
     __slots__ = ("origin", "program", "started_at", "progress", "detail", "progress_new", "progress_sent_at",
-                 "work", "done", "due")
+                 "work", "done", "due", "accelerator")
 
     def __init__(self, origin: str, program: str, started_at: float, work: float = 0.0,
-                 due: float | None = None) -> None:
+                 due: float | None = None, accelerator: str = "") -> None:
         self.origin = origin
+        #: the kind of accelerator it runs on ("" = a CPU); its work is work there
+        self.accelerator = accelerator
         self.program = program
         self.started_at = started_at
         #: the origin's estimate of the work, and how much of it processor
@@ -96,8 +104,13 @@ class Executor:
         speed: float = 1.0,
         program_weight: float = 1.0,
         core_fraction: float = 1.0,
+        accelerators: Sequence[Accelerator] = (),
     ) -> None:
         self.me = me
+        #: this robot's accelerators by kind, and how many programs run on each
+        self.accelerators = {a.kind: a for a in accelerators}
+        self.on_accelerators = {a.kind: 0 for a in accelerators}
+        self._on_any = 0
         self.config = config
         #: the share of a CPU each of this robot's cores is (a quota shared by
         #: its cores; 1 without one): a program's CPU second is this robot's
@@ -137,10 +150,45 @@ class Executor:
         last, self._advanced_at = self._advanced_at, now
         if last is None or now <= last or not self.running:
             return
-        rate = self.speed * program_share(self.cores, len(self.running), self.background, self.program_weight)
-        step = rate * (now - last)
+        if not self._on_any:
+            rate = self.speed * program_share(self.cores, len(self.running), self.background, self.program_weight)
+            step = rate * (now - last)
+            for job in self.running.values():
+                job.done += step
+            return
+        cpu = len(self.running) - self._on_any
+        steps = {"": self.speed * program_share(self.cores, cpu, self.background, self.program_weight)
+                 * (now - last) if cpu else 0.0}
+        for kind, a in self.accelerators.items():
+            steps[kind] = a.speed * slot_share(a.count, self.on_accelerators[kind]) * (now - last)
         for job in self.running.values():
-            job.done += step
+            job.done += steps[job.accelerator]
+
+    def _pool(self, kind: str) -> tuple[list[_Job], float, float, float, float]:
+        """The programs sharing what a program on ``kind`` ("" = a CPU) would
+        share, and that pool's (cores or slots, speed, background, weight)."""
+        jobs = [job for job in self.running.values() if job.accelerator == kind]
+        if kind:
+            a = self.accelerators[kind]
+            return jobs, float(a.count), a.speed, 0.0, 1.0
+        return jobs, self.cores, self.speed, self.background, self.program_weight
+
+    def _started(self, key: Key, job: _Job) -> None:
+        self.running[key] = job
+        if job.accelerator:
+            self.on_accelerators[job.accelerator] += 1
+            self._on_any += 1
+
+    def _ended(self, key: Key) -> _Job | None:
+        job = self.running.pop(key, None)
+        if job is not None and job.accelerator:
+            self.on_accelerators[job.accelerator] -= 1
+            self._on_any -= 1
+        return job
+
+    def cpu_programs(self) -> int:
+        """Programs running here on a CPU (not on an accelerator)."""
+        return len(self.running) - self._on_any
 
     def set_speed(self, speed: float, now: float) -> None:
         """This robot's speed changed (``ramps.core.speed``): running
@@ -154,7 +202,8 @@ class Executor:
         self._advance(now)
         # x if x > 0.0 else 0.0 is max(0.0, x) without a call per job; a
         # robot running more than MAX_LISTED lists the smallest, without sorting the rest
-        left = [x if (x := job.work - job.done) > 0.0 else 0.0 for job in self.running.values()]
+        left = [x if (x := job.work - job.done) > 0.0 else 0.0 for job in self.running.values()
+                if not job.accelerator]
         if len(left) > MAX_LISTED:
             return heapq.nsmallest(MAX_LISTED, left)
         left.sort()
@@ -178,6 +227,8 @@ class Executor:
             reject = ("closing", False, f"{self.me} is shutting down")
         elif self.low_battery and req.origin != self.me:
             reject = ("battery", False, f"{self.me} is below its battery reserve: it runs no teammates' programs")
+        elif req.accelerator and req.accelerator not in self.accelerators:
+            reject = ("accelerator", False, f"{self.me} has no {req.accelerator!r} accelerator")
         elif not req.force and (req.deadline_in is not None or req.expected_runnable is not None) and (
                 late := self._makes_late(req)) is not None:
             reject = ("late", False, late)
@@ -185,8 +236,12 @@ class Executor:
             # turned away only if the program would not get a whole core here
             # and more is running than the origin counted on (several origins
             # deciding on the same data); the rejection carries a fresh report
-            actual = self.background + len(self.running)
-            if (actual + 1.0 > self.cores and actual > req.expected_runnable + self.config.admission_slack
+            if req.accelerator:
+                slots: float = self.accelerators[req.accelerator].count
+                actual = float(self.on_accelerators[req.accelerator])
+            else:
+                slots, actual = self.cores, self.background + self.cpu_programs()
+            if (actual + 1.0 > slots and actual > req.expected_runnable + self.config.admission_slack
                     and not self._still_best_here(req)):
                 reject = ("busy", False, f"{actual:.1f} runnable here, origin expected {req.expected_runnable:.1f}")
         if reject is not None:
@@ -201,10 +256,10 @@ class Executor:
             return
         self.accepted_total += 1
         due = now + req.deadline_in if req.deadline_in is not None else None
-        self.running[key] = _Job(req.origin, req.program, now, req.work, due)
+        self._started(key, _Job(req.origin, req.program, now, req.work, due, req.accelerator))
         out.append(StartProgram(program_id=req.program_id, attempt=req.attempt, origin=req.origin,
                                 program=req.program, args=req.args, work=req.work, resume=req.resume,
-                                resume_fraction=req.resume_fraction))
+                                resume_fraction=req.resume_fraction, accelerator=req.accelerator))
         out.append(Send(to=req.origin, msg=OffloadAccepted(
             program_id=req.program_id, attempt=req.attempt, host=self.me, accept_seq=self.accepted_total)))
         if self._next_tick is None:
@@ -222,32 +277,34 @@ class Executor:
         """Why taking ``req`` would miss a deadline (its own, or that of a
         program running here that would have made it), by processor sharing
         of the work each has left; None if it would not. ``_advance`` first."""
-        jobs = list(self.running.values())
+        jobs, *pool = self._pool(req.accelerator)
         if req.deadline_in is None and not any(job.due is not None for job in jobs):
             return None
         tol = 1.0 + self.config.admission_tolerance
         left = [max(0.0, job.work - job.done) for job in jobs]
-        after = self._ends(left + [req.work])
+        after = self._ends(left + [req.work], *pool)
         if req.deadline_in is not None and after[-1] > req.deadline_in * tol:
             return f"would end in {after[-1]:.2f} s here, deadline in {req.deadline_in:.2f} s"
         if self._advanced_at is None:
             return None
         now = self._advanced_at
-        before = self._ends(left)
+        before = self._ends(left, *pool)
         hurt = sum(1 for job, b, a in zip(jobs, before, after)
                    if job.due is not None and b <= (job.due - now) * tol < a)
         if hurt:
             return f"would make {hurt} program{'s' if hurt > 1 else ''} here miss {'their' if hurt > 1 else 'its'} deadline"
         return None
 
-    def _ends(self, left: list[float]) -> list[float]:
-        """Seconds until each program with these works left ends here, under
-        processor sharing (equal rates: the smallest ends first)."""
+    @staticmethod
+    def _ends(left: list[float], cores: float, speed: float, background: float, weight: float) -> list[float]:
+        """Seconds until each program with these works left ends in a pool
+        of ``cores`` (``_pool``), under processor sharing (equal rates: the
+        smallest ends first)."""
         out = [0.0] * len(left)
         t = done = 0.0
         k = len(left)
         for i in sorted(range(len(left)), key=left.__getitem__):
-            rate = self.speed * program_share(self.cores, k, self.background, self.program_weight)
+            rate = speed * program_share(cores, k, background, weight)
             t += (left[i] - done) / rate
             done = left[i]
             out[i] = t
@@ -257,13 +314,14 @@ class Executor:
     def _time_here(self, req: OffloadRequest) -> float:
         """Seconds the offered program would compute here, under processor
         sharing with what runs here now (by the work each has left)."""
-        others = [max(0.0, job.work - job.done) for job in self.running.values()]
-        return shared_finish_time(req.work, others, self.cores, self.speed, self.background, self.program_weight)
+        jobs, cores, speed, background, weight = self._pool(req.accelerator)
+        others = [max(0.0, job.work - job.done) for job in jobs]
+        return shared_finish_time(req.work, others, cores, speed, background, weight)
 
     def on_finished(self, ev: ProgramFinished, now: float, out: list[Action]) -> None:
         self._advance(now)
         key = (ev.program_id, ev.attempt)
-        job = self.running.pop(key, None)
+        job = self._ended(key)
         if job is None:
             return  # cancelled before it ended: nobody wants it
         self.finished_total += 1
@@ -277,12 +335,14 @@ class Executor:
         if self._next_tick is None:
             self._next_tick = now + self.config.result_resend
 
-    def _work_done(self, job: _Job, ev: ProgramFinished) -> float:
+    def _work_done(self, job: _Job, ev: ProgramFinished) -> float | None:
         """The work a finished program took, in units at this robot's speed:
         from the CPU seconds it used where the driver measured them (exact
         whatever its share of the robot was, however long it slept),
         else from processor sharing at this robot's speed and load."""
         cpu = ev.cpu_s
+        if job.accelerator:
+            return None  # its CPU seconds say nothing of its work on the accelerator
         if cpu is None or not (math.isfinite(cpu) and cpu >= 0.0) or self.core_fraction <= 0.0:
             return job.done
         return cpu * self.speed / self.core_fraction
@@ -292,7 +352,7 @@ class Executor:
         key = (msg.program_id, msg.attempt)
         job = self.running.get(key)
         if job is not None and job.origin == msg.origin:
-            del self.running[key]
+            self._ended(key)
             self.finished_total += 1
             out.append(StopProgram(program_id=msg.program_id, attempt=msg.attempt))
         entry = self._outbox.get(key)
@@ -360,7 +420,7 @@ class Executor:
             del self._origins_lost[robot]
             for key, job in list(self.running.items()):
                 if job.origin == robot:
-                    del self.running[key]
+                    self._ended(key)
                     self.finished_total += 1
                     self.orphans_stopped += 1
                     out.append(StopProgram(program_id=key[0], attempt=key[1]))

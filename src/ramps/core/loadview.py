@@ -21,50 +21,12 @@ from __future__ import annotations
 
 import heapq
 import itertools
-import math
 
 from ramps.core.cost import program_cores, program_share
-from ramps.core.messages import MAX_CORES, MAX_LISTED, MAX_LOAD, MAX_SPEED, MAX_WEIGHT, MIN_SPEED, MIN_WEIGHT, LoadReport
+from ramps.core.messages import MAX_LISTED, AcceleratorSeen, LoadReport
+from ramps.core.reportcheck import report_problem
 
-#: the speeds ``report_problem``'s quick check passes: within both bounds it checks
-_SPEED_LOW, _SPEED_TOP = max(MIN_SPEED, 0.0), min(MAX_SPEED, MAX_LOAD)
-
-
-def report_problem(report: LoadReport) -> str | None:
-    """Why a teammate's report cannot be used, or None if it can. A report
-    with zero cores or speed would make every cost estimate divide by zero,
-    and so would a tiny speed over a huge run queue (their product underflows
-    to 0.0): the bounds are those the wire schema declares.
-
-    Every report a node hears or makes passes here: a sound one in a single
-    chain of comparisons (a NaN or an infinity fails ``0 <= x <= MAX_LOAD``
-    as surely as ``math.isfinite``), a faulty one through ``_problem`` for
-    the words."""
-    if (1 <= report.cores <= MAX_CORES and _SPEED_LOW <= report.speed <= _SPEED_TOP
-            and 0 <= report.cpu_busy <= MAX_LOAD and 0 <= report.runnable <= MAX_LOAD
-            and 0 <= report.ramps_avg <= MAX_LOAD and 0 <= report.window <= MAX_LOAD
-            and MIN_WEIGHT <= report.program_weight <= MAX_WEIGHT
-            and report.ramps_running >= 0 and report.accepted_total >= 0 and report.finished_total >= 0):
-        return None
-    return _problem(report)
-
-
-def _problem(report: LoadReport) -> str | None:
-    """``report_problem``'s words for a report that failed its quick check."""
-    if not 1 <= report.cores <= MAX_CORES:
-        return f"load report from {report.robot!r} claims {report.cores} cores"
-    for name in ("speed", "cpu_busy", "runnable", "ramps_avg", "window"):
-        value = getattr(report, name)
-        if not math.isfinite(value) or not 0 <= value <= MAX_LOAD:
-            return f"load report from {report.robot!r} has {name}={value!r}"
-    if not MIN_SPEED <= report.speed <= MAX_SPEED:
-        return f"load report from {report.robot!r} claims speed {report.speed!r}"
-    if not MIN_WEIGHT <= report.program_weight <= MAX_WEIGHT:
-        return f"load report from {report.robot!r} claims program weight {report.program_weight!r}"
-    if report.ramps_running < 0 or report.accepted_total < 0 or report.finished_total < 0:
-        return f"load report from {report.robot!r} has negative counters"
-    return None
-
+__all__ = ["LoadView", "report_problem"]
 
 class _Booking:
     __slots__ = ("accept_seq", "finish_seq")
@@ -94,7 +56,7 @@ def _kind(b: _Booking, acc_total: int, fin_total: int) -> int:
 
 class _Robot:
     __slots__ = ("report", "received_at", "bookings", "unseen_accept", "unseen_finish", "paper_booked", "lost",
-                 "counted", "waiting_accept", "waiting_finish", "stale")
+                 "counted", "waiting_accept", "waiting_finish", "stale", "accel")
 
     def __init__(self) -> None:
         self.report: LoadReport | None = None
@@ -117,6 +79,9 @@ class _Robot:
         self.waiting_finish: list[tuple[int, int, tuple[str, int], _Booking]] = []
         #: a booking was made again under a key it had: counted afresh at the next change
         self.stale = False
+        #: bookings of programs on an accelerator, with its kind: not CPU
+        #: programs, so kept apart from ``bookings`` (``accelerator_rows``)
+        self.accel: dict[tuple[str, int], tuple[str, _Booking]] = {}
 
 
 class LoadView:
@@ -140,6 +105,8 @@ class LoadView:
         #: teammates whose latest report says they are below their battery
         #: reserve (``ramps.core.battery``): origins leave them out of placement
         self.low_battery: set[str] = set()
+        #: this robot's accelerators until its own first report is in
+        self.accelerators: list[AcceleratorSeen] = []
 
     # ------------------------------------------------------------ reports
     def on_report(self, report: LoadReport, now: float, *, fresh: bool = False) -> bool:
@@ -169,6 +136,7 @@ class LoadView:
         if old is not None and old.incarnation != report.incarnation:
             # the robot restarted: whatever we booked there died with it
             rob.bookings.clear()
+            rob.accel.clear()
             rob.stale = True
         rob.report = report
         rob.received_at = now
@@ -273,11 +241,16 @@ class LoadView:
         return list(self._robots)
 
     # ------------------------------------------------------------ bookings
-    def book(self, robot: str, program_id: str, attempt: int) -> None:
+    def book(self, robot: str, program_id: str, attempt: int, accelerator: str = "") -> None:
+        """Count a program placed on ``robot`` until its reports show it (on
+        that kind of ``accelerator`` there; "" = on a CPU)."""
         rob = self._robots.get(robot)
         if rob is None:
             rob = self._robots[robot] = _Robot()
         key = (program_id, attempt)
+        if accelerator:
+            rob.accel[key] = (accelerator, _Booking())
+            return
         if key in rob.bookings:
             rob.stale = True  # the one it replaces still counts, until the next change counts afresh
         rob.bookings[key] = _Booking()
@@ -287,6 +260,11 @@ class LoadView:
     def accepted(self, robot: str, program_id: str, attempt: int, accept_seq: int) -> None:
         rob = self._robots.get(robot)
         key = (program_id, attempt)
+        if rob is not None and key in rob.accel:
+            ab = rob.accel[key][1]
+            if ab.accept_seq is None:
+                ab.accept_seq = accept_seq
+            return
         b = rob.bookings.get(key) if rob else None
         if rob is None or b is None or b.accept_seq is not None:
             return
@@ -304,6 +282,13 @@ class LoadView:
         """The program ended (``finish_seq`` known) or left the host (None)."""
         rob = self._robots.get(robot)
         key = (program_id, attempt)
+        if rob is not None and key in rob.accel:
+            ab = rob.accel[key][1]
+            if finish_seq is None or ab.accept_seq is None:
+                del rob.accel[key]
+            else:
+                ab.finish_seq = finish_seq
+            return
         b = rob.bookings.get(key) if rob else None
         if rob is None or b is None:
             return
@@ -361,6 +346,45 @@ class LoadView:
             del left[:len(left) - programs]
         # x if x > 0.0 else 0.0 is max(0.0, x), NaN and -0.0 included, without a call per item
         return [x if x > 0.0 else 0.0 for x in left] + [unknown] * (programs - len(left))
+
+    def accelerator_rows(self, now: float, kind: str,
+                         exclude: frozenset[str] = frozenset()) -> list[tuple[str, int, float, float]]:
+        """(robot, slots, speed, programs) for every candidate (``scan``'s)
+        that advertises accelerators of ``kind``: the programs on them by its
+        last report, plus those booked there that the report does not show
+        started, less those it does not show ended."""
+        horizon = now - self.max_report_age
+        out = []
+        for name, rob in self._robots.items():
+            rep = rob.report
+            if name in exclude:
+                continue
+            if name != self.me and (rep is None or rob.lost or rob.received_at < horizon
+                                    or name in self._blacklist):
+                continue
+            seen = next((a for a in (rep.accelerators if rep is not None else self.accelerators)
+                         if a.kind == kind), None)
+            if seen is None:
+                continue
+            programs = seen.running if rep is not None else 0
+            acc_total, fin_total = rob.counted
+            for key, (k, b) in list(rob.accel.items()):
+                state = _kind(b, acc_total, fin_total)
+                if state == _GONE:
+                    del rob.accel[key]
+                elif k == kind and state == _UNSEEN_ACCEPT:
+                    programs += 1
+                elif k == kind and state == _UNSEEN_FINISH:
+                    programs -= 1
+            out.append((name, seen.count, seen.speed, float(max(0, programs))))
+        return out
+
+    def accelerator_kinds(self, robot: str) -> frozenset[str]:
+        """The kinds of accelerator ``robot`` advertised last."""
+        rob = self._robots.get(robot)
+        if rob is None or rob.report is None:
+            return frozenset(a.kind for a in self.accelerators) if robot == self.me else frozenset()
+        return frozenset(a.kind for a in rob.report.accelerators)
 
     def short_of_memory(self, memory: int) -> frozenset[str]:
         """Robots whose last report shows less than ``memory`` bytes free once

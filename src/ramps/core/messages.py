@@ -93,6 +93,8 @@ MAX_PROGRESS_TEXT = 256
 MAX_LISTED = 256
 #: largest state a program may checkpoint (``ramps.checkpoint``), bytes
 MAX_CHECKPOINT_BYTES = 256 * 1024
+#: most kinds of accelerator a load report lists (``ramps.core.accelerators``)
+MAX_ACCELERATOR_KINDS = 8
 #: most padding a link probe may carry (bandwidth probes use ramps.core.links.PADDED_BYTES)
 MAX_PROBE_BYTES = 64 * 1024
 
@@ -224,6 +226,9 @@ class LoadReport(_Msg, frozen=True, kw_only=True, tag="load"):
     #: abandoned (the new host refused or failed), for ``ramps status``
     moves: Count = 0
     moves_aborted: Count = 0
+    #: the accelerators this robot advertises, with the programs on each
+    #: (``ramps.core.accelerators``); empty on a robot without any
+    accelerators: Annotated[list["AcceleratorSeen"], Meta(max_length=MAX_ACCELERATOR_KINDS)] = []
     #: this robot's battery, its state of charge 0..1 (None: it reports
     #: none), and whether it is below its battery reserve: it then takes no
     #: teammates' programs, and origins leave it out (``ramps.core.battery``)
@@ -232,6 +237,21 @@ class LoadReport(_Msg, frozen=True, kw_only=True, tag="load"):
     #: watts one busy core of this robot draws (None: not known), which
     #: placement weighs with ``RampsConfig.energy_weight``
     power: Load | None = None
+
+
+class AcceleratorSeen(msgspec.Struct, frozen=True, array_like=True):
+    """One kind of accelerator as a load report lists it: [kind, slots,
+    work units per second per slot, ramps programs on it now, device memory
+    in bytes (total, free; 0 = not measured), utilisation 0..1 (None = not
+    measured)]."""
+
+    kind: Name
+    count: Annotated[int, Meta(ge=1, le=MAX_CORES)]
+    speed: Speed
+    running: Count = 0
+    memory_total: Count = 0
+    memory_free: Count = 0
+    utilisation: Fraction | None = None
 
 
 class LinkSeen(msgspec.Struct, frozen=True, array_like=True):
@@ -293,6 +313,9 @@ class OffloadRequest(_Msg, frozen=True, kw_only=True, tag="offload"):
     #: to finish later turns it away ("late"). None: no deadline, or the
     #: origin runs it here whether in time or not. Added in protocol 1.1
     deadline_in: Amount | None = None
+    #: run it on this kind of accelerator here ("" = on a CPU); ``work`` is
+    #: then its work there. A host without one turns it away ("accelerator")
+    accelerator: Word = ""
 
 
 class OffloadAccepted(_Msg, frozen=True, kw_only=True, tag="accept"):
@@ -380,6 +403,12 @@ class SubmitProgram(_Msg, frozen=True, kw_only=True, tag="submit"):
     #: ""), "local" or "fail" (``ramps.core.origin``). Added in protocol 1.1
     deadline: Amount | None = None
     on_miss: Word = ""
+    #: the kind of accelerator the program can use ("" = none), its work
+    #: there in work units (0 = the same as ``work``), and whether it may
+    #: run on a CPU where no robot has one free (``ramps.core.accelerators``)
+    accelerator: Word = ""
+    accelerator_work: Amount = 0.0
+    cpu_fallback: bool = True
 
 
 class CancelSubmitted(_Msg, frozen=True, kw_only=True, tag="withdraw"):

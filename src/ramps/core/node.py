@@ -33,10 +33,12 @@ from __future__ import annotations
 
 import random
 from collections import deque
+from collections.abc import Sequence
 from typing import Any
 
 import msgspec
 
+from ramps.core.accelerators import Accelerator
 from ramps.core.battery import BatteryMeasured, Reserve, sane_power
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate
@@ -60,6 +62,7 @@ from ramps.core.identity import SameName
 from ramps.core.links import Links
 from ramps.core.loadview import LoadView, report_problem
 from ramps.core.messages import (
+    AcceleratorSeen,
     CancelProgram,
     Heartbeat,
     LinkProbe,
@@ -118,6 +121,7 @@ class Node:
         net: NetworkEstimate | None = None,
         program_weight: float = 1.0,
         core_fraction: float = 1.0,
+        accelerators: Sequence[Accelerator] = (),
     ) -> None:
         self.robot = robot
         self.cores = cores
@@ -145,7 +149,11 @@ class Node:
         self._probe_due: float | None = 0.0 if self.config.probe_period > 0 else None
         self.executor = Executor(robot, config=self.config, registry=registry, incarnation=incarnation,
                                  cores=cores, speed=speed, program_weight=program_weight,
-                                 core_fraction=core_fraction)
+                                 core_fraction=core_fraction, accelerators=accelerators)
+        #: what the driver last measured of each accelerator kind: (memory
+        #: total, memory free, utilisation or None), for the load reports
+        self.accelerator_measured: dict[str, tuple[int, int, float | None]] = {}
+        self.view.accelerators = self._accelerators_seen()
         #: this robot's speed (re-measured) and its teammates' as their results
         #: show (policies that share load only; ``ramps.core.speed``)
         self.own_speed = SpeedEstimate(speed, self.config) if self.policy.shares_load else None
@@ -381,7 +389,7 @@ class Node:
     def current_report(self) -> LoadReport:
         """A report of this instant (sent with a 'busy' rejection); it keeps
         the last sequence number, see ``LoadView.on_report(fresh=True)``."""
-        running = len(self.executor.running)
+        running = self.executor.cpu_programs()
         bg = self.executor.background
         return self._report(cpu_busy=min(float(self.cores), bg + running), runnable=bg + running,
                             ramps_avg=float(running), window=0.0, mem_free=self._mem_free, node_cpu=self._node_cpu)
@@ -391,12 +399,23 @@ class Node:
         plus what was ``measured``."""
         return LoadReport(
             robot=self.robot, incarnation=self.incarnation, seq=self._report_seq, cores=self.cores,
-            speed=self.speed, program_weight=self.program_weight, ramps_running=len(self.executor.running),
+            speed=self.speed, program_weight=self.program_weight, ramps_running=self.executor.cpu_programs(),
             accepted_total=self.executor.accepted_total, finished_total=self.executor.finished_total,
             remaining=self.executor.remaining(self._now), moves=self.origin.moves,
             battery=self.reserve.charge, low_battery=self.reserve.low, power=self.power,
-            moves_aborted=self.origin.moves_aborted, **measured,
+            moves_aborted=self.origin.moves_aborted, accelerators=self._accelerators_seen(), **measured,
         )
+
+    def _accelerators_seen(self) -> list[AcceleratorSeen]:
+        """This robot's accelerators as its reports list them."""
+        ex = self.executor
+        if not ex.accelerators:
+            return []
+        out = []
+        for kind, a in ex.accelerators.items():
+            total, free, util = self.accelerator_measured.get(kind, (0, 0, None))
+            out.append(AcceleratorSeen(kind, a.count, a.speed, ex.on_accelerators[kind], total, free, util))
+        return out
 
     def statistics(self) -> NodeStatistics:
         o, e = self.origin, self.executor

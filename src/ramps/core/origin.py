@@ -42,7 +42,7 @@ import random
 import statistics
 import sys
 from collections import deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import msgspec
@@ -69,11 +69,13 @@ from ramps.core.program import (
     FINAL,
     TRANSITIONS,
     AutonomousProgram,
+    poison_error,
+    poison_pill,
+    resolve_handlers,
     Event,
     IllegalTransition,
     ProgramState,
     ProtocolError,
-    Transition,
 )
 from ramps.core.relink import Relink
 from ramps.core.speed import MIN_RUN_WORK
@@ -89,14 +91,6 @@ MISDECLARED = 4.0
 #: a resumed attempt that ran less than this fraction of its program says
 #: nothing of the whole program's work
 LEARN_MIN_PART = 0.2
-#: a program whose worker died by itself (``ProgramResult.worker_died``: it
-#: exited, crashed or was killed while its host lived) on this many different
-#: robots, or this many times in all where the team had no other robot for
-#: it, is a poison pill: it fails with how each attempt ended instead of
-#: being placed again. A host that crashed or shut down under it counts
-#: nothing here (that is a host failure, retried up to ``max_attempts``)
-POISON_ROBOTS = 2
-POISON_DEATHS = 3
 #: what a program with a deadline may do when no robot is expected to meet
 #: it (``Submit.on_miss``): run where it ends soonest, run here, or fail now
 ON_MISS = ("run", "local", "fail")
@@ -186,6 +180,11 @@ class Origin:
         if sub.deadline is not None and not (type(sub.deadline) in (int, float)
                                              and abs(sub.deadline) <= sys.float_info.max):  # not NaN, inf, 10**400
             raise ValueError(f"program {sub.program_id!r}: a deadline must be a finite number, got {sub.deadline!r}")
+        if not (math.isfinite(sub.accelerator_work) and sub.accelerator_work >= 0):
+            raise ValueError(f"program {sub.program_id!r}: accelerator_work must be finite and >= 0, "
+                             f"got {sub.accelerator_work!r}")
+        if not sub.accelerator and not sub.cpu_fallback:
+            raise ValueError(f"program {sub.program_id!r}: cpu_fallback=False needs an accelerator kind")
         if sub.policy and sub.policy not in self._policies:
             self._policies[sub.policy] = make_policy(sub.policy)  # ValueError names the known ones
         ap = AutonomousProgram(sub, now)
@@ -518,15 +517,21 @@ class Origin:
             deadline_in = left if left is not None and (placement.expected_time or 0.0) < left else None
         if host is None and sub.local_only:
             host = self.me
+        accel_work = (sub.accelerator_work or sub.work) * (1.0 - fraction)
         if host is None:
             policy = self.policy_for(sub)
+            exclude = (frozenset(ap.excluded) | self.view.short_of_memory(sub.memory) | self.view.low_battery
+                       | self.relink.excluded(self.view.robots(), now))
+            if sub.accelerator and not sub.cpu_fallback:
+                narrowed = self._without_accelerator(ap, exclude, now, out)
+                if narrowed is None:
+                    return
+                exclude = narrowed
             placement = policy.choose(
                 PlacementRequest(program_id=ap.program_id, work=work,
                                  payload_size=sub.payload_size + len(resume or b""), result_size=sub.result_size,
-                                 deadline=left),
-                self.view, now, self.rng, net=self.net, config=self.config,
-                exclude=frozenset(ap.excluded) | self.view.short_of_memory(sub.memory) | self.view.low_battery
-                | self.relink.excluded(self.view.robots(), now),
+                                 deadline=left, accelerator=sub.accelerator, accelerator_work=accel_work),
+                self.view, now, self.rng, net=self.net, config=self.config, exclude=exclude,
                 links=self.links.estimate if self.links is not None else None,
             )
             host = placement.host
@@ -549,11 +554,14 @@ class Origin:
         ap.live[ap.attempt] = host
         ap.state = S.OFFERED
         ap.last_heard = now
+        ap.accelerator = sub.accelerator if sub.accelerator in self.view.accelerator_kinds(host) else ""
+        if ap.accelerator:
+            work = accel_work
         ap.work, ap.done, ap.done_at = work, 0.0, now
         ap.placed_at, ap.stall_base = now, self.stalled_s
         ap.resumed_from = fraction if resume is not None else None
         self._by_host.setdefault(host, {})[ap.program_id] = None
-        self.view.book(host, ap.program_id, ap.attempt)
+        self.view.book(host, ap.program_id, ap.attempt, ap.accelerator)
         self.placements += 1
         detail = ""
         if placement is not None and placement.expected_time is not None:  # why there, for traces
@@ -601,8 +609,29 @@ class Origin:
             program=sub.program, args=sub.args, payload_size=sub.payload_size, work=ap.work,
             expected_runnable=expected, time_budget=budget, force=ap.rejections >= self.config.max_rejections,
             resume=resume, resume_fraction=ap.checkpoint_fraction if resume is not None else 0.0,
-            deadline_in=deadline_in,
+            deadline_in=deadline_in, accelerator=ap.accelerator,
         )))
+
+    def _without_accelerator(self, ap: AutonomousProgram, exclude: frozenset[str], now: float,
+                             out: list[Action]) -> frozenset[str] | None:
+        """``exclude`` plus every robot without the accelerator ``ap`` needs
+        (it may not run on a CPU). None when no candidate has one: the
+        program waits for one (a robot that advertised the kind is away) or,
+        if no robot of the team ever advertised it, fails at once."""
+        kind = ap.submit.accelerator
+        robots = self.view.robots()
+        having = [r for r in robots if kind in self.view.accelerator_kinds(r)]
+        if self.view.accelerator_rows(now, kind, exclude):
+            return exclude | frozenset(r for r in robots if r not in having)
+        if not having:
+            self._deliver(ap, now, out, ok=False, kind="refused",
+                          error=f"{ap.submit.program} needs a {kind!r} accelerator and no robot of the team "
+                                f"advertises one (start a node with --accelerator {kind}, or let the "
+                                f"program run on a CPU)")
+            return None
+        ap.failures += 1  # each wait counts towards max_attempts
+        self._backoff(ap, now, out)
+        return None
 
     def _on_accepted(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
         if isinstance(msg, OffloadAccepted):
@@ -938,40 +967,6 @@ class Origin:
 
     def active(self) -> int:
         return sum(1 for ap in self.programs.values() if ap.state not in FINAL)
-
-
-def poison_pill(deaths: list[tuple[int, str, str]]) -> bool:
-    """Whether a program whose workers died by themselves on these attempts
-    ((attempt, host, how)) is a poison pill: on POISON_ROBOTS different
-    robots, or POISON_DEATHS times in all."""
-    return len({host for _, host, _ in deaths}) >= POISON_ROBOTS or len(deaths) >= POISON_DEATHS
-
-
-def poison_error(deaths: list[tuple[int, str, str]]) -> str:
-    """A poison pill's error: how each attempt's worker ended."""
-    robots = len({host for _, host, _ in deaths})
-    where = f"on {robots} robots" if robots > 1 else f"{len(deaths)} times on {deaths[0][1]}"
-    lines = [f"the program killed its own worker {where}, so it is not placed again (a poison pill):"]
-    for attempt, host, how in deaths:
-        lines.append(f"  attempt {attempt} on {host}: {how}")
-    return "\n".join(lines)
-
-
-Handler = Callable[[Origin, AutonomousProgram, float, list[Action], Any, Event], None]
-
-
-def resolve_handlers(cls: type, transitions: Mapping[ProgramState, Mapping[Event, Transition]]) -> dict[str, Handler]:
-    """Every handler the table names, as ``cls``'s method ``_<name>``; a name
-    with no such method is an error naming the state, the event and the name."""
-    handlers: dict[str, Handler] = {}
-    for state, row in transitions.items():
-        for event, transition in row.items():
-            method = getattr(cls, "_" + transition.handler, None)
-            if not callable(method):
-                raise TypeError(f"ramps.core.program.TRANSITIONS[{state.value!r}][{event.value!r}] names handler "
-                                f"{transition.handler!r}, but {cls.__name__} has no method _{transition.handler}")
-            handlers[transition.handler] = method
-    return handlers
 
 
 #: the table's handlers, resolved once: a misspelt name fails here, at import

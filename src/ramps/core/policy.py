@@ -30,7 +30,11 @@ scheduler.
   programs, then the ties as above), else to the cheapest host if it is in
   time; its budget is then what the deadline leaves. No deadline places as
   before. ``Placement.late`` says that no host is expected in time (the
-  origin then applies the program's ``on_miss``).
+  origin then applies the program's ``on_miss``). A program that can use
+  an accelerator (``PlacementRequest.accelerator``) is priced by
+  ``accelerators.accelerator_time`` on the robots that advertise that kind
+  (their slots shared by the programs on them) and by its CPU work on the
+  others; the origin leaves the others out when it may not run on a CPU.
 * ``round_robin``, ``random``, ``local_only``: baselines.
 """
 
@@ -43,6 +47,7 @@ from typing import Any, Callable, ClassVar
 
 import msgspec
 
+from ramps.core.accelerators import accelerator_time
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate, comm_time, program_share, shared_finish_time
 from ramps.core.loadview import LoadView
@@ -64,6 +69,11 @@ class PlacementRequest(msgspec.Struct, frozen=True, kw_only=True):
     #: seconds left before the program's deadline (None: none); ``ramps``
     #: keeps to the hosts expected to finish within it while there are any
     deadline: float | None = None
+    #: the kind of accelerator the program runs on where a robot has one, and
+    #: its work there (``ramps`` prices those robots by their slots,
+    #: ``ramps.core.accelerators``); "" = CPUs only
+    accelerator: str = ""
+    accelerator_work: float = 0.0
 
 
 class Placement(msgspec.Struct, frozen=True, kw_only=True):
@@ -144,9 +154,15 @@ class RampsPolicy(Policy):
         t_comm_default = comm_time(req.payload_size, req.result_size, net)
         rows: list[list[Any]] = []  # [t, utilisation, robot, runnable, background, ramps, cores, speed, weight, t_comm]
         t_best = math.inf
+        slots = {row[0]: row for row in view.accelerator_rows(now, req.accelerator, exclude)} \
+            if req.accelerator else {}
         for robot, cores, speed, ramps, background, weight in view.scan(now, exclude):
             runnable = ramps + background
-            if background == 0.0 or weight == 1.0:  # equal sharing (the common, fast case)
+            if robot in slots:  # on its accelerator there: its slots, shared by the programs on them
+                _, count, a_speed, on_it = slots[robot]
+                t = accelerator_time(req.accelerator_work, count, a_speed, on_it)
+                runnable, background, ramps, cores, speed, weight = on_it, 0.0, 0.0, count, a_speed, 1.0
+            elif background == 0.0 or weight == 1.0:  # equal sharing (the common, fast case)
                 t = work / (speed * min(1.0, cores / (runnable + 1.0)))
             else:  # the robot's own busy software outweighs the program
                 t = work / (speed * program_share(cores, ramps + 1.0, background, weight))

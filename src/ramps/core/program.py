@@ -35,6 +35,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import StrEnum
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from ramps.core.events import Submit
@@ -142,7 +143,8 @@ _REJECTED = _t("on_rejected", (S.OFFERED, "re-placed at once"), (S.BACKOFF, "tur
 _HOST_FAILED = _t("on_host_failed", (S.BACKOFF, "host blacklisted"),
                   (S.OFFERED, "host still publishes, or origin cut off: re-placed"), _GIVE_UP)
 _RESULT = _t("on_result", (S.DONE, "ok"), (S.FAILED, "program error, or max_attempts"),
-             (S.OFFERED, "worker lost: re-placed"), (None, "worker lost, another copy live"))
+             (S.OFFERED, "worker lost: re-placed"), (None, "worker lost, another copy live"),
+             (S.BACKOFF, "worker lost, no robot with its accelerator reachable"))
 _CANCEL = _t("on_cancel", (S.FAILED, "cancelled"))
 _MOVE_FAILED = _t("on_move_failed", (S.RUNNING, "old copy kept"), (S.BACKOFF, "old copy lost meanwhile"), _GIVE_UP)
 
@@ -177,7 +179,8 @@ TRANSITIONS: dict[ProgramState, dict[Event, Transition]] = {
         E.CANCEL: _CANCEL,
     },
     S.BACKOFF: {
-        E.BACKOFF_DONE: _t("place", (S.OFFERED, ""), (S.FAILED, "deadline unmeetable, on_miss fail")),
+        E.BACKOFF_DONE: _t("place", (S.OFFERED, ""), (S.BACKOFF, "no robot with its accelerator reachable"),
+                           (S.FAILED, "deadline unmeetable, on_miss fail; or its accelerator nowhere")),
         E.CANCEL: _CANCEL,
     },
     S.DONE: {},
@@ -195,7 +198,7 @@ class AutonomousProgram:
         "last_heard", "rejections", "excluded", "submitted_at", "failures", "written_off",
         "made", "moves", "moving_from", "accepted_at", "done", "done_at", "work", "checkpoint",
         "checkpoint_fraction", "resumed_from", "move_wanted_since", "ran_on", "placed_at", "stall_base",
-        "deaths",
+        "deaths", "accelerator",
     )
 
     def __init__(self, submit: Submit, now: float) -> None:
@@ -250,6 +253,8 @@ class AutonomousProgram:
         #: attempts whose worker the program killed by itself (``ProgramResult.worker_died``):
         #: (attempt, host, how it ended); enough of them make it a poison pill
         self.deaths: list[tuple[int, str, str]] = []
+        #: the kind of accelerator the current attempt runs on ("" = a CPU)
+        self.accelerator = ""
 
     @property
     def placed_host(self) -> str:
@@ -266,3 +271,47 @@ class AutonomousProgram:
             return TRANSITIONS[self.state][Event(event)]
         except (ValueError, KeyError):
             raise ProtocolError(self.program_id, self.state, event) from None
+
+#: a program whose worker died by itself (``ProgramResult.worker_died``: it
+#: exited, crashed or was killed while its host lived) on this many different
+#: robots, or this many times in all where the team had no other robot for
+#: it, is a poison pill: it fails with how each attempt ended instead of
+#: being placed again. A host that crashed or shut down under it counts
+#: nothing here (that is a host failure, retried up to ``max_attempts``)
+POISON_ROBOTS = 2
+POISON_DEATHS = 3
+
+
+def poison_pill(deaths: list[tuple[int, str, str]]) -> bool:
+    """Whether a program whose workers died by themselves on these attempts
+    ((attempt, host, how)) is a poison pill: on POISON_ROBOTS different
+    robots, or POISON_DEATHS times in all."""
+    return len({host for _, host, _ in deaths}) >= POISON_ROBOTS or len(deaths) >= POISON_DEATHS
+
+
+def poison_error(deaths: list[tuple[int, str, str]]) -> str:
+    """A poison pill's error: how each attempt's worker ended."""
+    robots = len({host for _, host, _ in deaths})
+    where = f"on {robots} robots" if robots > 1 else f"{len(deaths)} times on {deaths[0][1]}"
+    lines = [f"the program killed its own worker {where}, so it is not placed again (a poison pill):"]
+    for attempt, host, how in deaths:
+        lines.append(f"  attempt {attempt} on {host}: {how}")
+    return "\n".join(lines)
+
+
+#: a transition handler: an origin's method taking (program, now, out, message, event)
+Handler = Callable[..., None]
+
+
+def resolve_handlers(cls: type, transitions: Mapping[ProgramState, Mapping[Event, Transition]]) -> dict[str, Handler]:
+    """Every handler the table names, as ``cls``'s method ``_<name>``; a name
+    with no such method is an error naming the state, the event and the name."""
+    handlers: dict[str, Handler] = {}
+    for state, row in transitions.items():
+        for event, transition in row.items():
+            method = getattr(cls, "_" + transition.handler, None)
+            if not callable(method):
+                raise TypeError(f"ramps.core.program.TRANSITIONS[{state.value!r}][{event.value!r}] names handler "
+                                f"{transition.handler!r}, but {cls.__name__} has no method _{transition.handler}")
+            handlers[transition.handler] = method
+    return handlers

@@ -118,3 +118,29 @@ class CPU:
         d = start - t0
         ib, ir, ik = ib0 + rb * d, ir0 + rr * d, ik0 + rk * d
         return (self._ib - ib) / window, (self._ir - ir) / window, (self._ik - ik) / window
+
+
+# ---------------------------------------------------------------- a robot's pools
+# A robot's CPU and its accelerators (``ramps.core.accelerators``: slots
+# shared like cores, no background) are each a ``CPU``; these act on all.
+def next_completion(pools: tuple[CPU, ...]) -> float | None:
+    """When the first job of any of ``pools`` finishes if nothing changes."""
+    ends = [nxt[0] for pool in pools if (nxt := pool.next_completion()) is not None]
+    return min(ends) if ends else None
+
+
+def take_finished(pools: tuple[CPU, ...], now: float) -> list[Key]:
+    """The jobs of ``pools`` that have finished by ``now``, taken out."""
+    finished = []
+    for pool in pools:
+        pool.advance(now)
+        ended = [key for key, left in pool.jobs.items() if left <= 1e-9]
+        for key in ended:
+            pool.remove(key, now)
+        finished += ended
+    return finished
+
+
+def set_frozen(pools: tuple[CPU, ...], frozen: bool, now: float) -> None:
+    for pool in pools:
+        pool.set_frozen(frozen, now)

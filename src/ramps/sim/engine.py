@@ -33,79 +33,22 @@ import random
 import time as _wallclock  # only for reporting how long a run took
 from typing import Any, Callable
 
-import msgspec
-
+from ramps.core.accelerators import parse_accelerator
 from ramps.core.durable import decode_record, encode_record, program_of, record_of
 from ramps.core.cost import NetworkEstimate, nice_weight, program_cores
 from ramps.core.events import (Action, CheckpointSaved, Deliver, Note, PeerAlive, PeerLost, ProgramFinished,
                                PublishReport, Received, Send, StartProgram, StopProgram, Submit)
 from ramps.core.messages import LoadReport, Message, wire_size
-from ramps.core.node import Node, NodeStatistics
+from ramps.core.node import Node
 from ramps.core.program import FINAL
 from ramps.core.speed import REMEASURE_PERIOD, SpeedMeasured
-from ramps.sim.cpu import CPU
+from ramps.sim.cpu import CPU, next_completion, set_frozen, take_finished
+from ramps.sim.results import ProgramRecord, SimResult, TraceEntry
 from ramps.sim.scenario import FaultSpec, ProgramSpec, RobotSpec, Scenario
 
 
-class ProgramRecord(msgspec.Struct, kw_only=True):
-    program_id: str
-    origin: str
-    submitted_at: float
-    delivered_at: float | None = None
-    host: str | None = None
-    ok: bool | None = None
-    attempts: int = 0
-    error: str = ""
-    deliveries: int = 0
-    #: relocations after placement, and the progress the last attempt resumed from
-    moves: int = 0
-    resumed_from: float | None = None
-    #: when its result was wanted (virtual time; None: no deadline), and
-    #: whether it missed it: not delivered with a result by then
-    deadline: float | None = None
-    missed_deadline: bool = False
-
-
-class TraceEntry(msgspec.Struct, frozen=True, array_like=True):
-    t: float
-    robot: str
-    what: str
-    program_id: str
-    other: str
-    attempt: int
-    detail: str
-
-
-class SimResult(msgspec.Struct, kw_only=True):
-    scenario: str
-    policy: str
-    seed: int
-    robots: list[str]
-    #: delivered programs per robot that ran them (the paper's distribution)
-    distribution: dict[str, int]
-    #: seconds from the first submission to the last delivery
-    makespan: float
-    completed: int
-    failed: int
-    #: programs of a surviving origin never delivered / delivered more than once
-    lost: int
-    duplicated: int
-    programs: list[ProgramRecord]
-    statistics: list[NodeStatistics]
-    snapshots: dict[str, dict[str, int]]
-    events: int
-    messages_sent: int
-    messages_dropped: int
-    end_time: float
-    wall_seconds: float
-    trace: list[TraceEntry] = []
-    #: programs with a deadline, and those that missed it (late, failed or lost)
-    deadlines: int = 0
-    deadline_misses: int = 0
-
-
 class _Robot:
-    __slots__ = ("spec", "node", "cpu", "alive", "net_up", "frozen", "incarnation", "epoch",
+    __slots__ = ("spec", "node", "cpu", "accel", "alive", "net_up", "frozen", "incarnation", "epoch",
                  "wake_at", "wake_token", "done_token", "pub_phase", "remeasure_at", "record")
     #: the robot's node and CPU, made by each boot (``Simulator._setup`` boots
     #: every robot before the first event). A crashed robot keeps its last
@@ -113,6 +56,8 @@ class _Robot:
     #: ``alive`` (or the incarnation) first
     node: Node
     cpu: CPU
+    #: its accelerators by kind, each a pool of slots shared like cores
+    accel: dict[str, CPU]
 
     def __init__(self, spec: RobotSpec) -> None:
         self.spec = spec
@@ -155,6 +100,7 @@ class Simulator:
         self._link_free: dict[tuple[str, str], float] = {}
         self.records: dict[str, ProgramRecord] = {}
         self._true_work: dict[str, float] = {}
+        self._true_accel: dict[str, float] = {}
         self._result_size: dict[str, int] = {}
         #: programs that checkpoint: seconds between checkpoints, bytes of each
         self._checkpoint: dict[str, tuple[float, int]] = {}
@@ -214,10 +160,13 @@ class Simulator:
         r.epoch += 1
         weight = nice_weight(spec.worker_nice)
         r.cpu = CPU(program_cores(spec.cores, spec.node_cpu), spec.speed, spec.background, now, weight=weight)
+        accels = [parse_accelerator(text) for text in spec.accelerators]
+        r.accel = {a.kind: CPU(a.count, a.speed, 0, now) for a in accels}
         r.node = Node(
             spec.name, cores=spec.cores, speed=spec.measured_speed or spec.speed, policy=self.policy, config=self.sc.config,
             rng=random.Random(self.rng.getrandbits(64)), incarnation=r.incarnation,
             net=NetworkEstimate(latency=self.net.latency, bandwidth=self.net.bandwidth), program_weight=weight,
+            accelerators=accels,
         )
         r.node.executor.background = float(spec.background)
         r.wake_at = math.inf
@@ -232,17 +181,17 @@ class Simulator:
             if isinstance(a, Send):
                 self._send(r, a.to, a.msg)
             elif isinstance(a, StartProgram):
-                work = self._true_work.get(a.program_id, a.work)
+                work = (self._true_accel if a.accelerator else self._true_work).get(a.program_id, a.work)
                 if a.resume is not None:
                     work *= 1.0 - a.resume_fraction
-                r.cpu.add((a.program_id, a.attempt), work, self.now)
+                (r.accel[a.accelerator] if a.accelerator else r.cpu).add((a.program_id, a.attempt), work, self.now)
                 self._cpu_changed(r)
                 every = self._checkpoint.get(a.program_id)
                 if every is not None:
                     self._at(self.now + every[0], self._save_checkpoint,
                              (r, r.incarnation, a.program_id, a.attempt, work, a.resume_fraction if a.resume else 0.0))
             elif isinstance(a, StopProgram):
-                if r.cpu.remove((a.program_id, a.attempt), self.now):
+                if any(pool.remove((a.program_id, a.attempt), self.now) for pool in (r.cpu, *r.accel.values())):
                     self._cpu_changed(r)
             elif isinstance(a, Deliver):
                 self._delivered(r, a)
@@ -276,19 +225,15 @@ class Simulator:
     # ================================================================ CPU
     def _cpu_changed(self, r: _Robot) -> None:
         r.done_token += 1
-        nxt = r.cpu.next_completion()
+        nxt = next_completion((r.cpu, *r.accel.values()))
         if nxt is not None:
-            self._at(nxt[0], self._cpu_done, (r, r.done_token, r.incarnation))
+            self._at(nxt, self._cpu_done, (r, r.done_token, r.incarnation))
 
     def _cpu_done(self, arg: tuple[_Robot, int, int]) -> None:
         r, token, inc = arg
         if token != r.done_token or inc != r.incarnation or not r.alive:
             return
-        cpu = r.cpu
-        cpu.advance(self.now)
-        finished = [k for k, left in cpu.jobs.items() if left <= 1e-9]
-        for key in finished:
-            cpu.remove(key, self.now)
+        finished = take_finished((r.cpu, *r.accel.values()), self.now)
         self._cpu_changed(r)
         for pid, attempt in finished:
             self._handle(r, ProgramFinished(program_id=pid, attempt=attempt, ok=True,
@@ -391,6 +336,7 @@ class Simulator:
             self.records[pid].error = "origin down at submit time"
             return
         self._true_work[pid] = entry.work
+        self._true_accel[pid] = entry.accelerator_work or entry.work
         self._result_size[pid] = entry.result
         if entry.checkpoint_every > 0:
             self._checkpoint[pid] = (entry.checkpoint_every, entry.checkpoint_size)
@@ -398,7 +344,9 @@ class Simulator:
             program_id=pid, program=entry.program, payload_size=entry.payload,
             work=entry.work_estimate if entry.work_estimate is not None else entry.work,
             result_size=entry.result, memory=entry.memory,
-            deadline=due if self.deadlines else None, on_miss=entry.on_miss,
+            deadline=due if self.deadlines else None, on_miss=entry.on_miss, accelerator=entry.accelerator,
+            accelerator_work=entry.accelerator_estimate or entry.accelerator_work or 0.0,
+            cpu_fallback=entry.cpu_fallback,
         ))
 
     def _delivered(self, r: _Robot, d: Deliver) -> None:
@@ -433,7 +381,7 @@ class Simulator:
         elif f.kind == "freeze" and r.alive and not r.frozen:
             r.frozen = True
             r.epoch += 1
-            r.cpu.set_frozen(True, self.now)
+            set_frozen((r.cpu, *r.accel.values()), True, self.now)
             self._liveliness(r, lost=True, delay=self.net.lease)
         elif f.kind == "load":
             if r.alive and f.background is not None:
@@ -452,7 +400,7 @@ class Simulator:
             else:
                 if r.frozen:
                     r.frozen = False
-                    r.cpu.set_frozen(False, self.now)
+                    set_frozen((r.cpu, *r.accel.values()), False, self.now)
                     self._cpu_changed(r)
                     r.wake_at = math.inf
                     self._schedule_wake(r)

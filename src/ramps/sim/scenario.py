@@ -18,6 +18,7 @@ from typing import Literal
 
 import msgspec
 
+from ramps.core.accelerators import parse_accelerator
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NODE_CPU_MAX
 from ramps.core.origin import ON_MISS
@@ -91,6 +92,9 @@ class RobotSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
     #: (``ramps.core.durable``): a crash followed by ``recover`` resumes them;
     #: without one a crashed origin's programs are lost (the paper's model)
     record: bool = False
+    #: accelerators as ``KIND[:COUNT[:SPEED]]`` (``ramps.core.accelerators``),
+    #: e.g. ``["cuda:1:20"]``: one slot running 20 work units a second
+    accelerators: list[str] = []
     #: expand this entry into ``count`` identical robots
     count: int | None = None
 
@@ -125,6 +129,13 @@ class ProgramSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
     #: no robot is expected to make it: "run", "local" or "fail"
     deadline: float | None = None
     on_miss: str = "run"
+    #: the kind of accelerator the program can use ("" = none), its true work
+    #: there (default: ``work``) and what its profile declares (default: the
+    #: true work), and whether it may run on a CPU where no robot has one
+    accelerator: str = ""
+    accelerator_work: float | None = None
+    accelerator_estimate: float | None = None
+    cpu_fallback: bool = True
 
 
 class FaultSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -170,32 +181,7 @@ class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
         if not self.robots:
             raise ScenarioError("$.robots", "a team needs at least one robot")
         for i, r in enumerate(self.robots):
-            p = f"$.robots[{i}]"
-            if not r.name:
-                raise ScenarioError(f"{p}.name", "must not be empty")
-            if r.cores < 1:
-                raise ScenarioError(f"{p}.cores", f"must be >= 1, got {r.cores}")
-            if not r.speed > 0:
-                raise ScenarioError(f"{p}.speed", f"must be > 0, got {r.speed}")
-            if r.measured_speed is not None and not r.measured_speed > 0:
-                raise ScenarioError(f"{p}.measured_speed", f"must be > 0, got {r.measured_speed}")
-            if r.background < 0:
-                raise ScenarioError(f"{p}.background", f"must be >= 0, got {r.background}")
-            if not 0.0 <= r.node_cpu <= NODE_CPU_MAX * r.cores:
-                raise ScenarioError(f"{p}.node_cpu", f"must be between 0 and half the robot's cores, got {r.node_cpu}")
-            if not -20 <= r.worker_nice <= 19:
-                raise ScenarioError(f"{p}.worker_nice", f"must be -20..19 (a Linux niceness), got {r.worker_nice}")
-            if r.latency is not None and not r.latency >= 0:
-                raise ScenarioError(f"{p}.latency", f"must be >= 0, got {r.latency}")
-            if r.bandwidth is not None and not r.bandwidth > 0:
-                raise ScenarioError(f"{p}.bandwidth", f"must be > 0, got {r.bandwidth}")
-            if r.memory < 0:
-                raise ScenarioError(f"{p}.memory", f"must be >= 0, got {r.memory}")
-            if r.count is not None:
-                if r.count < 1:
-                    raise ScenarioError(f"{p}.count", f"must be >= 1, got {r.count}")
-                if "{i}" not in r.name:
-                    raise ScenarioError(f"{p}.name", "with count, the name must contain {i}, e.g. 'w{i}'")
+            _check_robot(f"$.robots[{i}]", r)
         seen: dict[str, int] = {}
         for r in self.team():
             if r.name in seen:
@@ -205,23 +191,7 @@ class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
         if not self.programs:
             raise ScenarioError("$.programs", "a workload needs at least one program entry")
         for i, spec in enumerate(self.programs):
-            path = f"$.programs[{i}]"
-            if spec.origin not in seen:
-                raise ScenarioError(f"{path}.origin", f"unknown robot {spec.origin!r}")
-            if spec.count < 1:
-                raise ScenarioError(f"{path}.count", f"must be >= 1, got {spec.count}")
-            if not spec.work > 0:
-                raise ScenarioError(f"{path}.work", f"must be > 0, got {spec.work}")
-            if spec.work_estimate is not None and not spec.work_estimate > 0:
-                raise ScenarioError(f"{path}.work_estimate", f"must be > 0, got {spec.work_estimate}")
-            for fld in ("payload", "result", "at", "spacing", "jitter", "memory", "checkpoint_every",
-                        "checkpoint_size"):
-                if getattr(spec, fld) < 0:
-                    raise ScenarioError(f"{path}.{fld}", f"must be >= 0, got {getattr(spec, fld)}")
-            if spec.deadline is not None and not (math.isfinite(spec.deadline) and spec.deadline > 0):
-                raise ScenarioError(f"{path}.deadline", f"must be > 0 seconds, got {spec.deadline}")
-            if spec.on_miss not in ON_MISS:
-                raise ScenarioError(f"{path}.on_miss", f"must be one of {', '.join(ON_MISS)}, got {spec.on_miss!r}")
+            _check_program(f"$.programs[{i}]", spec, seen)
         for i, f in enumerate(self.faults):
             if f.robot not in seen:
                 raise ScenarioError(f"$.faults[{i}].robot", f"unknown robot {f.robot!r}")
@@ -242,3 +212,63 @@ class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
         if self.warmup < 0:
             raise ScenarioError("$.warmup", f"must be >= 0, got {self.warmup}")
         return self
+
+
+def _check_robot(p: str, r: RobotSpec) -> None:
+    """``Scenario.check`` of one robot entry at path ``p``."""
+    if not r.name:
+        raise ScenarioError(f"{p}.name", "must not be empty")
+    if r.cores < 1:
+        raise ScenarioError(f"{p}.cores", f"must be >= 1, got {r.cores}")
+    if not r.speed > 0:
+        raise ScenarioError(f"{p}.speed", f"must be > 0, got {r.speed}")
+    if r.measured_speed is not None and not r.measured_speed > 0:
+        raise ScenarioError(f"{p}.measured_speed", f"must be > 0, got {r.measured_speed}")
+    if r.background < 0:
+        raise ScenarioError(f"{p}.background", f"must be >= 0, got {r.background}")
+    if not 0.0 <= r.node_cpu <= NODE_CPU_MAX * r.cores:
+        raise ScenarioError(f"{p}.node_cpu", f"must be between 0 and half the robot's cores, got {r.node_cpu}")
+    if not -20 <= r.worker_nice <= 19:
+        raise ScenarioError(f"{p}.worker_nice", f"must be -20..19 (a Linux niceness), got {r.worker_nice}")
+    if r.latency is not None and not r.latency >= 0:
+        raise ScenarioError(f"{p}.latency", f"must be >= 0, got {r.latency}")
+    if r.bandwidth is not None and not r.bandwidth > 0:
+        raise ScenarioError(f"{p}.bandwidth", f"must be > 0, got {r.bandwidth}")
+    if r.memory < 0:
+        raise ScenarioError(f"{p}.memory", f"must be >= 0, got {r.memory}")
+    for j, text in enumerate(r.accelerators):
+        try:
+            parse_accelerator(text)
+        except ValueError as exc:
+            raise ScenarioError(f"{p}.accelerators[{j}]", str(exc)) from None
+    if r.count is not None:
+        if r.count < 1:
+            raise ScenarioError(f"{p}.count", f"must be >= 1, got {r.count}")
+        if "{i}" not in r.name:
+            raise ScenarioError(f"{p}.name", "with count, the name must contain {i}, e.g. 'w{i}'")
+
+
+def _check_program(path: str, spec: ProgramSpec, seen: dict[str, int]) -> None:
+    """``Scenario.check`` of one program entry at ``path`` (``seen``: the robots)."""
+    if spec.origin not in seen:
+        raise ScenarioError(f"{path}.origin", f"unknown robot {spec.origin!r}")
+    if spec.count < 1:
+        raise ScenarioError(f"{path}.count", f"must be >= 1, got {spec.count}")
+    if not spec.work > 0:
+        raise ScenarioError(f"{path}.work", f"must be > 0, got {spec.work}")
+    if spec.work_estimate is not None and not spec.work_estimate > 0:
+        raise ScenarioError(f"{path}.work_estimate", f"must be > 0, got {spec.work_estimate}")
+    for fld in ("payload", "result", "at", "spacing", "jitter", "memory", "checkpoint_every",
+                "checkpoint_size"):
+        if getattr(spec, fld) < 0:
+            raise ScenarioError(f"{path}.{fld}", f"must be >= 0, got {getattr(spec, fld)}")
+    if spec.deadline is not None and not (math.isfinite(spec.deadline) and spec.deadline > 0):
+        raise ScenarioError(f"{path}.deadline", f"must be > 0 seconds, got {spec.deadline}")
+    if spec.on_miss not in ON_MISS:
+        raise ScenarioError(f"{path}.on_miss", f"must be one of {', '.join(ON_MISS)}, got {spec.on_miss!r}")
+    for fld in ("accelerator_work", "accelerator_estimate"):
+        value = getattr(spec, fld)
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise ScenarioError(f"{path}.{fld}", f"must be > 0, got {value}")
+    if not spec.cpu_fallback and not spec.accelerator:
+        raise ScenarioError(f"{path}.cpu_fallback", "false needs an accelerator kind")

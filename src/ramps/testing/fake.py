@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import random
 
+from ramps.core.accelerators import Accelerator
 from ramps.core.config import RampsConfig
 from ramps.core.events import Action, Deliver, Note, ProgramFinished, Received, Send
 from ramps.core.messages import Message
@@ -32,11 +33,12 @@ class FakeTeam:
     aside (a slow link) until ``release()``."""
 
     def __init__(self, robots: dict[str, tuple[int, float]], *, policy: str = "ramps",
-                 config: RampsConfig | None = None, registry: dict[str, frozenset[str]] | None = None) -> None:
+                 config: RampsConfig | None = None, registry: dict[str, frozenset[str]] | None = None,
+                 accelerators: dict[str, list[Accelerator]] | None = None) -> None:
         self.now = 0.0
         self.nodes = {
             name: Node(name, cores=cores, speed=speed, policy=policy, config=config or RampsConfig(), rng=random.Random(i),
-                       registry=(registry or {}).get(name))
+                       registry=(registry or {}).get(name), accelerators=(accelerators or {}).get(name, ()))
             for i, (name, (cores, speed)) in enumerate(robots.items())
         }
         self.inflight: list[tuple[str, str, Message]] = []
@@ -90,7 +92,7 @@ class FakeTeam:
         """Each robot's load publisher reports what its executor runs now."""
         for robot in robots or tuple(self.nodes):
             n = self.nodes[robot]
-            running = len(n.executor.running)
+            running = n.executor.cpu_programs()
             busy = n.executor.background + running
             rep = n.make_report(cpu_busy=min(float(n.cores), busy), runnable=busy,
                                 ramps_avg=float(running), window=1.0)

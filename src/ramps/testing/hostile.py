@@ -100,6 +100,11 @@ def random_report(rng: random.Random, robot: str | None = None) -> m.LoadReport:
                           rng.choice([None, _amount(rng, 2.0)]))
                for _ in range(rng.choice([0, 1, 3, m.MAX_LISTED if extreme else 2]))],
         learned=[m.LearnedWork(rng.choice(PROGRAMS), _amount(rng, 100.0)) for _ in range(rng.choice([0, 1, 2]))],
+        accelerators=[m.AcceleratorSeen(rng.choice(["cuda", "npu"]), rng.choice([1, m.MAX_CORES]) if extreme else 1,
+                                        rng.choice([m.MIN_SPEED, m.MAX_SPEED]) if extreme else rng.uniform(1.0, 40.0),
+                                        random_count(rng), random_count(rng), random_count(rng),
+                                        rng.choice([None, 0.0, rng.random()]))
+                      for _ in range(rng.choice([0, 0, 1, 2]))],
         moves=random_count(rng), moves_aborted=random_count(rng), node_cpu=_amount(rng, 2.0),
         battery=rng.choice([None, None, 0.0, 1.0, rng.random()]), low_battery=rng.random() < 0.1,
         power=rng.choice([None, None, _amount(rng, 40.0)]),
@@ -124,7 +129,8 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
                                 force=rng.random() < 0.3,
                                 resume=rng.choice([None, b"", rng.randbytes(8), b"\0" * m.MAX_CHECKPOINT_BYTES]),
                                 resume_fraction=rng.choice([0.0, 1.0, rng.random()]),
-                                deadline_in=None if rng.random() < 0.5 else _amount(rng, 120.0))
+                                deadline_in=None if rng.random() < 0.5 else _amount(rng, 120.0),
+                                accelerator=rng.choice(["", "", "cuda", "nope"]))
     if kind == 2:
         return m.OffloadAccepted(program_id=pid, attempt=attempt, host=host, accept_seq=random_count(rng))
     if kind == 3:
@@ -153,7 +159,9 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
                                result_size=random_count(rng), local_only=rng.random() < 0.3,
                                policy=rng.choice(["", "ramps", "nope"]),
                                deadline=None if rng.random() < 0.5 else _amount(rng, 60.0),
-                               on_miss=rng.choice(["", "run", "local", "fail", "nope"]))
+                               on_miss=rng.choice(["", "run", "local", "fail", "nope"]),
+                               accelerator=rng.choice(["", "", "cuda"]), accelerator_work=_amount(rng, 60.0),
+                               cpu_fallback=rng.random() < 0.8)
     if kind == 9:
         return m.CancelSubmitted(client=rng.choice(PEERS), request_id=random_count(rng))
     if kind == 11:
