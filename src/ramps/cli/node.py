@@ -67,11 +67,26 @@ def node(
                                             "programs it submitted here, so a restarted node resumes them "
                                             "(default: $STATE_DIRECTORY, else ~/.local/state/ramps; 'off': none; "
                                             "env RAMPS_STATE_DIR)"),
+    battery_file: Optional[str] = typer.Option(
+        None, "--battery-file", metavar="PATH",
+        help="a file holding this robot's battery charge, a percentage (87) or a fraction (0.87), read before "
+             "each load report; {robot} becomes the robot's name (env RAMPS_BATTERY_FILE). Below its reserve "
+             "([core] battery_reserve, default 0.2) a robot takes no teammates' programs and hands back those "
+             "it runs; its own still run. Without --battery-file or --battery-command, Linux's battery "
+             "(/sys/class/power_supply) is read where the kernel has one"),
+    battery_command: Optional[str] = typer.Option(
+        None, "--battery-command", metavar="CMD",
+        help="instead, a shell command that prints the charge the same way (87% or 0.87), run at most once a "
+             "report period and killed after 5 s (env RAMPS_BATTERY_COMMAND)"),
+    power_per_core: Optional[str] = typer.Option(
+        None, "--power-per-core", metavar="WATTS",
+        help="watts one busy core of this robot draws, or 'rapl' to measure them (Intel RAPL), for placement "
+             "that weighs energy ([core] energy_weight; default: not known)"),
     verbose: bool = typer.Option(False, "--verbose", "-v", help="log every blacklisting and failure"),
 ) -> None:
     """Run this robot's ramps node until Ctrl-C: load publisher, load server, program executor.
 
-    Long because of its 21 options: typer reads each from a parameter of this function.
+    Long because of its 24 options: typer reads each from a parameter of this function.
 
     On shutdown (Ctrl-C, SIGTERM) running programs are handed back to their origins, which
     place them elsewhere at once. Programs submitted to this node are kept in its durable
@@ -103,7 +118,8 @@ def node(
                   cores=cores, speed=speed, policy=policy, programs=program or None, config_file=config_file,
                   lease_ms=lease_ms, trace=str(trace) if trace else None, secure=secure or None,
                   credentials=str(credentials) if credentials else None, metrics=metrics, node_nice=node_nice,
-                  state_dir=state_dir, mode=mode, zenoh=zenoh_flags(zenoh))
+                  state_dir=state_dir, mode=mode, zenoh=zenoh_flags(zenoh), battery_file=battery_file,
+                  battery_command=battery_command, power_per_core=_watts(power_per_core))
     if not s.state_dir:
         from ramps.runtime.store import default_state_dir
 
@@ -146,6 +162,16 @@ def node(
         fail(f"this node left the team: {rt.name_taken}")
     if rt.revoked_self:
         fail(f"robot {rt.robot} was revoked by team {rt.team} (revocation list {rt.revocations.seq if rt.revocations else '?'}): it left the team")
+
+
+def _watts(text: str | None) -> float | str | None:
+    """``--power-per-core``: a number of watts, or ``rapl``."""
+    if text is None or text == "rapl":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        fail(f"--power-per-core takes watts (a number) or 'rapl', got {text!r}")
 
 
 def _parse_arg(text: str) -> tuple[str, object]:

@@ -15,7 +15,8 @@ every teammate and client decoded reports that the next one superseded at
 once (every report carries the executor's counters, so a later one says all
 an earlier one did). ``_publish`` builds the periodic load report from the sampler
 and the core (what it runs, its links, what it learned) and publishes it;
-``_shutdown`` hands running programs back and cancels this origin's.
+``_shutdown`` hands running programs back and cancels this origin's. Before each
+periodic report the driver reads the robot's battery (``ramps.runtime.battery``) for the core.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from typing import Any
 
 import msgspec
 
+from ramps.core.battery import BatteryMeasured
 from ramps.core.events import (
     Action,
     Cancel,
@@ -56,6 +58,7 @@ from ramps.core.messages import (
 )
 from ramps.core.speed import MIN_RUN_WORK, REMEASURE_CPU, SpeedMeasured, next_remeasure
 from ramps.runtime import keys
+from ramps.runtime.battery import BatteryReader
 from ramps.runtime.speed_probe import core_fraction, measure_speed
 from ramps.runtime.transport import Publisher
 from ramps.runtime.node_state import DriverState
@@ -84,6 +87,9 @@ def _started(other: float | None, mine: float | None, order: str) -> str:
 
 class Outbound(DriverState):
     """The driver's outputs (mixed into ``NodeRuntime``)."""
+
+    #: reads this robot's battery before each periodic report (made at the first)
+    _battery: BatteryReader | None = None
 
     def _apply(self, actions: list[Action]) -> None:
         if self.store is not None:  # written before anything of it is sent
@@ -294,6 +300,7 @@ class Outbound(DriverState):
         if self.load_scope == "cgroup":
             busy = min(busy * self._busy_scale, float(self.cores))
         self._measure_node_cpu()
+        self._read_battery(now, busy)
         report = node.make_report(cpu_busy=busy,
                                        runnable=runnable, ramps_avg=ramps_avg, window=self.s.window,
                                        mem_free=mem_free, cpu_per_core=per_core, load_avg=load1,
@@ -318,6 +325,15 @@ class Outbound(DriverState):
         except Exception as exc:
             log.warning("node %s could not publish its load: %s", self.robot, exc)
         self._republish(now)
+
+    def _read_battery(self, now: float, busy: float) -> None:
+        """Hand the core this robot's battery (``ramps.core.battery``): below
+        its reserve it hands back its teammates' programs, in this report period."""
+        if self._battery is None:
+            self._battery = BatteryReader.for_settings(self.s)
+        charge, power = self._battery.read(busy)
+        assert self.node is not None
+        self._apply(self.node.handle(BatteryMeasured(charge=charge, power=power), now))
 
     def _publish_prompt(self, report: LoadReport) -> None:
         """A report of the instant from the core (its programs changed), with

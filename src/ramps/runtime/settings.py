@@ -48,13 +48,14 @@ import os
 import socket
 import tomllib
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import msgspec
 
 from ramps.core.config import RampsConfig
 from ramps.errors import ConfigError
 from ramps.runtime import keys
+from ramps.runtime.endpoints import check_endpoint, parse_metrics_address
 from ramps.runtime.registry import MAX_ARGS_BYTES as _MAX_ARGS
 
 class CommandEntry(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -260,6 +261,15 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     #: time Zenoh handed it over) and every teammate appearing or vanishing
     #: (``peer_alive``/``peer_lost``): for chasing delays between robots
     trace_wire: bool = False
+    #: a file holding this robot's battery charge, ``87`` (percent) or ``0.87``, read before each load
+    #: report (``{robot}``: the robot's name); below ``[core] battery_reserve`` it hosts no teammates' programs
+    battery_file: str = ""
+    #: instead, a shell command that prints the charge, run at most once a report period (5 s at most)
+    battery_command: str = ""
+    #: without either, Linux's battery (``/sys/class/power_supply``) where the kernel lists one; false: none
+    battery_sysfs: bool = True
+    #: watts a busy core draws, or ``rapl`` (measured), for ``[core] energy_weight``; default: not known
+    power_per_core: Annotated[float, msgspec.Meta(gt=0.0, le=1e9)] | Literal["rapl"] | None = None
     #: the decision core's timeouts, back-off and placement settings: the
     #: ``[core]`` table, listed below
     core: RampsConfig = RampsConfig()
@@ -362,48 +372,6 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
 DEFAULT_LISTEN = "tcp/0.0.0.0:0"
 DEFAULT_TLS_LISTEN = "tls/0.0.0.0:0"
 
-#: Zenoh link protocols whose address is HOST:PORT
-_IP_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws")
-_OTHER_PROTOCOLS = ("unixsock-stream", "unixpipe", "serial", "vsock")
-
-
-def check_endpoint(endpoint: str) -> None:
-    """A Zenoh endpoint looks like ``tcp/192.168.1.12:7447`` (or ``tls/``, ``udp/``,
-    ``quic/``, ``ws/``; ``[::1]`` for IPv6; ``#iface=eth0`` or ``?`` options after it).
-    Raise ValueError saying what is wrong, before Zenoh sees it."""
-    proto, sep, addr = endpoint.partition("/")
-    example = "e.g. tcp/192.168.1.12:7447"
-    if not sep or not addr:
-        raise ValueError(f"endpoint {endpoint!r} must look like PROTOCOL/HOST:PORT, {example}")
-    if proto in _OTHER_PROTOCOLS:
-        return
-    if proto not in _IP_PROTOCOLS:
-        raise ValueError(f"endpoint {endpoint!r}: unknown protocol {proto!r} "
-                         f"(use one of {', '.join(_IP_PROTOCOLS + _OTHER_PROTOCOLS)}), {example}")
-    hostport = addr.split("#", 1)[0].split("?", 1)[0]
-    host, colon, port = hostport.rpartition(":")
-    if not colon or not host.strip("[]") or not port.isdigit() or not 0 <= int(port) <= 65535:
-        raise ValueError(f"endpoint {endpoint!r} needs a host and a port 0-65535 after {proto}/, {example}")
-
-
-def parse_metrics_address(text: str) -> tuple[str, int]:
-    """``"ADDR:PORT"``, ``":PORT"`` or ``"PORT"`` -> (addr, port); addr
-    defaults to 127.0.0.1 (metrics are not for the whole network unless
-    asked: ``0.0.0.0:9464``). Raises ValueError with a message for users."""
-    text = text.strip()
-    host, sep, port = text.rpartition(":")
-    if not sep:
-        host, port = "", text
-    host = host.strip("[]") or "127.0.0.1"
-    try:
-        number = int(port)
-    except ValueError:
-        raise ValueError(f"metrics address {text!r} must look like ADDR:PORT, e.g. 127.0.0.1:9464 "
-                         "or 0.0.0.0:9464") from None
-    if not 0 <= number <= 65535:
-        raise ValueError(f"metrics port {number} is not in 0..65535")
-    return host, number
-
 
 #: how an environment variable's text becomes its setting: a type to call, or one of these forms
 _EnvForm = Literal["list", "commands", "bool"]
@@ -430,6 +398,8 @@ _ENV: dict[str, tuple[str, _EnvForm | type[str] | type[int] | type[float]]] = {
     "RAMPS_MODE": ("mode", str),
     "RAMPS_STATE_DIR": ("state_dir", str),
     "RAMPS_STATE_SYNC": ("state_sync", str),
+    "RAMPS_BATTERY_FILE": ("battery_file", str),
+    "RAMPS_BATTERY_COMMAND": ("battery_command", str),
 }
 
 
