@@ -186,6 +186,9 @@ class Team:
         self._raw_reports: dict[str, tuple[bytes, float]] = {}
         self._timers: list[tuple[float, int]] = []
         self._timer_cv = threading.Condition(self._lock)
+        #: when the timer thread wakes next, monotonic (-inf while it runs): a new
+        #: timer or resend wakes it only if due sooner (``_wake_timers``)
+        self._timer_wake_at = -float("inf")
         #: submissions the node has not acknowledged yet: request id -> (bytes, when to send again)
         self._unacked: dict[int, tuple[bytes, float]] = {}
         #: every pending submission as sent, to ask again once the node's link is back after a lapse
@@ -431,8 +434,9 @@ class Team:
         with self._lock:
             self._futures[rid] = fut
             if timeout is not None:
-                heapq.heappush(self._timers, (self.clock.monotonic() + timeout, rid))
-                self._timer_cv.notify()
+                when = self.clock.monotonic() + timeout
+                heapq.heappush(self._timers, (when, rid))
+                self._wake_timers(when)
         fut.add_done_callback(lambda f: self._on_done(rid, f))
         msg = SubmitProgram(client=self.client_id, request_id=rid, program=program, args=args,
                             work=work or 0.0, local_only=local_only, policy=policy,
@@ -443,9 +447,10 @@ class Team:
         # submission published while the node's link lapsed (a node stalled, starved of CPU) is lost
         reachable = self._node_reachable()
         with self._lock:
-            self._unacked[rid] = (data, self.clock.monotonic() + (SUBMIT_RESEND if reachable else 0.0))
+            again = self.clock.monotonic() + (SUBMIT_RESEND if reachable else 0.0)
+            self._unacked[rid] = (data, again)
             self._sent[rid] = data
-            self._timer_cv.notify()
+            self._wake_timers(again)
         if not reachable:
             return fut
         try:
@@ -457,6 +462,14 @@ class Team:
                 self._sent.pop(rid, None)
             raise TransportError(f"could not send {program!r} to {self.robot}: {exc}") from exc
         return fut
+
+    def _wake_timers(self, due: float) -> None:
+        """With the lock held: wake the timer thread if something is now due
+        before it would wake (a burst of submissions, each resent only after
+        ``SUBMIT_RESEND``, wakes it none)."""
+        if due < self._timer_wake_at:
+            self._timer_wake_at = -float("inf")
+            self._timer_cv.notify()
 
     def _node_reachable(self) -> bool:
         """Whether this client's node subscribes to what it publishes right now
@@ -551,12 +564,12 @@ class Team:
             while not self._closed:
                 retry = self._resend_unacked() if self._unacked else None
                 if not self._timers:
-                    self._timer_cv.wait(retry or 0.5)
+                    self._wait_timers(retry or 0.5)
                     continue
                 when, rid = self._timers[0]
                 delay = when - self.clock.monotonic()
                 if delay > 0:
-                    self._timer_cv.wait(min(delay, retry) if retry else delay)
+                    self._wait_timers(min(delay, retry) if retry else delay)
                     continue
                 heapq.heappop(self._timers)
                 fut = self._futures.get(rid)
@@ -572,6 +585,12 @@ class Team:
                         pass
                     finally:
                         self._lock.acquire()
+
+    def _wait_timers(self, seconds: float) -> None:
+        """With the lock held: the timer thread waits ``seconds``, or until woken."""
+        self._timer_wake_at = self.clock.monotonic() + seconds
+        self._timer_cv.wait(seconds)
+        self._timer_wake_at = -float("inf")
 
     # ------------------------------------------------------------ looking
     def status(self) -> TeamStatus:
