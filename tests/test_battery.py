@@ -53,7 +53,7 @@ def test_a_reserve_of_zero_is_off() -> None:
 
 
 def test_settings_out_of_range_are_refused() -> None:
-    for name in ("battery_reserve", "battery_hysteresis"):
+    for name in ("battery_reserve", "battery_hysteresis", "energy_weight"):
         with pytest.raises(ValueError, match=name):
             RampsConfig(**{name: 1.5})
         with pytest.raises(ValueError, match=name):
@@ -227,3 +227,24 @@ def test_reports_without_a_battery_leave_the_fields_out_on_the_wire() -> None:
                       low_battery=True, power=7.5)
     got = decode(encode("r", full)).msg
     assert (got.battery, got.low_battery, got.power) == (0.5, True, 7.5)
+
+
+@pytest.mark.parametrize("weight, host", [(0.0, "a"), (0.3, "a"), (0.5, "b"), (1.0, "b")])
+def test_an_energy_weight_trades_time_for_energy(weight: float, host: str) -> None:
+    # a: 25 s at 20 W a core, 10 J a unit; b: 50 s at 4 W, 4 J a unit; o (swamped) says nothing of its power
+    team = busy_origin_team(config=RampsConfig(energy_weight=weight))
+    _battery(team, "a", None, power=20.0)
+    _battery(team, "b", None, power=4.0)
+    submit(team)
+    [req] = team.sent(OffloadRequest)
+    assert req.host == host
+    [placed] = team.notes("placed")
+    assert placed.detail.startswith("expected 25.0" if host == "a" else "expected 50.0")  # a time, not a rank
+
+
+def test_energy_from_an_emptier_battery_costs_more() -> None:
+    team = busy_origin_team(config=RampsConfig(energy_weight=1.0))
+    _battery(team, "a", 1.0, power=8.0)  # 4 J a unit, from a full battery
+    _battery(team, "b", 0.3, power=4.0)  # 4 J a unit, from a battery at 30%: 13.3
+    submit(team)
+    assert team.sent(OffloadRequest)[0].host == "a"

@@ -37,11 +37,15 @@ from __future__ import annotations
 
 import math
 import statistics
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 
 from ramps.core.messages import MAX_LOAD
+
+if TYPE_CHECKING:
+    from ramps.core.loadview import LoadView
 
 #: the largest weight ``energy_rank`` uses (1 counts as this: energy all but alone)
 ENERGY_ONLY = 0.99
@@ -124,3 +128,32 @@ def energy_rank(times: list[float], prices: list[float], weight: float) -> list[
     w = min(weight, ENERGY_ONLY)
     exponent = w / (1.0 - w)
     return [t * math.exp(min(700.0, exponent * math.log(p / cheapest))) for t, p in zip(times, prices)]
+
+
+def energy_ranks(view: LoadView, rows: Sequence[Sequence[Any]], weight: float) -> list[float]:
+    """``energy_rank`` of the ``ramps`` policy's rows (``[t, _, robot, ...,
+    speed at 7, ...]``): each host priced by its last report's power and
+    battery (``LoadReport.power``, ``battery``; unknown powers filled in)."""
+    reports = [view.report_of(row[2]) for row in rows]
+    powers = fill_powers([sane_power(r.power) if r is not None else None for r in reports])
+    prices = [energy_price(row[7], p, r.battery if r is not None else None) for row, p, r in zip(rows, powers, reports)]
+    return energy_rank([row[0] for row in rows], prices, weight)
+
+
+def rank_by_energy(view: LoadView, rows: list[list[Any]], weight: float) -> list[float] | None:
+    """With ``weight`` above 0, the ``ramps`` policy's hosts by time and
+    energy: each row's time (``row[0]``) becomes its ``energy_ranks`` and
+    the times are returned (``unrank`` puts them back); else None, the rows
+    as they were."""
+    if weight <= 0.0:
+        return None
+    times = [row[0] for row in rows]
+    for row, rank in zip(rows, energy_ranks(view, rows, weight)):
+        row[0] = rank
+    return times
+
+
+def unrank(rows: list[list[Any]], times: list[float] | None) -> None:
+    """The rows' times back after ``rank_by_energy`` (nothing if it returned None)."""
+    for row, t in zip(rows, times or ()):
+        row[0] = t

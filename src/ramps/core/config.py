@@ -139,6 +139,12 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: charge is back at the reserve plus this, so one whose charge hovers
     #: at the reserve does not flip with every report
     battery_hysteresis: float = 0.05
+    #: 0..1, set alike on every robot: how much placement (``ramps`` policy)
+    #: weighs energy against time. 0 places for the earliest finish; 1 on the
+    #: robot that spends least energy per unit of work (its watts per busy
+    #: core over its speed, dearer the emptier its battery); between, a trade
+    #: of one for the other (``ramps sim energy`` draws it)
+    energy_weight: float = 0.0
 
     def __post_init__(self) -> None:
         for name in self.__struct_fields__:
@@ -156,7 +162,7 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             raise ValueError(f"relocate_max_done must be 0..1, got {self.relocate_max_done}")
         if self.relocate_max_spread < 1:
             raise ValueError(f"relocate_max_spread must be >= 1, got {self.relocate_max_spread}")
-        for name in ("battery_reserve", "battery_hysteresis"):
+        for name in ("battery_reserve", "battery_hysteresis", "energy_weight"):
             if not getattr(self, name) <= 1:
                 raise ValueError(f"{name} must be 0..1, got {getattr(self, name)}")
         if self.speed_max_correction < 1:

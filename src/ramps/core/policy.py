@@ -35,6 +35,9 @@ scheduler.
   ``accelerators.accelerator_time`` on the robots that advertise that kind
   (their slots shared by the programs on them) and by its CPU work on the
   others; the origin leaves the others out when it may not run on a CPU.
+  With ``RampsConfig.energy_weight`` above 0, hosts are chosen by time and
+  energy per unit of work, weighed (``battery.rank_by_energy``), and
+  priced (time, budget) by time as before.
 * ``round_robin``, ``random``, ``local_only``: baselines.
 """
 
@@ -48,6 +51,7 @@ from typing import Any, Callable, ClassVar
 import msgspec
 
 from ramps.core.accelerators import accelerator_time
+from ramps.core.battery import rank_by_energy, unrank
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate, comm_time, program_share, shared_finish_time
 from ramps.core.loadview import LoadView
@@ -189,6 +193,7 @@ class RampsPolicy(Policy):
                 continue
             t = shared_finish_time(work, left, row[6], row[7], row[4], row[8]) + row[9]
             row[0] = min(row[0], t)
+        times = rank_by_energy(view, rows, config.energy_weight)  # energy against time (ramps.core.battery)
         t_best = min(row[0] for row in rows)
         # costs within the tolerance are equal (eq. 1 cannot tell them apart);
         # then the least utilised robot wins, then the one whose load is more
@@ -212,6 +217,7 @@ class RampsPolicy(Policy):
         pick = next((row for row in tied if row[2] == me), None)
         if pick is None:
             pick = tied[0] if len(tied) == 1 else rng.choice(tied)
+        unrank(rows, times)
         alternative = min((row[0] for row in rows if row[2] != pick[2]), default=None)
         budget = None
         if alternative is not None and math.isfinite(alternative):
