@@ -7,8 +7,11 @@ Each must give exactly what the straightforward code gives (the same
 floats, the same counts, the same words), or the simulator's fixed-seed
 sweeps would change: here each is checked against that code, kept below as
 the reference, over generated inputs. The driver publishes one report of
-the instant per batch of the core's actions (the newest), and a client
-decodes load reports only when ``status()`` asks for them.
+the instant per batch of the core's actions (the newest), a client decodes
+load reports only when ``status()`` asks for them, a program's updates to
+its client wait a moment (none if its outcome goes first), its acceptance
+writes nothing to the durable record, and a call's argument names are
+judged without ``Signature.bind`` where the names alone tell.
 """
 
 from __future__ import annotations
@@ -280,3 +283,115 @@ def test_the_cpu_benchmark_runs_its_bursts_to_the_end():
     drv = driver_burst(40, 8)
     assert sum(drv["burst_ran_on"].values()) == 40 and sum(drv["one_at_a_time_ran_on"].values()) == 8
     assert "?" not in drv["burst_ran_on"]
+
+
+# ---------------------------------------------------------------- what a program sends and writes
+def _collector(team, name="app"):
+    """A client on the bus that keeps what its node sends it, decoded."""
+    from ramps.runtime import keys
+
+    heard: list = []
+    t = team.bus.transport(name)
+    t.subscribe(keys.client(team.team, name), lambda data: heard.append(decode(data).msg))
+    return t, heard
+
+
+def _submit(team, t, rid: int, name="app", robot="r1", **fields):
+    from ramps.core.messages import SubmitProgram, encode
+    from ramps.runtime import keys
+
+    t.put(keys.inbox(team.team, robot), encode(name, SubmitProgram(client=name, request_id=rid, program="echo",
+                                                                   args=msgspec.msgpack.encode({"x": rid}),
+                                                                   **fields)), block=True)
+
+
+def test_a_program_that_ends_within_the_hold_sends_its_client_no_update():
+    """A client's updates wait ``UPDATE_HOLD``: a program whose outcome comes
+    first sends none (the outcome says all of it); one still running then
+    sends one, its newest state; a request asked again is answered at once."""
+    from ramps.core.messages import ProgramOutcome, ProgramUpdate
+    from ramps.runtime.node_clients import UPDATE_HOLD
+    from ramps.testing.memory import MemoryTeam
+
+    team = MemoryTeam({"r1": (2, 1.0), "r2": (2, 1.0)})
+    try:
+        team.run(3.0)
+        t, heard = _collector(team)
+        _submit(team, t, 1)
+        team.run(UPDATE_HOLD / 2, until=lambda: any(isinstance(m, ProgramOutcome) for m in heard))
+        team.run(2 * UPDATE_HOLD)
+        assert [type(m) for m in heard] == [ProgramOutcome]
+        heard.clear()
+        _submit(team, t, 2)
+        team.run(UPDATE_HOLD / 2, complete=False)
+        assert heard == []
+        team.run(2 * UPDATE_HOLD, complete=False)
+        assert [(type(m), m.state) for m in heard] == [(ProgramUpdate, "running")]
+        _submit(team, t, 2)  # asked again: where it stands, now
+        team.step()
+        assert [m.state for m in heard] == ["running", "running"]
+        team.run(2.0)
+        assert [type(m) for m in heard][-1] is ProgramOutcome
+    finally:
+        team.close()
+
+
+def test_an_acceptance_alone_writes_nothing_to_the_record(tmp_path):
+    """The durable record is written when a program is placed and when it is
+    delivered: its acceptance changes nothing a restart reads."""
+    from ramps.core.durable import OriginRecord, same_to_restore
+    from ramps.core.events import Submit
+    from ramps.core.messages import ProgramOutcome
+    from ramps.testing.memory import MemoryTeam
+
+    sub = Submit(program_id="p", program="echo")
+    offered = OriginRecord(submit=sub, attempt=1, host="r2", live={1: "r2"}, made=1, ran_on=["r3"])
+    running = msgspec.structs.replace(offered, state="running", ran_on=["r3", "r2"])
+    assert same_to_restore(offered, running) and same_to_restore(offered, offered)
+    assert not same_to_restore(offered, msgspec.structs.replace(running, ran_on=["r2"]))
+    assert not same_to_restore(offered, msgspec.structs.replace(running, attempt=2, live={2: "r2"}))
+    assert not same_to_restore(offered, msgspec.structs.replace(offered, checkpoint=b"s", checkpoint_fraction=0.5))
+
+    team = MemoryTeam({"r1": (1, 1.0), "r2": (4, 4.0)}, settings={"state_dir": str(tmp_path)})
+    try:
+        team.run(3.0)
+        t, heard = _collector(team)
+        store = team.nodes["r1"].store
+        before = store.writes
+        _submit(team, t, 1, work=20.0)  # heavy: offloaded to the faster robot
+        team.run(30.0, until=lambda: any(isinstance(m, ProgramOutcome) for m in heard))
+        [out] = [m for m in heard if isinstance(m, ProgramOutcome)]
+        assert out.ok and out.host == "r2"
+        assert store.writes - before == 2  # placed, delivered
+        assert store.programs() == 0
+    finally:
+        team.close()
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.sets(st.sampled_from(["a", "b", "c", "d", "kw"]), max_size=5))
+def test_arguments_are_judged_as_signature_bind_judges_them(names):
+    import inspect
+
+    from ramps.runtime.argtypes import ArgTypes
+
+    def f0(): ...
+    def f1(a, b=1): ...
+    def f2(a, *, c, d=2): ...
+    def f3(a, /, b=1): ...
+    def f4(a=1, **kw): ...
+    def f5(*args, a, b=2): ...
+
+    kwargs = dict.fromkeys(names, 1)
+    for fn in (f0, f1, f2, f3, f4, f5):
+        try:
+            inspect.signature(fn).bind(**kwargs)
+            want = None
+        except TypeError as exc:
+            want = str(exc)
+        try:
+            ArgTypes(fn).check(kwargs)
+            got = None
+        except TypeError as exc:
+            got = str(exc)
+        assert got == want, fn.__name__

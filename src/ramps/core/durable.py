@@ -68,6 +68,18 @@ def record_of(ap: AutonomousProgram) -> OriginRecord:
                         checkpoint_fraction=ap.checkpoint_fraction, state=ap.state.value)
 
 
+def same_to_restore(old: OriginRecord, new: OriginRecord) -> bool:
+    """Whether a node restarted with ``old`` in its record resumes the program
+    as it would with ``new``: they differ at most in ``state``, which
+    ``program_of`` does not read, and in ``new.ran_on`` naming the current
+    host as well (what an acceptance changes: the restarted origin offers
+    that attempt to that host again, and its yes names it again), so a
+    node need not write ``new``."""
+    if new.ran_on != old.ran_on and new.ran_on != [*old.ran_on, new.host]:
+        return False
+    return msgspec.structs.replace(new, state=old.state, ran_on=old.ran_on) == old
+
+
 def encode_record(rec: OriginRecord) -> bytes:
     return _encoder.encode(rec)
 

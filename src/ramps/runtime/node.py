@@ -193,6 +193,9 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._held_lost = {}
         #: messages waiting for their receiver to be reachable: (key, bytes, monotonic deadline, block)
         self._held_outcomes = []
+        #: clients' updates waiting for their moment (``ClientAnswers._update_client``), in
+        #: the order they are due: program id -> [core time due, state, host, attempt]
+        self._held_updates = {}
         #: secured team: the newest revocation list, the robots it names, the CA that signs it
         self.revocations = None
         self._revoked = frozenset()
@@ -212,6 +215,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         #: written to it that are about to be sent
         self.store = None
         self.restored = 0
+        #: the record last written of each program (``ClientAnswers._persist``)
+        self._recorded = {}
         self._outcomes_ready = {}
         #: the last periodic load report, and the origins of the programs this robot hosts for others
         self._last_report = None
@@ -568,6 +573,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         wake = next_pub if deadline is None else min(deadline, next_pub)
         wake = min(wake, self._next_release()) if self._held_lost else wake
         wake = min(wake, now + OUTCOME_RETRY) if self._held_outcomes else wake
+        wake = min(wake, next(iter(self._held_updates.values()))[0]) if self._held_updates else wake
         wait = max(0.0, wake - now)
         self._sleep_until = self.clock.monotonic() + wait
         try:
@@ -625,12 +631,15 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._apply(actions)
         if self._held_outcomes:
             self._flush_outcomes()
+        if self._held_updates:
+            self._flush_updates(now)
         if not block:  # the next round is due at the earliest of its timers
             wake = self._next_pub
             deadline = node.next_deadline()
             wake = wake if deadline is None else min(wake, deadline)
             wake = min(wake, self._next_release()) if self._held_lost else wake
             wake = min(wake, now + OUTCOME_RETRY) if self._held_outcomes else wake
+            wake = min(wake, next(iter(self._held_updates.values()))[0]) if self._held_updates else wake
             self._sleep_until = self.clock.monotonic() + max(0.0, wake - now)
         return True
 

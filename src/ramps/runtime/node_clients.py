@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import logging
 
-from ramps.core.durable import program_of, record_of
+from ramps.core.durable import program_of, record_of, same_to_restore
 from ramps.core.events import (
     Action,
     Deliver,
@@ -52,6 +52,11 @@ OUTCOMES_KEPT_BYTES = 16 * 1024 * 1024
 #: seconds an outcome waits for its client to be reachable, and between two looks
 OUTCOME_HOLD = 30.0
 OUTCOME_RETRY = 0.05
+#: seconds a program's update to its client waits (then its newest state goes):
+#: most programs end sooner, and their outcome says all an update would; one
+#: that runs longer is told within this (a client resends a submission that
+#: nothing acknowledged only after ``ramps.runtime.client.SUBMIT_RESEND``)
+UPDATE_HOLD = 0.1
 
 
 class ClientAnswers(DriverState):
@@ -66,6 +71,7 @@ class ClientAnswers(DriverState):
         for pid, (client, rid, rec) in found.programs.items():
             self._requests[(client, rid)] = pid
             self._clients[pid] = (client, rid)
+            self._recorded[pid] = rec
             aps.append(program_of(rec, now))
             if pid.startswith(prefix):  # an old incarnation's ids that this one's could repeat
                 tail = pid[len(prefix):]
@@ -88,14 +94,20 @@ class ClientAnswers(DriverState):
         origin = self.node.origin
         changed, origin.changed = origin.changed or set(), set()
         records = {}
+        written = self._recorded
         for pid in changed:
             ap = origin.programs.get(pid)
             target = self._clients.get(pid)
             if ap is not None and target is not None and ap.state not in FINAL:
-                records[pid] = (target[0], target[1], record_of(ap))
+                rec = record_of(ap)
+                old = written.get(pid)
+                if old is None or not same_to_restore(old, rec):  # an acceptance alone needs no write
+                    records[pid] = (target[0], target[1], rec)
+                    written[pid] = rec
         finished = []
         for a in actions:
             if isinstance(a, Deliver):
+                written.pop(a.program_id, None)
                 target = self._clients.get(a.program_id)
                 data = b""
                 if target is not None:
@@ -159,6 +171,7 @@ class ClientAnswers(DriverState):
         target = self._clients.pop(pid, None)
         if target is None:
             return []
+        self._held_updates.pop(pid, None)  # the outcome says all of it
         client, request_id = target
         self._requests.pop(target, None)
         self._progress.pop(pid, None)
@@ -192,9 +205,9 @@ class ClientAnswers(DriverState):
             assert self.node is not None
             ap = self.node.origin.programs.get(pid)
             if ap is None:
-                self._update_client(pid, "placed", "", 0)
+                self._send_update(pid, "placed", "", 0)
             else:
-                self._update_client(pid, "running" if ap.state is ProgramState.RUNNING else "placed",
+                self._send_update(pid, "running" if ap.state is ProgramState.RUNNING else "placed",
                                     ap.host or "", ap.attempt)
             return []
         data = self._answered.get(rkey)
@@ -241,7 +254,29 @@ class ClientAnswers(DriverState):
                 self._put(key, data, block=block)
 
     def _update_client(self, pid: str, state: str, host: str, attempt: int) -> None:
-        """Tell the program's client where it stands (advisory; see ProgramUpdate)."""
+        """Tell the program's client where it stands, ``UPDATE_HOLD`` seconds
+        from the first change not yet told: the newest state then, and none
+        if its outcome went first (advisory; see ProgramUpdate)."""
+        held = self._held_updates.get(pid)
+        if held is not None:
+            held[1:] = [state, host, attempt]
+        elif pid in self._clients:
+            self._held_updates[pid] = [self.clock.monotonic() - self._stall_offset + UPDATE_HOLD, state, host, attempt]
+
+    def _flush_updates(self, now: float) -> None:
+        """Send the held updates that are due by the core's time ``now``
+        (held in the order they are due)."""
+        held = self._held_updates
+        while held:
+            pid, (due, state, host, attempt) = next(iter(held.items()))
+            if due > now:
+                return
+            del held[pid]
+            self._send_update(pid, state, host, attempt)
+
+    def _send_update(self, pid: str, state: str, host: str, attempt: int) -> None:
+        """Tell the program's client where it stands now (advisory; see ProgramUpdate)."""
+        self._held_updates.pop(pid, None)
         target = self._clients.get(pid)
         if target is None:
             return

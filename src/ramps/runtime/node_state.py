@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol, TextIO
 if TYPE_CHECKING:
     from cryptography import x509
 
+    from ramps.core.durable import OriginRecord
     from ramps.core.events import Action, Deliver, Note
     from ramps.core.messages import LoadReport, SubmitProgram
     from ramps.core.node import Node
@@ -92,8 +93,12 @@ class DriverState:
     _progress: dict[str, tuple[float, str]]
     _seq: int
     _outcomes_ready: dict[str, bytes]
+    #: the durable record last written of each program not delivered yet
+    _recorded: dict[str, OriginRecord]
     #: messages waiting for their receiver: (key, bytes, monotonic deadline, block)
     _held_outcomes: list[tuple[str, bytes, float, bool]]
+    #: clients' updates waiting for their moment: program id -> [core time due, state, host, attempt]
+    _held_updates: dict[str, list[Any]]
     _pubs: dict[str, Publisher]
     _update_pubs: dict[str, Publisher]
     _bulk: OrderedSender
@@ -158,6 +163,8 @@ class DriverState:
                          missed_deadline: bool = False) -> list[Action]: ...
 
         def _update_client(self, pid: str, state: str, host: str, attempt: int) -> None: ...
+
+        def _flush_updates(self, now: float) -> None: ...
 
         def _write_trace(self, what: str, program_id: str, other: str, attempt: int, detail: str, *,
                          at: float | None = None) -> None: ...  # Outbound
