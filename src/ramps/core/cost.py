@@ -12,10 +12,15 @@ is ``speed * min(1, cores / (runnable + 1))``, where ``runnable`` counts the
 tasks already competing (background and ramps programs) and ``+ 1`` is the
 program itself. Communication time is the request, the acceptance and the
 result crossing the link: three latencies plus the bytes of parameters and
-result over the bandwidth. Pure functions, no state.
+result over the bandwidth. Pure functions; the only state is a memo of
+processor shares by count (``_shares``), which changes no result.
 """
 
 from __future__ import annotations
+
+from functools import reduce
+from itertools import repeat
+from operator import add, mul, sub, truediv
 
 import msgspec
 
@@ -112,27 +117,54 @@ def shared_finish_time(work: float, others: list[float], cores: float, speed: fl
     sharing: every program runs at the same rate, which rises each time one
     of them ends (``program_share``). With no others this is
     ``work / (speed * program_share(cores, 1, background, weight))``; with
-    others of the new program's own size, the count-based estimate."""
+    others of the new program's own size, the count-based estimate.
+
+    Runs once per program on every busy host an origin considers, for every
+    placement: the sum of each program's stretch is taken by C loops
+    (``map``, ``reduce``) over the shares of ``_shares``, term by term in
+    the order and with the operations of the plain loop, so the float is
+    the same to the last bit (``tests/test_dispatch_path.py``)."""
     left = [x for x in others if x < work]
-    left.sort()
     k = len(others) + 1
-    t = done = 0.0
-    # program_share(cores, k, background, weight) inlined (the same operations,
-    # so the same floats): this loop runs once per program on every busy host
-    # an origin considers, for every placement
+    m = len(left)
+    if not m:
+        return work / (speed * program_share(cores, k, background, weight))
+    left.sort()
+    shares = _shares(cores, background, weight, k)[k:k - m:-1]  # the shares at k, k - 1, ... k - m + 1 programs
+    before = [0.0]
+    before += left
+    # t += (x - done) / (speed * share) for each x, from t = 0.0
+    t = reduce(add, map(truediv, map(sub, left, before), map(mul, repeat(speed, m), shares)), 0.0)
+    return t + (work - left[-1]) / (speed * program_share(cores, k - m, background, weight))
+
+
+#: the share of each program at each count, per (cores, background, weight) (``_shares``)
+_SHARE_TABLES: dict[tuple[float, float, float], list[float]] = {}
+
+
+def _shares(cores: float, background: float, weight: float, k: int) -> list[float]:
+    """The share of one core each program gets with ``j`` of them, for every
+    ``j`` up to at least ``k`` (index ``j``; 0 unused): ``program_share``
+    with the same operations. Kept per robot shape (at most 64 shapes)."""
+    key = (cores, background, weight)
+    table = _SHARE_TABLES.get(key)
+    if table is not None and len(table) > k:
+        return table
     top = max(weight, 1.0 if background > 0 else 0.0)
-    for x in left:
-        if k + background <= cores:
+    table = [1.0]
+    for j in range(1, max(k + 1, 64, 2 * len(_SHARE_TABLES.get(key, ())))):
+        if j + background <= cores:
             share = 1.0
         else:
-            per_weight = cores / (background + weight * k)
+            per_weight = cores / (background + weight * j)
             if top * per_weight <= 1.0:
                 share = weight * per_weight
             elif weight < 1.0:
-                share = (cores - background) / k
+                share = (cores - background) / j
             else:
                 share = 1.0
-        t += (x - done) / (speed * share)
-        done = x
-        k -= 1
-    return t + (work - done) / (speed * program_share(cores, k, background, weight))
+        table.append(share)
+    if len(_SHARE_TABLES) >= 64:
+        _SHARE_TABLES.clear()
+    _SHARE_TABLES[key] = table
+    return table
