@@ -103,6 +103,13 @@ class CPU:
         key = min(self.jobs, key=self.jobs.__getitem__)
         return self.t + max(0.0, self.jobs[key]) / self.rate(), key
 
+    def busy_seconds(self, now: float) -> float:
+        """Core-seconds this CPU has been busy since it started, its programs
+        and its busy processes alike (``ramps.sim.battery`` drains and counts
+        energy by them)."""
+        self.advance(now)
+        return self._ib
+
     # ------------------------------------------------------------ measurement
     def averages(self, now: float, window: float) -> tuple[float, float, float]:
         """Mean busy cores, runnable tasks and ramps programs over the last

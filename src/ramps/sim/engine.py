@@ -11,7 +11,8 @@ placement or recovery logic lives here.
 
 Faults: ``crash`` removes the robot and all its state (a new incarnation
 starts on ``recover``); ``network`` isolates it while it keeps computing;
-``freeze`` stops it entirely (SIGSTOP) with its state kept; ``load`` changes
+``freeze`` stops it entirely (SIGSTOP) with its state kept; ``battery`` sets its
+charge (``ramps.sim.battery``, read before each report); ``load`` changes
 how many busy processes the robot's own software runs (load that changes
 after placement). Programs with ``checkpoint_every`` save their state that
 often while they run (``CheckpointSaved``); a restart that carries it
@@ -42,6 +43,7 @@ from ramps.core.messages import LoadReport, Message, wire_size
 from ramps.core.node import Node
 from ramps.core.program import FINAL
 from ramps.core.speed import REMEASURE_PERIOD, SpeedMeasured
+from ramps.sim.battery import Batteries
 from ramps.sim.cpu import CPU, next_completion, set_frozen, take_finished
 from ramps.sim.results import ProgramRecord, SimResult, TraceEntry
 from ramps.sim.scenario import FaultSpec, ProgramSpec, RobotSpec, Scenario
@@ -114,6 +116,7 @@ class Simulator:
         self._snap_times = sorted(snapshots or [])
         self.snapshots: dict[str, dict[str, int]] = {}
         self._first_submit = math.inf
+        self.batteries = Batteries(self.sc.team())
         self._last_delivery = 0.0
 
     # ================================================================ event heap
@@ -270,6 +273,8 @@ class Simulator:
             # ramps.runtime.speed_probe.SpeedSamples: the odd boot figure is outweighed)
             r.remeasure_at = self.now + REMEASURE_PERIOD
             self._handle(r, SpeedMeasured(speed=r.spec.speed))
+        for reading in self.batteries.sample(r.spec.name, r.cpu, self.now):  # below its reserve: hands back
+            self._handle(r, reading)
         report = r.node.make_report(cpu_busy=busy, runnable=runnable, ramps_avg=ramps_avg, window=pub.window,
                                     mem_free=r.spec.memory, node_cpu=r.spec.node_cpu)
         if r.spec.name in self.subscribers:
@@ -383,6 +388,8 @@ class Simulator:
             r.epoch += 1
             set_frozen((r.cpu, *r.accel.values()), True, self.now)
             self._liveliness(r, lost=True, delay=self.net.lease)
+        elif f.kind == "battery":
+            self.batteries.set_charge(f.robot, r.cpu, self.now, f.charge or 0.0)
         elif f.kind == "load":
             if r.alive and f.background is not None:
                 r.cpu.set_background(f.background, self.now)
@@ -470,6 +477,7 @@ class Simulator:
             elif not rec.error:
                 lost += 1
         stats = [r.node.statistics() for r in self.robots.values()]
+        energy, charge = self.batteries.finish({n: r.cpu for n, r in self.robots.items() if r.alive}, self.now)
         first = self._first_submit if self._first_submit < math.inf else 0.0
         return SimResult(
             scenario=self.sc.name, policy=self.policy, seed=self.seed, robots=self.names,
@@ -477,7 +485,7 @@ class Simulator:
             failed=failed, lost=lost, duplicated=dup, programs=list(self.records.values()),
             statistics=stats, snapshots=self.snapshots, events=self.events, messages_sent=self.sent,
             messages_dropped=self.dropped, end_time=self.now, wall_seconds=wall, trace=self.trace,
-            deadlines=deadlines, deadline_misses=misses,
+            deadlines=deadlines, deadline_misses=misses, energy=energy, charge=charge,
         )
 
 

@@ -64,3 +64,8 @@ class SimResult(msgspec.Struct, kw_only=True):
     #: programs with a deadline, and those that missed it (late, failed or lost)
     deadlines: int = 0
     deadline_misses: int = 0
+    #: joules each robot used (its busy core-seconds times its power, 1 W
+    #: where the scenario gives none), and the charge left in each robot
+    #: with a battery (``ramps.sim.battery``)
+    energy: dict[str, float] = {}
+    charge: dict[str, float] = {}

@@ -24,8 +24,8 @@ from ramps.core.cost import NODE_CPU_MAX
 from ramps.core.origin import ON_MISS
 
 POLICIES = ("ramps", "paper", "round_robin", "random", "local_only")
-FaultKind = Literal["crash", "network", "freeze", "recover", "load"]
-FAULT_KINDS: tuple[FaultKind, ...] = ("crash", "network", "freeze", "recover", "load")
+FaultKind = Literal["crash", "network", "freeze", "recover", "load", "battery"]
+FAULT_KINDS: tuple[FaultKind, ...] = ("crash", "network", "freeze", "recover", "load", "battery")
 
 
 class ScenarioError(ValueError):
@@ -95,6 +95,12 @@ class RobotSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
     #: accelerators as ``KIND[:COUNT[:SPEED]]`` (``ramps.core.accelerators``),
     #: e.g. ``["cuda:1:20"]``: one slot running 20 work units a second
     accelerators: list[str] = []
+    #: its battery's state of charge at the start, 0..1 (None: no battery),
+    #: and the charge one busy core-second takes (``ramps.sim.battery``)
+    battery: float | None = None
+    drain: float = 0.0
+    #: watts one busy core draws (None: not known; its energy counts 1 W)
+    power: float | None = None
     #: expand this entry into ``count`` identical robots
     count: int | None = None
 
@@ -141,13 +147,16 @@ class ProgramSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
 class FaultSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
     """Something that happens to a robot at ``at``: a fault, a recovery, or
     (``load``) its own software changing how many CPU-bound processes it
-    runs to ``background`` (e.g. a heavy job starting after placement)."""
+    runs to ``background`` (e.g. a heavy job starting after placement), or
+    (``battery``) its battery's charge becoming ``charge``."""
 
     at: float
     robot: str
     kind: FaultKind
     #: ``load`` only: the robot's busy processes from then on
     background: int | None = None
+    #: ``battery`` only: the robot's state of charge from then on, 0..1
+    charge: float | None = None
 
 
 class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -202,6 +211,9 @@ class Scenario(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
                                     f"a load change needs background >= 0 (busy processes), got {f.background}")
             if f.kind != "load" and f.background is not None:
                 raise ScenarioError(f"$.faults[{i}].background", f"only a 'load' change sets background, not {f.kind!r}")
+            if (f.kind == "battery") != (f.charge is not None) or not 0.0 <= (f.charge or 0.0) <= 1.0:
+                raise ScenarioError(f"$.faults[{i}].charge", f"a 'battery' change, and it only, sets a charge 0..1, "
+                                                             f"got {f.charge!r} for {f.kind!r}")
         if self.policy not in POLICIES:
             raise ScenarioError("$.policy", f"unknown policy {self.policy!r}; choose one of {', '.join(POLICIES)}")
         n = self.network
@@ -226,6 +238,11 @@ def _check_robot(p: str, r: RobotSpec) -> None:
         raise ScenarioError(f"{p}.measured_speed", f"must be > 0, got {r.measured_speed}")
     if r.background < 0:
         raise ScenarioError(f"{p}.background", f"must be >= 0, got {r.background}")
+    if r.battery is not None and not 0.0 <= r.battery <= 1.0:
+        raise ScenarioError(f"{p}.battery", f"must be a state of charge 0..1, got {r.battery}")
+    if not 0.0 <= r.drain <= 1.0 or (r.power is not None and not 0.0 < r.power <= 1e9):
+        raise ScenarioError(f"{p}.{'drain' if not 0.0 <= r.drain <= 1.0 else 'power'}",
+                            f"drain is 0..1 a busy core-second, power watts > 0; got {r.drain}, {r.power}")
     if not 0.0 <= r.node_cpu <= NODE_CPU_MAX * r.cores:
         raise ScenarioError(f"{p}.node_cpu", f"must be between 0 and half the robot's cores, got {r.node_cpu}")
     if not -20 <= r.worker_nice <= 19:
