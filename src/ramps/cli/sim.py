@@ -4,6 +4,8 @@
     ramps sim sweep                  # several origins at once, against the best achievable
     ramps sim campaign               # random faults, invariants checked after every run
     ramps sim relocation             # a robot gets busy after placement: relocation on/off vs hindsight
+    ramps sim battery                # robots below their battery reserve, against the exact optimum
+    ramps sim energy                 # makespan against energy as placement weighs energy
     ramps sim run examples/warehouse.yaml   # your own team and workload
 
 The work is done by ``ramps.experiments`` and ``ramps.sim``; this module
@@ -233,6 +235,71 @@ def sim_relocation(
     except ValueError as exc:
         fail(str(exc))
     emit([rep], print_relocation, as_json=as_json, out_file=out_file)
+
+
+@sim_app.command("battery")
+def sim_battery(
+    scenarios: int = typer.Option(240, "--scenarios", "-n", min=1, help="generated scenarios"),
+    seed: int = typer.Option(0, "--seed", help="generates the scenarios; the same seed gives the same table"),
+    sim_seed: int = typer.Option(1, "--sim-seed", help="the simulator's seed, the same for every variant"),
+    as_json: bool = typer.Option(False, "--json", help="write the results as JSON to stdout instead of tables"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
+) -> None:
+    """Low batteries: ramps, ramps ignoring batteries, and round robin against the exact optimum.
+
+    Generated teams of 3-5 robots of mixed cores and speeds, two or three origins submitting 2-4
+    checkpointing programs each (at most 12 in all), and a robot below its battery reserve from the
+    start, one that drops below it mid-run, or one that crashes. A robot below its reserve runs no
+    teammate's program: the optimum is the shortest makespan of any placement that keeps to that,
+    knowing every drop and crash in advance (dynamic programming over subsets). "on low" counts the
+    programs a variant ran on a robot below its reserve for another origin; ramps_full is ramps on the
+    same teams with every battery full, against that scenario's optimum. About a minute on two cores.
+    """
+    from ramps.experiments.battery import format_report, run_family
+
+    with Progress(TextColumn("battery"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=err,
+                  transient=True) as progress:
+        task = progress.add_task("battery", total=scenarios)
+        rep = run_family(scenarios, seed=seed, sim_seed=sim_seed,
+                         progress=lambda done, total: progress.update(task, completed=done))
+    emit([rep], lambda r, console: console.print(format_report(r), highlight=False, soft_wrap=True),
+         as_json=as_json, out_file=out_file)
+
+
+@sim_app.command("energy")
+def sim_energy(
+    weights: str = typer.Option("0,0.1,0.2,0.3,0.4,0.5,0.6,0.7,0.8,0.9,1", "--weights", metavar="W,W,...",
+                                help="energy weights to run, each 0..1 ([core] energy_weight)"),
+    seeds: int = typer.Option(5, "--seeds", min=1, help="simulation seeds per weight (the medians are printed)"),
+    programs: int = typer.Option(8, "--programs", min=1, help="programs each of the three origins submits"),
+    work: float = typer.Option(30.0, "--work", min=0.1, help="work units per program"),
+    seed: int = typer.Option(0, "--seed", help="first seed"),
+    as_json: bool = typer.Option(False, "--json", help="write the curve as JSON to stdout instead of a table"),
+    out_file: Optional[Path] = typer.Option(None, "--out", "-o", help="also save the JSON to this file"),
+) -> None:
+    """Makespan against energy as placement weighs energy ([core] energy_weight).
+
+    A team of fast robots that burn 20 W a core, middling ones (6 W) and slow, frugal ones (2.4 W);
+    three origins submit a burst each. For each weight, the median makespan and the median energy
+    (busy core-seconds times watts) over the seeds, and the share of the work each kind of robot
+    ran; round robin on the same seeds last. Weight 0 places for the earliest finish, 1 for the
+    fewest joules per unit of work.
+    """
+    from ramps.experiments.energy import format_report, run_curve
+
+    try:
+        ws = [float(w) for w in weights.split(",") if w.strip()]
+    except ValueError:
+        fail(f"--weights takes numbers 0..1 separated by commas, got {weights!r}")
+    if not ws or any(not 0.0 <= w <= 1.0 for w in ws):
+        fail(f"--weights takes numbers 0..1 separated by commas, got {weights!r}")
+    with Progress(TextColumn("energy"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=err,
+                  transient=True) as progress:
+        task = progress.add_task("energy", total=(len(ws) + 1) * seeds)
+        rep = run_curve(ws, seeds=seeds, programs=programs, work=work, seed=seed,
+                        progress=lambda done, total: progress.update(task, completed=done))
+    emit([rep], lambda r, console: console.print(format_report(r), highlight=False, soft_wrap=True),
+         as_json=as_json, out_file=out_file)
 
 
 @sim_app.command("run")
