@@ -66,3 +66,15 @@ def slot_share(count: float, programs: float) -> float:
     if programs <= count:
         return 1.0
     return count / programs
+
+
+def work_left(placed: list[tuple[float, float]], now: float, count: float, speed: float,
+              programs: int) -> list[float]:
+    """Work left at ``now`` in programs (work, started at) ``placed`` on
+    ``count`` slots of ``speed`` that run ``programs`` programs in all (as
+    many as since they started, processor sharing), at most ``programs`` of
+    them, the largest."""
+    if programs <= 0:
+        return []
+    rate = speed * slot_share(count, programs)
+    return sorted(max(0.0, work - (now - at) * rate) for work, at in placed)[-programs:]

@@ -22,6 +22,7 @@ from __future__ import annotations
 import heapq
 import itertools
 
+from ramps.core.accelerators import work_left
 from ramps.core.cost import program_cores, program_share
 from ramps.core.messages import MAX_LISTED, AcceleratorSeen, LoadReport
 from ramps.core.reportcheck import report_problem
@@ -79,9 +80,9 @@ class _Robot:
         self.waiting_finish: list[tuple[int, int, tuple[str, int], _Booking]] = []
         #: a booking was made again under a key it had: counted afresh at the next change
         self.stale = False
-        #: bookings of programs on an accelerator, with its kind: not CPU
-        #: programs, so kept apart from ``bookings`` (``accelerator_rows``)
-        self.accel: dict[tuple[str, int], tuple[str, _Booking]] = {}
+        #: bookings of programs on an accelerator (kind, booking, work there, placed at):
+        #: not CPU programs, so kept apart from ``bookings`` (``accelerator_rows``)
+        self.accel: dict[tuple[str, int], tuple[str, _Booking, float, float]] = {}
 
 
 class LoadView:
@@ -241,15 +242,16 @@ class LoadView:
         return list(self._robots)
 
     # ------------------------------------------------------------ bookings
-    def book(self, robot: str, program_id: str, attempt: int, accelerator: str = "") -> None:
-        """Count a program placed on ``robot`` until its reports show it (on
-        that kind of ``accelerator`` there; "" = on a CPU)."""
+    def book(self, robot: str, program_id: str, attempt: int, accelerator: str = "", work: float = 0.0,
+             now: float = 0.0) -> None:
+        """Count a program placed on ``robot`` until its reports show it (on that kind of ``accelerator`` there,
+        with its ``work`` there, placed at ``now``; "" = on a CPU)."""
         rob = self._robots.get(robot)
         if rob is None:
             rob = self._robots[robot] = _Robot()
         key = (program_id, attempt)
         if accelerator:
-            rob.accel[key] = (accelerator, _Booking())
+            rob.accel[key] = (accelerator, _Booking(), work, now)
             return
         if key in rob.bookings:
             rob.stale = True  # the one it replaces still counts, until the next change counts afresh
@@ -347,36 +349,36 @@ class LoadView:
         # x if x > 0.0 else 0.0 is max(0.0, x), NaN and -0.0 included, without a call per item
         return [x if x > 0.0 else 0.0 for x in left] + [unknown] * (programs - len(left))
 
-    def accelerator_rows(self, now: float, kind: str,
-                         exclude: frozenset[str] = frozenset()) -> list[tuple[str, int, float, float]]:
-        """(robot, slots, speed, programs) for every candidate (``scan``'s)
-        that advertises accelerators of ``kind``: the programs on them by its
-        last report, plus those booked there that the report does not show
-        started, less those it does not show ended."""
+    def accelerator_rows(self, now: float, kind: str, exclude: frozenset[str] = frozenset()
+                         ) -> list[tuple[str, int, float, float, list[float]]]:
+        """(robot, slots, speed, programs, known) for every candidate
+        (``scan``'s) with accelerators of ``kind``: the programs on them by
+        its last report, plus those booked there it does not show started,
+        less those it does not show ended; and the work left in those this
+        view placed there and has not seen end (``accelerators.work_left``)."""
         horizon = now - self.max_report_age
         out = []
         for name, rob in self._robots.items():
             rep = rob.report
-            if name in exclude:
+            if name in exclude or name != self.me and (rep is None or rob.lost or rob.received_at < horizon
+                                                       or name in self._blacklist):
                 continue
-            if name != self.me and (rep is None or rob.lost or rob.received_at < horizon
-                                    or name in self._blacklist):
-                continue
-            seen = next((a for a in (rep.accelerators if rep is not None else self.accelerators)
-                         if a.kind == kind), None)
+            seen = next((a for a in (rep.accelerators if rep is not None else self.accelerators) if a.kind == kind), None)
             if seen is None:
                 continue
             programs = seen.running if rep is not None else 0
-            acc_total, fin_total = rob.counted
-            for key, (k, b) in list(rob.accel.items()):
-                state = _kind(b, acc_total, fin_total)
+            placed: list[tuple[float, float]] = []
+            for key, (k, b, work, at) in list(rob.accel.items()):
+                state = _kind(b, *rob.counted)
                 if state == _GONE:
                     del rob.accel[key]
-                elif k == kind and state == _UNSEEN_ACCEPT:
-                    programs += 1
-                elif k == kind and state == _UNSEEN_FINISH:
-                    programs -= 1
-            out.append((name, seen.count, seen.speed, float(max(0, programs))))
+                elif k == kind:
+                    programs += (state == _UNSEEN_ACCEPT) - (state == _UNSEEN_FINISH)
+                    if b.finish_seq is None:
+                        placed.append((work, at))
+            programs = max(0, programs)
+            out.append((name, seen.count, seen.speed, float(programs),
+                        work_left(placed, now, seen.count, seen.speed, programs)))
         return out
 
     def accelerator_kinds(self, robot: str) -> frozenset[str]:

@@ -561,7 +561,7 @@ class Origin:
         ap.placed_at, ap.stall_base = now, self.stalled_s
         ap.resumed_from = fraction if resume is not None else None
         self._by_host.setdefault(host, {})[ap.program_id] = None
-        self.view.book(host, ap.program_id, ap.attempt, ap.accelerator)
+        self.view.book(host, ap.program_id, ap.attempt, ap.accelerator, work, now)
         self.placements += 1
         detail = ""
         if placement is not None and placement.expected_time is not None:  # why there, for traces

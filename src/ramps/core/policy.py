@@ -32,9 +32,11 @@ scheduler.
   before. ``Placement.late`` says that no host is expected in time (the
   origin then applies the program's ``on_miss``). A program that can use
   an accelerator (``PlacementRequest.accelerator``) is priced by
-  ``accelerators.accelerator_time`` on the robots that advertise that kind
-  (their slots shared by the programs on them) and by its CPU work on the
-  others; the origin leaves the others out when it may not run on a CPU.
+  processor sharing of the slots of the robots that advertise that kind
+  (``shared_finish_time`` with the work left of the programs this origin
+  placed there, and its own work for the others there) and by its CPU work
+  on the others; the origin leaves the others out when it may not run on a
+  CPU.
   With ``RampsConfig.energy_weight`` above 0, hosts are chosen by time and
   energy per unit of work, weighed (``battery.rank_by_energy``), and
   priced (time, budget) by time as before.
@@ -50,7 +52,6 @@ from typing import Any, Callable, ClassVar
 
 import msgspec
 
-from ramps.core.accelerators import accelerator_time
 from ramps.core.battery import rank_by_energy, unrank
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate, comm_time, program_share, shared_finish_time
@@ -163,8 +164,10 @@ class RampsPolicy(Policy):
         for robot, cores, speed, ramps, background, weight in view.scan(now, exclude):
             runnable = ramps + background
             if robot in slots:  # on its accelerator there: its slots, shared by the programs on them
-                _, count, a_speed, on_it = slots[robot]
-                t = accelerator_time(req.accelerator_work, count, a_speed, on_it)
+                _, count, a_speed, on_it, known = slots[robot]
+                # the work left where this origin placed them, the new program's work for the others
+                others = known + [req.accelerator_work] * (round(on_it) - len(known))
+                t = shared_finish_time(req.accelerator_work, others, count, a_speed)
                 runnable, background, ramps, cores, speed, weight = on_it, 0.0, 0.0, count, a_speed, 1.0
             elif background == 0.0 or weight == 1.0:  # equal sharing (the common, fast case)
                 t = work / (speed * min(1.0, cores / (runnable + 1.0)))

@@ -125,6 +125,8 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
             continue
         if not origin.policy_for(ap.submit).relocates or ap.submit.local_only or ap.moves >= cfg.relocate_max_moves:
             continue
+        if ap.accelerator:
+            continue  # its host's CPU figures say nothing of a program on its accelerator: it stays
         keep = True
         row = rows.get(ap.host or "")
         if row is None:
@@ -182,7 +184,9 @@ def price_move(origin: RelocatingOrigin, ap: AutonomousProgram, t_here: float, n
     never = frozenset({ap.host or ""}) | frozenset(ap.ran_on) | unsettled(origin, now) | origin.view.low_battery
     placement = origin.policy_for(sub).choose(
         PlacementRequest(program_id=ap.program_id, work=work,
-                         payload_size=sub.payload_size + len(ap.checkpoint or b""), result_size=sub.result_size),
+                         payload_size=sub.payload_size + len(ap.checkpoint or b""), result_size=sub.result_size,
+                         accelerator=sub.accelerator, accelerator_work=(sub.accelerator_work or sub.work) * (
+                             1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0))),
         origin.view, now, origin.relocation_rng, net=origin.net, config=origin.config,
         exclude=never | origin.view.short_of_memory(sub.memory) | origin.relink.excluded(origin.view.robots(), now),
         links=origin.links.estimate if origin.links is not None else None,
