@@ -3,6 +3,7 @@
     ramps testbed experiment faults  # the paper's Tables 5-10 on real processes
     ramps testbed experiment sweep   # Tables 3-4
     ramps testbed experiment peers   # ramps beside round robin, Ray and Dask
+    ramps testbed experiment battery # a robot's battery drops below its reserve mid-run
 
 Each command starts its own testbed, runs, and removes it; the work is done
 by ``ramps.testbed``, this module parses and prints (rules in
@@ -190,6 +191,39 @@ def testbed_experiment_relocation(
         fail(str(exc))
     emit([rep], lambda r, console: console.print(format_report(r), highlight=False), as_json=as_json,
          out_file=out_file)
+
+
+@experiment_app.command("battery")
+def testbed_experiment_battery(
+    robots: int = typer.Option(3, "--robots", min=2, max=10, help="emulated robots (r1 submits)"),
+    programs: int = typer.Option(6, "--programs", min=1, max=100, help="programs r1 submits at once"),
+    seconds: float = typer.Option(12.0, "--seconds", min=2.0, max=600.0,
+                                  help="each program's length alone on an emulated core"),
+    drop_at: float = typer.Option(4.0, "--drop-at", min=0.5,
+                                  help="seconds after the first submission when a host's battery drops to 10%"),
+    as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
+    keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="copy every node's log and decision trace here"),
+) -> None:
+    """A robot's battery drops below its reserve mid-run, on real processes: every node reads its
+    battery from a file (--battery-file); r1 submits checkpointing programs, and the teammate that
+    hosts the most of them gets 10% written into its file. Prints how long it took to hand them back
+    (from the write to its decision, and to the last accepted elsewhere; it reads the file before each
+    1 s load report) and checks every program's one result. About a minute."""
+    from ramps.errors import RampsError
+    from ramps.testbed.battery import format_report, run_testbed_battery
+
+    if drop_at >= seconds:
+        fail(f"--drop-at ({drop_at:g}) must come before the programs end (--seconds {seconds:g})")
+    try:
+        rep = run_testbed_battery(robots=robots, programs=programs, seconds=seconds, drop_at=drop_at,
+                                  keep_logs=keep_logs, log=lambda m: err.print(m, highlight=False))
+    except (PermissionError, RampsError, RuntimeError, TimeoutError) as exc:
+        fail(str(exc))
+    emit([rep], lambda r, console: console.print(format_report(r), highlight=False), as_json=as_json,
+         out_file=out_file)
+    if rep.failed or rep.wrong or rep.on_low_after:
+        raise typer.Exit(1)
 
 
 @experiment_app.command("speeds")
