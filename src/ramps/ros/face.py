@@ -43,9 +43,9 @@ Names (relative to the node, ``/<robot>/ramps/...`` by default):
   robot ("ramps: r2": cores, speed, CPU busy, run queue, programs, ...), and
   one for this face; every ``diagnostics_period`` seconds
 
-Parameters: team, robot (the origin node; default any), connect (string
-array of Zenoh endpoints), multicast, secure, credentials,
-diagnostics_period (s), goal_timeout (s, 0 = none), connect_timeout (s).
+Parameters: team, robot (the origin node; default any), connect (string array of Zenoh endpoints),
+multicast, secure, credentials, diagnostics_period (s), goal_timeout (s, 0 = none), connect_timeout
+(s), battery_file and battery_topic (the robot's battery into its node's, ``ramps.ros.battery``).
 Team, connect, multicast, secure and credentials not given as parameters
 come from the environment and config file (``RAMPS_TEAM``, ...), as for
 ``ramps.connect``.
@@ -77,8 +77,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from std_msgs.msg import String
 from unique_identifier_msgs.msg import UUID
 
+from ramps.ros.battery import bridge_battery
 from ramps.runtime.registry import MAX_ARGS_BYTES
-
 try:  # the RunProgram action, once built (ramps ros --build-interfaces)
     from ramps_interfaces.action import RunProgram
 except ImportError:
@@ -159,6 +159,7 @@ class RosFace(Node):
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", RELIABLE)
         self.create_subscription(String, "~/goal", lambda m: self._handle("goal", m.data), RELIABLE)
         self.create_subscription(String, "~/cancel", lambda m: self._handle("cancel", m.data), RELIABLE)
+        self.battery = bridge_battery(self)  # sensor_msgs/BatteryState into the node's battery file, if asked
         # future callbacks (Zenoh threads) enqueue and wake the executor through this
         self._wake = self.create_guard_condition(self._pump)
         self.create_timer(HOUSEKEEPING_PERIOD, self._pump)
