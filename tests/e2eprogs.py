@@ -12,6 +12,8 @@ from __future__ import annotations
 import os
 import time
 
+import ramps
+
 
 def _me() -> str | None:
     return os.environ.get("RAMPS_ROBOT")
@@ -75,3 +77,10 @@ def resumable(steps: int = 10, dt: float = 0.25) -> dict:
         ramps.progress((i + 1) / steps)
         ramps.checkpoint({"i": i + 1})
     return {"robot": _me(), "first": first}
+
+
+@ramps.program(accelerator="cuda", cpu_fallback=False, accelerator_work=0.1)
+def needs_cuda(x: int = 1) -> dict:
+    """A program that runs only where a robot offers a ``cuda`` accelerator."""
+    grant = ramps.accelerator()
+    return {"robot": _me(), "device": None if grant is None else grant.device, "x": x}

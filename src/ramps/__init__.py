@@ -131,6 +131,18 @@ def checkpoint(state) -> bool:
     return save_checkpoint(state)
 
 
+def accelerator():
+    """From inside a running program: the accelerator its robot gave it, or
+    None when it runs on a CPU (a robot without one, or outside a ramps
+    worker). Its ``device`` is what to hand the program's library
+    (``torch.device(grant.device)``, ``cupy.cuda.Device(grant.index)``); on an
+    emulated accelerator (a testbed's), ``grant.emulate(work)`` stands in
+    for the device's work. See docs/accelerators.md."""
+    from ramps.runtime.running import accelerator_grant
+
+    return accelerator_grant()
+
+
 def resume():
     """From inside a running program: the state it saved with
     ``ramps.checkpoint`` in an earlier attempt (decoded: bytes come back as

@@ -145,6 +145,40 @@ def bench_first_calls_cmd(
     out.print(f"saved {out_file}")
 
 
+@bench_app.command("accelerators")
+def bench_accelerators_cmd(
+    detects: int = typer.Option(12, "--detects", min=1, help="GPU-capable calls (matrix products with PyTorch)"),
+    plans: int = typer.Option(12, "--plans", min=0, help="CPU-only calls (burn) submitted with them"),
+    size: int = typer.Option(2048, "--size", min=16, help="matrix size of a detect call"),
+    reps: int = typer.Option(10, "--reps", min=1, help="matrix products per detect call"),
+    cores: int = typer.Option(4, "--cores", min=1, help="cores each of the three nodes offers"),
+    out_file: Path = typer.Option(Path("bench-results/accelerators.json"), "--out", "-o",
+                                  help="where to save the JSON"),
+) -> None:
+    """A team of three real nodes, one offering the machine's NVIDIA GPU, runs GPU-capable and CPU-only
+    programs at once; then the same with the GPU switched off. Needs torch and nvidia-ml-py (and a GPU)."""
+    from ramps.bench.accelerators import bench_accelerators
+
+    err.print(f"two fresh teams of 3 nodes ({cores} cores each): {detects} detect + {plans} burn calls at once, "
+              f"with g's GPU offered, then without ...")
+    res = bench_accelerators(detects=detects, plans=plans, size=size, reps=reps, cores=cores)
+    for label, run in res["runs"].items():
+        out.print(f"{label}: makespan {run['makespan_s']:.2f} s (warm-up {run['warm_up_makespan_s']:.2f} s); "
+                  f"offered {run['offered'] or 'no accelerator'}; detect device time median: GPU "
+                  f"{run['detect_gpu_s_median']} s, CPU {run['detect_cpu_s_median']} s", highlight=False)
+        for where, n in run["where"].items():
+            out.print(f"  {n:3d} x {where}", highlight=False)
+        if run["gpu_seen"]:
+            peak = max(run["gpu_seen"], key=lambda s: s.get("programs", 0))
+            out.print(f"  g's reports while busy: {peak}", highlight=False)
+    out.print(f"cpu only / gpu offered: {res['speedup']}x"
+              f"{'' if res['cgroups'] else ' (no cpu cgroups: every node measured the whole machine)'}",
+              highlight=False)
+    out_file.parent.mkdir(parents=True, exist_ok=True)
+    out_file.write_text(json.dumps(res, indent=2) + "\n")
+    out.print(f"saved {out_file}")
+
+
 @bench_app.command("fuzz")
 def bench_fuzz_cmd(
     inputs: int = typer.Option(100_000, "--inputs", "-n", min=1, help="generated inputs in all"),

@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
-from typing import Optional
+from typing import Any, Optional
 
 import msgspec
 import typer
@@ -42,6 +42,12 @@ def node(
     multicast: Optional[bool] = typer.Option(None, "--multicast/--no-multicast", help="find teammates by UDP multicast (default on)"),
     cores: Optional[int] = typer.Option(None, "--cores", min=1, help="cores offered to programs (default: detected)"),
     speed: Optional[float] = typer.Option(None, "--speed", help="work units per second per core (default: measured)"),
+    accelerator: Optional[list[str]] = typer.Option(
+        None, "--accelerator", metavar="KIND[:COUNT[:SPEED]]",
+        help="an accelerator this robot offers to programs that can use one (repeatable; env RAMPS_ACCELERATORS): "
+             "cuda:1:20 is one slot of 20 work units a second; 'auto' (the default) finds NVIDIA GPUs (needs the "
+             "nvidia-ml-py package) and offers them as cuda; 'none' offers nothing; KIND:COUNT:SPEED:emulated "
+             "stands slot locks in for a device (a testbed's)"),
     policy: PolicyOption = None,
     program: Optional[list[str]] = typer.Option(None, "--program", help="extra program as package.module:function (repeatable)"),
     command: Optional[list[str]] = typer.Option(None, "--command", help="an executable as a program, NAME=PATH (repeatable; env RAMPS_COMMANDS): "
@@ -86,7 +92,7 @@ def node(
 ) -> None:
     """Run this robot's ramps node until Ctrl-C: load publisher, load server, program executor.
 
-    Long because of its 24 options: typer reads each from a parameter of this function.
+    Long because of its 25 options: typer reads each from a parameter of this function.
 
     On shutdown (Ctrl-C, SIGTERM) running programs are handed back to their origins, which
     place them elsewhere at once. Programs submitted to this node are kept in its durable
@@ -115,7 +121,8 @@ def node(
         except (ConfigError, ValueError) as exc:
             fail(str(exc))
     s = node_settings(robot=robot, commands=commands, team=team, listen=listen or None, connect=connect or None, multicast=multicast,
-                  cores=cores, speed=speed, policy=policy, programs=program or None, config_file=config_file,
+                  cores=cores, speed=speed, accelerators=accelerator or None, policy=policy, programs=program or None,
+                  config_file=config_file,
                   lease_ms=lease_ms, trace=str(trace) if trace else None, secure=secure or None,
                   credentials=str(credentials) if credentials else None, metrics=metrics, node_nice=node_nice,
                   state_dir=state_dir, mode=mode, zenoh=zenoh_flags(zenoh), battery_file=battery_file,
@@ -334,6 +341,7 @@ def status(
                       ", ".join(r.blacklisted),
                       "-" if r.report_age is None else f"{r.report_age:.1f} s")
     out.print(table)
+    _print_accelerators(st)
     links = [(r.robot, link) for r in st.robots for link in r.links]
     if links:  # T_comm as each robot measured it (ramps.core.links): the cost model prices transfers with these
         lt = Table(title="links each robot measured, and teammates' speeds its results corrected "
@@ -345,15 +353,7 @@ def status(
                        "-" if link.bandwidth is None else f"{link.bandwidth / 1e6:.2f} MB/s",
                        "-" if link.speed_factor is None else f"{link.speed_factor:.2f}")
         out.print(lt)
-    learned = [(r.robot, w) for r in st.robots for w in r.learned]
-    if learned:
-        wt = Table(title="work learned from completed runs (placements use it instead of the declared work)",
-                   title_justify="left")
-        for name in ("origin", "program", "work units"):
-            wt.add_column(name, justify="right" if name == "work units" else "left")
-        for robot, w in learned:
-            wt.add_row(robot, w.program, f"{w.work:.3g}")
-        out.print(wt)
+    _print_learned(st)
     running = [(r.robot, p) for r in st.robots for p in r.running]
     if running:
         progs = Table(title="running programs", title_justify="left")
@@ -363,3 +363,33 @@ def status(
             progs.add_row(host, p.program, p.origin, "-" if p.progress is None else f"{100 * p.progress:.0f}%")
         out.print(progs)
 
+
+def _print_accelerators(st: Any) -> None:
+    """``ramps status``'s table of the accelerators each robot offers, if any does."""
+    from rich.table import Table
+
+    accels = [(r.robot, a) for r in st.robots for a in r.accelerators]
+    if accels:  # what programs that can use one are priced by (ramps.core.accelerators)
+        at = Table(title="accelerators each robot offers", title_justify="left")
+        for name in ("robot", "kind", "slots", "speed", "programs", "memory free", "utilisation"):
+            at.add_column(name, justify="left" if name in ("robot", "kind") else "right")
+        for robot, a in accels:
+            at.add_row(robot, a.kind, str(a.count), f"{a.speed:g}", str(a.running),
+                       f"{a.memory_free / 2**30:.1f} of {a.memory_total / 2**30:.1f} GiB" if a.memory_total else "-",
+                       "-" if a.utilisation is None else f"{100 * a.utilisation:.0f}%")
+        out.print(at)
+
+
+def _print_learned(st: Any) -> None:
+    """``ramps status``'s table of the work origins learned, if any did."""
+    from rich.table import Table
+
+    learned = [(r.robot, w) for r in st.robots for w in r.learned]
+    if learned:
+        wt = Table(title="work learned from completed runs (placements use it instead of the declared work)",
+                   title_justify="left")
+        for name in ("origin", "program", "work units"):
+            wt.add_column(name, justify="right" if name == "work units" else "left")
+        for robot, w in learned:
+            wt.add_row(robot, w.program, f"{w.work:.3g}")
+        out.print(wt)

@@ -24,7 +24,7 @@ import msgspec
 COMMAND = "ramps config reference > docs/configuration.md"
 
 #: ``ramps node`` parameters whose setting has another name
-FLAG_FIELD = {"program": "programs", "command": "commands"}
+FLAG_FIELD = {"program": "programs", "command": "commands", "accelerator": "accelerators"}
 #: defaults that ``ramps node`` computes where the settings hold nothing
 EFFECTIVE_DEFAULT = {
     "robot": "this host's name",

@@ -59,7 +59,9 @@ from ramps.version import __version__
 #: (docs/wire-compatibility.md): ``ProgramResult.worker_died`` (a program killed its own worker); with
 #: a deadline, ``OffloadRequest.deadline_in``, ``SubmitProgram.deadline``, ``SubmitProgram.on_miss``,
 #: ``ProgramOutcome.missed_deadline``; with a battery, ``LoadReport.battery``,
-#: ``LoadReport.low_battery`` and ``LoadReport.power``. The envelope's ``v`` is the major only (1.0 checks ``v == 1``).
+#: ``LoadReport.low_battery`` and ``LoadReport.power``; with accelerators, ``LoadReport.accelerators``,
+#: ``OffloadRequest.accelerator``, ``SubmitProgram.accelerator``, ``accelerator_work``, ``cpu_fallback``.
+#: The envelope's ``v`` is the major only (1.0 checks ``v == 1``).
 PROTOCOL_MAJOR = 1
 PROTOCOL_MINOR = 1
 #: the envelope's ``v`` (kept under its old name for the fuzzers and tests)

@@ -66,6 +66,26 @@ def burn(seconds: float = 1.0, *, units: float | None = None, checkpoint_every: 
     return {"units": float(amount), "iterations": iterations, "checksum": x, "resumed_at": resumed_at}
 
 
+def burn_accel(units: float = 1.0, accel_units: float = 0.05) -> dict[str, Any]:
+    """A program that can use an accelerator (``cuda``): ``units`` of CPU
+    burn where it runs on a CPU, ``accel_units`` of an emulated accelerator's
+    work where its robot gave it one (the testbed's stand-in for a GPU:
+    ``Grant.emulate``). Returns where it ran and what it did."""
+    import ramps
+
+    grant = ramps.accelerator()
+    if grant is None:
+        return {"on": "cpu", **burn(units=units)}
+    if not grant.emulated:
+        raise ValueError(f"burn_accel only emulates an accelerator; {grant.device} is a real one "
+                         f"(see examples/accelerated.py for a program that uses it)")
+    if isinstance(accel_units, bool) or not isinstance(accel_units, (int, float)) or \
+            not (math.isfinite(accel_units) and 0 <= accel_units <= MAX_UNITS):
+        raise ValueError(f"accel_units must be a finite number in 0..{MAX_UNITS:g}, got {accel_units!r}")
+    wall = grant.emulate(accel_units)
+    return {"on": grant.device, "units": float(accel_units), "wall": round(wall, 4)}
+
+
 def noop(**kwargs: Any) -> dict[str, Any]:
     """Do nothing and return ``{}``: the cost of dispatch alone."""
     return {}

@@ -16,7 +16,7 @@ from typing import Any, Callable
 
 import msgspec
 
-from ramps.core.messages import LearnedWork, LinkSeen, ProgramUpdate, RunningProgram
+from ramps.core.messages import AcceleratorSeen, LearnedWork, LinkSeen, ProgramUpdate, RunningProgram
 
 __all__ = ["ProgramFuture", "RobotStatus", "TeamStatus"]
 
@@ -59,6 +59,8 @@ class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
     moves_aborted: int = 0
     #: cores the robot's node itself uses (the cost model takes them off a full robot's)
     node_cpu: float = 0.0
+    #: its accelerators: [kind, slots, speed, programs on them, memory total, free, utilisation]
+    accelerators: list[AcceleratorSeen] = []
 
 
 class TeamStatus(msgspec.Struct, frozen=True, kw_only=True):

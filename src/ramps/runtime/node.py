@@ -57,8 +57,11 @@ from ramps.core.relink import Stalled
 from ramps.core.speed import next_remeasure
 from ramps.errors import ConfigError, NotAdmitted, TransportError
 from ramps.runtime import keys, revocation
+from ramps.runtime.accelerators import AcceleratorProbe
+from ramps.runtime.accelerators import resolve as resolve_accelerators
 from ramps.runtime.bulk import OrderedSender
 from ramps.runtime.heap import HeapTrimmer, return_freed_memory
+from ramps.runtime.niceness import prioritize, worker_increment
 from ramps.runtime.measure import LoadSampler, cgroup_dirs, cpu_limit, detect_cores
 from ramps.runtime.registry import Registry, default_registry, node_registry
 from ramps.runtime.security import admission, settings_credentials
@@ -242,17 +245,20 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         # its start time and random bits: a node started later has a larger one (ramps.core.identity)
         self.incarnation = self._incarnation or new_incarnation(self.clock.time(), int.from_bytes(os.urandom(4), "big"))
         return_freed_memory()
+        self.accel = AcceleratorProbe(self.robot, resolve_accelerators(s.accelerators))
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=core_config(s),
                          rng=random.Random(self.incarnation), incarnation=self.incarnation,
                          registry=self.registry.names(), program_weight=nice_weight(s.worker_nice),
-                         core_fraction=core_fraction(quota, self.cores))
+                         core_fraction=core_fraction(quota, self.cores), accelerators=self.accel.accelerators)
         if s.state_dir not in ("", "off"):  # a foreign record: ConfigError, before anything starts
             self.store = OriginStore(s.state_dir, team=self.team, robot=self.robot, sync=s.state_sync)
             self.node.origin.changed = set()
         self.pool = self._worker_pool(self.cores, self.registry.targets(), self._finished, nice=worker_increment(s.worker_nice),
                                on_progress=self._progress_reported, on_checkpoint=self._checkpoint_saved)
         self.pool.start()
-        self.sampler = self._load_sampler(lambda: self.pool.busy() + self.pool.queued(), window=s.window,
+        # programs on an accelerator are not CPU programs (ramps.core.accelerators)
+        self.sampler = self._load_sampler(lambda: self.pool.busy() + self.pool.queued() - self.accel.held(),
+                                          window=s.window,
                                    scope=scope, cgroup=cg if scope == "cgroup" else None,
                                    acct=acct if scope == "cgroup" else None)
         self.sampler.start()
@@ -460,6 +466,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             self.sampler.stop()
         if getattr(self, "pool", None):
             self.pool.stop()
+        if getattr(self, "accel", None):
+            self.accel.close()
         if self.metrics is not None:
             self.metrics.close()
         if self.store is not None:
@@ -494,6 +502,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
 
     def _finished(self, key: Key, ok: bool, value: bytes, error: str, retryable: bool, cpu_s: float | None = None,
                   died: bool = False) -> None:
+        self.accel.release(key)
         self._q.put(("finished", ProgramFinished(program_id=key[0], attempt=key[1], ok=ok, value=value, error=error,
                                                  result_size=len(value), retryable=retryable, cpu_s=cpu_s,
                                                  worker_died=died)))
@@ -642,39 +651,6 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             wake = min(wake, next(iter(self._held_updates.values()))[0]) if self._held_updates else wake
             self._sleep_until = self.clock.monotonic() + max(0.0, wake - now)
         return True
-
-def prioritize(nice: int) -> bool:
-    """Give this process niceness ``nice``: every thread it has, and those it
-    starts later (they inherit it). Call it before the node starts. Below 0
-    needs root (or CAP_SYS_NICE): without, one log line, and it stays as it
-    is. True if the process runs at ``nice`` now."""
-    try:
-        current = os.getpriority(os.PRIO_PROCESS, 0)
-        tids = [int(t) for t in os.listdir("/proc/self/task")] if os.path.isdir("/proc/self/task") else [0]
-    except (OSError, AttributeError):
-        return False
-    if current == nice:
-        return True
-    for tid in tids:
-        try:
-            os.setpriority(os.PRIO_PROCESS, tid, nice)
-        except ProcessLookupError:
-            continue  # that thread ended meanwhile
-        except PermissionError:
-            log.warning("node: cannot give itself niceness %d (needs root or CAP_SYS_NICE); it stays at %d",
-                        nice, current)
-            return False
-    return True
-
-
-def worker_increment(worker_nice: int) -> int:
-    """The niceness a worker adds to this thread's (it inherits the node's,
-    ``prioritize``, then adds this) so that it runs at ``worker_nice``."""
-    try:
-        return max(0, worker_nice - os.getpriority(os.PRIO_PROCESS, 0))
-    except (OSError, AttributeError):
-        return worker_nice
-
 
 def run_node(settings: NodeSettings, *, install_signals: bool = True) -> NodeRuntime:
     """Start a node and block until SIGINT/SIGTERM, then shut it down cleanly."""

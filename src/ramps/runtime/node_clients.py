@@ -145,6 +145,8 @@ class ClientAnswers(DriverState):
             kwargs = decode_args(m.args)
             spec.check_args(kwargs)
             work = m.work or spec.declared_work(kwargs)
+            accelerator = m.accelerator or spec.accelerator
+            accelerator_work = (m.accelerator_work or spec.declared_accelerator_work(kwargs)) if accelerator else 0.0
         except ProgramNotFound as exc:
             return self._tell_client(pid, ok=False, error=str(exc), kind="refused", host=self.robot)
         except Exception as exc:  # signature mismatch, undecodable arguments
@@ -163,6 +165,8 @@ class ClientAnswers(DriverState):
             work=work, result_size=m.result_size or spec.result,
             local_only=m.local_only or spec.local_only, policy=m.policy, memory=spec.memory,
             deadline=None if m.deadline is None else now + m.deadline, on_miss=on_miss,
+            accelerator=accelerator, accelerator_work=accelerator_work,
+            cpu_fallback=(m.cpu_fallback and spec.cpu_fallback) or not accelerator,
         ), now)
 
     def _tell_client(self, pid: str, *, ok: bool, value: bytes = b"", error: str = "", kind: str = "",

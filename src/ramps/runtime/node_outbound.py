@@ -109,9 +109,12 @@ class Outbound(DriverState):
                     self._write_trace("tx", getattr(a.msg, "program_id", ""), a.to, getattr(a.msg, "attempt", 0),
                                       type(a.msg).__name__)
             elif isinstance(a, StartProgram):
-                self.pool.run((a.program_id, a.attempt), a.program, a.args, a.resume)
+                grant = self.accel.grant((a.program_id, a.attempt), a.accelerator) if a.accelerator else None
+                self.pool.run((a.program_id, a.attempt), a.program, a.args, a.resume,
+                              None if grant is None else grant.as_wire())
             elif isinstance(a, StopProgram):
                 self.pool.cancel((a.program_id, a.attempt))
+                self.accel.release((a.program_id, a.attempt))
             elif isinstance(a, Deliver):
                 if self._trace is not None:  # first, so a caller holding the result finds it traced
                     self._write_trace("delivered", a.program_id, a.host, a.attempts, a.error_kind)
@@ -301,6 +304,8 @@ class Outbound(DriverState):
             busy = min(busy * self._busy_scale, float(self.cores))
         self._measure_node_cpu()
         self._read_battery(now, busy)
+        if self.accel.declared:
+            node.accelerator_measured = self.accel.measure()
         report = node.make_report(cpu_busy=busy,
                                        runnable=runnable, ramps_avg=ramps_avg, window=self.s.window,
                                        mem_free=mem_free, cpu_per_core=per_core, load_avg=load1,

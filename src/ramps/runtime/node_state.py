@@ -29,6 +29,7 @@ if TYPE_CHECKING:
     from ramps.core.events import Action, Deliver, Note
     from ramps.core.messages import LoadReport, SubmitProgram
     from ramps.core.node import Node
+    from ramps.runtime.accelerators import AcceleratorProbe
     from ramps.runtime.bulk import OrderedSender
     from ramps.runtime.speed_probe import SpeedSamples
     from ramps.runtime.metrics import NodeMetrics
@@ -51,7 +52,8 @@ class WorkerPoolLike(Protocol):
 
     def stop(self) -> None: ...
 
-    def run(self, key: Key, program: str, args: bytes, resume: bytes | None = None) -> None: ...
+    def run(self, key: Key, program: str, args: bytes, resume: bytes | None = None,
+            accelerator: dict[str, Any] | None = None) -> None: ...
 
     def cancel(self, key: Key) -> None: ...
 
@@ -139,6 +141,7 @@ class DriverState:
     load_scope: str
     pool: WorkerPoolLike
     sampler: SamplerLike
+    accel: AcceleratorProbe
     _quota: float | None
     _speed_samples: SpeedSamples
     _busy_scale: float

@@ -33,6 +33,7 @@ from typing import Any, Callable, Protocol
 
 import msgspec
 
+from ramps.core.accelerators import Accelerator
 from ramps.core.messages import MAX_MESSAGE_BYTES
 from ramps.runtime import argtypes
 from ramps.errors import BadArguments, ConfigError, ProgramNotFound
@@ -63,24 +64,37 @@ class ProgramSpec:
     #: fork server imports them with the program's module, before it forks a
     #: worker, so no run pays the import
     preload: tuple[str, ...] = ()
+    #: the kind of accelerator it can use ("" = none), its work there (work
+    #: units at slot speed 1, or a function of the call's arguments; 0 = the
+    #: same as ``work``), and whether it may run on a CPU (``ramps.core.accelerators``)
+    accelerator: str = ""
+    accelerator_work: float | Callable[..., float] = 0.0
+    cpu_fallback: bool = True
     _fn: Callable[..., Any] | None = field(default=None, repr=False)
 
     def declared_work(self, kwargs: dict[str, Any]) -> float:
         """The work one call with these arguments declares: ``work``, or what
         it returns for them when it is a function. BadArguments if that
         function fails on them or returns no finite number >= 0."""
-        if not callable(self.work):
-            return float(self.work)
+        return self._declared(self.work, "work", kwargs)
+
+    def declared_accelerator_work(self, kwargs: dict[str, Any]) -> float:
+        """``declared_work`` of the program's work on its accelerator."""
+        return self._declared(self.accelerator_work, "accelerator_work", kwargs)
+
+    def _declared(self, work: float | Callable[..., float], what: str, kwargs: dict[str, Any]) -> float:
+        if not callable(work):
+            return float(work)
         try:
-            value = self.work(**self._with_defaults(kwargs))
-            work = float(value)
+            value = work(**self._with_defaults(kwargs))
+            amount = float(value)
         except Exception as exc:
-            raise BadArguments(f"the work function of program {self.name!r} failed on these arguments: "
+            raise BadArguments(f"the {what} function of program {self.name!r} failed on these arguments: "
                                f"{type(exc).__name__}: {exc}") from None
-        if not (math.isfinite(work) and work >= 0.0):
-            raise BadArguments(f"the work function of program {self.name!r} returned {value!r} for these "
+        if not (math.isfinite(amount) and amount >= 0.0):
+            raise BadArguments(f"the {what} function of program {self.name!r} returned {value!r} for these "
                                "arguments; it must return work units, a finite number >= 0")
-        return work
+        return amount
 
     def _with_defaults(self, kwargs: dict[str, Any]) -> dict[str, Any]:
         """``kwargs`` and the defaults of the parameters the call left out (a
@@ -153,6 +167,9 @@ BUILTINS = {
     "route_plan": ProgramSpec("route_plan", "ramps.programs.route:plan_route", work=2.0, payload=200, result=2000,
                               preload=("ortools.sat.python.cp_model",)),
     "burn": ProgramSpec("burn", "ramps.programs.burn:burn", work=1.0, payload=50, result=100),
+    "burn_accel": ProgramSpec("burn_accel", "ramps.programs.burn:burn_accel", payload=60, result=100,
+                              work=lambda units=1.0, **_: units, accelerator="cuda",
+                              accelerator_work=lambda accel_units=0.05, **_: accel_units),
     "noop": ProgramSpec("noop", "ramps.programs.burn:noop", work=0.001),
     "echo": ProgramSpec("echo", "ramps.programs.burn:echo", work=0.001),
 }
@@ -220,7 +237,9 @@ default_registry = Registry(BUILTINS)
 
 def program(name: str | None = None, *, work: float | Callable[..., float] = 1.0, payload: int = 0, result: int = 0,
             local_only: bool = False, memory: int = 0,
-            preload: tuple[str, ...] | list[str] = ()) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+            preload: tuple[str, ...] | list[str] = (), accelerator: str = "",
+            accelerator_work: float | Callable[..., float] = 0.0,
+            cpu_fallback: bool = True) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Register a function as a ramps program (in an installed module).
 
     ``work`` is its declared cost in work units, about CPU seconds on a
@@ -233,7 +252,13 @@ def program(name: str | None = None, *, work: float | Callable[..., float] = 1.0
     callers, which import the program's module to check arguments, do not
     pay for them): every robot's executor imports them once, with the
     program's module, before it starts a worker, so no run pays the import.
-    Modules imported at the top of the program's module need no mention."""
+    Modules imported at the top of the program's module need no mention.
+    ``accelerator`` names a kind of accelerator the program can use
+    (``"cuda"``): robots that offer one run it there, with
+    ``ramps.accelerator()`` saying which device, and ``accelerator_work`` is
+    its work there (a number or a function of the arguments, like ``work``);
+    ``cpu_fallback=False`` keeps it off robots without one
+    (docs/accelerators.md)."""
     if memory < 0:
         raise ConfigError(f"program {name or '?'}: memory must be >= 0 bytes, got {memory}")
     if not callable(work) and not (isinstance(work, (int, float)) and math.isfinite(work) and work >= 0):
@@ -241,6 +266,7 @@ def program(name: str | None = None, *, work: float | Callable[..., float] = 1.0
                           f"of the call's arguments that returns them, got {work!r}")
     if isinstance(preload, str) or not all(isinstance(m, str) and m for m in preload):
         raise ConfigError(f"program {name or '?'}: preload is a list of module names, got {preload!r}")
+    _check_accelerator(name or "?", accelerator, accelerator_work, cpu_fallback)
 
     def deco(fn: Callable[..., Any]) -> Callable[..., Any]:
         if fn.__module__ == "__main__":
@@ -250,12 +276,27 @@ def program(name: str | None = None, *, work: float | Callable[..., float] = 1.0
             )
         spec = ProgramSpec(name or fn.__name__, f"{fn.__module__}:{fn.__qualname__}", work=work,
                            payload=payload, result=result, local_only=local_only, memory=memory,
-                           preload=tuple(preload), _fn=fn)
+                           preload=tuple(preload), accelerator=accelerator, accelerator_work=accelerator_work,
+                           cpu_fallback=cpu_fallback, _fn=fn)
         fn.__ramps_program__ = spec  # type: ignore[attr-defined]
         default_registry.add(spec)
         return fn
 
     return deco
+
+
+def _check_accelerator(name: str, accelerator: str, work: Any, cpu_fallback: bool) -> None:
+    """ConfigError for a program's accelerator declaration that cannot be right."""
+    if accelerator:
+        try:
+            Accelerator(kind=accelerator)
+        except ValueError as exc:
+            raise ConfigError(f"program {name}: {exc}") from None
+    elif not cpu_fallback:
+        raise ConfigError(f"program {name}: cpu_fallback=False needs an accelerator kind, e.g. accelerator='cuda'")
+    if not callable(work) and not (isinstance(work, (int, float)) and math.isfinite(work) and work >= 0):
+        raise ConfigError(f"program {name}: accelerator_work is work units (a finite number >= 0) or a function "
+                          f"of the call's arguments that returns them, got {work!r}")
 
 
 def encode_args(spec: ProgramSpec, kwargs: dict[str, Any], *, max_bytes: int = MAX_ARGS_BYTES) -> bytes:

@@ -49,24 +49,28 @@ _checkpoint_sent = -float("inf")
 _progress_last: float | None = None
 #: the running program's resume state (msgpack), None on a fresh start
 _resume: bytes | None = None
+#: the accelerator the running program was given (``Grant.as_wire``), None on a CPU
+_grant: dict[str, Any] | None = None
 
 
-def begin(out: BinaryIO, resume: bytes | None) -> None:
+def begin(out: BinaryIO, resume: bytes | None, grant: dict[str, Any] | None = None) -> None:
     """A program starts: its frames go to ``out``; ``resume`` is the state an
-    earlier attempt saved (msgpack), None on a fresh start."""
-    global _out, _progress_sent, _checkpoint_sent, _progress_last, _resume
+    earlier attempt saved (msgpack), None on a fresh start; ``grant`` the
+    accelerator its node gave it (``Grant.as_wire``), None on a CPU."""
+    global _out, _progress_sent, _checkpoint_sent, _progress_last, _resume, _grant
     with _lock:
         _out, _progress_sent = out, 0.0
         _checkpoint_sent, _progress_last = -float("inf"), None
         _resume = resume
+        _grant = grant
 
 
 def end(out: BinaryIO, reply: bytes) -> None:
     """The program ended: ``reply`` is its last frame on ``out``; what it
     sends later (a thread it left running) goes nowhere."""
-    global _out, _resume
+    global _out, _resume, _grant
     with _lock:
-        _out = _resume = None
+        _out = _resume = _grant = None
         out.write(frame(reply))
         out.flush()
 
@@ -132,6 +136,18 @@ def save_checkpoint(state: Any) -> bool:
         out.write(frame(_enc.encode({"checkpoint": data, "fraction": _progress_last})))
         out.flush()
     return True
+
+
+def accelerator_grant() -> Any:
+    """The accelerator the running program was given (a
+    ``ramps.runtime.accelerators.Grant``), or None: it runs on a CPU, or
+    outside a ramps worker."""
+    data = _grant
+    if data is None:
+        return None
+    from ramps.runtime.accelerators import Grant
+
+    return Grant.from_wire(data)
 
 
 def resume_state() -> Any:

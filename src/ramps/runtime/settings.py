@@ -56,6 +56,7 @@ from ramps.core.config import RampsConfig
 from ramps.errors import ConfigError
 from ramps.runtime import keys
 from ramps.runtime.endpoints import check_endpoint, parse_metrics_address
+from ramps.runtime.accelerators import check_setting as check_accelerators
 from ramps.runtime.registry import MAX_ARGS_BYTES as _MAX_ARGS
 
 class CommandEntry(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -202,6 +203,12 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     #: CPU second of a reference core). Default: measured at start and again
     #: while idle, so leave it unset except to pin a figure
     speed: float | None = None
+    #: accelerators this robot advertises (docs/accelerators.md): ``auto``
+    #: finds NVIDIA GPUs (with the ``nvidia-ml-py`` package) as ``cuda``;
+    #: ``KIND[:COUNT[:SPEED]]`` declares one kind (``cuda:1:20``: one slot of
+    #: 20 work units a second); ``:emulated`` after it makes slot locks stand
+    #: in for a device (a testbed's); ``none`` advertises nothing
+    accelerators: list[str] = msgspec.field(default_factory=lambda: ["auto"])
     #: placement policy: ``ramps`` (the cost model, default), ``paper``
     #: (faithful to the paper), ``round_robin``, ``random``, ``local_only``
     policy: str = "ramps"
@@ -316,6 +323,7 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
             raise ValueError(f"cores must be >= 1, got {self.cores}")
         if self.speed is not None and not self.speed > 0:
             raise ValueError(f"speed must be > 0, got {self.speed}")
+        check_accelerators(self.accelerators)
         if not self.publish_period > 0 or not 0 < self.window:
             raise ValueError("publish_period and window must be > 0")
         if self.lease_ms < 100:
@@ -383,6 +391,7 @@ _ENV: dict[str, tuple[str, _EnvForm | type[str] | type[int] | type[float]]] = {
     "RAMPS_MULTICAST": ("multicast", "bool"),
     "RAMPS_CORES": ("cores", int),
     "RAMPS_SPEED": ("speed", float),
+    "RAMPS_ACCELERATORS": ("accelerators", "list"),
     "RAMPS_POLICY": ("policy", str),
     "RAMPS_PROGRAMS": ("programs", "list"),
     "RAMPS_COMMANDS": ("commands", "commands"),

@@ -9,6 +9,8 @@ body:
 
     first frame in:   {"targets": {name: "module:function", ...}, "nice": n}
     each job in:      [program, args_bytes] or [program, args_bytes, resume_bytes]
+                      or [program, args_bytes, resume_bytes or None, grant]
+                      (the accelerator granted, ``ramps.accelerator()``)
     each reply out:   [ok, value_bytes, error_text, cpu_seconds] (the CPU the
                       program used: the worker's own, threads and waited-for
                       children such as an executable included)
@@ -70,7 +72,7 @@ def run(inp: BinaryIO, out: BinaryIO) -> None:
             return
         job = _dec.decode(body)
         program, args = job[0], job[1]
-        running.begin(out, job[2] if len(job) > 2 else None)
+        running.begin(out, job[2] if len(job) > 2 else None, job[3] if len(job) > 3 else None)
         cpu0: float | None = None
         try:
             fn = fns.get(program)

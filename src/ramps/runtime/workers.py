@@ -49,7 +49,7 @@ import sys
 import threading
 import time
 from collections import deque
-from typing import Callable, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import msgspec
 
@@ -88,6 +88,8 @@ class _Job(NamedTuple):
     queued_at: float
     #: the checkpoint it resumes from, if any
     resume: bytes | None
+    #: the accelerator it runs on (``Grant.as_wire``), None on a CPU
+    accelerator: dict[str, Any] | None = None
 
 
 class _Forked:
@@ -324,12 +326,14 @@ class WorkerPool:
             pass
 
     # ------------------------------------------------------------ jobs
-    def run(self, key: Key, program: str, args: bytes, resume: bytes | None = None) -> None:
-        """Run ``program`` (resuming from the checkpoint ``resume``, if any)."""
+    def run(self, key: Key, program: str, args: bytes, resume: bytes | None = None,
+            accelerator: dict[str, Any] | None = None) -> None:
+        """Run ``program`` (resuming from the checkpoint ``resume``, if any;
+        on the ``accelerator`` granted, if any)."""
         with self._lock:
             if self._stopping:
                 return
-            self._queue.append(_Job(key, program, args, time.monotonic(), resume))
+            self._queue.append(_Job(key, program, args, time.monotonic(), resume, accelerator))
             self._dispatch_locked()
             waiting = bool(self._queue)
         if waiting:
@@ -376,7 +380,11 @@ class WorkerPool:
             w = idle.pop(0)
             job = self._queue.popleft()
             w.job, w.cancelled = job.key, False
-            message = [job.program, job.args] if job.resume is None else [job.program, job.args, job.resume]
+            message: list[Any] = [job.program, job.args]
+            if job.resume is not None or job.accelerator is not None:
+                message.append(job.resume)
+            if job.accelerator is not None:
+                message.append(job.accelerator)
             try:
                 w.proc.stdin.write(frame(_enc.encode(message)))
             except (BrokenPipeError, OSError):

@@ -282,8 +282,9 @@ class MemoryPool:
         self.size, self.targets, self.on_finished = size, targets, on_finished
         self.jobs: dict[tuple[str, int], tuple[str, bytes]] = {}
         self.started = self.stopped = False
-        #: every program started: (key, program)
+        #: every program started: (key, program), and the accelerator each was given
         self.ran: list[tuple[tuple[str, int], str]] = []
+        self.granted: dict[tuple[str, int], dict[str, Any] | None] = {}
 
     def start(self) -> None:
         self.started = True
@@ -292,10 +293,12 @@ class MemoryPool:
         self.stopped = True
         self.jobs.clear()
 
-    def run(self, key: tuple[str, int], program: str, args: bytes, resume: bytes | None = None) -> None:
+    def run(self, key: tuple[str, int], program: str, args: bytes, resume: bytes | None = None,
+            accelerator: dict[str, Any] | None = None) -> None:
         if not self.stopped:
             self.jobs[key] = (program, args)
             self.ran.append((key, program))
+            self.granted[key] = accelerator
 
     def cancel(self, key: tuple[str, int]) -> None:
         self.jobs.pop(key, None)

@@ -1,0 +1,71 @@
+"""Accelerators on real nodes: a robot that offers an (emulated) one runs the
+programs that can use it there, hands them the device, and keeps them out of
+its CPU count; the others run on CPUs; a program that needs one fails at
+once in a team without any."""
+
+from __future__ import annotations
+
+import pytest
+from runtime_team import LocalTeam, wait_for
+
+from ramps.errors import ProgramRefused
+from ramps.runtime.accelerators import Grant, resolve
+from ramps.runtime.settings import load_settings
+
+pytestmark = pytest.mark.slow
+
+
+def test_the_setting_reads_auto_none_and_declared_kinds() -> None:
+    assert [d.accelerator.kind for d in resolve(["cuda:2:20:emulated"])] == ["cuda"]
+    (d,) = resolve(["cuda:2:20:emulated"])
+    assert d.emulated and d.accelerator.count == 2 and d.accelerator.speed == 20.0
+    assert resolve(["none", "cuda:1"]) == []
+    s = load_settings(flags={"robot": "r", "accelerators": ["npu:2:5"]}, default_robot=False)
+    assert s.accelerators == ["npu:2:5"]
+    with pytest.raises(Exception, match="accelerators"):
+        load_settings(flags={"robot": "r", "accelerators": ["cuda:lots"]}, default_robot=False)
+
+
+def test_an_emulated_slot_is_shared_by_the_programs_on_it(tmp_path) -> None:
+    import threading
+    import time
+
+    grant = Grant(kind="cuda", device="cuda:0", speed=10.0, emulated=True, slots_dir=str(tmp_path), count=1)
+    alone = grant.emulate(1.0)  # 0.1 s of slot time
+    walls: list[float] = []
+    start = time.monotonic()
+    threads = [threading.Thread(target=lambda: walls.append(grant.emulate(1.0))) for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    together = time.monotonic() - start
+    # three programs on one slot take about three times as long as one: they take turns
+    assert together >= 2.5 * min(alone, 0.1) and max(walls) >= 2.0 * 0.1
+
+
+def test_accelerator_programs_go_to_the_robot_that_offers_one(tmp_path) -> None:
+    with LocalTeam(["r1", "r2"], tmp_path, cores=2) as t:
+        t.start_node("g", cores=2, extra_args=["--accelerator", "cuda:1:20:emulated"])
+        team = t.client("r1")
+        wait_for(lambda: any(r.robot == "g" and r.accelerators for r in team.status().robots), 20,
+                 "g's reports advertise its accelerator")
+        # 8 programs of 2 CPU units or 0.1 units on the accelerator (5 ms there): every one is sooner on it
+        futures = [team.submit("burn_accel", units=2.0, accel_units=0.1) for _ in range(8)]
+        results = [f.result(120) for f in futures]
+        assert all(r["on"] == "cuda:0" for r in results), results
+        assert all(f.host == "g" for f in futures)
+        # while they ran, g's reports counted them on its accelerator, not among its CPU programs
+        assert all(r.ramps_running == 0 for r in team.status().robots)
+
+
+def test_a_program_that_needs_an_accelerator_fails_clearly_without_one(tmp_path) -> None:
+    with LocalTeam(["r1", "r2"], tmp_path, cores=1, programs=("where", "needs_cuda")) as t:
+        team = t.client("r1")
+        with pytest.raises(ProgramRefused, match="advertises"):
+            team.submit("needs_cuda", x=1).result(30)
+        t.start_node("g", cores=1, extra_args=["--accelerator", "cuda:1:20:emulated"])
+        wait_for(lambda: any(r.robot == "g" and r.accelerators for r in team.status().robots), 20,
+                 "g's reports advertise its accelerator")
+        got = team.submit("needs_cuda", x=2).result(30)
+        assert got == {"robot": "g", "device": "cuda:0", "x": 2}
