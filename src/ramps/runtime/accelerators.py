@@ -162,7 +162,7 @@ def nvidia_devices() -> list[int]:
 class AcceleratorProbe:
     """Hands out devices to programs and measures them for the reports."""
 
-    def __init__(self, robot: str, declared: list[Declared]) -> None:
+    def __init__(self, robot: str, declared: list[Declared], team: str = "") -> None:
         self.declared = {d.accelerator.kind: d for d in declared}
         #: programs on each device index, per kind (the next goes to the least used)
         self._using: dict[str, list[int]] = {d.accelerator.kind: [0] * max(1, len(d.devices) or d.accelerator.count)
@@ -172,7 +172,8 @@ class AcceleratorProbe:
         self._slots: dict[str, str] = {}
         for d in declared:
             if d.emulated:
-                path = Path(tempfile.gettempdir()) / f"ramps-accel-{robot}-{d.accelerator.kind}-{os.getpid()}"
+                # one folder per team, robot and kind: a node restarted after a crash uses its own again
+                path = Path(tempfile.gettempdir()) / f"ramps-accel-{team}-{robot}-{d.accelerator.kind}"
                 path.mkdir(exist_ok=True)
                 self._slots[d.accelerator.kind] = str(path)
 

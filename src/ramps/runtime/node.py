@@ -245,7 +245,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         # its start time and random bits: a node started later has a larger one (ramps.core.identity)
         self.incarnation = self._incarnation or new_incarnation(self.clock.time(), int.from_bytes(os.urandom(4), "big"))
         return_freed_memory()
-        self.accel = AcceleratorProbe(self.robot, resolve_accelerators(s.accelerators))
+        self.accel = AcceleratorProbe(self.robot, resolve_accelerators(s.accelerators), team=self.team)
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=core_config(s),
                          rng=random.Random(self.incarnation), incarnation=self.incarnation,
                          registry=self.registry.names(), program_weight=nice_weight(s.worker_nice),

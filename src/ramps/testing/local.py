@@ -205,6 +205,8 @@ class LocalTeam:
         for cg in self.cgroups.values():
             cg.remove()
         self.cgroups.clear()
+        for slots in Path(tempfile.gettempdir()).glob(f"ramps-accel-{self.team}-*"):  # emulated accelerators'
+            shutil.rmtree(slots, ignore_errors=True)
         if left:
             self._own_logs = False
             raise AssertionError(f"processes of team {self.team} survived: {describe(left)}")
