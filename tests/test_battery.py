@@ -248,3 +248,19 @@ def test_energy_from_an_emptier_battery_costs_more() -> None:
     _battery(team, "b", 0.3, power=4.0)  # 4 J a unit, from a battery at 30%: 13.3
     submit(team)
     assert team.sent(OffloadRequest)[0].host == "a"
+
+
+def test_the_previous_release_reads_reports_without_a_battery_and_drops_those_with_one() -> None:
+    """docs/wire-compatibility.md: a robot that reports a battery is invisible to 0.1.0 robots."""
+    import msgspec
+
+    from ramps.core.messages import encode
+    from test_wire_golden import PREVIOUS, _old_wire
+
+    old = _old_wire(PREVIOUS)
+    plain = LoadReport(robot="r", incarnation=0, seq=1, cores=1, speed=1.0, cpu_busy=0.0, runnable=0.0,
+                       ramps_running=0, ramps_avg=0.0, accepted_total=0, finished_total=0)
+    assert old.decode(encode("r", plain)).msg.robot == "r"
+    for field, value in (("battery", 0.5), ("low_battery", True), ("power", 6.0)):
+        with pytest.raises(old.WireError, match=field):
+            old.decode(encode("r", msgspec.structs.replace(plain, **{field: value})))
