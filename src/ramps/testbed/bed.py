@@ -104,7 +104,8 @@ class Testbed(Robots, Faults):
                  cores: int | None = None, speed: float | None = None, programs: list[str] | None = None,
                  lease_ms: int | None = None, policy: str | None = None, loaded: dict[str, int] | None = None,
                  discovery: str = "both", caps: bool = True, python: str | None = None,
-                 state_dir: Path | None = None, config: Mapping[str, Any] | None = None) -> None:
+                 state_dir: Path | None = None, config: Mapping[str, Any] | None = None,
+                 robot_config: Mapping[str, Mapping[str, Any]] | None = None) -> None:
         net.need_root()
         mode = cgroup_mode()
         if mode is None:
@@ -133,6 +134,11 @@ class Testbed(Robots, Faults):
         #: every node's config file, as a dict: node settings, and RampsConfig fields under "core",
         #: e.g. {"worker_nice": 0, "core": {"relocate": False}}
         self.config = _check_config(config or {})
+        #: settings of some robots' nodes over ``config``, e.g. {"r4": {"accelerators": ["cuda:1:20:emulated"]}}
+        self.robot_config = {r: _check_config(c) for r, c in (robot_config or {}).items()}
+        for r in self.robot_config:
+            if r not in names:
+                raise ValueError(f"robot_config names {r!r}, not one of {', '.join(names)}")
         self.discovery = discovery
         #: per-program CPU caps (ramps.testbed.caps; cgroup v1 only for now)
         self.caps = caps and self.mode == "v1"
@@ -171,6 +177,7 @@ class Testbed(Robots, Faults):
         self.programs, self.discovery, self.python, self.loaded = st["programs"], st["discovery"], st["python"], st["loaded"]
         self.caps, self.caps_pid = st.get("caps", False), st.get("caps_pid", [None, None])
         self.config = st.get("config", {})
+        self.robot_config = st.get("robot_config", {})
         self.team_name = st["team"]
         self.log_dir = Path(st["log_dir"]) if st.get("log_dir") else None
         self.state_dir = d

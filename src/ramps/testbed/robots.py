@@ -60,6 +60,7 @@ class Robots:
         lease_ms: int | None
         programs: list[str]
         config: dict[str, Any]
+        robot_config: dict[str, dict[str, Any]]
         discovery: str
         python: str
         state_dir: Path
@@ -83,6 +84,7 @@ class Robots:
         st = dict(tb=self.tb, x=self.x, team=self.team, quota=self.quota, cores=self.cores, speed=self.speed,
                   policy=self.policy, lease_ms=self.lease_ms, programs=self.programs, discovery=self.discovery,
                   python=self.python, mode=self.mode, loaded=self.loaded, caps=self.caps, caps_pid=self.caps_pid, config=self.config,
+                  robot_config=self.robot_config,
                   log_dir=str(self.log_dir) if self.log_dir else None, created_by=os.getpid(),
                   robots=[self.robots[r] for r in self.names if r in self.robots])
         tmp = self.state_file.with_suffix(".tmp")
@@ -97,6 +99,7 @@ class Robots:
         if self.discovery in ("both", "connect") and robot != self.names[0]:
             cmd += ["--connect", f"tcp/{self.robots[self.names[0]]['ip']}:{PORT}"]
         cmd += ["--multicast" if self.discovery in ("both", "multicast") else "--no-multicast"]
+        cmd += ["--no-battery-sysfs"]  # the host's battery is no robot's (a battery_file in config still counts)
         return cmd + self._node_options(robot)
 
     def _node_options(self, robot: str) -> list[str]:
@@ -109,8 +112,8 @@ class Robots:
                 cmd += [flag, str(value)]
         for p in self.programs:
             cmd += ["--program", p]
-        if self.config and self.log_dir:
-            cmd += ["--config", str(self._config_file())]
+        if (self.config or self.robot_config.get(robot)) and self.log_dir:
+            cmd += ["--config", str(self._config_file(robot))]
         if self.log_dir:  # every decision, for experiments and post-mortems: <log_dir>/<robot>.trace.jsonl
             cmd += ["--trace", str(self.log_dir / f"{robot}.trace.jsonl")]
         cmd += ["--state-dir", str(self.records_dir)]  # each robot's durable record, removed with the testbed
@@ -121,13 +124,16 @@ class Robots:
         """Where the robots' nodes keep their durable records (``ramps.runtime.store``)."""
         return self.state_dir / f"records-{self.tb}"
 
-    def _config_file(self) -> Path:
-        """``config`` as every node's config file, in the log directory."""
+    def _config_file(self, robot: str) -> Path:
+        """``config`` as every node's config file, in the log directory; a robot
+        with settings of its own (``robot_config``) gets its own file."""
         assert self.log_dir is not None
-        path = self.log_dir / "node-config.toml"
+        own = self.robot_config.get(robot, {})
+        path = self.log_dir / (f"node-config-{robot}.toml" if own else "node-config.toml")
         if not path.exists():
-            top = [f"{k} = {json.dumps(v)}" for k, v in sorted(self.config.items()) if k != "core"]
-            core = [f"{k} = {json.dumps(v)}" for k, v in sorted(self.config.get("core", {}).items())]
+            config = {**self.config, **own, "core": {**self.config.get("core", {}), **own.get("core", {})}}
+            top = [f"{k} = {json.dumps(v)}" for k, v in sorted(config.items()) if k != "core"]
+            core = [f"{k} = {json.dumps(v)}" for k, v in sorted(config["core"].items())]
             path.write_text("\n".join(top + (["[core]"] + core if core else [])) + "\n")
         return path
 
@@ -204,8 +210,8 @@ class Robots:
 
 
 def _check_config(config: Mapping[str, Any]) -> dict[str, Any]:
-    """Node settings for every robot of a testbed: known names, scalar values (a typo is an
-    error here, not a node that will not start)."""
+    """Node settings for a testbed's robots: known names, scalar values (node settings: or lists
+    of them, e.g. ``accelerators``); a typo is an error here, not a node that will not start."""
     from ramps.core.config import RampsConfig
     from ramps.runtime.settings import NodeSettings
 
@@ -215,7 +221,11 @@ def _check_config(config: Mapping[str, Any]) -> dict[str, Any]:
     if bad:
         raise ValueError(f"unknown node settings {', '.join(bad)} (see ramps.runtime.settings.NodeSettings "
                          "and ramps.core.config.RampsConfig)")
-    for k, v in [*((k, v) for k, v in config.items() if k != "core"), *core.items()]:
-        if not isinstance(v, (bool, int, float, str)):
-            raise ValueError(f"node setting {k} must be a number, a string or a boolean, got {v!r}")
+    scalar = (bool, int, float, str)
+    settings = [(True, k, v) for k, v in config.items() if k != "core"] + [(False, k, v) for k, v in core.items()]
+    for top, k, v in settings:
+        listed = top and isinstance(v, list) and all(isinstance(x, scalar) for x in v)
+        if not isinstance(v, scalar) and not listed:
+            raise ValueError(f"node setting {k} must be a number, a string or a boolean (a node setting: or a "
+                             f"list of them), got {v!r}")
     return {**{k: v for k, v in config.items() if k != "core"}, **({"core": dict(core)} if core else {})}
