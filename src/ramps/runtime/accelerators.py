@@ -63,7 +63,11 @@ class Grant:
         """Do ``work`` units on an emulated accelerator: hold one of its slots
         (a lock shared by the robot's programs) for ``EMULATED_QUANTUM`` at a
         time until ``work / speed`` seconds of slot time are done, so programs
-        that outnumber the slots share them. Returns the wall seconds taken."""
+        that outnumber the slots share them. Slot time is the time the lock was
+        held, as a device computes while its program's process waits: a robot
+        whose CPU quota throttles the process (a busy cgroup wakes it late from
+        each quantum's sleep) still gets the slot's speed. Returns the wall
+        seconds taken."""
         if not self.emulated:
             raise RuntimeError(f"accelerator {self.kind!r} ({self.device}) is a real device, not an emulated one")
         need = max(0.0, work) / self.speed
@@ -74,12 +78,12 @@ class Grant:
         try:
             while need > 0:
                 fd = _take_a_slot(fds, rng)
+                held = time.monotonic()
                 try:
-                    step = min(EMULATED_QUANTUM, need)
-                    time.sleep(step)
-                    need -= step
+                    time.sleep(min(EMULATED_QUANTUM, need))
                 finally:
                     fcntl.flock(fd, fcntl.LOCK_UN)
+                need -= time.monotonic() - held
                 time.sleep(0)  # let a waiting program have the slot
         finally:
             for fd in fds:
