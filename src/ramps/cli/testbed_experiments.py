@@ -4,6 +4,7 @@
     ramps testbed experiment sweep   # Tables 3-4
     ramps testbed experiment peers   # ramps beside round robin, Ray and Dask
     ramps testbed experiment battery # a robot's battery drops below its reserve mid-run
+    ramps testbed experiment accelerators  # GPU-class calls on emulated accelerators
 
 Each command starts its own testbed, runs, and removes it; the work is done
 by ``ramps.testbed``, this module parses and prints (rules in
@@ -223,6 +224,44 @@ def testbed_experiment_battery(
     emit([rep], lambda r, console: console.print(format_report(r), highlight=False), as_json=as_json,
          out_file=out_file)
     if rep.failed or rep.wrong or rep.on_low_after:
+        raise typer.Exit(1)
+
+
+@experiment_app.command("accelerators")
+def testbed_experiment_accelerators(
+    robots: int = typer.Option(4, "--robots", min=2, max=10, help="emulated robots"),
+    accelerated: int = typer.Option(1, "--accelerated", min=1, max=9, help="the last N robots also offer an emulated accelerator"),
+    slots: int = typer.Option(1, "--slots", min=1, max=8, help="slots of each accelerator"),
+    slot_speed: float = typer.Option(20.0, "--slot-speed", min=0.1, max=1000.0, help="work units a second of one slot"),
+    origins: int = typer.Option(2, "--origins", min=1, max=9, help="robots r1..rN submit (none of them accelerated)"),
+    gpu: int = typer.Option(3, "--gpu", min=0, max=100, help="GPU-class calls (burn_accel) each origin submits"),
+    cpu: int = typer.Option(3, "--cpu", min=0, max=100, help="CPU calls (burn) each origin submits"),
+    seconds: float = typer.Option(12.0, "--seconds", min=1.0, max=600.0, help="each call alone on an emulated core"),
+    speedup: float = typer.Option(10.0, "--speedup", min=0.1, max=1000.0, help="how many times sooner a GPU-class call ends on a slot"),
+    repeats: int = typer.Option(3, "--repeats", min=1, max=20, help="runs, each on a fresh testbed"),
+    seeds: int = typer.Option(3, "--seeds", min=1, max=20, help="simulator runs per repeat (the median is compared)"),
+    as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
+    out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
+    keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="copy every node's log and decision trace here (repeat-N/)"),
+) -> None:
+    """Emulated accelerators on real processes, beside the simulator: the last robots offer an
+    emulated GPU (slot locks, `--accelerator cuda:1:20:emulated`); the origins submit GPU-class calls
+    (burn_accel, SPEEDUP times sooner on a slot) and CPU calls at once. Prints where each kind ran (on
+    an accelerator or a CPU, per robot) and the makespan beside the simulator's for the same robots,
+    speeds and calls. About 40 s a repeat."""
+    from ramps.errors import RampsError
+    from ramps.testbed.accelerators import format_report, run_testbed_accelerators
+
+    try:
+        rep = run_testbed_accelerators(robots=robots, accelerated=accelerated, slots=slots, slot_speed=slot_speed,
+                                       origins=origins, gpu=gpu, cpu=cpu, seconds=seconds, speedup=speedup,
+                                       repeats=repeats, seeds=seeds, keep_logs=keep_logs,
+                                       log=lambda m: err.print(m, highlight=False))
+    except (PermissionError, RampsError, RuntimeError, TimeoutError, ValueError) as exc:
+        fail(str(exc))
+    emit([rep], lambda r, console: console.print(format_report(r), highlight=False, markup=False), as_json=as_json,
+         out_file=out_file)
+    if any(r.failed for r in rep.repeats):
         raise typer.Exit(1)
 
 
