@@ -131,3 +131,17 @@ def test_a_node_below_its_reserve_hands_back_within_one_report_period_and_nothin
     finally:
         app.close()
         team.close()
+
+
+def test_robots_emulated_on_one_machine_do_not_read_its_battery() -> None:
+    team = MemoryTeam({"r1": (1, 1.0)})
+    try:
+        assert team.nodes["r1"].s.battery_sysfs is False
+    finally:
+        team.close()
+    assert load_settings(flags={"robot": "r1"}, environ={"RAMPS_BATTERY_SYSFS": "0"}).battery_sysfs is False
+    assert load_settings(flags={"robot": "r1"}, environ={}).battery_sysfs is True
+    from ramps.testing.local import LocalTeam
+
+    local = LocalTeam(2)  # nothing starts before ``start``
+    assert "--no-battery-sysfs" in local.node_argv("r1", 7447, None, None)

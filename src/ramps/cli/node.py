@@ -84,6 +84,10 @@ def node(
         None, "--battery-command", metavar="CMD",
         help="instead, a shell command that prints the charge the same way (87% or 0.87), run at most once a "
              "report period and killed after 5 s (env RAMPS_BATTERY_COMMAND)"),
+    battery_sysfs: Optional[bool] = typer.Option(
+        None, "--battery-sysfs/--no-battery-sysfs",
+        help="without a file or a command, read Linux's battery where the kernel lists one (default on; env "
+             "RAMPS_BATTERY_SYSFS); off for robots emulated on one machine, which would share its battery"),
     power_per_core: Optional[str] = typer.Option(
         None, "--power-per-core", metavar="WATTS",
         help="watts one busy core of this robot draws, or 'rapl' to measure them (Intel RAPL), for placement "
@@ -92,7 +96,7 @@ def node(
 ) -> None:
     """Run this robot's ramps node until Ctrl-C: load publisher, load server, program executor.
 
-    Long because of its 25 options: typer reads each from a parameter of this function.
+    Long because of its 26 options: typer reads each from a parameter of this function.
 
     On shutdown (Ctrl-C, SIGTERM) running programs are handed back to their origins, which
     place them elsewhere at once. Programs submitted to this node are kept in its durable
@@ -126,7 +130,8 @@ def node(
                   lease_ms=lease_ms, trace=str(trace) if trace else None, secure=secure or None,
                   credentials=str(credentials) if credentials else None, metrics=metrics, node_nice=node_nice,
                   state_dir=state_dir, mode=mode, zenoh=zenoh_flags(zenoh), battery_file=battery_file,
-                  battery_command=battery_command, power_per_core=_watts(power_per_core))
+                  battery_command=battery_command, battery_sysfs=battery_sysfs,
+                  power_per_core=_watts(power_per_core))
     if not s.state_dir:
         from ramps.runtime.store import default_state_dir
 

@@ -274,6 +274,7 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     #: instead, a shell command that prints the charge, run at most once a report period (5 s at most)
     battery_command: str = ""
     #: without either, Linux's battery (``/sys/class/power_supply``) where the kernel lists one; false: none
+    #: (robots emulated on one host share its battery: ``LocalTeam`` and the testbed turn it off)
     battery_sysfs: bool = True
     #: watts a busy core draws, or ``rapl`` (measured), for ``[core] energy_weight``; default: not known
     power_per_core: Annotated[float, msgspec.Meta(gt=0.0, le=1e9)] | Literal["rapl"] | None = None
@@ -409,6 +410,7 @@ _ENV: dict[str, tuple[str, _EnvForm | type[str] | type[int] | type[float]]] = {
     "RAMPS_STATE_SYNC": ("state_sync", str),
     "RAMPS_BATTERY_FILE": ("battery_file", str),
     "RAMPS_BATTERY_COMMAND": ("battery_command", str),
+    "RAMPS_BATTERY_SYSFS": ("battery_sysfs", "bool"),
 }
 
 

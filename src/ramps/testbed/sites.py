@@ -100,7 +100,7 @@ class SiteTestbed(Testbed):
             return cmd
         rb = self.robots[robot]
         cmd = [self.python, "-m", "ramps.cli", "node", "--robot", robot, "--team", self.team,
-               "--mode", self.node_mode, "--connect", self.router_endpoint()]
+               "--mode", self.node_mode, "--connect", self.router_endpoint(), "--no-battery-sysfs"]
         if self.node_mode == "peer":  # site mates link directly: found by multicast inside the bridge
             cmd += ["--listen", f"tcp/{rb['ip']}:{PORT}", "--multicast"]
         else:

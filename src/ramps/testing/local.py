@@ -251,7 +251,8 @@ class LocalTeam:
     def node_argv(self, name: str, port: int, cores: int | None, policy: str | None) -> list[str]:
         """The command line of robot ``name``'s node."""
         argv = [sys.executable, "-m", "ramps.cli", "node", "--robot", name, "--team", self.team,
-                "--listen", f"{self.scheme}/127.0.0.1:{port}", "--no-multicast"]
+                "--listen", f"{self.scheme}/127.0.0.1:{port}", "--no-multicast",
+                "--no-battery-sysfs"]  # robots on one machine would all read its battery
         for flag, value in (("--speed", self.speed), ("--lease-ms", self.lease_ms), ("--cores", cores),
                             ("--policy", policy or self.policy)):
             if value is not None:

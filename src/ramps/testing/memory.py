@@ -366,7 +366,7 @@ class MemoryTeam:
         from ramps.runtime.node import NodeRuntime
 
         flags = {"robot": name, "team": self.team, "cores": cores, "speed": speed, "programs": self._programs,
-                 **self._settings}
+                 "battery_sysfs": False, **self._settings}  # not the battery of the machine the tests run on
         s = self._load_settings(flags=flags, environ={})
 
         def pool(*a: Any, **kw: Any) -> Any:
