@@ -97,7 +97,7 @@ def test_the_last_reports_of_a_previous_process_together_are_no_clash():
 
 # ---------------------------------------------------------------- real nodes, in memory
 
-LEAVE_TEXT = re.compile(r"robot name 'r2' is taken in team 'mem' by another node, started at "
+LEAVE_TEXT = re.compile(r"robot name 'r2' is taken in team 'mem' by another node listening on memory/r2, started at "
                         r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d UTC \((\d+\.\d) s before this one, by the two machines' clocks\); "
                         r"give each machine its own robot name: --robot NAME or RAMPS_ROBOT=NAME \(the default name "
                         r"is the host name, which machines cloned from one disk image share\)$")
@@ -129,7 +129,7 @@ def test_the_running_node_stays_and_the_newcomer_leaves_whatever_it_drew(first_d
         assert not first.wait(0) and first.name_taken == ""
         said = [r.getMessage() for r in caplog.records]
         assert any(t.endswith("this node started later and leaves the team") for t in said)
-        assert any("another node of team mem joined under this robot's name, started at " in t
+        assert any("another node of team mem joined under this robot's name listening on memory/r2-clone, started at " in t
                    and "(5.0 s after this one, by the two machines' clocks): it leaves the team and this node stays"
                    in t for t in said)
         team.run(5.0, until=lambda: all(f.done() for f in futs))
@@ -315,6 +315,8 @@ def test_a_clone_on_the_network_is_refused_and_the_running_node_serves(tmp_path)
         assert clone.wait(timeout=30) == 2, log.read_text()
         text = " ".join(log.read_text().split())
         assert "error: this node left the team: robot name 'r2' is taken in team" in text, text
+        # it names where the other node listens, as that node's banner does
+        assert f"by another node listening on {t.endpoint('r2')}" in text, text
         assert "give each machine its own robot name: --robot NAME or RAMPS_ROBOT=NAME" in text
         assert t.nodes["r2"].proc.poll() is None
         assert [f.result(timeout=60)["robot"] in ("r1", "r2") for f in futs] == [True] * 3

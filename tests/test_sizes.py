@@ -25,7 +25,7 @@ REASON_WITHIN = 3  # lines of the docstring
 KNOWN_MODULES: dict[str, tuple[int, str]] = {
     "core/origin.py": (973, "being split by another engineer (relocation hook, deadlines)"),
     "testbed/peers.py": (801, "being reworked by another engineer (peer baselines)"),
-    "runtime/node.py": (673, "the node driver, being recomposed into parts"),
+    "runtime/node.py": (642, "the node driver, being recomposed into parts"),
     "runtime/client.py": (685, "the Team client, being edited for deadlines"),
     "core/messages.py": (680, "the wire records, accelerator and battery fields being added; "
                               "the field types and limits are the next to move out"),

@@ -4,11 +4,17 @@ Everything a team says lives under ``ramps/<team>/``, so teams on one network
 never hear each other:
 
     ramps/<team>/load/<robot>      load reports (pub/sub, every period)
+    ramps/<team>/load/<robot>/now  reports of the instant (its programs changed),
+                                   for its teammates' nodes only
     ramps/<team>/msg/<robot>       protocol messages addressed to a robot
     ramps/<team>/client/<client>   outcomes for an application (client)
     ramps/<team>/alive/<robot>     liveliness token of a robot's node
     ramps/<team>/leaving/<robot>   liveliness token a node declares as it stops
                                    (it hands its programs back): not a crash
+    ramps/<team>/where/<robot>/<incarnation>/<endpoints>
+                                   liveliness token naming where a node listens
+                                   (endpoints joined by ","), so a node that
+                                   meets another under its name can say where
 """
 
 from __future__ import annotations
@@ -45,6 +51,27 @@ def alive(team: str, robot: str = "*") -> str:
 
 def leaving(team: str, robot: str = "*") -> str:
     return f"ramps/{team}/leaving/{robot}"
+
+
+def where(team: str, robot: str = "*", incarnation: int | None = None, endpoints: list[str] | None = None) -> str:
+    """The token naming where a node of ``robot`` listens; with the defaults,
+    the expression that matches every robot's."""
+    if incarnation is None:
+        return f"ramps/{team}/where/{robot}/**"
+    shown = ",".join(e for e in endpoints or [] if e and not set(e) & set("*$?#")) or "unknown"
+    return f"ramps/{team}/where/{robot}/{incarnation:x}/{shown}"
+
+
+def where_of(key: str) -> tuple[str, int, list[str]] | None:
+    """(robot, incarnation, endpoints) of a ``where`` token's key, or None."""
+    parts = key.split("/", 5)
+    if len(parts) < 6 or parts[2] != "where":
+        return None
+    try:
+        incarnation = int(parts[4], 16)
+    except ValueError:
+        return None
+    return parts[3], incarnation, [e for e in parts[5].split(",") if e and e != "unknown"]
 
 
 def robot_of(key: str) -> str:

@@ -71,7 +71,7 @@ from ramps.runtime.store import OriginStore
 from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
 from ramps.runtime.workers import WorkerPool
 from ramps.runtime.node_clients import OUTCOME_HOLD, OUTCOME_RETRY, ClientAnswers
-from ramps.runtime.node_inbound import DROP_LOG_PERIOD, STALL_GRACE, Inbound
+from ramps.runtime.node_inbound import DROP_LOG_PERIOD, LONELY_AFTER, STALL_GRACE, Inbound
 from ramps.runtime.node_outbound import Outbound
 from ramps.runtime.node_state import Key, SamplerLike, WorkerPoolLike
 
@@ -91,9 +91,6 @@ STALL_MIN = 0.5
 RELINK_LEASE_FRACTION = 0.75
 #: queued items handled before the timers fire (the rest after them)
 MAX_ITEMS_PER_ROUND = 10_000
-#: a node told to --connect somewhere, or with multicast off, that has heard
-#: no teammate this many seconds after it started says so, once (``_lonely``)
-LONELY_AFTER = 8.0
 #: seconds of queued items one round handles before this robot's own duties
 #: that are due (its load report, its programs' heartbeats) go out; the
 #: origin's timeouts wait until the queue is drained, as it may hold the
@@ -211,6 +208,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         #: another node runs under this robot's name and started first: why this one
         #: left ("" = it did not; ramps.core.identity, Outbound._name_taken)
         self.name_taken = ""
+        #: where each node under this robot's name listens, by incarnation (``keys.where``)
+        self.endpoints_of: dict[int, list[str]] = {}
         #: Prometheus metrics (``--metrics``), fed from the driver thread (ramps.runtime.metrics)
         self.metrics = None
         #: the durable record of the programs this node is origin of (``state_dir``;
@@ -334,45 +333,15 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
                                               lambda data: put(("revoked", data))))
             self._load_pub = t.publisher(keys.load(self.team, self.robot))
             self._token = t.declare_token(keys.alive(self.team, self.robot))
+            # where this node listens, for a node that meets it under its own name (Outbound._name_taken)
+            self._subs.append(t.subscribe_liveliness(keys.where(self.team, self.robot), self._on_where, history=True))
+            self._where_token = t.declare_token(keys.where(self.team, self.robot, self.incarnation, t.locators()))
         except TransportError as exc:
             self._teardown()
             raise TransportError(f"cannot join team {self.team!r} over Zenoh: {exc}") from exc
         except NotAdmitted:
             self._teardown()
             raise
-
-    def _lonely(self) -> None:
-        """LONELY_AFTER seconds after start: if no teammate was ever heard
-        (no load report, no liveliness), log one warning saying what this
-        node tried and what to check. It runs on: a lone robot is legal."""
-        assert self.node is not None
-        if any(r != self.robot for r in self.node.view.robots()):
-            return
-        s = self.s
-        tried = []
-        if s.connect:
-            tried.append(f"connecting to {', '.join(s.connect)}")
-        if s.mode != "client":
-            tried.append(f"listening on {', '.join(self.endpoints() or s.listen_endpoints())}")
-        tried.append("multicast discovery " + ("on" if s.multicast else "off"))
-        try:
-            sessions = len(self.transport.peers()) if self.transport is not None else 0
-        except Exception:
-            sessions = 0
-        if sessions:
-            why = (f"it is linked to {sessions} Zenoh session(s), but none is a node of team {self.team!r} (an "
-                   "application's ramps.connect() is not one): check that every robot runs with the same --team "
-                   "(env RAMPS_TEAM)"
-                   + (" and the same --secure setting" if not s.secure else ""))
-        else:
-            why = ("it is linked to no one: check that --connect names an endpoint a teammate's node listens on "
-                   "(its --listen, shown as 'listening on' when it starts; e.g. --listen tcp/0.0.0.0:7447 there, "
-                   "--connect tcp/ITS-IP:7447 here), that a firewall lets it through, and on loopback or a "
-                   "network without multicast, run every node with --no-multicast and --connect/--listen")
-        self.lonely = (f"node {self.robot} has heard no teammate in team {self.team!r} {LONELY_AFTER:g} s after "
-                       f"starting ({'; '.join(tried)}); {why}. It keeps running: a lone robot runs its "
-                       "programs itself")
-        log.warning(self.lonely)
 
     def _serve_metrics(self, address: str) -> None:
         from ramps.runtime.metrics import NodeMetrics
@@ -444,7 +413,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             return []
 
     def _teardown(self) -> None:
-        for attr in ("_token",):
+        for attr in ("_token", "_where_token"):
             obj = getattr(self, attr, None)
             if obj is not None:
                 try:

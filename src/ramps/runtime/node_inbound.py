@@ -41,7 +41,7 @@ from ramps.core.messages import (
 )
 from ramps.core.relink import RELINK_TIMEOUT
 from ramps.errors import NotAdmitted
-from ramps.runtime import revocation
+from ramps.runtime import keys, revocation
 from ramps.runtime.node_state import DriverState
 
 if TYPE_CHECKING:
@@ -54,6 +54,9 @@ DROP_LOG_PERIOD = 1.0
 #: in case it is only its lease on this stalled node that ran out (the core
 #: does not count a teammate's silence for as long: ramps.core.relink)
 STALL_GRACE = RELINK_TIMEOUT
+#: a node told to --connect somewhere, or with multicast off, that has heard
+#: no teammate this many seconds after it started says so, once (``_lonely``)
+LONELY_AFTER = 8.0
 #: (robot, version) pairs of refused versions and unknown types, each logged
 #: once; more than this (a hostile sender inventing names) are only counted
 VERSION_LOG_KEYS = 64
@@ -251,3 +254,45 @@ class Inbound(DriverState):
         if kind == "revoked":
             return self._on_revocations(item[1], now)
         raise ValueError(f"unknown queue item {kind!r}")
+
+    def _lonely(self) -> None:
+        """LONELY_AFTER seconds after start: if no teammate was ever heard
+        (no load report, no liveliness), log one warning saying what this
+        node tried and what to check. It runs on: a lone robot is legal."""
+        assert self.node is not None
+        if any(r != self.robot for r in self.node.view.robots()):
+            return
+        s = self.s
+        tried = []
+        if s.connect:
+            tried.append(f"connecting to {', '.join(s.connect)}")
+        if s.mode != "client":
+            tried.append(f"listening on {', '.join(self.endpoints() or s.listen_endpoints())}")
+        tried.append("multicast discovery " + ("on" if s.multicast else "off"))
+        try:
+            sessions = len(self.transport.peers()) if self.transport is not None else 0
+        except Exception:
+            sessions = 0
+        if sessions:
+            why = (f"it is linked to {sessions} Zenoh session(s), but none is a node of team {self.team!r} (an "
+                   "application's ramps.connect() is not one): check that every robot runs with the same --team "
+                   "(env RAMPS_TEAM)"
+                   + (" and the same --secure setting" if not s.secure else ""))
+        else:
+            why = ("it is linked to no one: check that --connect names an endpoint a teammate's node listens on "
+                   "(its --listen, shown as 'listening on' when it starts; e.g. --listen tcp/0.0.0.0:7447 there, "
+                   "--connect tcp/ITS-IP:7447 here), that a firewall lets it through, and on loopback or a "
+                   "network without multicast, run every node with --no-multicast and --connect/--listen")
+        self.lonely = (f"node {self.robot} has heard no teammate in team {self.team!r} {LONELY_AFTER:g} s after "
+                       f"starting ({'; '.join(tried)}); {why}. It keeps running: a lone robot runs its "
+                       "programs itself")
+        log.warning(self.lonely)
+
+    def _on_where(self, key: str, declared: bool) -> None:
+        """A ``where`` token of a node under this robot's name came or went."""
+        found = keys.where_of(key)
+        if found is not None:
+            if declared:
+                self.endpoints_of[found[1]] = found[2]
+            else:
+                self.endpoints_of.pop(found[1], None)

@@ -154,14 +154,17 @@ class Outbound(DriverState):
         if self._trace is not None:
             self._write_trace("name_taken", "", self.robot, 0,
                               f"{'this node leaves' if a.leave else 'the other leaves'}: incarnation {a.other:x}")
+        where = self.endpoints_of.get(a.other)
+        at = f" listening on {', '.join(where)}" if where else ""
         if a.leave:
-            self.name_taken = (f"robot name {self.robot!r} is taken in team {self.team!r} by another node, started "
-                               f"{_started(theirs, mine, 'before')}; {fix}")
+            self.name_taken = (f"robot name {self.robot!r} is taken in team {self.team!r} by another node{at}, "
+                               f"started {_started(theirs, mine, 'before')}; {fix}")
             log.error("node %s: %s; this node started later and leaves the team", self.robot, self.name_taken)
             self._q.put(("stop", threading.Event()))
         else:
-            log.error("node %s: another node of team %s joined under this robot's name, started %s: it leaves the "
-                      "team and this node stays; %s", self.robot, self.team, _started(theirs, mine, "after"), fix)
+            log.error("node %s: another node of team %s joined under this robot's name%s, started %s: it leaves "
+                      "the team and this node stays; %s", self.robot, self.team, at, _started(theirs, mine, "after"),
+                      fix)
 
     def _warn_misdeclared(self, note: Note) -> None:
         """A call took far more or less than its program declares: said once

@@ -150,10 +150,13 @@ class DriverState:
     _misdeclared_warned: set[str]
     _load_pub: Publisher
     _leaving_token: Declared
+    endpoints_of: dict[int, list[str]]
 
     if TYPE_CHECKING:
         # what one part calls on another
         def _clock(self) -> float: ...  # NodeRuntime
+
+        def endpoints(self) -> list[str]: ...  # NodeRuntime
 
         def _republish(self, now: float) -> None: ...  # Inbound
 
