@@ -60,7 +60,8 @@ from ramps.version import __version__
 #: a deadline, ``OffloadRequest.deadline_in``, ``SubmitProgram.deadline``, ``SubmitProgram.on_miss``,
 #: ``ProgramOutcome.missed_deadline``; with a battery, ``LoadReport.battery``,
 #: ``LoadReport.low_battery`` and ``LoadReport.power``; with accelerators, ``LoadReport.accelerators``,
-#: ``OffloadRequest.accelerator``, ``SubmitProgram.accelerator``, ``accelerator_work``, ``cpu_fallback``.
+#: ``OffloadRequest.accelerator``, ``SubmitProgram.accelerator``, ``SubmitProgram.accelerator_work``,
+#: ``SubmitProgram.cpu_fallback``.
 #: The envelope's ``v`` is the major only (1.0 checks ``v == 1``).
 PROTOCOL_MAJOR = 1
 PROTOCOL_MINOR = 1
