@@ -231,18 +231,42 @@ class _Pub:
 def test_one_report_of_the_instant_goes_out_per_batch_the_newest():
     """Reports of the instant the core asks for in one batch of actions: the
     newest is published, once, after the batch (each says all the earlier
-    ones did: the executor's counters only grow)."""
+    ones did: the executor's counters only grow), as the core made it, on
+    the key only teammates' nodes hear."""
     rt = rn.NodeRuntime(load_settings(flags={"robot": "r1", "team": "t"}, environ={}), clock=FakeClock())
     rt.node = Node("r1", cores=2, speed=1.0, rng=random.Random(0))
-    rt._load_pub = pub = _Pub()
+    rt._load_pub, rt._prompt_pub = periodic, pub = _Pub(), _Pub()
     first, second = (report("r1", seq=s, accepted_total=s) for s in (1, 2))
     rt._apply([PublishReport(report=first), Note(what="placed", robot="r2"), PublishReport(report=second)])
-    assert len(pub.sent) == 1
+    assert len(pub.sent) == 1 and periodic.sent == []
     sent = decode(pub.sent[0]).msg
-    assert sent.seq == 2 and sent.accepted_total == 2
-    assert msgspec.structs.replace(sent, running=[], blacklisted=[]) == second
+    assert sent.seq == 2 and sent.accepted_total == 2 and sent == second
     rt._apply([Note(what="placed", robot="r2")])
     assert len(pub.sent) == 1  # nothing changed: nothing published
+
+
+def test_reports_of_the_instant_reach_the_nodes_not_the_clients():
+    """A host's reports of the instant reach its teammates' nodes (their
+    views count its programs at once), not an application's client, which
+    hears the periodic reports only."""
+    from ramps.runtime import keys
+    from ramps.testing.memory import MemoryTeam
+
+    team = MemoryTeam({"r1": (2, 1.0), "r2": (2, 1.0)})
+    try:
+        team.run(3.0)
+        heard: list = []
+        team.bus.transport("watcher").subscribe(keys.load(team.team), lambda data: heard.append(decode(data).msg))
+        seen = team.nodes["r1"].node.view.reports_received
+        t, out = _collector(team)
+        _submit(team, t, 1, robot="r2")
+        team.run(3.0, until=lambda: bool(out))
+        assert out and out[-1].host == "r2"
+        assert team.nodes["r1"].node.view.reports_received >= seen + 1  # r2's reports of the instant
+        team.run(3.0)
+        assert heard and all(r.window > 0 for r in heard)  # periodic reports only (an instant's says window 0)
+    finally:
+        team.close()
 
 
 def test_a_client_decodes_load_reports_only_when_asked_for_the_team():

@@ -37,6 +37,11 @@ def load(team: str, robot: str = "*") -> str:
     return f"ramps/{team}/load/{robot}"
 
 
+def load_now(team: str, robot: str = "*") -> str:
+    """Reports of the instant: a node's decisions read them, applications do not."""
+    return f"ramps/{team}/load/{robot}/now"
+
+
 def inbox(team: str, robot: str) -> str:
     return f"ramps/{team}/msg/{robot}"
 

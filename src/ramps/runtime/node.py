@@ -325,6 +325,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             self._subs = [
                 t.subscribe(keys.inbox(self.team, self.robot), self._on_wire),
                 t.subscribe(keys.load(self.team), self._on_wire),
+                t.subscribe(keys.load_now(self.team), self._on_wire),
                 t.subscribe_liveliness(keys.alive(self.team),
                                        lambda key, alive: put(("live", keys.robot_of(key), alive)), history=True),
             ]
@@ -332,6 +333,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
                 self._subs.append(t.subscribe(revocation.revoked_key(self.team),
                                               lambda data: put(("revoked", data))))
             self._load_pub = t.publisher(keys.load(self.team, self.robot))
+            self._prompt_pub = t.publisher(keys.load_now(self.team, self.robot))
             self._token = t.declare_token(keys.alive(self.team, self.robot))
             # where this node listens, for a node that meets it under its own name (Outbound._name_taken)
             self._subs.append(t.subscribe_liveliness(keys.where(self.team, self.robot), self._on_where, history=True))

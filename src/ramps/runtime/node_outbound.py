@@ -9,8 +9,9 @@ worker pool, ``Deliver`` becomes the client's outcome
 a log line, ``NameTaken`` (another node under this robot's name) this
 node's leaving or a line saying the other leaves; programs it hosts for
 other origins are traced as this robot runs them (``_trace_hosted``). ``PublishReport`` (a report of the instant:
-the programs running here changed) is published once per batch of actions,
-the newest after the batch's messages: in a burst each change made one, and
+the programs running here changed) is published to the teammates' nodes
+(``keys.load_now``) once per batch of actions, the newest after the batch's
+messages: in a burst each change made one, and
 every teammate and client decoded reports that the next one superseded at
 once (every report carries the executor's counters, so a later one says all
 an earlier one did). ``_publish`` builds the periodic load report from the sampler
@@ -344,19 +345,14 @@ class Outbound(DriverState):
         self._apply(self.node.handle(BatteryMeasured(charge=charge, power=power), now))
 
     def _publish_prompt(self, report: LoadReport) -> None:
-        """A report of the instant from the core (its programs changed), with
-        what only the sampler measures taken from the last periodic report."""
-        # what it runs and whom it wrote off, as the periodic report says: without them
-        # `ramps status`, `ramps top` and ROS diagnostics saw both flap to empty
-        assert self.node is not None
-        fields: dict[str, Any] = dict(running=self._running_list(), blacklisted=self.node.view.blacklisted())
-        last = self._last_report
-        if last is not None:
-            fields.update(mem_free=last.mem_free, cpu_per_core=last.cpu_per_core, load_avg=last.load_avg,
-                          bad_messages=last.bad_messages, sees=last.sees, links=last.links, learned=last.learned)
-        report = msgspec.structs.replace(report, **fields)
+        """A report of the instant from the core (its programs changed), to its
+        teammates' nodes only (``keys.load_now``), as the core made it: what
+        their decisions read. What only a person reads (what runs here, the
+        links, ``ramps status``'s counters) goes with the periodic report,
+        the one applications hear: a client busy submitting hears no report
+        per program start and end."""
         try:
-            self._load_pub.put(encode(self.robot, report))
+            self._prompt_pub.put(encode(self.robot, report))
         except Exception as exc:
             log.warning("node %s could not publish its load: %s", self.robot, exc)
 

@@ -149,6 +149,7 @@ class DriverState:
     node_cpu: float
     _misdeclared_warned: set[str]
     _load_pub: Publisher
+    _prompt_pub: Publisher
     _leaving_token: Declared
     endpoints_of: dict[int, list[str]]
 
