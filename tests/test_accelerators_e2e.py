@@ -69,3 +69,22 @@ def test_a_program_that_needs_an_accelerator_fails_clearly_without_one(tmp_path)
                  "g's reports advertise its accelerator")
         got = team.submit("needs_cuda", x=2).result(30)
         assert got == {"robot": "g", "device": "cuda:0", "x": 2}
+
+
+def test_a_kinds_slots_are_exclusive_and_the_rest_wait_in_order() -> None:
+    from ramps.core.accelerators import Accelerator
+    from ramps.runtime.accelerators import AcceleratorProbe, Declared
+
+    probe = AcceleratorProbe("g", [Declared(Accelerator(kind="cuda", count=2), devices=(0, 1))], team="t")
+    ran: list[tuple[str, str | None]] = []
+    for name in "abcd":
+        probe.start((name, 1), "cuda", lambda g, name=name: ran.append((name, g and g.device)))
+    assert ran == [("a", "cuda:0"), ("b", "cuda:1")] and probe.waiting() == 2 and probe.held() == 2
+    probe.release(("d", 1))  # withdrawn while it waited: never starts
+    probe.release(("b", 1))  # b's slot goes to c, on b's device
+    assert ran[-1] == ("c", "cuda:1") and probe.waiting() == 0
+    probe.release(("a", 1))
+    probe.release(("c", 1))
+    assert probe.held() == 0 and len(ran) == 3
+    probe.start(("x", 1), "npu", lambda g: ran.append(("x", g and g.device)))  # no such kind: a CPU
+    assert ran[-1] == ("x", None)

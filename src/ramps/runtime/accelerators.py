@@ -23,8 +23,9 @@ import fcntl
 import os
 import random
 import tempfile
-import threading
 import time
+from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -164,7 +165,14 @@ def nvidia_devices() -> list[int]:
 
 
 class AcceleratorProbe:
-    """Hands out devices to programs and measures them for the reports."""
+    """Hands out devices to programs and measures them for the reports.
+
+    A kind's slots are exclusive: at most ``count`` programs run on it at
+    once, each on the least used of its devices, and the others wait in
+    order of arrival (``start``) until one ends (``release``), so a GPU holds
+    only as many programs' contexts as it has slots. The cost model's
+    processor sharing ends a batch at the same time. Called from the node's
+    driver thread only."""
 
     def __init__(self, robot: str, declared: list[Declared], team: str = "") -> None:
         self.declared = {d.accelerator.kind: d for d in declared}
@@ -172,7 +180,9 @@ class AcceleratorProbe:
         self._using: dict[str, list[int]] = {d.accelerator.kind: [0] * max(1, len(d.devices) or d.accelerator.count)
                                              for d in declared}
         self._held: dict[tuple[str, int], tuple[str, int]] = {}
-        self._lock = threading.Lock()  # the driver grants, the worker pool's thread releases
+        #: programs waiting for a slot of each kind, in order: (key, how to start it)
+        self._waiting: dict[str, deque[tuple[tuple[str, int], Callable[[Grant | None], None]]]] = {
+            d.accelerator.kind: deque() for d in declared}
         self._slots: dict[str, str] = {}
         for d in declared:
             if d.emulated:
@@ -185,28 +195,52 @@ class AcceleratorProbe:
     def accelerators(self) -> list[Accelerator]:
         return [d.accelerator for d in self.declared.values()]
 
+    def start(self, key: tuple[str, int], kind: str, run: Callable[[Grant | None], None]) -> None:
+        """Start the program ``key`` on ``kind``: ``run(grant)`` now if a slot
+        is free, else when one frees; ``run(None)`` (a CPU) if this robot has
+        no such kind."""
+        d = self.declared.get(kind)
+        if d is None:
+            run(None)
+        elif sum(self._using[kind]) < d.accelerator.count:
+            run(self.grant(key, kind))
+        else:
+            self._waiting[kind].append((key, run))
+
+    def waiting(self) -> int:
+        """Programs waiting for a slot here now."""
+        return sum(len(q) for q in self._waiting.values())
+
     def grant(self, key: tuple[str, int], kind: str) -> Grant | None:
         """A device of ``kind`` for the program ``key`` (None: no such kind here)."""
         d = self.declared.get(kind)
         if d is None:
             return None
-        with self._lock:
-            using = self._using[kind]
-            slot = min(range(len(using)), key=using.__getitem__)
-            using[slot] += 1
-            self._held[key] = (kind, slot)
+        using = self._using[kind]
+        slot = min(range(len(using)), key=using.__getitem__)
+        using[slot] += 1
+        self._held[key] = (kind, slot)
         index = d.devices[slot] if d.devices else slot
         device = f"{kind}:{index}"
         return Grant(kind=kind, device=device, index=index, speed=d.accelerator.speed, emulated=d.emulated,
                      slots_dir=self._slots.get(kind, ""), count=d.accelerator.count)
 
     def release(self, key: tuple[str, int]) -> None:
-        """The program ``key`` ended or was stopped (nothing if it had no grant)."""
-        with self._lock:
-            held = self._held.pop(key, None)
-            if held is not None:
-                kind, slot = held
-                self._using[kind][slot] = max(0, self._using[kind][slot] - 1)
+        """The program ``key`` ended or was stopped (nothing if it had no
+        grant): its slot goes to the program that waited longest."""
+        held = self._held.pop(key, None)
+        if held is None:
+            for queue in self._waiting.values():  # stopped while it waited
+                for i, (waiting, _) in enumerate(queue):
+                    if waiting == key:
+                        del queue[i]
+                        return
+            return
+        kind, slot = held
+        self._using[kind][slot] = max(0, self._using[kind][slot] - 1)
+        if self._waiting[kind]:
+            nxt, run = self._waiting[kind].popleft()
+            run(self.grant(nxt, kind))
 
     def held(self) -> int:
         """Programs running on an accelerator here now."""

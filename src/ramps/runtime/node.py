@@ -473,7 +473,6 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
 
     def _finished(self, key: Key, ok: bool, value: bytes, error: str, retryable: bool, cpu_s: float | None = None,
                   died: bool = False) -> None:
-        self.accel.release(key)
         self._q.put(("finished", ProgramFinished(program_id=key[0], attempt=key[1], ok=ok, value=value, error=error,
                                                  result_size=len(value), retryable=retryable, cpu_s=cpu_s,
                                                  worker_died=died)))

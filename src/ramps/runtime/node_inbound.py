@@ -233,6 +233,7 @@ class Inbound(DriverState):
         if kind == "finished":
             if self.metrics is not None:
                 self.metrics.on_finished(item[1])
+            self.accel.release((item[1].program_id, item[1].attempt))  # the next on its slot starts
             return node.handle(item[1], now)
         if kind == "speed":  # the measurement's moment on the grid, its own figure, the node's
             if self._trace is not None:

@@ -28,6 +28,7 @@ import math
 import os
 import threading
 import time
+from collections.abc import Callable
 from itertools import islice
 from typing import Any
 
@@ -58,6 +59,7 @@ from ramps.core.messages import (
     encode,
 )
 from ramps.core.speed import MIN_RUN_WORK, REMEASURE_CPU, SpeedMeasured, next_remeasure
+from ramps.runtime.accelerators import Grant
 from ramps.runtime import keys
 from ramps.runtime.battery import BatteryReader
 from ramps.runtime.speed_probe import core_fraction, measure_speed
@@ -110,9 +112,10 @@ class Outbound(DriverState):
                     self._write_trace("tx", getattr(a.msg, "program_id", ""), a.to, getattr(a.msg, "attempt", 0),
                                       type(a.msg).__name__)
             elif isinstance(a, StartProgram):
-                grant = self.accel.grant((a.program_id, a.attempt), a.accelerator) if a.accelerator else None
-                self.pool.run((a.program_id, a.attempt), a.program, a.args, a.resume,
-                              None if grant is None else grant.as_wire())
+                if a.accelerator:  # when one of its slots is free (AcceleratorProbe.start)
+                    self.accel.start((a.program_id, a.attempt), a.accelerator, self._runner(a))
+                else:
+                    self.pool.run((a.program_id, a.attempt), a.program, a.args, a.resume)
             elif isinstance(a, StopProgram):
                 self.pool.cancel((a.program_id, a.attempt))
                 self.accel.release((a.program_id, a.attempt))
@@ -145,6 +148,13 @@ class Outbound(DriverState):
                     self.on_note(a)
         if prompt is not None:
             self._publish_prompt(prompt)
+
+    def _runner(self, a: StartProgram) -> Callable[[Grant | None], None]:
+        """How to start ``a`` in a worker once its accelerator slot is granted."""
+        def run(grant: Grant | None) -> None:
+            self.pool.run((a.program_id, a.attempt), a.program, a.args, a.resume,
+                          None if grant is None else grant.as_wire())
+        return run
 
     def _name_taken(self, a: NameTaken) -> None:
         """Another node runs under this robot's name (``ramps.core.identity``):
