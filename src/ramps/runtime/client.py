@@ -52,7 +52,6 @@ from typing import Any, Iterable, Iterator
 import msgspec
 
 from ramps.core.messages import (
-    PROTOCOL_MAJOR,
     CancelSubmitted,
     LoadReport,
     ProgramOutcome,
@@ -77,7 +76,7 @@ from ramps.runtime import argtypes, keys
 from ramps.runtime.registry import MAX_ARGS_BYTES, Registry, decode_value, default_registry, encode_args
 from ramps.runtime.security import admission, settings_credentials, tls_listeners
 from ramps.runtime.settings import NodeSettings, load_settings
-from ramps.runtime.futures import ProgramFuture, RobotStatus, TeamStatus
+from ramps.runtime.futures import ProgramFuture, RobotStatus, TeamStatus, report_about
 from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
 
 
@@ -100,23 +99,6 @@ _ERRORS = {"program": ProgramFailed, "refused": ProgramRefused, "bad_arguments":
 #: what a call with a deadline may do when no robot can meet it (``Team.options``)
 ON_MISS = ("run", "local", "fail")
 
-
-class _ReportAbout(msgspec.Struct, frozen=True):
-    type: str = ""
-    robot: str = ""
-
-
-class _ReportHead(msgspec.Struct, frozen=True):
-    """A message on the load key, read only as far as the robot its report
-    is about (the rest is skipped unparsed, ``Team._on_report``)."""
-
-    v: int = 0
-    msg: _ReportAbout = _ReportAbout()
-
-
-_report_head = msgspec.msgpack.Decoder(_ReportHead)
-#: what reading a head of garbage raises (``ramps.core.messages.decode`` catches the same)
-_NOT_A_REPORT = (msgspec.DecodeError, UnicodeDecodeError, RecursionError)
 
 #: Teams still open, closed at interpreter exit if the application did not
 _OPEN: "weakref.WeakSet[Team]" = weakref.WeakSet()
@@ -293,19 +275,15 @@ class Team:
                 pass
 
     def _on_report(self, data: bytes) -> None:
-        """A load report: kept as it came, read only as far as the robot it
-        is about; ``status()`` decodes the newest of each robot. Every robot
-        publishes one whenever its programs change, so a client busy
-        submitting would otherwise decode a report per program start and end
-        that nobody reads (the robot's node decodes and checks them all). A
-        newest report that turns out malformed leaves the one decoded before."""
-        try:
-            head = _report_head.decode(data)
-        except _NOT_A_REPORT:
-            return
-        if head.v == PROTOCOL_MAJOR and head.msg.type == "load" and head.msg.robot:
+        """A periodic load report (reports of the instant go to nodes only):
+        kept as it came, read only as far as the robot it is about;
+        ``status()`` decodes the newest of each robot, so a client that never
+        asks decodes none. A newest report that turns out malformed leaves
+        the one decoded before."""
+        robot = report_about(data)
+        if robot:
             with self._lock:
-                self._raw_reports[head.msg.robot] = (data, self.clock.monotonic())
+                self._raw_reports[robot] = (data, self.clock.monotonic())
 
     def _decode_reports(self) -> None:
         """With the lock held: the newest report of each robot, decoded (see ``_on_report``)."""

@@ -16,9 +16,37 @@ from typing import Any, Callable
 
 import msgspec
 
-from ramps.core.messages import AcceleratorSeen, LearnedWork, LinkSeen, ProgramUpdate, RunningProgram
+from ramps.core.messages import PROTOCOL_MAJOR, AcceleratorSeen, LearnedWork, LinkSeen, ProgramUpdate, RunningProgram
 
-__all__ = ["ProgramFuture", "RobotStatus", "TeamStatus"]
+__all__ = ["ProgramFuture", "RobotStatus", "TeamStatus", "report_about"]
+
+
+class _ReportAbout(msgspec.Struct, frozen=True):
+    type: str = ""
+    robot: str = ""
+
+
+class _ReportHead(msgspec.Struct, frozen=True):
+    """A message on the load key, read only as far as the robot its report
+    is about (the rest is skipped unparsed)."""
+
+    v: int = 0
+    msg: _ReportAbout = _ReportAbout()
+
+
+_report_head = msgspec.msgpack.Decoder(_ReportHead)
+#: what reading a head of garbage raises (``ramps.core.messages.decode`` catches the same)
+_NOT_A_REPORT = (msgspec.DecodeError, UnicodeDecodeError, RecursionError)
+
+
+def report_about(data: bytes) -> str:
+    """The robot a load report on the wire is about, reading no further
+    (``Team._on_report``); "" if it is no load report of this protocol."""
+    try:
+        head = _report_head.decode(data)
+    except _NOT_A_REPORT:
+        return ""
+    return head.msg.robot if head.v == PROTOCOL_MAJOR and head.msg.type == "load" else ""
 
 
 class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):

@@ -193,8 +193,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._held_lost = {}
         #: messages waiting for their receiver to be reachable: (key, bytes, monotonic deadline, block)
         self._held_outcomes = []
-        #: clients' updates waiting for their moment (``ClientAnswers._update_client``), in
-        #: the order they are due: program id -> [core time due, state, host, attempt]
+        #: clients' updates waiting for their moment, as they fall due (``ClientAnswers._update_client``)
         self._held_updates = {}
         #: secured team: the newest revocation list, the robots it names, the CA that signs it
         self.revocations = None
