@@ -96,4 +96,6 @@ def test_bench_dispatch_reports_latency_and_throughput(tmp_path, teams):
     for key in ("p50_ms", "p99_ms", "throughput_per_s", "remote_p50_ms"):
         assert data[key] > 0
     assert data["completed"] == 200
+    vs = data["vs_baseline"]["vs"]  # beside the saved figures of fe693da
+    assert vs["throughput_per_s"]["baseline"] > 0 and vs["cpu_us"]["this"] > 0
     assert leftovers(teams) == []

@@ -419,3 +419,21 @@ def test_arguments_are_judged_as_signature_bind_judges_them(names):
         except TypeError as exc:
             got = str(exc)
         assert got == want, fn.__name__
+
+
+def test_the_dispatch_benchmark_sets_its_figures_beside_a_saved_baseline():
+    """``ramps bench dispatch`` compares with fe693da's and 0.1.0's saved
+    runs (medians of each): a ratio per figure, which way is better."""
+    from ramps.bench import dispatch as d
+
+    for name in d.BASELINES:
+        base = d.load_baseline(name)
+        assert len(base["runs"]) >= 3 and base["commit"] and base["note"]
+        figs = d.baseline_figures(base)
+        assert all(v > 0 for v in figs.values())
+    run = {"p50_ms": 0.5, "remote_p50_ms": 2.0, "throughput_per_s": 5000.0, "burst_cpu_us": {"r1": 200.0, "c": 100.0}}
+    vs = d.compare(run, {"runs": [dict(run, p50_ms=1.0, throughput_per_s=2500.0), dict(run, p50_ms=0.8),
+                                   dict(run, p50_ms=2.0, throughput_per_s=1000.0)]})
+    assert vs["p50_ms"] == {"this": 0.5, "baseline": 1.0, "ratio": 0.5, "better": True}
+    assert vs["throughput_per_s"]["ratio"] == 2.0 and vs["throughput_per_s"]["better"]
+    assert vs["remote_p50_ms"]["ratio"] == 1.0 and vs["cpu_us"]["this"] == 300.0

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import statistics
 from pathlib import Path
+from typing import Any
 
 import typer
 
@@ -83,23 +84,74 @@ def bench_dispatch_cmd(
     calls: int = typer.Option(1000, "--calls", min=10, help="sequential calls timed for latency"),
     burst: int = typer.Option(5000, "--burst", min=10, help="calls for the throughput figure"),
     window: int = typer.Option(256, "--window", min=1, help="calls in flight at most during the burst"),
+    baseline: str = typer.Option("fe693da", "--baseline", metavar="NAME|FILE",
+                                 help="saved figures to set these beside: fe693da (the code of 2026-11-21, at full "
+                                      "speed), 0.1.0, or a JSON file this command saved; none: no comparison"),
+    against: Path | None = typer.Option(None, "--against", metavar="DIR",
+                                        help="also measure the ramps in this checkout (e.g. `git worktree add DIR "
+                                             "fe693da`), in turns with this one"),
+    rounds: int = typer.Option(1, "--rounds", "-n", min=1, help="measurements of each code, in turns"),
     out_file: Path = typer.Option(Path("bench-results/dispatch.json"), "--out", "-o", help="where to save the JSON"),
 ) -> None:
-    """Latency from submit to result of a no-op program on a real loopback team, and throughput."""
-    from ramps.bench.dispatch import bench_dispatch
+    """Latency from submit to result of a no-op program on a real loopback team, and throughput, beside
+    earlier code's.
 
-    err.print(f"starting {nodes} nodes on loopback; {calls} sequential calls, then {burst} with {window} in flight ...")
-    res = bench_dispatch(nodes=nodes, calls=calls, burst=burst, window=window)
-    out.print(f"dispatch latency (submit -> result, {res['calls']} no-op calls): p50 {res['p50_ms']:.2f} ms, "
-              f"p90 {res['p90_ms']:.2f} ms, p99 {res['p99_ms']:.2f} ms, max {res['max_ms']:.1f} ms; "
-              f"ran on {res['latency_hosts']}")
-    out.print(f"offloaded to another robot ({res['remote_calls']} calls): p50 {res['remote_p50_ms']:.2f} ms, "
-              f"p99 {res['remote_p99_ms']:.2f} ms")
-    out.print(f"throughput from one origin: {res['throughput_per_s']:.0f} programs/s "
-              f"({res['completed']}/{res['burst']} completed; ran on {res['burst_hosts']})")
+    Wall-clock figures follow the machine's load: only codes measured in turns on the same machine at the
+    same time compare (--against); CPU per program follows the code and compares with a saved baseline too.
+    The JSON holds the last run's figures at its top, every run, and the comparisons."""
+    from ramps.bench import dispatch as d
+
+    base = None if baseline == "none" else d.load_baseline(baseline)
+    kw: dict[str, Any] = dict(nodes=nodes, calls=calls, burst=burst, window=window)
+    ours: list[dict] = []
+    theirs: list[dict] = []
+    for r in range(rounds):
+        order = ["this", "against"] if r % 2 == 0 else ["against", "this"]
+        for which in order:
+            if which == "against" and against is None:
+                continue
+            err.print(f"{'this code' if which == 'this' else against}: {nodes} nodes on loopback; {calls} sequential "
+                      f"calls, then {burst} with {window} in flight ...")
+            res = d.bench_dispatch(**kw) if against is None or which == "this" else d.measure_code(against, **kw)
+            (ours if which == "this" else theirs).append(res)
+            _show_dispatch("this" if which == "this" else str(against), res)
+    result = dict(ours[-1], runs=ours)
+    if theirs:
+        result["against"] = {"checkout": str(against), "runs": theirs,
+                             "vs": d.compare(_median_run(d, ours), {"runs": theirs})}
+        _show_comparison(f"against {against}, measured in turns", result["against"]["vs"])
+    if base is not None:
+        result["vs_baseline"] = {"baseline": baseline, "vs": d.compare(_median_run(d, ours), base)}
+        _show_comparison(f"against the saved baseline {baseline} ({base.get('note', '')})", result["vs_baseline"]["vs"])
     out_file.parent.mkdir(parents=True, exist_ok=True)
-    out_file.write_text(json.dumps(res, indent=2) + "\n")
+    out_file.write_text(json.dumps(result, indent=2) + "\n")
     out.print(f"saved {out_file}")
+
+
+def _median_run(d: Any, runs: list[dict]) -> dict:
+    """A run whose figures are the medians of ``runs`` (what ``compare`` reads)."""
+    med = d.baseline_figures({"runs": runs})
+    return {"p50_ms": med["p50_ms"], "remote_p50_ms": med["remote_p50_ms"],
+            "throughput_per_s": med["throughput_per_s"], "burst_cpu_us": {"all": med["cpu_us"]}}
+
+
+def _show_dispatch(label: str, res: dict) -> None:
+    cpu = res["burst_cpu_us"]
+    out.print(f"{label}: p50 {res['p50_ms']:.2f} ms at the origin (p99 {res['p99_ms']:.2f}), offloaded p50 "
+              f"{res['remote_p50_ms']:.2f} ms (p99 {res['remote_p99_ms']:.2f}, {res['remote_calls']} calls); "
+              f"{res['throughput_per_s']:.0f} programs/s ({res['completed']}/{res['burst']} completed; ran on "
+              f"{res['burst_hosts']}); CPU per program {sum(cpu.values()):.0f} us ("
+              + ", ".join(f"{k} {v:.0f}" for k, v in cpu.items()) + f"); load {res['loadavg'][0]:.1f}",
+              highlight=False)
+
+
+def _show_comparison(title: str, vs: dict) -> None:
+    out.print(title + ":", highlight=False)
+    names = {"p50_ms": "p50 at the origin, ms", "remote_p50_ms": "p50 offloaded, ms",
+             "throughput_per_s": "programs/s", "cpu_us": "CPU per program, us"}
+    for key, row in vs.items():
+        out.print(f"  {names[key]:24} {row['this']:9.2f} against {row['baseline']:9.2f}: x{row['ratio']:.2f} "
+                  f"({'better or as good' if row['better'] else 'worse'})", highlight=False)
 
 
 @bench_app.command("first-calls")
