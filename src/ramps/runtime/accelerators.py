@@ -32,9 +32,6 @@ from typing import Any
 
 from ramps.core.accelerators import Accelerator, parse_accelerator
 
-#: seconds of an emulated accelerator's work a program holds a slot for at a time
-EMULATED_QUANTUM = 0.01
-
 
 @dataclass(frozen=True)
 class Grant:
@@ -61,31 +58,28 @@ class Grant:
                       if k in data})
 
     def emulate(self, work: float) -> float:
-        """Do ``work`` units on an emulated accelerator: hold one of its slots
-        (a lock shared by the robot's programs) for ``EMULATED_QUANTUM`` at a
-        time until ``work / speed`` seconds of slot time are done, so programs
-        that outnumber the slots share them. Slot time is the time the lock was
-        held, as a device computes while its program's process waits: a robot
-        whose CPU quota throttles the process (a busy cgroup wakes it late from
-        each quantum's sleep) still gets the slot's speed. Returns the wall
-        seconds taken."""
+        """Do ``work`` units on an emulated accelerator: take one of its slots
+        (a lock shared by the robot's programs, waited for while all are
+        taken) and hold it until ``work / speed`` seconds have passed by the
+        clock, as a device computes while its program's process waits: a
+        robot whose CPU quota throttles the process still gets the slot's
+        speed. Programs that outnumber the slots take turns (a node starts at
+        most one per slot). Returns the wall seconds taken, a wait for a slot
+        included."""
         if not self.emulated:
             raise RuntimeError(f"accelerator {self.kind!r} ({self.device}) is a real device, not an emulated one")
         need = max(0.0, work) / self.speed
         start = time.monotonic()
         fds = [os.open(os.path.join(self.slots_dir, f"slot-{i}"), os.O_RDWR | os.O_CREAT, 0o666)
                for i in range(self.count)]
-        rng = random.Random()
         try:
-            while need > 0:
-                fd = _take_a_slot(fds, rng)
-                held = time.monotonic()
-                try:
-                    time.sleep(min(EMULATED_QUANTUM, need))
-                finally:
-                    fcntl.flock(fd, fcntl.LOCK_UN)
-                need -= time.monotonic() - held
-                time.sleep(0)  # let a waiting program have the slot
+            fd = _take_a_slot(fds, random.Random())
+            try:
+                done = time.monotonic() + need
+                while (left := done - time.monotonic()) > 0:
+                    time.sleep(left)
+            finally:
+                fcntl.flock(fd, fcntl.LOCK_UN)
         finally:
             for fd in fds:
                 os.close(fd)
