@@ -8,7 +8,7 @@ import pytest
 
 from ramps.core.events import Note, Received, Submit
 from ramps.core.messages import ProgramResult
-from ramps.core.origin import LEARN_MIN_PART, MISDECLARED
+from ramps.core.learning import LEARN_MIN_PART, MISDECLARED
 from ramps.core.speed import MIN_RUN_WORK
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario

@@ -73,8 +73,11 @@ def work_left(placed: list[tuple[float, float]], now: float, count: float, speed
     """Work left at ``now`` in programs (work, started at) ``placed`` on
     ``count`` slots of ``speed`` that run ``programs`` programs in all (as
     many as since they started, processor sharing), at most ``programs`` of
-    them, the largest."""
+    them, the largest. One whose work should be done by now is left out:
+    still counted as running, it took more than its estimate, and how much
+    more is not known (the caller prices it as it prices programs of
+    unknown work)."""
     if programs <= 0:
         return []
     rate = speed * slot_share(count, programs)
-    return sorted(max(0.0, work - (now - at) * rate) for work, at in placed)[-programs:]
+    return sorted(x for work, at in placed if (x := work - (now - at) * rate) > 0.0)[-programs:]

@@ -80,6 +80,11 @@ class ProgramFinished(_Rec, frozen=True, kw_only=True):
     #: work it reports is then what processor sharing at this robot's
     #: speed and load says it did
     cpu_s: float | None = None
+    #: seconds it held a slot of its accelerator, where the driver's slots are
+    #: exclusive and it measured them (``ramps.runtime.accelerators``); None:
+    #: its work there is what processor sharing of the slots did for it (the
+    #: simulator shares them so)
+    slot_s: float | None = None
     #: (with ``retryable``) the worker died by itself while this robot's
     #: executor lived: the program exited, crashed or was killed on its own,
     #: how is in ``error``; not a worker stopped because the node shuts down

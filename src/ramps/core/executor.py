@@ -27,7 +27,9 @@ incarnation included (a node restarted with its durable record,
 A program offered for one of this robot's accelerators (``OffloadRequest.accelerator``)
 runs there: it shares that kind's slots with the programs on them, not the
 cores, and is neither in the CPU counts nor in ``remaining``; a robot
-without that kind turns it away (``accelerator``).
+without that kind turns it away (``accelerator``). Its result tells the work
+it took there (``ProgramResult.work_done``: the seconds it held a slot, at
+the slot's speed), which its origin learns (``ramps.core.learning``).
 
 Requests are idempotent: the same (program, attempt) twice is accepted once.
 ``accepted_total`` and ``finished_total`` only ever grow; the load publisher
@@ -46,21 +48,9 @@ from ramps.core.config import RampsConfig
 from ramps.core.cost import program_share, shared_finish_time
 from ramps.core.events import (Action, CheckpointSaved, Note, ProgramFinished, ProgressReported, Send, StartProgram,
                                StopProgram)
-from ramps.core.messages import (
-    MAX_LISTED,
-    MAX_PROGRESS_TEXT,
-    CancelProgram,
-    Heartbeat,
-    LoadReport,
-    OffloadAccepted,
-    OffloadRejected,
-    OffloadRequest,
-    ProgramCheckpoint,
-    ProgramProgress,
-    ProgramRef,
-    ProgramResult,
-    ResultAck,
-)
+from ramps.core.messages import (MAX_LISTED, MAX_PROGRESS_TEXT, CancelProgram, Heartbeat, LoadReport, OffloadAccepted,
+                                 OffloadRejected, OffloadRequest, ProgramCheckpoint, ProgramProgress, ProgramRef,
+                                 ProgramResult, ResultAck)
 
 Key = tuple[str, int]
 #: seconds an origin may be lost (liveliness) before its programs here are
@@ -339,10 +329,17 @@ class Executor:
         """The work a finished program took, in units at this robot's speed:
         from the CPU seconds it used where the driver measured them (exact
         whatever its share of the robot was, however long it slept),
-        else from processor sharing at this robot's speed and load."""
+        else from processor sharing at this robot's speed and load. On an
+        accelerator, its work there (its origin learns it apart,
+        ``ramps.core.learning``; its CPU seconds say nothing of it): the
+        seconds it held a slot at the slot's speed, where the driver measured
+        them, else what processor sharing of the slots did for it."""
         cpu = ev.cpu_s
         if job.accelerator:
-            return None  # its CPU seconds say nothing of its work on the accelerator
+            held = ev.slot_s
+            if held is None or not (math.isfinite(held) and held >= 0.0):
+                return job.done
+            return held * self.accelerators[job.accelerator].speed
         if cpu is None or not (math.isfinite(cpu) and cpu >= 0.0) or self.core_fraction <= 0.0:
             return job.done
         return cpu * self.speed / self.core_fraction

@@ -376,7 +376,7 @@ class Node:
         how fast its host really was, next to the same program elsewhere."""
         ap = self.origin.programs.get(msg.program_id)
         if (ap is None or ap.state in FINAL or ap.live.get(msg.attempt) != msg.host or not msg.ok
-                or msg.work_done is None):
+                or msg.work_done is None or ap.accelerator):  # a run on an accelerator says nothing of the CPU
             return
         assert self.host_speeds is not None
         before = self.host_speeds.factor.get(msg.host, 1.0)

@@ -39,10 +39,8 @@ from __future__ import annotations
 import heapq
 import math
 import random
-import statistics
 import sys
 from collections import deque
-from collections.abc import Sequence
 from typing import Any
 
 import msgspec
@@ -51,6 +49,7 @@ from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate
 from ramps.core.durable import RESTORE_GRACE
 from ramps.core.events import Action, Deliver, Note, Progress, Send, Submit
+from ramps.core.learning import Learning
 from ramps.core.links import Links
 from ramps.core.loadview import LoadView
 from ramps.core.messages import (
@@ -78,25 +77,16 @@ from ramps.core.program import (
     ProtocolError,
 )
 from ramps.core.relink import Relink
-from ramps.core.speed import MIN_RUN_WORK
 from ramps.core.relocation import relocation_check
 
 S = ProgramState
 E = Event
-#: how many of a program's latest runs its learned work is the median of
-LEARN_RUNS = 8
-#: a call whose measured work is more than this many times its declaration,
-#: or less than its inverse, is flagged (``Note(what="misdeclared")``)
-MISDECLARED = 4.0
-#: a resumed attempt that ran less than this fraction of its program says
-#: nothing of the whole program's work
-LEARN_MIN_PART = 0.2
 #: what a program with a deadline may do when no robot is expected to meet
 #: it (``Submit.on_miss``): run where it ends soonest, run here, or fail now
 ON_MISS = ("run", "local", "fail")
 
 
-class Origin:
+class Origin(Learning):
     def __init__(
         self,
         me: str,
@@ -106,6 +96,7 @@ class Origin:
         rng: random.Random,
         net: NetworkEstimate,
     ) -> None:
+        super().__init__()  # the learned work (``ramps.core.learning``)
         self.me = me
         self.view = view
         self.policy = policy
@@ -125,13 +116,6 @@ class Origin:
         self._seq = 0
         #: measured latency and bandwidth per teammate (set by the node)
         self.links: Links | None = None
-        #: work each program took in its latest runs (hosts' estimates) per
-        #: unit it declared, by program name: placements use the median times
-        #: a call's declaration instead of the declaration alone (so a caller
-        #: that declares bigger calls bigger keeps the sizes apart)
-        self._learned: dict[str, deque[float]] = {}
-        #: the declaration of each program's latest learned run (for status)
-        self._declared: dict[str, float] = {}
         #: after this robot's own stall, the hosts whose links are not back yet
         self.relink = Relink(me)
         #: when the next relocation check is due (None: nothing running to move)
@@ -152,8 +136,6 @@ class Origin:
         self.factor_seen: dict[str, tuple[float, float]] = {}
         #: relocation checks that withheld a move on an uncertain estimate, by reason
         self.withheld: dict[str, int] = {}
-        #: after this robot's own stall, the hosts whose links are not back yet
-        self.relink = Relink(me)
         # statistics
         self.delivered = 0
         #: programs delivered after their deadline or refused as unmeetable
@@ -517,7 +499,7 @@ class Origin:
             deadline_in = left if left is not None and (placement.expected_time or 0.0) < left else None
         if host is None and sub.local_only:
             host = self.me
-        accel_work = (sub.accelerator_work or sub.work) * (1.0 - fraction)
+        accel_work = self.accelerator_work_estimate(sub) * (1.0 - fraction)
         if host is None:
             policy = self.policy_for(sub)
             exclude = (frozenset(ap.excluded) | self.view.short_of_memory(sub.memory) | self.view.low_battery
@@ -789,57 +771,6 @@ class Origin:
             self._learn(ap, msg.attempt, msg.host, msg.work_done, out)
         self._deliver(ap, now, out, ok=msg.ok, value=msg.value, error=msg.error, host=msg.host,
                       kind="" if msg.ok else "program")
-
-    def _learn(self, ap: AutonomousProgram, attempt: int, host: str, work_done: float, out: list[Action]) -> None:
-        """What a completed run says of its program's work.
-
-        Only the attempt that delivered as the program's current one counts
-        (its start point is known): one resumed from a checkpoint at
-        fraction ``f`` did ``1 - f`` of the program, so the whole took
-        ``work_done / (1 - f)``, and one that did less than
-        ``LEARN_MIN_PART`` says nothing. A run shorter than ``MIN_RUN_WORK``
-        is not learned from either: too short to measure, and a caller's
-        warm-up calls that return at once must not make its real calls of
-        the same declaration look free. A call that took more than
-        ``MISDECLARED`` times its declaration, or less than its inverse, is
-        flagged with a ``misdeclared`` note (trace, log, metric) whether it
-        is learned from or not."""
-        if attempt != ap.attempt or not (math.isfinite(work_done) and work_done >= 0.0):
-            return
-        part = 1.0 - (ap.resumed_from or 0.0)
-        if part < LEARN_MIN_PART:
-            return
-        whole, declared = work_done / part, ap.submit.work
-        if declared > 0 and max(whole, declared) >= MIN_RUN_WORK \
-                and not 1.0 / MISDECLARED <= whole / declared <= MISDECLARED:
-            out.append(Note(what="misdeclared", program_id=ap.program_id, robot=host, attempt=attempt,
-                            detail=f"{ap.submit.program} declared {declared:.4g} work units, took {whole:.4g} "
-                                   f"({whole / declared:.3g}x)"))
-        if whole < MIN_RUN_WORK:
-            return
-        runs = self._learned.setdefault(ap.submit.program, deque(maxlen=LEARN_RUNS))
-        runs.append(whole / declared if declared > 0 else whole)
-        self._declared[ap.submit.program] = declared
-
-    def work_estimate(self, sub: Submit) -> float:
-        """The work a program will take: its declaration times the median of
-        what its latest runs took per declared unit (robust to one odd host),
-        or its declaration before any ran."""
-        runs = self._learned.get(sub.program)
-        if not runs:
-            return sub.work
-        return statistics.median(runs) * (sub.work if sub.work > 0 else 1.0)
-
-    def learned_runs(self, program: str) -> Sequence[float]:
-        """The work each of ``program``'s latest learned runs took per unit it
-        declared, oldest first (none before any ran)."""
-        return self._learned.get(program, ())
-
-    def learned_work(self) -> dict[str, float]:
-        """Program name -> the work placements now assume for a call declared
-        like its latest run (learned ones only)."""
-        return {name: statistics.median(runs) * (self._declared.get(name, 0.0) or 1.0)
-                for name, runs in self._learned.items() if runs}
 
     def _on_cancel(self, ap: AutonomousProgram, now: float, out: list[Action], msg: Any, event: Event) -> None:
         self._deliver(ap, now, out, ok=False, error="cancelled by the application", host=ap.host or "",

@@ -96,6 +96,8 @@ class RelocatingOrigin(Protocol):
 
     def work_estimate(self, sub: Submit) -> float: ...
 
+    def accelerator_work_estimate(self, sub: Submit) -> float: ...
+
     def policy_for(self, sub: Submit) -> Policy: ...
 
     def learned_runs(self, program: str) -> Sequence[float]: ...
@@ -185,7 +187,7 @@ def price_move(origin: RelocatingOrigin, ap: AutonomousProgram, t_here: float, n
     placement = origin.policy_for(sub).choose(
         PlacementRequest(program_id=ap.program_id, work=work,
                          payload_size=sub.payload_size + len(ap.checkpoint or b""), result_size=sub.result_size,
-                         accelerator=sub.accelerator, accelerator_work=(sub.accelerator_work or sub.work) * (
+                         accelerator=sub.accelerator, accelerator_work=origin.accelerator_work_estimate(sub) * (
                              1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0))),
         origin.view, now, origin.relocation_rng, net=origin.net, config=origin.config,
         exclude=never | origin.view.short_of_memory(sub.memory) | origin.relink.excluded(origin.view.robots(), now),

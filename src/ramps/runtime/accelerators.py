@@ -173,7 +173,8 @@ class AcceleratorProbe:
         #: programs on each device index, per kind (the next goes to the least used)
         self._using: dict[str, list[int]] = {d.accelerator.kind: [0] * max(1, len(d.devices) or d.accelerator.count)
                                              for d in declared}
-        self._held: dict[tuple[str, int], tuple[str, int]] = {}
+        #: programs holding a slot: key -> (kind, device slot, when it was granted)
+        self._held: dict[tuple[str, int], tuple[str, int, float]] = {}
         #: programs waiting for a slot of each kind, in order: (key, how to start it)
         self._waiting: dict[str, deque[tuple[tuple[str, int], Callable[[Grant | None], None]]]] = {
             d.accelerator.kind: deque() for d in declared}
@@ -213,28 +214,31 @@ class AcceleratorProbe:
         using = self._using[kind]
         slot = min(range(len(using)), key=using.__getitem__)
         using[slot] += 1
-        self._held[key] = (kind, slot)
+        self._held[key] = (kind, slot, time.monotonic())
         index = d.devices[slot] if d.devices else slot
         device = f"{kind}:{index}"
         return Grant(kind=kind, device=device, index=index, speed=d.accelerator.speed, emulated=d.emulated,
                      slots_dir=self._slots.get(kind, ""), count=d.accelerator.count)
 
-    def release(self, key: tuple[str, int]) -> None:
+    def release(self, key: tuple[str, int]) -> float | None:
         """The program ``key`` ended or was stopped (nothing if it had no
-        grant): its slot goes to the program that waited longest."""
+        grant): its slot goes to the program that waited longest. Returns the
+        seconds it held its slot (None: it had none), what its work there
+        took (``ProgramFinished.slot_s``)."""
         held = self._held.pop(key, None)
         if held is None:
             for queue in self._waiting.values():  # stopped while it waited
                 for i, (waiting, _) in enumerate(queue):
                     if waiting == key:
                         del queue[i]
-                        return
-            return
-        kind, slot = held
+                        return None
+            return None
+        kind, slot, since = held
         self._using[kind][slot] = max(0, self._using[kind][slot] - 1)
         if self._waiting[kind]:
             nxt, run = self._waiting[kind].popleft()
             run(self.grant(nxt, kind))
+        return time.monotonic() - since
 
     def held(self) -> int:
         """Programs running on an accelerator here now."""

@@ -21,6 +21,8 @@ import logging
 import threading
 from typing import TYPE_CHECKING, Any
 
+import msgspec
+
 from ramps.core.events import (
     Action,
     Cancel,
@@ -233,8 +235,8 @@ class Inbound(DriverState):
         if kind == "finished":
             if self.metrics is not None:
                 self.metrics.on_finished(item[1])
-            self.accel.release((item[1].program_id, item[1].attempt))  # the next on its slot starts
-            return node.handle(item[1], now)
+            held = self.accel.release((item[1].program_id, item[1].attempt))  # the next on its slot starts
+            return node.handle(item[1] if held is None else msgspec.structs.replace(item[1], slot_s=held), now)
         if kind == "speed":  # the measurement's moment on the grid, its own figure, the node's
             if self._trace is not None:
                 self._write_trace("speed_measured", "", "", 0,
