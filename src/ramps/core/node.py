@@ -24,6 +24,10 @@ view of itself is updated at once: an origin always knows exactly what its
 own robot runs. This is the paper's cNAMP (origins learn each other's
 bookings) done by the host, which is the one robot that knows them all.
 
+Bursts (``bursts``): programs submitted in one batch of the driver's events
+wait for its end, ``flush`` (or the next ``tick``: ``next_deadline`` is due
+at once while any wait), and are placed together (``ramps.core.burst``).
+
 A load report under this robot's own name from another incarnation is no
 teammate's: ``ramps.core.identity`` tells whether a second node runs under
 this name, and which of the two leaves (``NameTaken``).
@@ -40,6 +44,7 @@ import msgspec
 
 from ramps.core.accelerators import Accelerator
 from ramps.core.battery import BatteryMeasured, Reserve, sane_power
+from ramps.core.burst import place_held
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate
 from ramps.core.events import (
@@ -122,6 +127,7 @@ class Node:
         program_weight: float = 1.0,
         core_fraction: float = 1.0,
         accelerators: Sequence[Accelerator] = (),
+        bursts: bool = False,
     ) -> None:
         self.robot = robot
         self.cores = cores
@@ -142,6 +148,9 @@ class Node:
         self.view = LoadView(robot, cores=cores, speed=speed, max_report_age=self.config.max_report_age,
                              program_weight=program_weight)
         self.origin = Origin(robot, self.view, self.policy, self.config, self.rng, net or NetworkEstimate())
+        #: programs submitted in one batch of events are placed together at its
+        #: end (``flush``, or the next ``tick``): ``ramps.core.burst``
+        self.origin.bursts = bursts
         #: T_comm per teammate, measured by link probes (``probe_period``)
         self.links = Links(net or NetworkEstimate())
         if self.config.probe_period > 0:
@@ -196,6 +205,8 @@ class Node:
         self._now = now
         out: list[Action] = []
         self.executor.tick(now, out)
+        if self.origin.held:  # the batch the programs came in is over
+            place_held(self.origin, now, out)
         out = self._loopback(out, now)
         if not origin:
             return self._prompt_report(out, now)
@@ -209,7 +220,19 @@ class Node:
             self._probe_due = now + self.config.probe_period
         return self._prompt_report(out, now)
 
+    def flush(self, now: float) -> list[Action]:
+        """The driver's batch of events is over: place the programs submitted
+        in it, together (``ramps.core.burst``; nothing without ``bursts``)."""
+        if not self.origin.held:
+            return []
+        self._now = now
+        out: list[Action] = []
+        place_held(self.origin, now, out)
+        return self._prompt_report(self._loopback(out, now), now)
+
     def next_deadline(self) -> float | None:
+        if self.origin.held:  # at once: the end of the batch they came in (``flush``)
+            return self.origin.held[0].submitted_at
         first = self.origin.next_deadline()  # the driver asks twice a round: no list built
         for t in (self.executor.next_deadline(), self._prompt_due, self._probe_due):
             if t is not None and (first is None or t < first):

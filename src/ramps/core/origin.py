@@ -136,6 +136,10 @@ class Origin(Learning):
         self.factor_seen: dict[str, tuple[float, float]] = {}
         #: relocation checks that withheld a move on an uncertain estimate, by reason
         self.withheld: dict[str, int] = {}
+        #: with ``bursts``, submitted programs wait in ``held`` for the driver's
+        #: end of batch (``ramps.core.burst``: placed together); else placed at once
+        self.bursts = False
+        self.held: list[AutonomousProgram] = []
         # statistics
         self.delivered = 0
         #: programs delivered after their deadline or refused as unmeetable
@@ -169,10 +173,12 @@ class Origin(Learning):
             raise ValueError(f"program {sub.program_id!r}: cpu_fallback=False needs an accelerator kind")
         if sub.policy and sub.policy not in self._policies:
             self._policies[sub.policy] = make_policy(sub.policy)  # ValueError names the known ones
-        ap = AutonomousProgram(sub, now)
-        self.programs[sub.program_id] = ap
+        ap = self.programs[sub.program_id] = AutonomousProgram(sub, now)
         self._changed(ap)
-        self.place(ap, now, out)
+        if self.bursts:
+            self.held.append(ap)
+        else:
+            self.place(ap, now, out)
 
     def restore(self, programs: list[AutonomousProgram], now: float, out: list[Action]) -> None:
         """Resume programs a previous process of this robot owned
@@ -486,7 +492,10 @@ class Origin(Learning):
         self.place(ap, now, out)
 
     def place(self, ap: AutonomousProgram, now: float, out: list[Action], *, host: str | None = None,
-              placement: Placement | None = None) -> None:
+              placement: Placement | None = None, prefer: tuple[str, float] = ("", 0.0)) -> None:
+        """Offer ``ap``'s next attempt: to ``host``, where a relocation's
+        ``placement`` says, or where its policy chooses (``prefer``: the host
+        a burst's plan chose for it and the plan's end, ``ramps.core.burst``)."""
         sub = ap.submit
         work = self.work_estimate(sub)
         resume = ap.checkpoint
@@ -502,17 +511,11 @@ class Origin(Learning):
         accel_work = self.accelerator_work_estimate(sub) * (1.0 - fraction)
         if host is None:
             policy = self.policy_for(sub)
-            exclude = (frozenset(ap.excluded) | self.view.short_of_memory(sub.memory) | self.view.low_battery
-                       | self.relink.excluded(self.view.robots(), now))
-            if sub.accelerator and not sub.cpu_fallback:
-                narrowed = self._without_accelerator(ap, exclude, now, out)
-                if narrowed is None:
-                    return
-                exclude = narrowed
+            exclude = self.exclusions(ap, now, out)
+            if exclude is None:
+                return
             placement = policy.choose(
-                PlacementRequest(program_id=ap.program_id, work=work,
-                                 payload_size=sub.payload_size + len(resume or b""), result_size=sub.result_size,
-                                 deadline=left, accelerator=sub.accelerator, accelerator_work=accel_work),
+                self.request(ap, work, accel_work, left, prefer),
                 self.view, now, self.rng, net=self.net, config=self.config, exclude=exclude,
                 links=self.links.estimate if self.links is not None else None,
             )
@@ -561,6 +564,24 @@ class Origin(Learning):
                          if self.programs[pid].state is S.OFFERED and self.programs[pid].host == host)
             transfer = queued / link.bandwidth
         self._set_timer(ap, now + self.config.connect_timeout + transfer, E.CONNECT_TIMEOUT)
+
+    def request(self, ap: AutonomousProgram, work: float, accel_work: float, left: float | None,
+                prefer: tuple[str, float] = ("", 0.0)) -> PlacementRequest:
+        """What the policy is asked to place for ``ap`` (``left``: seconds to its deadline)."""
+        sub = ap.submit
+        return PlacementRequest(program_id=ap.program_id, work=work, deadline=left, prefer=prefer[0], plan_end=prefer[1],
+                                payload_size=sub.payload_size + len(ap.checkpoint or b""), result_size=sub.result_size,
+                                accelerator=sub.accelerator, accelerator_work=accel_work)
+
+    def exclusions(self, ap: AutonomousProgram, now: float, out: list[Action]) -> frozenset[str] | None:
+        """The robots ``ap`` may not go to now; None when there is nowhere
+        it may (it then waits or failed, ``_without_accelerator``)."""
+        sub = ap.submit
+        exclude = (frozenset(ap.excluded) | self.view.short_of_memory(sub.memory) | self.view.low_battery
+                   | self.relink.excluded(self.view.robots(), now))
+        if sub.accelerator and not sub.cpu_fallback:
+            return self._without_accelerator(ap, exclude, now, out)
+        return exclude
 
     def _deadline_unmet(self, ap: AutonomousProgram, placement: Placement, left: float, now: float,
                         out: list[Action]) -> str | None:

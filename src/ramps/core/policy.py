@@ -39,7 +39,10 @@ scheduler.
   CPU.
   With ``RampsConfig.energy_weight`` above 0, hosts are chosen by time and
   energy per unit of work, weighed (``battery.rank_by_energy``), and
-  priced (time, budget) by time as before.
+  priced (time, budget) by time as before. A burst (programs an origin
+  gets at one instant) is planned as a whole (``plans``, ``pools``;
+  ``ramps.core.burst``): ``choose`` then takes the host of the plan
+  (``PlacementRequest.prefer``), with a budget of at least the plan's end.
 * ``round_robin``, ``random``, ``local_only``: baselines.
 """
 
@@ -79,6 +82,31 @@ class PlacementRequest(msgspec.Struct, frozen=True, kw_only=True):
     #: ``ramps.core.accelerators``); "" = CPUs only
     accelerator: str = ""
     accelerator_work: float = 0.0
+    #: the host a burst's plan chose (``ramps.core.burst``), and when the plan
+    #: has the burst end, seconds from now: ``ramps`` picks it while it is a
+    #: candidate, priced as any, with a budget of at least what the plan leaves
+    prefer: str = ""
+    plan_end: float = 0.0
+
+
+class Pool(msgspec.Struct, frozen=True, kw_only=True):
+    """What a program placed on ``robot`` would share there (a burst's plan,
+    ``ramps.core.burst``): its cores
+    (``kind`` "") or its slots of one kind of accelerator."""
+
+    robot: str
+    kind: str
+    cores: float
+    speed: float
+    background: float = 0.0
+    weight: float = 1.0
+    #: work left in the programs there whose work the view knows
+    known: tuple[float, ...] = ()
+    #: programs there whose work it does not know
+    unknown: int = 0
+    #: the program's work there, and T_comm to that robot
+    work: float = 0.0
+    comm: float = 0.0
 
 
 class Placement(msgspec.Struct, frozen=True, kw_only=True):
@@ -105,6 +133,10 @@ class Policy:
     #: whether an origin re-evaluates eq. (1) for its running programs and
     #: moves them (``RampsConfig.relocate``); the paper's prototype did not
     relocates: ClassVar[bool] = False
+    #: whether an origin places a burst (programs submitted at one instant)
+    #: as a whole, by ``pools`` (``ramps.core.burst``); others take a burst's
+    #: programs one by one in submission order
+    plans: ClassVar[bool] = False
 
     def choose(
         self,
@@ -120,6 +152,12 @@ class Policy:
     ) -> Placement:
         """``links(robot)`` is what a message to that robot costs, measured
         (``ramps.core.links``); None: ``net`` for every robot."""
+        raise NotImplementedError
+
+    def pools(self, req: PlacementRequest, view: LoadView, now: float, *, net: NetworkEstimate,
+              exclude: frozenset[str] = frozenset(), links: Callable[[str], NetworkEstimate] | None = None
+              ) -> list[Pool]:
+        """What ``req`` would share on each candidate (policies that plan)."""
         raise NotImplementedError
 
 
@@ -150,6 +188,32 @@ class RampsPolicy(Policy):
     negotiates = True
     shares_load = True
     relocates = True
+    plans = True
+
+    def pools(self, req: PlacementRequest, view: LoadView, now: float, *, net: NetworkEstimate,
+              exclude: frozenset[str] = frozenset(), links: Callable[[str], NetworkEstimate] | None = None
+              ) -> list[Pool]:
+        """What ``req`` would share on each candidate, as ``choose`` prices
+        it: the slots of its accelerator where the robot has that kind, else
+        the robot's cores (for a burst's plan, ``ramps.core.burst``)."""
+        t_comm = comm_time(req.payload_size, req.result_size, net)
+        slots = {row[0]: row for row in view.accelerator_rows(now, req.accelerator, exclude)} \
+            if req.accelerator else {}
+        out = []
+        for robot, cores, speed, ramps, background, weight in view.scan(now, exclude):
+            comm = 0.0 if robot == view.me else (
+                t_comm if links is None else comm_time(req.payload_size, req.result_size, links(robot)))
+            if robot in slots:
+                _, count, a_speed, on_it, known = slots[robot]
+                out.append(Pool(robot=robot, kind=req.accelerator, cores=count, speed=a_speed, known=tuple(known),
+                                unknown=max(0, round(on_it) - len(known)), work=req.accelerator_work, comm=comm))
+                continue
+            n = round(ramps)
+            left = view.remaining_work(robot, now, n, -1.0) if n else []  # -1: one the report does not list
+            listed = () if left is None else tuple(x for x in left if x >= 0.0)
+            out.append(Pool(robot=robot, kind="", cores=cores, speed=speed, background=background, weight=weight,
+                            known=listed, unknown=n - len(listed), work=req.work, comm=comm))
+        return out
 
     def choose(self, req: PlacementRequest, view: LoadView, now: float, rng: random.Random, *, net: NetworkEstimate,
                config: RampsConfig, exclude: frozenset[str] = frozenset(),
@@ -198,6 +262,7 @@ class RampsPolicy(Policy):
             row[0] = min(row[0], t)
         times = rank_by_energy(view, rows, config.energy_weight)  # energy against time (ramps.core.battery)
         t_best = min(row[0] for row in rows)
+        planned = next((row for row in rows if row[2] == req.prefer), None) if req.prefer else None
         # costs within the tolerance are equal (eq. 1 cannot tell them apart);
         # then the least utilised robot wins, then the one whose load is more
         # ramps programs (they end; busy software does not), then this robot,
@@ -217,19 +282,18 @@ class RampsPolicy(Policy):
         tied = [row for row in tied if row[1] <= u_best + 1e-9]
         b_best = min(row[4] for row in tied)
         tied = [row for row in tied if row[4] <= b_best + 1e-9]
-        pick = next((row for row in tied if row[2] == me), None)
+        pick = planned or next((row for row in tied if row[2] == me), None)
         if pick is None:
             pick = tied[0] if len(tied) == 1 else rng.choice(tied)
         unrank(rows, times)
         alternative = min((row[0] for row in rows if row[2] != pick[2]), default=None)
-        budget = None
-        if alternative is not None and math.isfinite(alternative):
-            budget = alternative - pick[9]
+        budget = alternative - pick[9] if alternative is not None and math.isfinite(alternative) else None
         if req.deadline is not None and pick[0] <= req.deadline:
             budget = max(budget or 0.0, req.deadline - pick[9])  # what the deadline leaves
-        late = req.deadline is not None and pick[0] > req.deadline
+        if pick is planned:
+            budget = max(budget or 0.0, req.plan_end - pick[9])  # the plan's end: the burst ends no later there
         return Placement(host=pick[2], expected_runnable=pick[3], expected_time=pick[0], time_budget=budget,
-                         late=late)
+                         late=req.deadline is not None and pick[0] > req.deadline)
 
 
 class RoundRobinPolicy(Policy):

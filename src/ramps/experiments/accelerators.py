@@ -65,6 +65,9 @@ class BlindPolicy(RampsPolicy):
     def choose(self, req: Any, *args: Any, **kw: Any) -> Any:
         return super().choose(msgspec.structs.replace(req, accelerator="", accelerator_work=0.0), *args, **kw)
 
+    def pools(self, req: Any, *args: Any, **kw: Any) -> Any:
+        return super().pools(msgspec.structs.replace(req, accelerator="", accelerator_work=0.0), *args, **kw)
+
 
 class _BlindSimulator(Simulator):
     """The simulator with ``BlindPolicy`` in every node (one instance each)."""

@@ -245,7 +245,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         return_freed_memory()
         self.accel = AcceleratorProbe(self.robot, resolve_accelerators(s.accelerators), team=self.team)
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=core_config(s),
-                         rng=random.Random(self.incarnation), incarnation=self.incarnation,
+                         rng=random.Random(self.incarnation), incarnation=self.incarnation, bursts=True,
                          registry=self.registry.names(), program_weight=nice_weight(s.worker_nice),
                          core_fraction=core_fraction(quota, self.cores), accelerators=self.accel.accelerators)
         if s.state_dir not in ("", "off"):  # a foreign record: ConfigError, before anything starts

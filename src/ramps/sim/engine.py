@@ -63,15 +63,12 @@ class _Robot:
 
     def __init__(self, spec: RobotSpec) -> None:
         self.spec = spec
-        self.alive = False
-        self.net_up = True
-        self.frozen = False
+        self.alive, self.net_up, self.frozen = False, True, False
         self.incarnation = 0
         #: bumped whenever the robot's links break, to drop messages in flight
         self.epoch = 0
         self.wake_at = math.inf
-        self.wake_token = 0
-        self.done_token = 0
+        self.wake_token = self.done_token = 0
         self.pub_phase = 0.0
         #: when its node measures its speed again (``ramps.core.speed``)
         self.remeasure_at = 0.0
@@ -107,17 +104,13 @@ class Simulator:
         #: programs that checkpoint: seconds between checkpoints, bytes of each
         self._checkpoint: dict[str, tuple[float, int]] = {}
         self.subscribers = sorted({p.origin for p in self.sc.programs})
-        self._pending = 0
-        self.events = 0
-        self.sent = 0
-        self.dropped = 0
+        self._pending = self.events = self.sent = self.dropped = 0
         self._trace_on = trace
         self.trace: list[TraceEntry] = []
         self._snap_times = sorted(snapshots or [])
         self.snapshots: dict[str, dict[str, int]] = {}
-        self._first_submit = math.inf
         self.batteries = Batteries(self.sc.team())
-        self._last_delivery = 0.0
+        self._first_submit, self._last_delivery = math.inf, 0.0
 
     # ================================================================ event heap
     def _at(self, t: float, fn: Callable[..., None], arg: Any = None) -> None:
@@ -144,13 +137,16 @@ class Simulator:
         for r in self.robots.values():
             self._boot(r, 0.0)
         w = self.sc.warmup
+        bursts: dict[tuple[float, str], list[ProgramSpec]] = {}  # an origin's programs of one instant: one batch
         for entry in self.sc.programs:
             t = w + entry.at
             for i in range(entry.count):
                 jitter = self.rng.uniform(-entry.jitter, entry.jitter) if entry.jitter else 0.0
                 when = max(w, t + i * entry.spacing + jitter)
                 self._pending += 1
-                self._at(when, self._submit, entry)
+                bursts.setdefault((when, entry.origin), []).append(entry)
+        for (when, _), entries in bursts.items():
+            self._at(when, self._submit, entries)
         for f in self.sc.faults:
             self._at(w + f.at, self._fault, f)
         for t in self._snap_times:
@@ -169,7 +165,7 @@ class Simulator:
             spec.name, cores=spec.cores, speed=spec.measured_speed or spec.speed, policy=self.policy, config=self.sc.config,
             rng=random.Random(self.rng.getrandbits(64)), incarnation=r.incarnation,
             net=NetworkEstimate(latency=self.net.latency, bandwidth=self.net.bandwidth), program_weight=weight,
-            accelerators=accels,
+            accelerators=accels, bursts=True,
         )
         r.node.executor.background = float(spec.background)
         r.wake_at = math.inf
@@ -330,8 +326,14 @@ class Simulator:
         self._handle(dst, Received(sender=src.spec.name, msg=msg))
 
     # ================================================================ workload
-    def _submit(self, entry: ProgramSpec) -> None:
-        origin = self.robots[entry.origin]
+    def _submit(self, entries: list[ProgramSpec]) -> None:
+        """An origin's programs submitted at one instant: one batch of its node's (``Node.flush``)."""
+        r = self.robots[entries[0].origin]
+        actions = [a for entry in entries for a in self._submit_one(r, entry)]
+        if r.alive:
+            self._apply(r, actions + r.node.flush(self.now))
+
+    def _submit_one(self, origin: _Robot, entry: ProgramSpec) -> list[Action]:
         pid = f"{entry.origin}#{len(self.records) + 1}"
         due = None if entry.deadline is None else self.now + entry.deadline
         self.records[pid] = ProgramRecord(program_id=pid, origin=entry.origin, submitted_at=self.now, deadline=due)
@@ -339,20 +341,20 @@ class Simulator:
         if not origin.alive:
             self._pending -= 1  # an origin that is down submits nothing
             self.records[pid].error = "origin down at submit time"
-            return
+            return []
         self._true_work[pid] = entry.work
         self._true_accel[pid] = entry.accelerator_work or entry.work
         self._result_size[pid] = entry.result
         if entry.checkpoint_every > 0:
             self._checkpoint[pid] = (entry.checkpoint_every, entry.checkpoint_size)
-        self._handle(origin, Submit(
+        return origin.node.handle(Submit(
             program_id=pid, program=entry.program, payload_size=entry.payload,
             work=entry.work_estimate if entry.work_estimate is not None else entry.work,
             result_size=entry.result, memory=entry.memory,
             deadline=due if self.deadlines else None, on_miss=entry.on_miss, accelerator=entry.accelerator,
             accelerator_work=entry.accelerator_estimate or entry.accelerator_work or 0.0,
             cpu_fallback=entry.cpu_fallback,
-        ))
+        ), self.now)
 
     def _delivered(self, r: _Robot, d: Deliver) -> None:
         rec = self.records[d.program_id]
