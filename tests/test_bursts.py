@@ -184,3 +184,37 @@ def test_a_burst_on_an_accelerator_team_uses_the_slot_for_what_gains_most_from_i
     starts = {a.program_id: (robot, a.accelerator) for _, robot, a in team.log if isinstance(a, StartProgram)}
     assert starts["long"] == ("g", "cuda")
     assert sorted(starts.values()).count(("g", "cuda")) == 2 and sorted(starts.values()).count(("o", "")) == 3
+
+
+def test_a_real_node_driver_places_a_round_of_submissions_together_and_delivers_each_once() -> None:
+    from ramps.core.messages import ProgramOutcome, SubmitProgram, decode, encode
+    from ramps.runtime import keys
+    from ramps.testing.memory import MemoryTeam
+
+    team = MemoryTeam({"r1": (1, 1.0), "r2": (4, 4.0), "r3": (4, 4.0)})
+    try:
+        team.run(3.0)  # everyone has heard everyone's reports
+        outcomes: dict[int, list[ProgramOutcome]] = {}
+        app = team.bus.transport("app")
+
+        def heard(data: bytes) -> None:
+            msg = decode(data).msg
+            if isinstance(msg, ProgramOutcome):
+                outcomes.setdefault(msg.request_id, []).append(msg)
+
+        app.subscribe(keys.client(team.team, "app"), heard)
+        works = [2.0, 2.0, 40.0, 2.0, 40.0, 2.0]
+        for rid, work in enumerate(works, 1):  # all queued before the driver's next round
+            app.put(keys.inbox(team.team, "r1"), encode("app", SubmitProgram(
+                client="app", request_id=rid, program="echo", args=msgspec.msgpack.encode({"x": rid}), work=work)),
+                block=True)
+        team.run(60.0, until=lambda: len(outcomes) == len(works))
+        team.run(5.0)
+        assert sorted(outcomes) == list(range(1, len(works) + 1))
+        assert all(len(v) == 1 and v[0].ok and v[0].attempts == 1 for v in outcomes.values())
+        assert sum(len(p.ran) for p in team.pools.values()) == len(works)  # nothing ran twice
+        origin = team.nodes["r1"].node.origin
+        assert not origin.held and origin.placements == len(works)
+        assert {outcomes[3][0].host, outcomes[5][0].host} <= {"r2", "r3"}  # the long ones on the fast robots
+    finally:
+        team.close()
