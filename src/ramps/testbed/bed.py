@@ -402,6 +402,8 @@ class Testbed(Robots, Faults):
                 self._popen.clear()
                 if self.log_dir:
                     shutil.rmtree(self.log_dir, ignore_errors=True)
+                for slots in Path(tempfile.gettempdir()).glob(f"ramps-accel-{self.team}-*"):  # emulated accelerators'
+                    shutil.rmtree(slots, ignore_errors=True)
                 if self.tb:
                     shutil.rmtree(self.records_dir, ignore_errors=True)
                     self.state_file.unlink(missing_ok=True)
