@@ -51,6 +51,12 @@ def test_a_program_moves_off_a_robot_that_became_busy_and_resumes_there_from_its
                  30, f"one burn running on each robot ({[(f.host, f.progress) for f in burns]}; {t.logs()})")
         here = next(f for f in burns if f.host == "r1")
         t.add_load("r1", 4)
+        # once moved, the burn no longer needs r1 busy: its load stops, so that the two burns
+        # on r2 get the host's cores, not a third of them beside r1's busy processes
+        wait_for(lambda: here.host == "r2" or here.done(), 120, f"the burn moving off r1 ({t.logs()})")
+        for p in t.loads.pop("r1"):
+            p.kill()
+            p.wait()
         out = here.result(timeout=120)
         assert here.moves == 1 and here.host == "r2", (here.moves, here.host, t.logs())
         assert here.resumed_from is not None and here.resumed_from > 0.0 and out["resumed_at"] > 0
