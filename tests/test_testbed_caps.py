@@ -75,9 +75,10 @@ def test_a_lone_program_runs_at_one_emulated_core_and_busy_processes_share():
         # both idle workers are in caps of their own; the node is not
         assert wait_until(lambda: len(children(tb)) == 2, 10), children(tb)
         assert all(node not in c["procs"] for c in children(tb).values())
-        # 2 units: 10 s alone at one emulated core (1 unit ~ 1 CPU second, ramps.programs.burn);
-        # until it is capped alone again below it runs about 4 s at that core, the rest at a sliver
-        fut = team.options(work=2.0).submit("burn", units=2.0)
+        # 1.4 units: 7 s alone at one emulated core (1 unit ~ 1 CPU second, ramps.programs.burn;
+        # on a slower host more); until it is capped alone again below it runs about 4 s at that
+        # core, the rest at a sliver, so it still runs then
+        fut = team.options(work=1.4).submit("burn", units=1.4)
         assert wait_until(lambda: any(c["quota"] == int(core * CFS_PERIOD_US) and c["usage"] > 2e8
                                       for c in children(tb).values()), 20), children(tb)
         rate = robot_rate(tb, 2.0)
@@ -115,7 +116,7 @@ def test_a_lone_program_runs_at_one_emulated_core_and_busy_processes_share():
         tb.remove_load("r1")  # alone again: capped again, at one emulated core
         assert wait_until(lambda: any(c["quota"] == int(core * CFS_PERIOD_US) and c["usage"] > 2e8
                                       for c in children(tb).values()), 20), children(tb)
-        assert fut.result(timeout=120)["iterations"] == 32_000_000
+        assert fut.result(timeout=120)["iterations"] == 22_400_000
         # a frozen robot: every process in its caps stops too
         tb.freeze("r1")
         states = []

@@ -32,7 +32,9 @@ def test_a_5_mb_offer_over_a_1_mb_s_link_is_accepted_at_the_first_attempt():
         slow_link(tb, "r2", 1e6)
         tb.add_load("r1", 8)  # r1 is busy: its program is worth sending to r2, slow link and all
         assert wait_until(lambda: any(r.robot == "r1" and r.runnable >= 6 for r in team.status().robots), 30)
-        fut = team.options(work=0.3).submit("crunch", data=b"\x5a" * 5_000_000, units=0.3)
+        # declared 0.3 units (what placement weighs against the transfer), it burns 0.05 (how
+        # long it then runs on r2 is not what this test checks)
+        fut = team.options(work=0.3).submit("crunch", data=b"\x5a" * 5_000_000, units=0.05)
         assert fut.result(timeout=120) == {"bytes": 5_000_000}
         assert tb.log_dir is not None
         trace = [json.loads(line) for line in (tb.log_dir / "r1.trace.jsonl").read_text().splitlines()]
