@@ -18,10 +18,20 @@ DEMO_STAMP := $(VENV)/.installed-demo
 
 .PHONY: demo test check lint types bench clean
 
+# The full install takes its wheels from WHEELS, a folder kept between fresh clones (the
+# index pages come through a proxy that sends no cache headers, so pip's own cache keeps
+# none of them): offline when WHEELS has them all, else they are downloaded into it first.
+# --no-compile: each module is compiled when first imported, not all 700 MB up front.
+WHEELS ?= $(HOME)/.cache/ramps/wheels
+ALL    := .[demo,test,check,ros]
+OFFLINE := $(BIN)/python -m pip install -q --no-compile --no-index --find-links $(WHEELS)
+
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e '.[demo,test,check,ros]'
+	@$(OFFLINE) --upgrade pip 2>/dev/null || $(BIN)/python -m pip install -q --upgrade pip
+	@$(OFFLINE) -e '$(ALL)' 2>/dev/null || { echo "downloading the wheels into $(WHEELS)"; \
+	  $(BIN)/python -m pip download -q -d $(WHEELS) '$(ALL)' pip hatchling editables setuptools wheel && \
+	  $(OFFLINE) -e '$(ALL)'; }
 	-$(BIN)/ramps ros --build-interfaces  # the RunProgram action type: needs cmake and a C/C++ compiler; without them its test skips
 	@touch $(STAMP) $(DEMO_STAMP)
 
