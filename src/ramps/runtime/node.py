@@ -70,7 +70,7 @@ from ramps.runtime.speed_probe import SpeedSamples, core_fraction, measure_speed
 from ramps.runtime.store import OriginStore
 from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
 from ramps.runtime.workers import WorkerPool
-from ramps.runtime.node_clients import OUTCOME_HOLD, OUTCOME_RETRY, ClientAnswers
+from ramps.runtime.node_clients import OUTCOME_HOLD, ClientAnswers
 from ramps.runtime.node_inbound import DROP_LOG_PERIOD, LONELY_AFTER, STALL_GRACE, Inbound
 from ramps.runtime.node_outbound import Outbound
 from ramps.runtime.node_state import Key, SamplerLike, WorkerPoolLike
@@ -550,9 +550,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         next_pub = self._next_pub
         wake = next_pub if deadline is None else min(deadline, next_pub)
         wake = min(wake, self._next_release()) if self._held_lost else wake
-        wake = min(wake, now + OUTCOME_RETRY) if self._held_outcomes else wake
-        wake = min(wake, next(iter(self._held_updates.values()))[0]) if self._held_updates else wake
-        wait = max(0.0, wake - now)
+        wait = max(0.0, min(wake, self._held_due(now)) - now)
         self._sleep_until = self.clock.monotonic() + wait
         try:
             item = q.get(timeout=wait) if block else q.get_nowait()
@@ -607,18 +605,13 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         if deadline is not None and deadline <= now:
             actions.extend(node.tick(now, origin=not behind))
         self._apply(actions)
-        if self._held_outcomes:
-            self._flush_outcomes()
-        if self._held_updates:
-            self._flush_updates(now)
+        self._flush_held(now)
         if not block:  # the next round is due at the earliest of its timers
             wake = self._next_pub
             deadline = node.next_deadline()
             wake = wake if deadline is None else min(wake, deadline)
             wake = min(wake, self._next_release()) if self._held_lost else wake
-            wake = min(wake, now + OUTCOME_RETRY) if self._held_outcomes else wake
-            wake = min(wake, next(iter(self._held_updates.values()))[0]) if self._held_updates else wake
-            self._sleep_until = self.clock.monotonic() + max(0.0, wake - now)
+            self._sleep_until = self.clock.monotonic() + max(0.0, min(wake, self._held_due(now)) - now)
         return True
 
 def run_node(settings: NodeSettings, *, install_signals: bool = True) -> NodeRuntime:

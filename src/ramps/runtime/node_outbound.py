@@ -63,6 +63,7 @@ from ramps.runtime.accelerators import Grant
 from ramps.runtime import keys
 from ramps.runtime.battery import BatteryReader
 from ramps.runtime.speed_probe import core_fraction, measure_speed
+from ramps.runtime.node_clients import OUTCOME_RETRY
 from ramps.runtime.transport import Publisher
 from ramps.runtime.node_state import DriverState
 
@@ -73,6 +74,10 @@ REMEASURE_LEAD = 1.5
 _CLIENT_STATES = {"placed": "placed", "accepted": "running", "failed": "host_failed"}
 
 
+#: seconds a report of the instant waits for the changes that follow it, the newest going
+#: then: a host's acceptance and the end of a short program go as one report, after its
+#: result, and the teammates it wakes do not take the CPU from the program meanwhile
+PROMPT_HOLD = 0.005
 #: weight of the latest report period in the node's averaged own CPU (about 10 reports)
 NODE_CPU_ALPHA = 0.1
 
@@ -90,6 +95,10 @@ def _started(other: float | None, mine: float | None, order: str) -> str:
 
 class Outbound(DriverState):
     """The driver's outputs (mixed into ``NodeRuntime``)."""
+
+    #: the newest report of the instant not published yet, and the core's time it is due (``PROMPT_HOLD``)
+    _prompt_held: LoadReport | None = None
+    _prompt_due = 0.0
 
     #: reads this robot's battery before each periodic report (made at the first)
     _battery: BatteryReader | None = None
@@ -146,8 +155,28 @@ class Outbound(DriverState):
                     self._warn_misdeclared(a)
                 if self.on_note is not None:
                     self.on_note(a)
-        if prompt is not None:
-            self._publish_prompt(prompt)
+        if prompt is not None:  # held a moment: the changes that follow it go with it
+            if self._prompt_held is None:
+                self._prompt_due = self.clock.monotonic() - self._stall_offset + PROMPT_HOLD
+            self._prompt_held = prompt
+
+    def _held_due(self, now: float) -> float:
+        """The core's time at which something held is due: an outcome to look
+        at again, a client's update, a report of the instant (inf: none)."""
+        due = now + OUTCOME_RETRY if self._held_outcomes else float("inf")
+        if self._held_updates:
+            due = min(due, next(iter(self._held_updates.values()))[0])
+        return min(due, self._prompt_due) if self._prompt_held is not None else due
+
+    def _flush_held(self, now: float) -> None:
+        """Send what is held and due by the core's time ``now``."""
+        if self._held_outcomes:
+            self._flush_outcomes()
+        if self._held_updates:
+            self._flush_updates(now)
+        if self._prompt_held is not None and now >= self._prompt_due:
+            report, self._prompt_held = self._prompt_held, None
+            self._publish_prompt(report)
 
     def _runner(self, a: StartProgram) -> Callable[[Grant | None], None]:
         """How to start ``a`` in a worker once its accelerator slot is granted."""
@@ -331,6 +360,7 @@ class Outbound(DriverState):
         report = msgspec.structs.replace(report, bad_messages=self.bad_messages + self.overflow,  # `ramps status`
                                          sees=len(sees), running=self._running_list(), **self._learned())
         self._last_report = report
+        self._prompt_held = None  # this report says all a held one would
         if self.metrics is not None:
             st = node.statistics()
             self.metrics.on_report(cpu_busy=busy, runnable=runnable, load_avg=load1, mem_free=mem_free,

@@ -173,6 +173,12 @@ class DriverState:
 
         def _flush_updates(self, now: float) -> None: ...
 
+        def _flush_outcomes(self) -> None: ...
+
+        def _held_due(self, now: float) -> float: ...  # Outbound
+
+        def _flush_held(self, now: float) -> None: ...
+
         def _write_trace(self, what: str, program_id: str, other: str, attempt: int, detail: str, *,
                          at: float | None = None) -> None: ...  # Outbound
 
