@@ -305,7 +305,7 @@ def test_the_record_keeps_the_newest_outcomes_up_to_its_bound(tmp_path, monkeypa
 def test_the_record_syncs_as_configured_and_refuses_other_words(tmp_path):
     from ramps.errors import ConfigError
     from ramps.runtime.settings import load_settings
-    from ramps.runtime.store import OriginStore, frame
+    from ramps.runtime.store import OriginStore
 
     # normal: each save is one write, to the operating system; full: each save is fsynced too
     for sync, fsyncs in (("normal", 0), ("full", 3)):
