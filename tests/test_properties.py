@@ -98,14 +98,23 @@ def scenarios(draw, *, faults: bool) -> Scenario:
                 at=_tenths(0, 600),
                 robot=st.sampled_from(others),
                 kind=st.sampled_from(FAULT_KINDS),
-            ).flatmap(lambda f: st.builds(msgspec.structs.replace, st.just(f), background=st.integers(0, 8))
-                      if f.kind == "load" else st.just(f)), max_size=6))
+            ).flatmap(_fault_details), max_size=6))
         loss = draw(st.sampled_from([0.0, 0.0, 0.01, 0.05, 0.1, 0.2]))
     return Scenario(
         name="hypothesis", robots=robots, programs=programs, faults=fault_list,
         network=NetworkSpec(loss=loss), policy=draw(st.sampled_from(POLICIES)),
         seed=draw(st.integers(0, 2**32 - 1)), until=UNTIL,
     )
+
+
+def _fault_details(f: FaultSpec) -> st.SearchStrategy[FaultSpec]:
+    """What a fault of its kind must say: a load change its busy processes, a
+    battery change the charge it drops (or rises) to."""
+    if f.kind == "load":
+        return st.builds(msgspec.structs.replace, st.just(f), background=st.integers(0, 8))
+    if f.kind == "battery":
+        return st.builds(msgspec.structs.replace, st.just(f), charge=st.sampled_from([0.0, 0.1, 0.5, 1.0]))
+    return st.just(f)
 
 
 def total_programs(sc: Scenario) -> int:
