@@ -28,6 +28,7 @@ def test_a_robot_that_stops_is_shown_as_left_and_one_killed_as_gone():
         model.update(client.status(), team.clock.t)
         futs = [client.options(work=20.0).submit("echo", x=i) for i in range(4)]
         team.run(2.0, complete=False, until=lambda: bool(team.pools["r2"].jobs and team.pools["r3"].jobs))
+        team.run(1.1, complete=False)  # a client hears each robot's periodic report, the one that lists its programs
         model.update(client.status(), team.clock.t)
         team.stop("r2")  # as on SIGINT/SIGTERM: it hands its programs back
         team.run(0.5, complete=False)
