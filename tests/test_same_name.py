@@ -242,7 +242,7 @@ def test_a_second_node_of_a_robot_on_one_machine_is_refused_before_it_touches_th
             OriginStore(tmp_path, team="lab", robot="r2")
         assert str(refused.value) == (
             f"a node of robot 'r2' of team 'lab' already runs on this machine (pid {first.pid}) and holds its record "
-            f"{tmp_path / 'lab' / 'r2.journal'}: give this node its own robot name (--robot NAME or "
+            f"{tmp_path / 'lab' / 'r2.sqlite'}: give this node its own robot name (--robot NAME or "
             f"RAMPS_ROBOT=NAME), or stop the other one first")
         OriginStore(tmp_path, team="lab", robot="r3").close()  # another robot's record is its own
         monkeypatch.setattr(signal, "signal", lambda *a: None)  # the node's handlers stay out of pytest

@@ -444,7 +444,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             keep = self.store.programs()
             self.store.close()
             if not keep:  # nothing to resume: leave no file behind (nor the team's folder, if it was the last)
-                for suffix in ("", ".new", ".lock"):
+                for suffix in ("", "-wal", "-shm", ".lock"):
                     Path(str(self.store.path) + suffix).unlink(missing_ok=True)
                 try:
                     self.store.path.parent.rmdir()
