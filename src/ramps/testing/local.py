@@ -227,6 +227,8 @@ class LocalTeam:
             env["RAMPS_ROBOT"] = robot
         # each robot's durable record in the team's own directory, not the user's
         env.setdefault("RAMPS_STATE_DIR", str(self.log_dir / "state"))
+        # robots on one machine would all read its battery (a variable: a 0.1.0 node has no such flag)
+        env.setdefault("RAMPS_BATTERY_SYSFS", "false")
         env.update(extra or {})
         return env
 
@@ -251,8 +253,7 @@ class LocalTeam:
     def node_argv(self, name: str, port: int, cores: int | None, policy: str | None) -> list[str]:
         """The command line of robot ``name``'s node."""
         argv = [sys.executable, "-m", "ramps.cli", "node", "--robot", name, "--team", self.team,
-                "--listen", f"{self.scheme}/127.0.0.1:{port}", "--no-multicast",
-                "--no-battery-sysfs"]  # robots on one machine would all read its battery
+                "--listen", f"{self.scheme}/127.0.0.1:{port}", "--no-multicast"]
         for flag, value in (("--speed", self.speed), ("--lease-ms", self.lease_ms), ("--cores", cores),
                             ("--policy", policy or self.policy)):
             if value is not None:
