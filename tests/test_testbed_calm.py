@@ -7,7 +7,7 @@ before issue 23 they moved. Its ``--trace`` must show: no write-off of a host th
 never faulted (none is here), no program moved twice, and no program without
 checkpoints moved after more than half its work (its time on the old host,
 at one emulated core, is at most half of what it takes alone). Every result
-arrives once and right. Needs root (skipped otherwise); about 25 s."""
+arrives once and right. Needs root (skipped otherwise); 25-50 s."""
 
 from __future__ import annotations
 
