@@ -57,6 +57,9 @@ OUTCOME_RETRY = 0.05
 #: that runs longer is told within this (a client resends a submission that
 #: nothing acknowledged only after ``ramps.runtime.client.SUBMIT_RESEND``)
 UPDATE_HOLD = 0.1
+#: states a client hears at once, never folded into a later one: its program's
+#: host failed and it is placed again (a ROS goal's feedback shows the failover)
+TOLD_AT_ONCE = frozenset({"host_failed", "replaced"})
 
 
 class ClientAnswers(DriverState):
@@ -260,7 +263,11 @@ class ClientAnswers(DriverState):
     def _update_client(self, pid: str, state: str, host: str, attempt: int) -> None:
         """Tell the program's client where it stands, ``UPDATE_HOLD`` seconds
         from the first change not yet told: the newest state then, and none
-        if its outcome went first (advisory; see ProgramUpdate)."""
+        if its outcome went first (advisory; see ProgramUpdate); a failover
+        (``TOLD_AT_ONCE``) at once."""
+        if state in TOLD_AT_ONCE:  # a failover is news the client must see, whatever follows it
+            self._send_update(pid, state, host, attempt)
+            return
         held = self._held_updates.get(pid)
         if held is not None:
             held[1:] = [state, host, attempt]
