@@ -44,12 +44,20 @@ def test_an_emulated_slot_is_shared_by_the_programs_on_it(tmp_path) -> None:
     assert together >= 2.5 * min(alone, 0.1) and max(walls) >= 2.0 * 0.1
 
 
-def test_accelerator_programs_go_to_the_robot_that_offers_one(tmp_path) -> None:
-    with LocalTeam(["r1", "r2"], tmp_path, cores=2) as t:
-        t.start_node("g", cores=2, extra_args=["--accelerator", "cuda:1:20:emulated"])
+def test_programs_that_need_or_can_use_an_accelerator_go_to_the_robot_that_offers_one(tmp_path) -> None:
+    """One team for both (each LocalTeam costs seconds of the suite): a program
+    that needs an accelerator fails clearly while no robot offers one; once
+    g offers an emulated one, it runs there, and so do programs that can use
+    one, kept out of g's CPU count."""
+    with LocalTeam(["r1", "r2"], tmp_path, cores=2, programs=("where", "needs_cuda")) as t:
         team = t.client("r1")
+        with pytest.raises(ProgramRefused, match="advertises"):
+            team.submit("needs_cuda", x=1).result(30)
+        t.start_node("g", cores=2, extra_args=["--accelerator", "cuda:1:20:emulated"])
         wait_for(lambda: any(r.robot == "g" and r.accelerators for r in team.status().robots), 20,
                  "g's reports advertise its accelerator")
+        got = team.submit("needs_cuda", x=2).result(30)
+        assert got == {"robot": "g", "device": "cuda:0", "x": 2}
         # 8 programs of 2 CPU units or 0.1 units on the accelerator (5 ms there): every one is sooner on it
         futures = [team.submit("burn_accel", units=2.0, accel_units=0.1) for _ in range(8)]
         results = [f.result(120) for f in futures]
@@ -57,18 +65,6 @@ def test_accelerator_programs_go_to_the_robot_that_offers_one(tmp_path) -> None:
         assert all(f.host == "g" for f in futures)
         # while they ran, g's reports counted them on its accelerator, not among its CPU programs
         assert all(r.ramps_running == 0 for r in team.status().robots)
-
-
-def test_a_program_that_needs_an_accelerator_fails_clearly_without_one(tmp_path) -> None:
-    with LocalTeam(["r1", "r2"], tmp_path, cores=1, programs=("where", "needs_cuda")) as t:
-        team = t.client("r1")
-        with pytest.raises(ProgramRefused, match="advertises"):
-            team.submit("needs_cuda", x=1).result(30)
-        t.start_node("g", cores=1, extra_args=["--accelerator", "cuda:1:20:emulated"])
-        wait_for(lambda: any(r.robot == "g" and r.accelerators for r in team.status().robots), 20,
-                 "g's reports advertise its accelerator")
-        got = team.submit("needs_cuda", x=2).result(30)
-        assert got == {"robot": "g", "device": "cuda:0", "x": 2}
 
 
 def test_a_kinds_slots_are_exclusive_and_the_rest_wait_in_order() -> None:
