@@ -22,6 +22,7 @@ from __future__ import annotations
 import fcntl
 import os
 import random
+import shutil
 import tempfile
 import time
 from collections import deque
@@ -135,8 +136,7 @@ def resolve(entries: list[str]) -> list[Declared]:
     out: list[Declared] = []
     for text in entries:
         if text == "auto":
-            if found and not any(d.accelerator.kind == "cuda" for d in out) and \
-                    not any(e.split(":")[0] == "cuda" for e in entries if e != "auto"):
+            if found and not any(e.split(":")[0] == "cuda" for e in entries if e != "auto"):
                 out.append(Declared(Accelerator(kind="cuda", count=len(found)), devices=tuple(found)))
             continue
         acc, emulated = _parse(text)
@@ -156,6 +156,19 @@ def nvidia_devices() -> list[int]:
         return list(range(pynvml.nvmlDeviceGetCount()))
     except Exception:  # no driver, no device: nothing to advertise
         return []
+
+
+def slot_folder(team: str, robot: str, kind: str) -> Path:
+    """Where an emulated accelerator's slot locks live: one folder per team,
+    robot and kind, so a node restarted after a crash uses its own again."""
+    return Path(tempfile.gettempdir()) / f"ramps-accel-{team}-{robot}-{kind}"
+
+
+def remove_slot_folders(team: str) -> None:
+    """Remove every emulated accelerator's slot folder of ``team`` (a harness
+    whose nodes were killed before they could)."""
+    for path in Path(tempfile.gettempdir()).glob(f"ramps-accel-{team}-*"):
+        shutil.rmtree(path, ignore_errors=True)
 
 
 class AcceleratorProbe:
@@ -181,8 +194,7 @@ class AcceleratorProbe:
         self._slots: dict[str, str] = {}
         for d in declared:
             if d.emulated:
-                # one folder per team, robot and kind: a node restarted after a crash uses its own again
-                path = Path(tempfile.gettempdir()) / f"ramps-accel-{team}-{robot}-{d.accelerator.kind}"
+                path = slot_folder(team, robot, d.accelerator.kind)
                 path.mkdir(exist_ok=True)
                 self._slots[d.accelerator.kind] = str(path)
 

@@ -65,6 +65,7 @@ from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 from ramps.errors import NoTeam
+from ramps.runtime.accelerators import remove_slot_folders
 from ramps.runtime.localteam import RobotCgroup, cgroup_mode, partial_views
 from ramps.testbed import net
 from ramps.testbed.faults import Faults
@@ -402,8 +403,7 @@ class Testbed(Robots, Faults):
                 self._popen.clear()
                 if self.log_dir:
                     shutil.rmtree(self.log_dir, ignore_errors=True)
-                for slots in Path(tempfile.gettempdir()).glob(f"ramps-accel-{self.team}-*"):  # emulated accelerators'
-                    shutil.rmtree(slots, ignore_errors=True)
+                remove_slot_folders(self.team)  # emulated accelerators' (their nodes were killed)
                 if self.tb:
                     shutil.rmtree(self.records_dir, ignore_errors=True)
                     self.state_file.unlink(missing_ok=True)

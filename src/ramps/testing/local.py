@@ -22,6 +22,7 @@ from typing import Any
 
 import psutil
 
+from ramps.runtime.accelerators import remove_slot_folders
 from ramps.runtime.localteam import RobotCgroup, cgroup_mode, free_port, partial_views
 
 __all__ = ["LocalTeam", "NodeProc", "describe", "tagged_processes"]
@@ -205,8 +206,7 @@ class LocalTeam:
         for cg in self.cgroups.values():
             cg.remove()
         self.cgroups.clear()
-        for slots in Path(tempfile.gettempdir()).glob(f"ramps-accel-{self.team}-*"):  # emulated accelerators'
-            shutil.rmtree(slots, ignore_errors=True)
+        remove_slot_folders(self.team)  # emulated accelerators' (their nodes may have been killed)
         if left:
             self._own_logs = False
             raise AssertionError(f"processes of team {self.team} survived: {describe(left)}")
