@@ -187,7 +187,7 @@ class Team:
         listen = [] if settings.connect else settings.listen
         try:
             self.transport: Transport = transport or ZenohTransport.open(
-                settings, credentials=creds, fail_fast=exit_on_failure, listen=listen)
+                settings, credentials=creds, fail_fast=exit_on_failure, listen=listen, scout_first=False)
         except TransportError as exc:
             raise TransportError(f"cannot open a Zenoh session for team {self.team!r}: {exc}") from exc
         _track(self)

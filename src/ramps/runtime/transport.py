@@ -128,17 +128,20 @@ class ZenohTransport:
 
     @classmethod
     def open(cls, settings: "NodeSettings", *, credentials: Any = None, fail_fast: bool = False,
-             listen: list[str] | None = None) -> "ZenohTransport":
+             listen: list[str] | None = None, scout_first: bool = True) -> "ZenohTransport":
         """A session for ``settings`` as ``ramps node`` and ``ramps.connect``
         open it: TLS with this robot's ``credentials`` on a secured team
-        (``security.open_session``), else plain. Raises TransportError."""
+        (``security.open_session``), else plain. ``scout_first``: see
+        ``zenoh_config`` (False for an application). Raises TransportError."""
         import zenoh
 
         from ramps.runtime.security import open_session
         from ramps.runtime.zenoh_configs import zenoh_config
 
         zenoh.try_init_log_from_env()  # RUST_LOG=zenoh=debug shows Zenoh's own view (links, leases)
-        extra: dict[str, Any] = {} if listen is None else {"listen": listen}
+        extra: dict[str, Any] = {"scout_first": scout_first}
+        if listen is not None:
+            extra["listen"] = listen
         before = _listening()
         try:
             if settings.secure:

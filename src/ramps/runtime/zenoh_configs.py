@@ -24,11 +24,19 @@ if TYPE_CHECKING:
 
 AUTOCONNECT_STRATEGY = '{peer: {to_router: "always", to_peer: "greater-zid"}}'
 AUTOCONNECT_ALWAYS = '{peer: {to_router: "always", to_peer: "always"}}'
+#: how often a connect endpoint that does not answer is dialled again (Zenoh's
+#: defaults: 1 s, doubling up to 4 s)
+CONNECT_RETRY = {"period_init_ms": 100, "period_max_ms": 2000, "period_increase_factor": 1.5}
 
 
 def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credentials: Credentials | None = None,
-                 exit_on_failure: bool = False) -> zenoh.Config:
+                 exit_on_failure: bool = False, scout_first: bool = True) -> zenoh.Config:
     """A Zenoh peer or client configuration for these settings (``s.mode``).
+
+    ``scout_first``: ``zenoh.open`` spends Zenoh's scouting delay (0.5 s)
+    finding peers before it returns, as a node should (it then meets its
+    team at once); an application does not (it waits for its node's
+    liveliness token anyway), so ``ramps.connect`` opens in milliseconds.
 
     Secure mode needs the checked ``credentials``
     (``ramps.runtime.security.Credentials``); ``exit_on_failure`` then makes
@@ -45,6 +53,12 @@ def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credential
     c.insert_json5("listen/endpoints", json.dumps(listening))
     c.insert_json5("connect/endpoints", json.dumps(s.connect))
     c.insert_json5("scouting/multicast/enabled", "true" if s.multicast else "false")
+    # a teammate not up yet (robots booting together, a node restarted by its
+    # supervisor) is dialled again after 0.1 s, then less often, at most every
+    # 2 s: Zenoh's own 1 s then 2 s then 4 s left such a team apart for seconds
+    c.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
+    if not scout_first:
+        c.insert_json5("scouting/delay", "0")
     # of two robots that find each other (multicast, gossip) only one dials: when both
     # did, a lease that expired on one side only (a robot cut or frozen just past it)
     # could leave the pair deaf to each other for good (eclipse-zenoh/zenoh#2806;
@@ -115,6 +129,7 @@ def router_config(s: NodeSettings, *, credentials: Credentials | None = None,
     c.insert_json5("listen/endpoints", json.dumps(router_listen(s)))
     c.insert_json5("connect/endpoints", json.dumps(s.connect))
     c.insert_json5("scouting/multicast/enabled", "true" if s.multicast else "false")
+    c.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
     _links_security_overrides(c, s, credentials, exit_on_failure, "router_config")
     return c
 

@@ -23,7 +23,7 @@ from typing import Any
 import psutil
 
 from ramps.runtime.accelerators import remove_slot_folders
-from ramps.runtime.localteam import RobotCgroup, cgroup_mode, free_port, partial_views
+from ramps.runtime.localteam import RobotCgroup, cgroup_mode, free_port, listening_ports, partial_views
 
 __all__ = ["LocalTeam", "NodeProc", "describe", "tagged_processes"]
 
@@ -359,6 +359,7 @@ class LocalTeam:
             if self.nodes[n].proc.poll() is not None:
                 raise NoTeam(f"node {n} exited with {self.nodes[n].proc.returncode}; see {self.log_dir}\n"
                              + self.logs(n))
+        self._wait_listening(names, deadline)
         probe = None
         try:
             while probe is None:
@@ -395,6 +396,19 @@ class LocalTeam:
                 probe.close()
 
     wait_alive = wait_visible
+
+    def _wait_listening(self, names: list[str], deadline: float) -> None:
+        """Until every node in ``names`` listens on its port (or exited, or the
+        deadline passed: the probe then tells why): a probe opened earlier
+        would dial a closed port and wait out Zenoh's retry period."""
+        want = {self.nodes[n].port: n for n in names}
+        while want and time.monotonic() < deadline:
+            bound = listening_ports()
+            if bound is None:  # cannot tell: the probe waits as it would have
+                return
+            want = {p: n for p, n in want.items() if p not in bound and self.nodes[n].proc.poll() is None}
+            if want:
+                time.sleep(0.02)
 
     def worker_pids(self, name: str) -> list[int]:
         """The node's worker processes: forked by its fork server
