@@ -158,7 +158,9 @@ def test_peer_lost_writes_the_host_off_at_once() -> None:
     submit(team)
     team.deliver()
     assert team.handle("o", PeerLost(robot="b")) == []  # nothing of ours there
-    assert team.handle("o", PeerAlive(robot="b")) == []
+    # b back: nothing to place, and it hears o's load at once, not a period later
+    [report] = team.handle("o", PeerAlive(robot="b"))
+    assert isinstance(report, PublishReport) and report.report.robot == "o"
     team.cut.add("a")
     team.now = 0.3
     team.handle("o", PeerLost(robot="a"))

@@ -14,7 +14,7 @@ from corehelpers import report
 
 import ramps.runtime.node as rn
 import ramps.runtime.node_clients as node_clients
-from ramps.core.events import Received
+from ramps.core.events import Note, PublishReport, Received
 from ramps.core.node import Node
 from ramps.runtime.settings import load_settings
 from ramps.testing.memory import FakeClock, MemoryBus
@@ -61,7 +61,8 @@ def test_teammates_lost_right_after_a_stall_are_held_and_forgotten_if_back(drive
     assert rt._on_liveliness("r2", False, now) == []  # held, not yet a loss
     assert not rt.node.view.is_lost("r2")
     wait(rt, fake, 0.2)
-    assert rt._on_liveliness("r2", True, rt._clock()) == []  # back: both forgotten
+    back = rt._on_liveliness("r2", True, rt._clock())  # back: both forgotten
+    assert [type(a) for a in back] == [PublishReport]  # and it hears this robot's load at once
     assert rt._held_lost == {}
     # r3 goes just after the stall and does not come back: lost when the grace ends
     rt._on_liveliness("r3", False, rt._clock())
@@ -141,7 +142,7 @@ def test_a_stall_that_may_have_closed_links_is_told_to_the_core_once(driver):
     rt._on_liveliness("r2", False, now)  # held, see above
     wait(rt, fake, 0.2)
     acts = rt._on_liveliness("r2", True, rt._clock())
-    assert [a.robot for a in acts if a.what == "relinked"] == ["r2"]
+    assert [a.robot for a in acts if isinstance(a, Note) and a.what == "relinked"] == ["r2"]
     assert not rt.node.origin.relink.waiting("r2", rt._clock())
     assert rt.node.origin.relink.waiting("r3", rt._clock())
 

@@ -300,6 +300,8 @@ class Node:
                 self.executor.on_origin_lost(event.robot, now)  # its programs here: stopped if it stays away
                 self.origin.on_peer_lost(event.robot, now, out)
         elif isinstance(event, PeerAlive):
+            if event.robot != self.robot:
+                self._published = (-1, -1)  # a teammate (new, or back) hears this robot's load now, not next period
             self.executor.on_origin_back(event.robot)
             self.origin.on_peer_alive(event.robot, now, out)
             if self.origin.relink.heard(event.robot, now, certain=True):
