@@ -132,7 +132,8 @@ def user(team):
 
 def start_face(t: LocalTeam, robot: str = "r1"):
     return t.spawn([sys.executable, "-m", "ramps.cli", "ros", "--team", t.team, "--robot", robot,
-                    "--no-multicast", "--diagnostics-period", "0.5", *sum((["--connect", e] for e in t.endpoints()), [])],
+                    "--no-multicast", "--diagnostics-period", "0.5", "--origin-grace", "3",
+                    *sum((["--connect", e] for e in t.endpoints()), [])],
                    name=f"rosface-{robot}")
 
 

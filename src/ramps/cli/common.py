@@ -72,7 +72,7 @@ VALUE_NAMES: dict[str, str] = {
     "--diagnostics-period": "SECONDS", "--down": "SECONDS", "--duration": "SECONDS",
     "--exact-seconds": "SECONDS", "--exit-after": "SECONDS", "--gap": "SECONDS", "--goal-timeout": "SECONDS",
     "--interval": "SECONDS", "--kill-at": "SECONDS", "--load-at": "SECONDS", "--online-seconds": "SECONDS",
-    "--origin-hold": "SECONDS", "--outage": "SECONDS", "--period": "SECONDS", "--scrape-every": "SECONDS",
+    "--origin-grace": "SECONDS", "--origin-hold": "SECONDS", "--outage": "SECONDS", "--period": "SECONDS", "--scrape-every": "SECONDS",
     "--seconds": "SECONDS", "--settle": "SECONDS", "--timeout": "SECONDS", "--wait": "SECONDS",
     "--lease-ms": "MS", "--days": "DAYS",
     # amounts

@@ -60,6 +60,9 @@ def register(app: typer.Typer) -> None:
         connect_timeout: Optional[float] = typer.Option(None, "--connect-timeout", min=0.05, help="seconds to find "
                                                         "the ramps node at start (parameter connect_timeout; "
                                                         "default 10)"),
+        origin_grace: Optional[float] = typer.Option(None, "--origin-grace", min=0.0, help="seconds goals wait for "
+                                                     "the ramps node to come back (a restart) before they fail as "
+                                                     "lost (parameter origin_grace; default 30)"),
         namespace: Optional[str] = typer.Option(None, "--namespace", help="ROS namespace of the face (default: /<robot>)"),
         build_interfaces: bool = typer.Option(False, "--build-interfaces", help="build the RunProgram action type "
                                               "(ramps_interfaces) into this environment and exit; then ramps ros "
@@ -90,7 +93,7 @@ def register(app: typer.Typer) -> None:
             "team": team, "robot": robot, "connect": list(connect) if connect else None, "multicast": multicast,
             "secure": True if secure else None, "credentials": str(credentials) if credentials else None,
             "diagnostics_period": diagnostics_period, "goal_timeout": goal_timeout,
-            "connect_timeout": connect_timeout}.items() if v is not None}
+            "connect_timeout": connect_timeout, "origin_grace": origin_grace}.items() if v is not None}
         ns = namespace if namespace is not None else ("/" + ros_name(robot) if robot else "")
         try:
             run(namespace=ns, overrides=overrides, ros_args=list(ctx.args))

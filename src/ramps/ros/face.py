@@ -6,18 +6,15 @@ submits. ROS clients send goals as JSON on a topic; each goal becomes one
 ``team.submit``; the program's ``ProgramFuture`` updates (placed, running,
 re-placed, progress) become feedback, its outcome becomes the result, and
 cancelling the goal cancels the future, which withdraws the program from the
-team. The team's load reports are published as ``diagnostic_msgs``.
-
-Two ways in, on standard types and on ramps' own action:
+team. The team's load reports are published as ``diagnostic_msgs``. Two ways in, on standard types and on ramps' own action:
 
 - ``~/run``, the ROS 2 action ``ramps_interfaces/action/RunProgram``
   (``interfaces/RunProgram.action``): goal = program and ``args_json``,
   feedback = state, host, attempt, progress (-1 before any; news of it comes
-  with state ``running``), result = ok,
-  ``value_json`` or error and error_kind, host, attempts; cancelling the goal
-  withdraws the program. The type is built into the environment by
-  ``ramps ros --build-interfaces`` (``ramps.ros.build``: rosidl from the
-  ROS wheels, cmake and a compiler); the action is served when it imports.
+  with state ``running``), result = ok, ``value_json`` or error and
+  error_kind, host, attempts; cancelling the goal withdraws the program.
+  ``ramps ros --build-interfaces`` builds the type into the environment
+  (``ramps.ros.build``); the action is served when it imports.
 - topics that need nothing built, for any ROS tool: goals, cancels,
   feedback and results as JSON in ``std_msgs/String``, goal states on
   ``action_msgs/GoalStatusArray`` with the standard codes.
@@ -45,10 +42,10 @@ Names (relative to the node, ``/<robot>/ramps/...`` by default):
 
 Parameters: team, robot (the origin node; default any), connect (string array of Zenoh endpoints),
 multicast, secure, credentials, diagnostics_period (s), goal_timeout (s, 0 = none), connect_timeout
-(s), battery_file and battery_topic (the robot's battery into its node's, ``ramps.ros.battery``).
-Team, connect, multicast, secure and credentials not given as parameters
-come from the environment and config file (``RAMPS_TEAM``, ...), as for
-``ramps.connect``.
+(s), origin_grace (s goals wait for their node's restart, then fail as ``lost``), battery_file and
+battery_topic (the robot's battery into its node's, ``ramps.ros.battery``). Team, connect, multicast,
+secure and credentials not given as parameters come from the environment and config file
+(``RAMPS_TEAM``, ...), as for ``ramps.connect``.
 
 Rules: future callbacks (Zenoh threads) only enqueue and trigger a guard
 condition; the executor's thread drains the queue and publishes, so every
@@ -78,7 +75,9 @@ from std_msgs.msg import String
 from unique_identifier_msgs.msg import UUID
 
 from ramps.ros.battery import bridge_battery
+from ramps.runtime.client import ORIGIN_GONE_GRACE
 from ramps.runtime.registry import MAX_ARGS_BYTES
+
 try:  # the RunProgram action, once built (ramps ros --build-interfaces)
     from ramps_interfaces.action import RunProgram
 except ImportError:
@@ -145,7 +144,7 @@ class RosFace(Node):
             # unset parameters are None: RAMPS_TEAM, RAMPS_MULTICAST, RAMPS_CONFIG ... decide, as for any client
             team = ramps.connect(team=p["team"] or None, robot=p["robot"] or None, connect=p["connect"] or None,
                                  multicast=p["multicast"], secure=p["secure"], credentials=p["credentials"] or None,
-                                 timeout=p["connect_timeout"])
+                                 timeout=p["connect_timeout"], origin_grace=p["origin_grace"])
         self.team = team
         self.origin = team.robot
         self._events: queue.SimpleQueue = queue.SimpleQueue()
@@ -182,10 +181,10 @@ class RosFace(Node):
         # ramps' own settings have no default here (a typed parameter without a value reads None), so
         # what is not given falls to the environment and config file in ramps.connect; the face's own
         # settings have theirs
-        defaults = {"team": Parameter.Type.STRING, "robot": Parameter.Type.STRING,
-                    "multicast": Parameter.Type.BOOL, "secure": Parameter.Type.BOOL,
-                    "credentials": Parameter.Type.STRING, "connect": Parameter.Type.STRING_ARRAY,
-                    "diagnostics_period": 1.0, "goal_timeout": 0.0, "connect_timeout": 10.0}
+        defaults = {"team": Parameter.Type.STRING, "robot": Parameter.Type.STRING, "multicast": Parameter.Type.BOOL,
+                    "secure": Parameter.Type.BOOL, "credentials": Parameter.Type.STRING,
+                    "connect": Parameter.Type.STRING_ARRAY, "diagnostics_period": 1.0, "goal_timeout": 0.0,
+                    "connect_timeout": 10.0, "origin_grace": ORIGIN_GONE_GRACE}
         wants = {Parameter.Type.STRING: "a string", Parameter.Type.BOOL: "true or false",
                  Parameter.Type.STRING_ARRAY: "a list of strings"}
         out: dict[str, Any] = {}
@@ -200,8 +199,9 @@ class RosFace(Node):
                 want = "a number" if isinstance(v, float) else wants[v]
                 raise ValueError(f"ROS parameter {k!r} must be {want} ({type(exc).__name__}: {exc})") from None
         out["connect"] = list(out["connect"] or [])
-        if not out["diagnostics_period"] > 0:
-            raise ValueError(f"diagnostics_period must be > 0 s, got {out['diagnostics_period']}")
+        for k, least in (("diagnostics_period", 1e-9), ("origin_grace", 0.0)):
+            if not out[k] >= least:
+                raise ValueError(f"{k} must be {'> 0' if least else '>= 0'} s, got {out[k]}")
         return out
 
     # ------------------------------------------------------------ the one thread that talks to ROS
