@@ -273,50 +273,64 @@ events = st.one_of(
 )
 
 
-def aimed(node: Node):
-    """Messages about programs the node really has, with their current (or a
-    neighbouring) attempt and host, so random input reaches deep states."""
+_ints10 = st.integers(0, 10)
+_fraction = st.none() | st.floats(0.0, 1.0)
+_state = st.binary(max_size=8)
+
+
+@st.composite
+def _about_the_node(draw, node: Node):
+    """One event about what ``node`` really has (see ``aimed``)."""
     programs = node.origin.programs
     running = sorted(node.executor.running)
-    options = []
-    if programs:
-        pids = sorted(programs)
+    pids = sorted(programs)
+    kinds = (["message", "cancel"] if pids else []) + (["finished", "checkpoint"] if running else [])
+    kind = draw(st.sampled_from(kinds))
+    if kind in ("finished", "checkpoint"):
+        pid, attempt = draw(st.sampled_from(running))
+        if kind == "finished":
+            return ProgramFinished(program_id=pid, attempt=attempt, ok=draw(st.booleans()),
+                                   retryable=draw(st.booleans()))
+        return CheckpointSaved(program_id=pid, attempt=attempt, state=draw(_state), fraction=draw(_fraction))
+    ap = programs[draw(st.sampled_from(pids))]
+    if kind == "cancel":
+        return Cancel(program_id=ap.program_id)
+    attempt = draw(st.sampled_from(sorted({ap.attempt, max(0, ap.attempt - 1), *ap.live})))
+    host = draw(st.sampled_from(sorted({ap.host or "p", *ap.live.values(), "p", "q"})))
+    pid = ap.program_id
+    which = draw(st.integers(0, 5))
+    if which == 0:
+        msg = m.OffloadAccepted(program_id=pid, attempt=attempt, host=host, accept_seq=draw(_ints10))
+    elif which == 1:
+        msg = m.OffloadRejected(program_id=pid, attempt=attempt, host=host,
+                                reason=draw(st.sampled_from(["busy", "unknown_program"])),
+                                permanent=draw(st.booleans()), report=draw(st.none() | reports))
+    elif which == 2:
+        msg = m.Heartbeat(host=host, incarnation=draw(st.integers(0, 2)), programs=[m.ProgramRef(pid, attempt)])
+    elif which == 3:
+        msg = m.ProgramResult(program_id=pid, attempt=attempt, host=host, ok=draw(st.booleans()),
+                              retryable=draw(st.booleans()), finish_seq=draw(_ints10))
+    elif which == 4:
+        msg = m.ProgramCheckpoint(program_id=pid, attempt=attempt, host=host, state=draw(_state),
+                                  fraction=draw(_fraction))
+    else:
+        msg = m.LoadReport(robot=host, incarnation=0, seq=draw(st.integers(0, 60)), cores=draw(st.integers(1, 8)),
+                           speed=draw(st.floats(0.1, 4.0)), cpu_busy=draw(st.floats(0.0, 8.0)),
+                           runnable=draw(small), ramps_running=draw(st.integers(0, 5)),
+                           ramps_avg=draw(st.floats(0.0, 5.0)), accepted_total=draw(_ints10),
+                           finished_total=draw(_ints10))
+    return Received(sender=host, msg=msg)
 
-        @st.composite
-        def about_a_program(draw):
-            ap = programs[draw(st.sampled_from(pids))]
-            attempt = draw(st.sampled_from(sorted({ap.attempt, max(0, ap.attempt - 1), *ap.live})))
-            host = draw(st.sampled_from(sorted({ap.host or "p", *ap.live.values(), "p", "q"})))
-            msg = draw(st.one_of(
-                st.builds(m.OffloadAccepted, program_id=st.just(ap.program_id), attempt=st.just(attempt),
-                          host=st.just(host), accept_seq=st.integers(0, 10)),
-                st.builds(m.OffloadRejected, program_id=st.just(ap.program_id), attempt=st.just(attempt),
-                          host=st.just(host), reason=st.sampled_from(["busy", "unknown_program"]),
-                          permanent=st.booleans(), report=st.none() | reports),
-                st.builds(m.Heartbeat, host=st.just(host), incarnation=st.integers(0, 2),
-                          programs=st.just([m.ProgramRef(ap.program_id, attempt)])),
-                st.builds(m.ProgramResult, program_id=st.just(ap.program_id), attempt=st.just(attempt),
-                          host=st.just(host), ok=st.booleans(), retryable=st.booleans(),
-                          finish_seq=st.integers(0, 10)),
-                st.builds(m.ProgramCheckpoint, program_id=st.just(ap.program_id), attempt=st.just(attempt),
-                          host=st.just(host), state=st.binary(max_size=8), fraction=st.none() | st.floats(0.0, 1.0)),
-                st.builds(m.LoadReport, robot=st.just(host), incarnation=st.just(0), seq=st.integers(0, 60),
-                          cores=st.integers(1, 8), speed=st.floats(0.1, 4.0), cpu_busy=st.floats(0.0, 8.0),
-                          runnable=small, ramps_running=st.integers(0, 5), ramps_avg=st.floats(0.0, 5.0),
-                          accepted_total=st.integers(0, 10), finished_total=st.integers(0, 10)),
-            ))
-            return Received(sender=host, msg=msg)
 
-        options.append(about_a_program())
-        options.append(st.builds(Cancel, program_id=st.sampled_from(pids)))
-    if running:
-        options.append(st.sampled_from(running).flatmap(lambda key: st.builds(
-            ProgramFinished, program_id=st.just(key[0]), attempt=st.just(key[1]), ok=st.booleans(),
-            retryable=st.booleans())))
-        options.append(st.sampled_from(running).flatmap(lambda key: st.builds(
-            CheckpointSaved, program_id=st.just(key[0]), attempt=st.just(key[1]), state=st.binary(max_size=8),
-            fraction=st.none() | st.floats(0.0, 1.0))))
-    return st.one_of(*options) if options else events
+def aimed(node: Node):
+    """Messages about programs the node really has, with their current (or a
+    neighbouring) attempt and host, so random input reaches deep states.
+    Drawn by one composite made once, from primitive draws: strategies built
+    per step (``st.builds``, lambdas, a composite defined inside) have
+    Hypothesis resolve their type hints and read their source each time."""
+    if not node.origin.programs and not node.executor.running:
+        return events
+    return _about_the_node(node)
 
 
 @pytest.mark.slow
