@@ -294,11 +294,26 @@ def how_they_ended(futs: list, origin: str, seconds: float) -> str:
     return f"{len(futs)} program(s) in {seconds:.2f} s, origin {origin}: {', '.join(parts)}"
 
 
+def _heard_all(t, wait: float):
+    """The team's status once every robot alive has published a load report
+    (reports come once a second), or after ``wait`` seconds."""
+    import time as _time
+
+    deadline = _time.monotonic() + wait
+    _time.sleep(min(wait, 0.2))  # the team's liveliness tokens come first, all at once
+    while True:
+        st = t.status()
+        if _time.monotonic() >= deadline or (st.robots and all(r.report_age is not None for r in st.robots if r.alive)):
+            return st
+        _time.sleep(0.05)
+
+
 def status(
     team: TeamOption = None,
     connect: ConnectOption = None,
     multicast: FindTeamOption = None,
-    wait: float = typer.Option(2.5, "--wait", help="seconds to listen for load reports"),
+    wait: float = typer.Option(2.5, "--wait", help="seconds to listen for load reports at most: the table comes as "
+                               "soon as every robot alive has reported"),
     secure: SecureOption = False,
     credentials: CredentialsOption = None,
     as_json: bool = typer.Option(False, "--json", help="print the team view as JSON"),
@@ -317,14 +332,12 @@ def status(
     the robot itself could place a program on (fresh report, not written
     off): a robot that sees fewer than the rest is cut off from part of the
     team, even when this command sees everyone."""
-    import time as _time
 
     from rich.table import Table
 
     t = _connect_team(team, None, connect, multicast, 5.0, secure=secure, credentials=credentials, mode=mode)
     try:
-        _time.sleep(wait)
-        st = t.status()
+        st = _heard_all(t, wait)
     finally:
         t.close()
     if as_json:
