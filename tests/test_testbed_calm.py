@@ -32,7 +32,7 @@ def run_saturated(config: dict | None = None) -> tuple[list, dict[str, int], set
     by submission index, the indices that checkpoint, and the wall time."""
     from ramps.programs.burn import burn
     from ramps.testbed import Testbed
-    from ramps.testbed.experiments import SETTLE, identical_speed, read_trace
+    from ramps.testbed.experiments import identical_speed, read_trace
 
     started = time.monotonic()
     speed = identical_speed(1, CORES, QUOTA)
@@ -48,7 +48,6 @@ def run_saturated(config: dict | None = None) -> tuple[list, dict[str, int], set
     with Testbed(ROBOTS, cores=CORES, quota=QUOTA, speed=speed, config=config) as tb:
         tbid = tb.tb
         with tb.client("r1", timeout=30.0) as team:
-            time.sleep(SETTLE)  # every robot has reported
             futures, ckpt = [], set()
             t0 = time.monotonic()
             for i in range(PROGRAMS):

@@ -22,7 +22,6 @@ import pytest
 
 from test_testbed import REASON, others_leftovers, wait_until
 
-from ramps.testbed.experiments import SETTLE
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(REASON is not None, reason=REASON or "")]
 # robots at a fraction of a core whose faults must be seen within seconds, or timed: run alone
@@ -125,7 +124,6 @@ def test_teammates_keep_hearing_each_other_when_one_drops_off(monkeypatch):
     monkeypatch.setenv("RAMPS_TRACE_WIRE", "1")  # nodes trace every message received
     window = 9.0
     with Testbed(4, cores=1) as tb, tb.client("r1", timeout=30.0) as team:
-        time.sleep(SETTLE)
         # two programs a robot, each still running on r4 when its link is cut
         # (1 unit: about 3.5 s alone on an emulated core of 0.5 host cores)
         futures = [team.options(work=1.0).submit("burn", units=1.0) for _ in range(8)]

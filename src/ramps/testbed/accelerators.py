@@ -210,7 +210,7 @@ def _one_repeat(k: int, *, speed: float, quota: float, sim_kw: dict[str, Any], s
     """One fresh testbed: the burst, then the simulator with the speeds its nodes reported."""
     from ramps.testbed import Testbed
     from ramps.testbed.bed import watch_team
-    from ramps.testbed.experiments import SETTLE, _keep
+    from ramps.testbed.experiments import _keep
     from ramps.testbed.speeds import reported_speeds
 
     robots, accel = sim_kw["robots"], sim_kw["accelerated"]
@@ -223,7 +223,6 @@ def _one_repeat(k: int, *, speed: float, quota: float, sim_kw: dict[str, Any], s
         try:
             with watch_team(tb) as obs:
                 node_speeds = reported_speeds(obs, robots)
-            time.sleep(SETTLE)  # every robot has reported
             for c in clients.values():
                 _wait_for_accelerators(c, accel)
             calls, failed, span = _burst(clients, sim_kw, timeout)

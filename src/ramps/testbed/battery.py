@@ -91,7 +91,7 @@ def _run(files: Path, *, robots: int, cores: int, quota: float, programs: int, s
     """Long because it is the experiment's one timeline: the testbed up, the burst, the drop, the wait,
     the figures from the traces, all inside the testbed's ``with`` block."""
     from ramps.testbed import Testbed
-    from ramps.testbed.experiments import SETTLE, _keep, _log_dir, hosts_at, read_trace
+    from ramps.testbed.experiments import _keep, _log_dir, hosts_at, read_trace
 
     names = [f"r{i}" for i in range(1, robots + 1)]
     for name in names:
@@ -102,7 +102,6 @@ def _run(files: Path, *, robots: int, cores: int, quota: float, programs: int, s
     with Testbed(robots, cores=cores, quota=quota, config=config) as tb:
         team = tb.client("r1", timeout=30.0)
         try:
-            time.sleep(SETTLE)  # every robot has reported
             t0 = time.monotonic()
             futures: list[Any] = []
             ends: dict[int, float] = {}

@@ -44,7 +44,7 @@ from ramps.errors import NoTeam, ProgramLost
 from ramps.experiments.campaign import CampaignReport
 from ramps.sim.engine import TraceEntry
 from ramps.testbed import stress as stresses
-from ramps.testbed.experiments import (NAMES, SETTLE, _inject, _keep, _log_dir, delivered_counts, hosts_at,
+from ramps.testbed.experiments import (NAMES, _inject, _keep, _log_dir, delivered_counts, hosts_at,
                                        identical_speed, read_trace)
 
 if TYPE_CHECKING:
@@ -217,7 +217,6 @@ def run_campaign_once(seed: int, *, policy: str = "ramps", robots: int = 4, dura
             watch_team(tb) as obs, \
             tb.client("r1", timeout=30.0) as team:
         teams = [team] + [tb.client(o, timeout=30.0) for o in origins[1:]]
-        time.sleep(SETTLE)
         t0 = time.monotonic()
         timeline = sorted([(at, "fault", r, k) for at, r, k in faults] +
                           [(i * spacing, "submit", "", str(i)) for i in range(n_programs)])

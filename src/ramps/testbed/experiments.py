@@ -47,8 +47,9 @@ from ramps.sim.engine import TraceEntry
 if TYPE_CHECKING:
     from ramps.testbed import Testbed
 
-#: seconds between the testbed being up (seen from outside) and the first
-#: submit, so the origin has a load report from every robot (published every 1 s)
+#: seconds for load added to robots to be adopted, capped and reported (reports
+#: come every 1 s); a testbed just up needs none: ``Testbed.up`` returns once
+#: every robot has a report from every other
 SETTLE = 2.5
 #: the paper's robot names, as testbed robots
 NAMES = {r: r.lower() for r in ROBOTS}
@@ -147,7 +148,6 @@ def run_plan(plan: FaultPlan, *, seed: int = 0, policy: str = "ramps", work: flo
                  lease_ms=lease_ms,
                  discovery=discovery) as tb, \
             tb.client("r1", timeout=30.0) as team:
-        time.sleep(SETTLE)  # every node has had a load report from every other
         log(f"{plan.name}: testbed {tb.tb} up, submitting 15 x burn({units:g} units) from r1")
         t0 = time.monotonic()
         opts = team.options(work=units)

@@ -119,7 +119,7 @@ def run_testbed_relocation(*, robots: int = 3, cores: int = 4, quota: float = 0.
     """Each variant on a fresh testbed and in the simulator (module docstring)."""
     from ramps.programs.burn import burn
     from ramps.testbed import Testbed
-    from ramps.testbed.experiments import SETTLE, _keep, identical_speed
+    from ramps.testbed.experiments import _keep, identical_speed
 
     log = log or (lambda _m: None)
     _check(variants, robots=robots, programs=programs, load_at=load_at, seconds=seconds, busy=busy)
@@ -140,7 +140,6 @@ def run_testbed_relocation(*, robots: int = 3, cores: int = 4, quota: float = 0.
         with Testbed(robots, cores=cores, quota=quota, speed=speed if told_speed else None, config=config) as tb:
             team = tb.client("r1", timeout=30.0)
             try:
-                time.sleep(SETTLE)  # every robot has reported
                 kwargs = {"units": units, **({"checkpoint_every": every} if "checkpoints" in variant else {})}
                 futures, ok, submitted, ends, t0 = _run_programs(tb, team, programs=programs, units=units,
                                                                  kwargs=kwargs, load_at=load_at, busy=busy,

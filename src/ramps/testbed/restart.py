@@ -69,7 +69,6 @@ def run_origin_restart(down: float, *, cut: float = 0.0, programs: int = 15, rob
     config = {"core": {"origin_hold": origin_hold}} if origin_hold is not None else None
     with Testbed(names, cores=2, config=config) as tb, \
             tb.client("r1", timeout=30.0, origin_grace=max(down, cut) + 120.0) as team:
-        time.sleep(SETTLE)
         futs = [team.options(work=units).submit("burn", units=units) for _ in range(programs)]
         deadline = time.monotonic() + 30.0
         while any(f.state not in ("running", "progress") for f in futs) and time.monotonic() < deadline:
