@@ -5,7 +5,7 @@
 #                  use with everything: the demo's, test and check tools, and the
 #                  ROS 2 extra with its action built, so the ROS face is tested too):
 #                  the tests in parallel, then those marked serial alone; each pass
-#                  ends with its slowest tests, to keep the suite in its 15 minutes
+#                  ends with its slowest tests, to keep the suite in its 12 minutes
 # and the fast loop while you work:
 #   make check  -> ruff + mypy + the tests not marked slow (about a minute on 2 cores)
 PYTHON ?= python3
