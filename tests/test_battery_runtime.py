@@ -128,6 +128,23 @@ def test_a_node_below_its_reserve_hands_back_within_one_report_period_and_nothin
         team.run(60.0, until=lambda: all(f.done() for f in futs))
         assert [f.result(0) for f in futs] == list(range(6))
         assert all(f.host != "r2" for f in futs)
+        # what an application (and `ramps status`) sees of the batteries
+        seen = {r.robot: r for r in app.status().robots}
+        assert (seen["r2"].battery, seen["r2"].low_battery) == (0.12, True)
+        assert (seen["r1"].battery, seen["r1"].low_battery) == (0.9, False)
+        import importlib
+
+        from rich.console import Console
+
+        cli_node = importlib.import_module("ramps.cli.node")  # the module: ``ramps.cli.node`` is also a command
+        console = Console(record=True, width=120)
+        old, cli_node.out = cli_node.out, console
+        try:
+            cli_node._print_batteries(app.status())
+        finally:
+            cli_node.out = old
+        rows = [line for line in console.export_text().splitlines() if " r1 " in line or " r2 " in line]
+        assert len(rows) == 2 and "12%" in rows[1] and "low" in rows[1] and "90%" in rows[0] and "ok" in rows[0], rows
     finally:
         app.close()
         team.close()

@@ -360,6 +360,7 @@ def status(
                       "-" if r.report_age is None else f"{r.report_age:.1f} s")
     out.print(table)
     _print_accelerators(st)
+    _print_batteries(st)
     links = [(r.robot, link) for r in st.robots for link in r.links]
     if links:  # T_comm as each robot measured it (ramps.core.links): the cost model prices transfers with these
         lt = Table(title="links each robot measured, and teammates' speeds its results corrected "
@@ -396,6 +397,22 @@ def _print_accelerators(st: Any) -> None:
                        f"{a.memory_free / 2**30:.1f} of {a.memory_total / 2**30:.1f} GiB" if a.memory_total else "-",
                        "-" if a.utilisation is None else f"{100 * a.utilisation:.0f}%")
         out.print(at)
+
+
+def _print_batteries(st: Any) -> None:
+    """``ramps status``'s table of the robots' batteries, if any reports one."""
+    from rich.table import Table
+
+    robots = [r for r in st.robots if r.battery is not None]
+    if robots:  # a robot below its reserve takes no teammates' programs (ramps.core.battery)
+        bt = Table(title="batteries (below its reserve a robot takes no teammates' programs)", title_justify="left")
+        for name in ("robot", "charge", "state", "watts per busy core"):
+            bt.add_column(name, justify="left" if name in ("robot", "state") else "right")
+        for r in robots:
+            bt.add_row(r.robot, f"{100 * r.battery:.0f}%",
+                       "[yellow]low: runs only its own programs[/]" if r.low_battery else "ok",
+                       "-" if r.power is None else f"{r.power:.3g}")
+        out.print(bt)
 
 
 def _print_learned(st: Any) -> None:

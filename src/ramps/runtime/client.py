@@ -593,7 +593,8 @@ class Team:
                                 mem_free=rep.mem_free, bad_messages=rep.bad_messages, report_age=now - at,
                                 sees=rep.sees, running=list(rep.running), links=list(rep.links),
                                 learned=list(rep.learned), moves=rep.moves, moves_aborted=rep.moves_aborted,
-                                node_cpu=rep.node_cpu, accelerators=list(rep.accelerators))
+                                node_cpu=rep.node_cpu, accelerators=list(rep.accelerators), battery=rep.battery,
+                                low_battery=rep.low_battery, power=rep.power)
                 rows.append(RobotStatus(**base))
         return TeamStatus(team=self.team, robots=rows)
 

@@ -89,6 +89,11 @@ class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
     node_cpu: float = 0.0
     #: its accelerators: [kind, slots, speed, programs on them, memory total, free, utilisation]
     accelerators: list[AcceleratorSeen] = []
+    #: its battery's state of charge, 0..1 (None: it reports none); below its reserve
+    #: (``low_battery``) it takes no teammates' programs; watts a busy core draws
+    battery: float | None = None
+    low_battery: bool = False
+    power: float | None = None
 
 
 class TeamStatus(msgspec.Struct, frozen=True, kw_only=True):
