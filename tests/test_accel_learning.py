@@ -84,8 +84,9 @@ def test_a_program_that_overran_its_estimate_is_priced_as_one_of_unknown_work() 
     team = gpu_team()
     team.handle("o", detect("d1"))  # 1 s there by its declaration
     team.deliver()
-    team.now += 5.0
+    team.advance(5.0)
     team.publish("g")  # g still runs it: it took more than declared, how much more is not known
+    assert team.nodes["g"].current_report().accelerators[0].remaining == [0.0]  # nothing left by g's estimate
     [row] = team.nodes["o"].view.accelerator_rows(team.now, "cuda")
     assert row[3] == 1.0 and row[4] == []
 

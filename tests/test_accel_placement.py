@@ -5,8 +5,13 @@ close to the CP-SAT optimum."""
 
 from __future__ import annotations
 
+import msgspec
+import pytest
+
 from ramps.core.accelerators import Accelerator
-from ramps.core.events import StartProgram, Submit
+from ramps.core.events import Received, StartProgram, Submit
+from ramps.core.loadview import LoadView
+from ramps.core.messages import AcceleratorSeen, LoadReport
 from ramps.experiments.accelerators import BlindPolicy, generate, run_scenario, simulate_variant
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario
@@ -29,6 +34,54 @@ def test_a_slot_busy_with_short_programs_is_priced_by_their_work_left() -> None:
     placed = hosts(team)
     assert all(placed[f"s{i}"] == ("g", "cuda") for i in range(4))
     assert placed["big"] == ("g", "cuda")
+
+
+def _second_origin_places_beside_a_big_program_nearly_done(strip: bool) -> tuple[str, str]:
+    """a puts a 10 s program on g's slot; 9 s later b places one of the
+    same size, 15 s on a core: beside 1 s of work left the slot ends it in
+    11 s (by count, beside another 10 s one, in 20 s). ``strip``: g's report
+    says nothing of the work left (a node that does not tell)."""
+    team = FakeTeam({"a": (1, 1.0), "b": (1, 1.0), "g": (1, 1.0)},
+                    accelerators={"g": [Accelerator(kind="cuda", speed=10.0)]})
+    team.publish()
+    team.handle("a", Submit(program_id="big", program="detect", work=15.0, accelerator="cuda",
+                            accelerator_work=100.0))
+    team.deliver()
+    assert hosts(team)["big"] == ("g", "cuda")
+    team.advance(9.0)
+    rep = team.nodes["g"].make_report(cpu_busy=0.0, runnable=0.0, ramps_avg=0.0, window=1.0)
+    (seen,) = rep.accelerators
+    assert seen.running == 1 and seen.remaining == [pytest.approx(10.0, abs=1.0)]  # the host's estimate
+    if strip:
+        rep = msgspec.structs.replace(rep, accelerators=[msgspec.structs.replace(seen, remaining=[])])
+    team.handle("b", Received(sender="g", msg=rep))
+    team.handle("b", Submit(program_id="next", program="detect", work=15.0, accelerator="cuda",
+                            accelerator_work=100.0))
+    team.deliver()
+    return hosts(team)["next"]
+
+
+def test_another_origins_program_on_a_slot_is_priced_by_the_work_it_has_left() -> None:
+    assert _second_origin_places_beside_a_big_program_nearly_done(strip=False) == ("g", "cuda")
+    # without the figure (older nodes) it counts as big as the new one, as before: a core is sooner
+    assert _second_origin_places_beside_a_big_program_nearly_done(strip=True)[1] == ""
+
+
+def test_a_view_counts_its_own_programs_on_a_slot_once_beside_the_reported_work_left() -> None:
+    view = LoadView("o", cores=1, speed=1.0)
+    seen = AcceleratorSeen("cuda", 1, 10.0, 2, remaining=[5.0, 50.0])  # a's 5 units and o's own 50
+    view.book("g", "mine", 1, "cuda", 50.0, 0.0)
+    view.accepted("g", "mine", 1, 1)
+    view.on_report(LoadReport(robot="g", incarnation=0, seq=1, cores=1, speed=1.0, cpu_busy=0.0, runnable=0.0,
+                              ramps_running=0, ramps_avg=0.0, accepted_total=1, finished_total=0,
+                              accelerators=[seen]), 1.0)
+    rows = lambda now: {r[0]: r[3:] for r in view.accelerator_rows(now, "cuda")}  # noqa: E731
+    assert rows(1.0)["g"] == (2.0, [5.0, 50.0])  # not [5, 50, 50]: the report shows "mine"
+    assert rows(1.2)["g"] == (2.0, [pytest.approx(4.0), pytest.approx(49.0)])  # aged, half a slot each
+    view.book("g", "new", 1, "cuda", 20.0, 1.2)  # not in the report yet: its own estimate
+    assert rows(1.2)["g"] == (3.0, [pytest.approx(4.0), 20.0, pytest.approx(49.0)])
+    view.released("g", "mine", 1, 1)  # ended, and the report still shows it: the entry nearest its estimate went
+    assert rows(1.2)["g"] == (2.0, [pytest.approx(4.0), 20.0])
 
 
 def test_blind_placement_prices_every_robot_by_cpu_work() -> None:

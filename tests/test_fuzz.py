@@ -84,6 +84,9 @@ reports = st.builds(
     cpu_per_core=st.lists(st.floats(0.0, 1.0), max_size=4), load_avg=loads,
     blacklisted=st.lists(robots, max_size=3), bad_messages=counts, sees=st.none() | counts,
     running=st.lists(st.builds(m.RunningProgram, names, robots, st.none() | st.floats(0.0, 1.0)), max_size=3),
+    accelerators=st.lists(st.builds(m.AcceleratorSeen, names, st.integers(1, m.MAX_CORES),
+                                    st.floats(m.MIN_SPEED, m.MAX_SPEED), counts, counts, counts,
+                                    st.none() | st.floats(0.0, 1.0), st.lists(amounts, max_size=4)), max_size=2),
 )
 messages = st.one_of(
     reports,

@@ -166,6 +166,26 @@ def test_lists_up_to_their_limit_pass_and_one_more_is_refused() -> None:
              "malformed|out of bounds")
 
 
+def test_work_left_on_accelerators_crosses_within_its_limits_and_older_reports_still_decode() -> None:
+    seen = m.AcceleratorSeen("cuda", 1, 20.0, 2, 0, 0, None, [0.5, 30.0])
+    rep = report("g", accelerators=[seen])
+    assert decode(encode("g", rep)).msg.accelerators == [seen]
+    # a node that does not tell the work left sends 7 items: it is [], as before
+    body = _body(rep)
+    body["accelerators"] = [["cuda", 1, 20.0, 2, 0, 0, None]]
+    assert decode(_raw(body, sender="g")).msg.accelerators == [m.AcceleratorSeen("cuda", 1, 20.0, 2)]
+    # one that did not know the item reads the rest (decoders ignore items past the fields they know)
+    older = msgspec.defstruct("AcceleratorSeen", [("kind", str), ("count", int), ("speed", float), ("running", int),
+                                                  ("memory_total", int), ("memory_free", int),
+                                                  ("utilisation", float | None)], array_like=True, frozen=True)
+    assert msgspec.msgpack.decode(msgspec.msgpack.encode(seen), type=older) == older("cuda", 1, 20.0, 2, 0, 0, None)
+    # a report without accelerators is the bytes it was: the field is inside the records only
+    assert b"accelerators" not in encode("r1", report("r1"))
+    for bad in ([1.0] * (m.MAX_LISTED + 1), [math.nan], [-1.0], [math.inf]):
+        body["accelerators"] = [["cuda", 1, 20.0, 2, 0, 0, None, bad]]
+        assert "$.msg.accelerators[0]" in _refused(_raw(body, sender="g"))
+
+
 @pytest.mark.parametrize("name", ["*", "**", "r1/*", "a$*", "what?", "r#1", "r\n1", "r1\n", "\x00", ""])
 def test_robot_and_client_names_cannot_be_wildcards_or_control_characters(name: str) -> None:
     """Robot and client names become Zenoh key chunks: a node that answered

@@ -81,3 +81,21 @@ def work_left(placed: list[tuple[float, float]], now: float, count: float, speed
         return []
     rate = speed * slot_share(count, programs)
     return sorted(x for work, at in placed if (x := work - (now - at) * rate) > 0.0)[-programs:]
+
+
+def reported_left(listed: list[float], now: float, at: float, count: float, speed: float, running: int,
+                  ended: list[tuple[float, float]]) -> list[float]:
+    """Work left at ``now`` in the programs a host's report made at ``at``
+    ``listed`` on ``count`` slots of ``speed`` (``AcceleratorSeen.remaining``),
+    ``running`` programs on them then (processor sharing), less, for each
+    program (work, started at) ``ended`` that the caller knows ended and the
+    report still shows, the one nearest the work it had left by the same
+    estimate. As in ``work_left``, one whose work should be done by now is
+    left out, to be priced as one of unknown work."""
+    rate = speed * slot_share(count, running)
+    left = [x - (now - at) * rate for x in listed]
+    for work, started in ended:
+        if left:
+            gone = work - (now - started) * rate
+            left.remove(min(left, key=lambda x: abs(x - gone)))
+    return sorted(x for x in left if x > 0.0)

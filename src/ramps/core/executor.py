@@ -199,6 +199,14 @@ class Executor:
         left.sort()
         return left
 
+    def accelerator_left(self, kind: str, now: float) -> list[float]:
+        """Work units each program on this robot's ``kind`` of accelerator
+        has left by the same estimate, smallest first, at most MAX_LISTED."""
+        self._advance(now)
+        left = sorted(x if (x := job.work - job.done) > 0.0 else 0.0 for job in self.running.values()
+                      if job.accelerator == kind)
+        return left[:MAX_LISTED]
+
     def on_offload(self, req: OffloadRequest, now: float, out: list[Action],
                    report_now: Callable[[], LoadReport] | None = None) -> None:
         self._advance(now)

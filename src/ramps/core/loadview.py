@@ -22,7 +22,7 @@ from __future__ import annotations
 import heapq
 import itertools
 
-from ramps.core.accelerators import work_left
+from ramps.core.accelerators import reported_left, work_left
 from ramps.core.cost import program_cores, program_share
 from ramps.core.messages import MAX_LISTED, AcceleratorSeen, LoadReport
 from ramps.core.reportcheck import report_problem
@@ -113,10 +113,9 @@ class LoadView:
     def on_report(self, report: LoadReport, now: float, *, fresh: bool = False) -> bool:
         """Take a report in. Returns True if it lifted a blacklisting.
 
-        ``fresh`` marks a report made on the spot (sent with a rejection): it
-        replaces a periodic report with the same sequence number. A report
-        that ``report_problem`` refuses is counted in ``bad_reports`` and
-        dropped."""
+        ``fresh`` marks a report made on the spot (sent with a rejection): it replaces a periodic
+        report with the same sequence number. A report that ``report_problem`` refuses is counted in
+        ``bad_reports`` and dropped."""
         if report_problem(report) is not None:
             self.bad_reports += 1
             return False
@@ -234,9 +233,7 @@ class LoadView:
 
     def report_age(self, robot: str, now: float) -> float | None:
         rob = self._robots.get(robot)
-        if rob is None or rob.report is None:
-            return None
-        return now - rob.received_at
+        return None if rob is None or rob.report is None else now - rob.received_at
 
     def robots(self) -> list[str]:
         return list(self._robots)
@@ -320,17 +317,14 @@ class LoadView:
     def background(self, robot: str) -> float:
         """Competing tasks on ``robot`` that are not ramps programs."""
         rep = self._robots[robot].report
-        if rep is None:
-            return 0.0
-        return max(0.0, rep.runnable - rep.ramps_avg)
+        return 0.0 if rep is None else max(0.0, rep.runnable - rep.ramps_avg)
 
     def remaining_work(self, robot: str, now: float, programs: int, unknown: float) -> list[float] | None:
-        """Work units left in each of the ``programs`` ramps programs this view
-        counts on ``robot``: the host's last estimate (``LoadReport.remaining``)
-        aged by processor sharing since it arrived; programs the report does
-        not list yet count ``unknown`` units each, and when the view counts
-        fewer programs than the report lists, the smallest ended. None when
-        the view counts more than a report can list (``MAX_LISTED``)."""
+        """Work units left in each of the ``programs`` ramps programs this view counts on ``robot``:
+        the host's last estimate (``LoadReport.remaining``) aged by processor sharing since it
+        arrived; programs the report does not list yet count ``unknown`` units each, and when the
+        view counts fewer programs than the report lists, the smallest ended. None when the view
+        counts more than a report can list (``MAX_LISTED``)."""
         if programs > MAX_LISTED:
             return None  # more than a report lists: the count-based estimate stands
         rob = self._robots.get(robot)
@@ -351,11 +345,10 @@ class LoadView:
 
     def accelerator_rows(self, now: float, kind: str, exclude: frozenset[str] = frozenset()
                          ) -> list[tuple[str, int, float, float, list[float]]]:
-        """(robot, slots, speed, programs, known) for every candidate
-        (``scan``'s) with accelerators of ``kind``: the programs on them by
-        its last report, plus those booked there it does not show started,
-        less those it does not show ended; and the work left in those this
-        view placed there and has not seen end (``accelerators.work_left``)."""
+        """(robot, slots, speed, programs, known) for every candidate (``scan``'s) with accelerators of
+        ``kind``: the programs on them by its last report, plus those booked there it does not show started,
+        less those it does not show ended; the work left in what the report lists (``reported_left``) and in
+        what this view placed there that it does not show, or all of those where it lists none (``work_left``)."""
         horizon = now - self.max_report_age
         out = []
         for name, rob in self._robots.items():
@@ -367,18 +360,25 @@ class LoadView:
             if seen is None:
                 continue
             programs = seen.running if rep is not None else 0
+            listed = rep is not None and (bool(seen.remaining) or not seen.running)  # [] from older nodes
             placed: list[tuple[float, float]] = []
+            ended: list[tuple[float, float]] = []
             for key, (k, b, work, at) in list(rob.accel.items()):
                 state = _kind(b, *rob.counted)
                 if state == _GONE:
                     del rob.accel[key]
                 elif k == kind:
                     programs += (state == _UNSEEN_ACCEPT) - (state == _UNSEEN_FINISH)
-                    if b.finish_seq is None:
+                    if b.finish_seq is None and (state == _UNSEEN_ACCEPT or not listed):
                         placed.append((work, at))
+                    elif state == _UNSEEN_FINISH:
+                        ended.append((work, at))
             programs = max(0, programs)
-            out.append((name, seen.count, seen.speed, float(programs),
-                        work_left(placed, now, seen.count, seen.speed, programs)))
+            known = work_left(placed, now, seen.count, seen.speed, programs)
+            if listed and programs:
+                known = sorted(known + reported_left(seen.remaining, now, rob.received_at, seen.count,
+                                                     seen.speed, seen.running, ended))[-programs:]
+            out.append((name, seen.count, seen.speed, float(programs), known))
         return out
 
     def accelerator_kinds(self, robot: str) -> frozenset[str]:
@@ -445,8 +445,8 @@ class LoadView:
         teammate with a fresh report that is neither blacklisted nor lost."""
         return [row[0] for row in self.scan(now, frozenset())]
 
-    def scan(self, now: float, exclude: frozenset[str],
-             paper: bool = False) -> list[tuple[str, float, float, float, float, float]]:
+    def scan(self, now: float, exclude: frozenset[str], paper: bool = False,
+             only: list[str] | None = None) -> list[tuple[str, float, float, float, float, float]]:
         """(robot, cores, speed, ramps, background, weight) for every candidate,
         in one pass: ramps programs there by ramps' reading of the view, other
         runnable tasks, and the scheduler weight of a program against them
@@ -458,11 +458,14 @@ class LoadView:
         The hot path of placement in large teams: the same reading as
         ``candidates`` + ``ramps_programs`` + ``background`` (or
         ``paper_load``), without building intermediate objects.
-        An ``exclude`` that would leave no candidate at all is ignored."""
+        An ``exclude`` that would leave no candidate at all is ignored.
+        ``only``: these robots alone, in this order (a sample of a large
+        team, ``RampsConfig.placement_sample``; names not in the view skipped)."""
         horizon = now - self.max_report_age
         blacklist = self._blacklist
         out = []
-        for name, rob in self._robots.items():
+        robots = self._robots
+        for name, rob in robots.items() if only is None else [(n, robots[n]) for n in only if n in robots]:
             rep = rob.report
             if name != self.me:
                 if rep is None or rob.lost or rob.received_at < horizon or name in blacklist:

@@ -439,7 +439,9 @@ class Node:
         out = []
         for kind, a in ex.accelerators.items():
             total, free, util = self.accelerator_measured.get(kind, (0, 0, None))
-            out.append(AcceleratorSeen(kind, a.count, a.speed, ex.on_accelerators[kind], total, free, util))
+            on_it = ex.on_accelerators[kind]
+            out.append(AcceleratorSeen(kind, a.count, a.speed, on_it, total, free, util,
+                                       ex.accelerator_left(kind, self._now) if on_it else []))
         return out
 
     def statistics(self) -> NodeStatistics:

@@ -33,10 +33,11 @@ scheduler.
   origin then applies the program's ``on_miss``). A program that can use
   an accelerator (``PlacementRequest.accelerator``) is priced by
   processor sharing of the slots of the robots that advertise that kind
-  (``shared_finish_time`` with the work left of the programs this origin
-  placed there, and its own work for the others there) and by its CPU work
-  on the others; the origin leaves the others out when it may not run on a
-  CPU.
+  (``shared_finish_time`` with the work left of the programs there: as
+  their host's report lists it, plus those this origin placed there since;
+  from a host that lists none, those this origin placed there and its own
+  work for the others) and by its CPU work on the others; the origin leaves
+  the others out when it may not run on a CPU.
   With ``RampsConfig.energy_weight`` above 0, hosts are chosen by time and
   energy per unit of work, weighed (``battery.rank_by_energy``), and
   priced (time, budget) by time as before. A burst (programs an origin
@@ -63,6 +64,9 @@ from ramps.core.loadview import LoadView
 
 #: how many of the cheapest hosts by count get the finer estimate by work left
 REFINE = 16
+#: the share of a sampled placement's candidates (``RampsConfig.placement_sample``)
+#: taken from the cheapest of the previous placement; random robots fill the rest
+REMEMBER = 4
 #: a program with a deadline goes to the slowest host expected to end it
 #: this much earlier than its deadline (a fraction of its expected time):
 #: room for programs that come later to the same host
@@ -190,6 +194,32 @@ class RampsPolicy(Policy):
     relocates = True
     plans = True
 
+    def __init__(self) -> None:
+        #: the cheapest hosts of the latest sampled placement, priced again in the next
+        self._best: list[str] = []
+        #: whether the latest ``candidates`` was a sample
+        self._sampled = False
+
+    def candidates(self, req: PlacementRequest, view: LoadView, now: float, rng: random.Random,
+                   exclude: frozenset[str], sample: int) -> list[tuple[str, float, float, float, float, float]]:
+        """``view.scan`` of the robots ``choose`` prices: all of them, or in a
+        view of more than ``sample`` robots (``RampsConfig.placement_sample``)
+        ``sample`` of them: this robot, the plan's host, the cheapest of the
+        previous sampled placement and random others; the whole view when
+        the sample leaves no teammate."""
+        names = view.robots()
+        self._sampled = bool(sample) and len(names) > sample
+        if not self._sampled:
+            return view.scan(now, exclude)
+        picked = dict.fromkeys([view.me, req.prefer, *self._best])
+        picked.pop("", None)
+        for name in rng.sample(names, sample):
+            if len(picked) >= sample:
+                break
+            picked[name] = None
+        rows = view.scan(now, frozenset(), only=[n for n in picked if n not in exclude])
+        return rows if len(rows) > 1 else view.scan(now, exclude)
+
     def pools(self, req: PlacementRequest, view: LoadView, now: float, *, net: NetworkEstimate,
               exclude: frozenset[str] = frozenset(), links: Callable[[str], NetworkEstimate] | None = None
               ) -> list[Pool]:
@@ -225,7 +255,8 @@ class RampsPolicy(Policy):
         t_best = math.inf
         slots = {row[0]: row for row in view.accelerator_rows(now, req.accelerator, exclude)} \
             if req.accelerator else {}
-        for robot, cores, speed, ramps, background, weight in view.scan(now, exclude):
+        sample = config.placement_sample
+        for robot, cores, speed, ramps, background, weight in self.candidates(req, view, now, rng, exclude, sample):
             runnable = ramps + background
             if robot in slots:  # on its accelerator there: its slots, shared by the programs on them
                 _, count, a_speed, on_it, known = slots[robot]
@@ -260,6 +291,8 @@ class RampsPolicy(Policy):
                 continue
             t = shared_finish_time(work, left, row[6], row[7], row[4], row[8]) + row[9]
             row[0] = min(row[0], t)
+        if self._sampled:
+            self._best = [row[2] for row in heapq.nsmallest(sample // REMEMBER, rows, key=lambda r: r[0])]
         times = rank_by_energy(view, rows, config.energy_weight)  # energy against time (ramps.core.battery)
         t_best = min(row[0] for row in rows)
         planned = next((row for row in rows if row[2] == req.prefer), None) if req.prefer else None

@@ -103,7 +103,8 @@ def random_report(rng: random.Random, robot: str | None = None) -> m.LoadReport:
         accelerators=[m.AcceleratorSeen(rng.choice(["cuda", "npu"]), rng.choice([1, m.MAX_CORES]) if extreme else 1,
                                         rng.choice([m.MIN_SPEED, m.MAX_SPEED]) if extreme else rng.uniform(1.0, 40.0),
                                         random_count(rng), random_count(rng), random_count(rng),
-                                        rng.choice([None, 0.0, rng.random()]))
+                                        rng.choice([None, 0.0, rng.random()]),
+                                        sorted(_amount(rng, 60.0) for _ in range(rng.choice([0, 1, 3]))))
                       for _ in range(rng.choice([0, 0, 1, 2]))],
         moves=random_count(rng), moves_aborted=random_count(rng), node_cpu=_amount(rng, 2.0),
         battery=rng.choice([None, None, 0.0, 1.0, rng.random()]), low_battery=rng.random() < 0.1,
