@@ -47,6 +47,11 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: programs while its teammates ran four each
     #: (docs/lab/2026-11-27-fastest-pieces.md)
     measured_tie_tolerance: float = 0.05
+    #: in a view of more robots than this, ``ramps`` placement prices this
+    #: many of them instead of all: this robot, the burst plan's host, the
+    #: cheapest few of its previous placement and random others (the power
+    #: of d choices; docs/lab/2026-11-27-sim-scale.md). 0: all, always
+    placement_sample: int = 64
     #: a host busier than the origin expected still takes a program that
     #: computes there within its time budget plus this relative margin
     #: (ramps negotiation)
