@@ -42,10 +42,9 @@ _KEPT, _UNSEEN_ACCEPT, _UNSEEN_FINISH, _GONE = 0, 1, 2, 3
 
 
 def _kind(b: _Booking, acc_total: int, fin_total: int) -> int:
-    """How a report with these totals sees booking ``b``: not started in it
-    (and not finished: it counts as running), started and finished but the
-    finish not in it (it counts as ended), started and finished in it (the
-    booking is done with), or anything else (the report says it all)."""
+    """How a report with these totals sees booking ``b``: not started in it (and not finished: it
+    counts as running), started and finished but the finish not in it (it counts as ended), started
+    and finished in it (the booking is done with), or anything else (the report says it all)."""
     if b.accept_seq is None or b.accept_seq > acc_total:
         # not in the report yet; if it already finished it runs no more
         # (kept, because a report made before the finish may come late)
@@ -122,9 +121,8 @@ class LoadView:
         return self.on_checked_report(report, now, fresh=fresh)
 
     def on_checked_report(self, report: LoadReport, now: float, *, fresh: bool = False) -> bool:
-        """``on_report`` for a report its caller has just found sound
-        (``report_problem`` returned None): the same, without checking it
-        again."""
+        """``on_report`` for a report its caller has just found sound (``report_problem`` returned
+        None): the same, without checking it again."""
         rob = self._robots.get(report.robot)
         if rob is None:
             rob = self._robots[report.robot] = _Robot()
@@ -190,9 +188,8 @@ class LoadView:
         rob.stale = False
 
     def _count_report(self, rob: _Robot) -> None:
-        """``rob`` has a new report: the bookings whose sequence numbers its
-        totals passed change how they count (a report whose totals went
-        back, which no honest host sends, is counted afresh)."""
+        """``rob`` has a new report: the bookings whose sequence numbers its totals passed change how
+        they count (a report whose totals went back, which no honest host sends, is counted afresh)."""
         rep = rob.report
         assert rep is not None
         acc_total, fin_total = rep.accepted_total, rep.finished_total

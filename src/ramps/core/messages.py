@@ -67,9 +67,10 @@ from ramps.version import __version__
 #: and types); 1.1 (ramps 0.2.0) decodes tolerantly and adds optional fields, left out at their defaults
 #: (docs/wire-compatibility.md): ``ProgramResult.worker_died`` (a program killed its own worker); with
 #: a deadline, ``OffloadRequest.deadline_in``, ``SubmitProgram.deadline``, ``SubmitProgram.on_miss``,
-#: ``ProgramOutcome.missed_deadline``; with a battery, ``LoadReport.battery``, ``low_battery``, ``power``;
-#: with accelerators, ``LoadReport.accelerators`` (``AcceleratorSeen``), ``OffloadRequest.accelerator``,
-#: ``SubmitProgram.accelerator``, ``SubmitProgram.accelerator_work``, ``SubmitProgram.cpu_fallback``.
+#: ``ProgramOutcome.missed_deadline``; with a battery, ``LoadReport.battery``, ``LoadReport.low_battery``,
+#: ``LoadReport.power``; with accelerators, ``LoadReport.accelerators`` (``AcceleratorSeen``),
+#: ``OffloadRequest.accelerator``, ``SubmitProgram.accelerator``, ``SubmitProgram.accelerator_work``,
+#: ``SubmitProgram.cpu_fallback``.
 #: The envelope's ``v`` is the major only (1.0 checks ``v == 1``).
 PROTOCOL_MAJOR = 1
 PROTOCOL_MINOR = 1
@@ -190,11 +191,10 @@ class LoadReport(_Msg, frozen=True, kw_only=True, tag="load"):
 
 
 class AcceleratorSeen(msgspec.Struct, frozen=True, array_like=True):
-    """One kind of accelerator as a load report lists it: [kind, slots, work units per second per
-    slot, ramps programs on it now, device memory in bytes (total, free; 0 = not measured),
-    utilisation 0..1 (None = not measured), the work units each program on it has left by the
-    host's estimate, smallest first (``LoadReport.remaining`` for its slots; [] from nodes that
-    do not tell: origins then price each as the program they place)]."""
+    """One kind of accelerator as a load report lists it: [kind, slots, work units per second per slot,
+    ramps programs on it now, device memory in bytes (total, free; 0 = not measured), utilisation 0..1
+    (None = not measured), the work units each program on it has left by the host's estimate, smallest
+    first (``LoadReport.remaining`` for its slots; [] from nodes that do not tell)]."""
 
     kind: Name
     count: Annotated[int, Meta(ge=1, le=MAX_CORES)]
