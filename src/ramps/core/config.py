@@ -47,10 +47,12 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: programs while its teammates ran four each
     #: (docs/lab/2026-11-27-fastest-pieces.md)
     measured_tie_tolerance: float = 0.05
-    #: in a view of more robots than this, ``ramps`` placement prices this
-    #: many of them instead of all: this robot, the burst plan's host, the
-    #: cheapest few of its previous placement and random others (the power
-    #: of d choices; docs/lab/2026-11-27-sim-scale.md). 0: all, always
+    #: in a view of more robots than this, ``ramps`` placement prices a
+    #: short list of this many instead of all: the cheapest at its latest
+    #: full scan (ties drawn at random), this robot and the burst plan's
+    #: host; a full scan again each second, or once none of them is as cheap
+    #: as the robot after them was (docs/lab/2026-11-27-sim-scale.md).
+    #: 0: all, always
     placement_sample: int = 64
     #: a host busier than the origin expected still takes a program that
     #: computes there within its time budget plus this relative margin

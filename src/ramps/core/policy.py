@@ -44,6 +44,8 @@ scheduler.
   gets at one instant) is planned as a whole (``plans``, ``pools``;
   ``ramps.core.burst``): ``choose`` then takes the host of the plan
   (``PlacementRequest.prefer``), with a budget of at least the plan's end.
+  In a view of more robots than ``RampsConfig.placement_sample`` it prices
+  a short list of the cheapest instead of every robot (``_priced``).
 * ``round_robin``, ``random``, ``local_only``: baselines.
 """
 
@@ -64,9 +66,9 @@ from ramps.core.loadview import LoadView
 
 #: how many of the cheapest hosts by count get the finer estimate by work left
 REFINE = 16
-#: the share of a sampled placement's candidates (``RampsConfig.placement_sample``)
-#: taken from the cheapest of the previous placement; random robots fill the rest
-REMEMBER = 4
+#: seconds a large team's short list of candidates stands before the next
+#: full scan (``RampsConfig.placement_sample``, ``RampsPolicy._priced``)
+SHORT_LIST_FOR = 1.0
 #: a program with a deadline goes to the slowest host expected to end it
 #: this much earlier than its deadline (a fraction of its expected time):
 #: room for programs that come later to the same host
@@ -195,30 +197,72 @@ class RampsPolicy(Policy):
     plans = True
 
     def __init__(self) -> None:
-        #: the cheapest hosts of the latest sampled placement, priced again in the next
-        self._best: list[str] = []
-        #: whether the latest ``candidates`` was a sample
-        self._sampled = False
+        #: a large team's cheapest robots by count at the latest full scan
+        #: (``RampsConfig.placement_sample`` of them), the cost of the one
+        #: after them, and until when the list stands (``_priced``)
+        self._short: list[str] = []
+        self._cut = math.inf
+        self._short_until = -math.inf
 
-    def candidates(self, req: PlacementRequest, view: LoadView, now: float, rng: random.Random,
-                   exclude: frozenset[str], sample: int) -> list[tuple[str, float, float, float, float, float]]:
-        """``view.scan`` of the robots ``choose`` prices: all of them, or in a
-        view of more than ``sample`` robots (``RampsConfig.placement_sample``)
-        ``sample`` of them: this robot, the plan's host, the cheapest of the
-        previous sampled placement and random others; the whole view when
-        the sample leaves no teammate."""
-        names = view.robots()
-        self._sampled = bool(sample) and len(names) > sample
-        if not self._sampled:
-            return view.scan(now, exclude)
-        picked = dict.fromkeys([view.me, req.prefer, *self._best])
-        picked.pop("", None)
-        for name in rng.sample(names, sample):
-            if len(picked) >= sample:
-                break
-            picked[name] = None
-        rows = view.scan(now, frozenset(), only=[n for n in picked if n not in exclude])
-        return rows if len(rows) > 1 else view.scan(now, exclude)
+    def _rows(self, req: PlacementRequest, view: LoadView, net: NetworkEstimate,
+              scanned: list[tuple[str, float, float, float, float, float]], slots: dict[str, Any],
+              links: Callable[[str], NetworkEstimate] | None) -> list[list[Any]]:
+        """``choose``'s first estimate on each of the ``scanned`` robots, by
+        the count of tasks there: [t, utilisation, robot, runnable,
+        background, ramps, cores, speed, weight, t_comm]."""
+        me = view.me
+        work = req.work
+        t_comm_default = comm_time(req.payload_size, req.result_size, net)
+        rows: list[list[Any]] = []
+        for robot, cores, speed, ramps, background, weight in scanned:
+            runnable = ramps + background
+            if robot in slots:  # on its accelerator there: its slots, shared by the programs on them
+                _, count, a_speed, on_it, known = slots[robot]
+                # the work left where this origin placed them, the new program's work for the others
+                others = known + [req.accelerator_work] * (round(on_it) - len(known))
+                t = shared_finish_time(req.accelerator_work, others, count, a_speed)
+                runnable, background, ramps, cores, speed, weight = on_it, 0.0, 0.0, count, a_speed, 1.0
+            elif background == 0.0 or weight == 1.0:  # equal sharing (the common, fast case)
+                t = work / (speed * min(1.0, cores / (runnable + 1.0)))
+            else:  # the robot's own busy software outweighs the program
+                t = work / (speed * program_share(cores, ramps + 1.0, background, weight))
+            t_comm = 0.0
+            if robot != me:
+                t_comm = t_comm_default if links is None else comm_time(req.payload_size, req.result_size,
+                                                                         links(robot))
+                t += t_comm
+            rows.append([t, (runnable + 1.0) / cores, robot, runnable, background, ramps, cores, speed, weight,
+                         t_comm])
+        return rows
+
+    def _priced(self, req: PlacementRequest, view: LoadView, now: float, rng: random.Random, net: NetworkEstimate,
+                config: RampsConfig, exclude: frozenset[str], links: Callable[[str], NetworkEstimate] | None
+                ) -> list[list[Any]]:
+        """``_rows`` of every candidate; in a view of more than
+        ``RampsConfig.placement_sample`` robots, of a short list instead
+        while it stands: the cheapest robots by count at the latest full
+        scan (with this robot and the plan's host), for ``SHORT_LIST_FOR``
+        seconds and while one of them still costs no more than the robot
+        after them did. A robot off the list gets cheaper only as its
+        programs end, which the next full scan sees. Robots that cost the
+        same are listed by chance, so origins deciding at once list
+        different ones."""
+        slots = {row[0]: row for row in view.accelerator_rows(now, req.accelerator, exclude)} \
+            if req.accelerator else {}
+        sample = config.placement_sample
+        if sample and self._short and now < self._short_until:
+            names = [n for n in dict.fromkeys([view.me, req.prefer, *self._short]) if n and n not in exclude]
+            rows = self._rows(req, view, net, view.scan(now, frozenset(), only=names), slots, links)
+            if len(rows) > 1 and min(row[0] for row in rows) <= self._cut:
+                return rows
+        rows = self._rows(req, view, net, view.scan(now, exclude), slots, links)
+        if sample and len(rows) > sample:
+            ranked = heapq.nsmallest(sample + 1, rows, key=lambda r: (r[0], rng.random()))
+            self._short = [row[2] for row in ranked[:sample]]
+            self._cut, self._short_until = ranked[-1][0], now + SHORT_LIST_FOR
+        else:
+            self._short = []
+        return rows
 
     def pools(self, req: PlacementRequest, view: LoadView, now: float, *, net: NetworkEstimate,
               exclude: frozenset[str] = frozenset(), links: Callable[[str], NetworkEstimate] | None = None
@@ -250,33 +294,7 @@ class RampsPolicy(Policy):
                links: Callable[[str], NetworkEstimate] | None = None) -> Placement:
         me = view.me
         work = req.work
-        t_comm_default = comm_time(req.payload_size, req.result_size, net)
-        rows: list[list[Any]] = []  # [t, utilisation, robot, runnable, background, ramps, cores, speed, weight, t_comm]
-        t_best = math.inf
-        slots = {row[0]: row for row in view.accelerator_rows(now, req.accelerator, exclude)} \
-            if req.accelerator else {}
-        sample = config.placement_sample
-        for robot, cores, speed, ramps, background, weight in self.candidates(req, view, now, rng, exclude, sample):
-            runnable = ramps + background
-            if robot in slots:  # on its accelerator there: its slots, shared by the programs on them
-                _, count, a_speed, on_it, known = slots[robot]
-                # the work left where this origin placed them, the new program's work for the others
-                others = known + [req.accelerator_work] * (round(on_it) - len(known))
-                t = shared_finish_time(req.accelerator_work, others, count, a_speed)
-                runnable, background, ramps, cores, speed, weight = on_it, 0.0, 0.0, count, a_speed, 1.0
-            elif background == 0.0 or weight == 1.0:  # equal sharing (the common, fast case)
-                t = work / (speed * min(1.0, cores / (runnable + 1.0)))
-            else:  # the robot's own busy software outweighs the program
-                t = work / (speed * program_share(cores, ramps + 1.0, background, weight))
-            t_comm = 0.0
-            if robot != me:
-                t_comm = t_comm_default if links is None else comm_time(req.payload_size, req.result_size,
-                                                                         links(robot))
-                t += t_comm
-            rows.append([t, (runnable + 1.0) / cores, robot, runnable, background, ramps, cores, speed, weight,
-                         t_comm])
-            if t < t_best:
-                t_best = t
+        rows = self._priced(req, view, now, rng, net, config, exclude, links)
         # the count above treats every program already on a host as new; on
         # the likeliest hosts, count instead the work they have left (those
         # that end first speed the new one up): T_there under processor sharing
@@ -291,8 +309,6 @@ class RampsPolicy(Policy):
                 continue
             t = shared_finish_time(work, left, row[6], row[7], row[4], row[8]) + row[9]
             row[0] = min(row[0], t)
-        if self._sampled:
-            self._best = [row[2] for row in heapq.nsmallest(sample // REMEMBER, rows, key=lambda r: r[0])]
         times = rank_by_energy(view, rows, config.energy_weight)  # energy against time (ramps.core.battery)
         t_best = min(row[0] for row in rows)
         planned = next((row for row in rows if row[2] == req.prefer), None) if req.prefer else None
