@@ -9,6 +9,11 @@
 # and the fast loop while you work:
 #   make check  -> ruff + mypy + the tests not marked slow (about a minute on 2 cores)
 PYTHON ?= python3
+# Python writes each module's bytecode on its first import (the install
+# compiles none, see WHEELS below); with PYTHONDONTWRITEBYTECODE set, as some
+# CI and container environments do, every node, worker and command the tests
+# start would compile every module it imports again: a third more CPU
+unexport PYTHONDONTWRITEBYTECODE
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 # everything (make test, check, lint, types)
