@@ -186,26 +186,19 @@ class Executor:
         self._advance(now)
         self.speed = speed
 
-    def remaining(self, now: float) -> list[float]:
+    def remaining(self, now: float, kind: str = "") -> list[float]:
         """Work units each running program has left by the estimate above,
-        smallest first, at most MAX_LISTED (what load reports carry)."""
+        smallest first, at most MAX_LISTED (what load reports carry): those
+        on a CPU, or with ``kind`` those on that kind of accelerator."""
         self._advance(now)
         # x if x > 0.0 else 0.0 is max(0.0, x) without a call per job; a
         # robot running more than MAX_LISTED lists the smallest, without sorting the rest
         left = [x if (x := job.work - job.done) > 0.0 else 0.0 for job in self.running.values()
-                if not job.accelerator]
+                if job.accelerator == kind]
         if len(left) > MAX_LISTED:
             return heapq.nsmallest(MAX_LISTED, left)
         left.sort()
         return left
-
-    def accelerator_left(self, kind: str, now: float) -> list[float]:
-        """Work units each program on this robot's ``kind`` of accelerator
-        has left by the same estimate, smallest first, at most MAX_LISTED."""
-        self._advance(now)
-        left = sorted(x if (x := job.work - job.done) > 0.0 else 0.0 for job in self.running.values()
-                      if job.accelerator == kind)
-        return left[:MAX_LISTED]
 
     def on_offload(self, req: OffloadRequest, now: float, out: list[Action],
                    report_now: Callable[[], LoadReport] | None = None) -> None:

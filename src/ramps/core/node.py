@@ -441,7 +441,7 @@ class Node:
             total, free, util = self.accelerator_measured.get(kind, (0, 0, None))
             on_it = ex.on_accelerators[kind]
             out.append(AcceleratorSeen(kind, a.count, a.speed, on_it, total, free, util,
-                                       ex.accelerator_left(kind, self._now) if on_it else []))
+                                       ex.remaining(self._now, kind) if on_it else []))
         return out
 
     def statistics(self) -> NodeStatistics:
