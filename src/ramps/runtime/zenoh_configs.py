@@ -53,10 +53,6 @@ def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credential
     c.insert_json5("listen/endpoints", json.dumps(listening))
     c.insert_json5("connect/endpoints", json.dumps(s.connect))
     c.insert_json5("scouting/multicast/enabled", "true" if s.multicast else "false")
-    # a teammate not up yet (robots booting together, a node restarted by its
-    # supervisor) is dialled again after 0.1 s, then less often, at most every
-    # 2 s: Zenoh's own 1 s then 2 s then 4 s left such a team apart for seconds
-    c.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
     if not scout_first:
         c.insert_json5("scouting/delay", "0")
     # of two robots that find each other (multicast, gossip) only one dials: when both
@@ -73,7 +69,8 @@ def zenoh_config(s: NodeSettings, *, listen: list[str] | None = None, credential
 
 def _links_security_overrides(c: zenoh.Config, s: NodeSettings, credentials: Credentials | None,
                               exit_on_failure: bool, caller: str) -> None:
-    """What a robot's and a router's configurations share: the team's lease
+    """What a robot's and a router's configurations share: how often an
+    endpoint that does not answer is dialled again, the team's lease
     and keep-alives, shared memory off when asked (two routers on one host,
     the testbed, would pass large messages around their link), on a secured
     team its TLS and access control (``credentials``: the checked bundle;
@@ -82,6 +79,10 @@ def _links_security_overrides(c: zenoh.Config, s: NodeSettings, credentials: Cre
     wins over ramps's defaults."""
     import json
 
+    # a teammate not up yet (robots booting together, a node restarted by its
+    # supervisor) is dialled again after 0.1 s, then less often, at most every
+    # 2 s: Zenoh's own 1 s then 2 s then 4 s left such a team apart for seconds
+    c.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
     c.insert_json5("transport/link/tx/lease", str(s.lease_ms))
     c.insert_json5("transport/link/tx/keep_alive", "4")
     if not s.shared_memory:
@@ -129,7 +130,6 @@ def router_config(s: NodeSettings, *, credentials: Credentials | None = None,
     c.insert_json5("listen/endpoints", json.dumps(router_listen(s)))
     c.insert_json5("connect/endpoints", json.dumps(s.connect))
     c.insert_json5("scouting/multicast/enabled", "true" if s.multicast else "false")
-    c.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
     _links_security_overrides(c, s, credentials, exit_on_failure, "router_config")
     return c
 
