@@ -6,15 +6,19 @@ submits. ROS clients send goals as JSON on a topic; each goal becomes one
 ``team.submit``; the program's ``ProgramFuture`` updates (placed, running,
 re-placed, progress) become feedback, its outcome becomes the result, and
 cancelling the goal cancels the future, which withdraws the program from the
-team. The team's load reports are published as ``diagnostic_msgs``. Two ways in, on standard types and on ramps' own action:
+team. The team's load reports are published as ``diagnostic_msgs``
+(``ramps.ros.diagnostics``).
+
+Two ways in, on standard types and on ramps' own action:
 
 - ``~/run``, the ROS 2 action ``ramps_interfaces/action/RunProgram``
   (``interfaces/RunProgram.action``): goal = program and ``args_json``,
   feedback = state, host, attempt, progress (-1 before any; news of it comes
-  with state ``running``), result = ok, ``value_json`` or error and
-  error_kind, host, attempts; cancelling the goal withdraws the program.
-  ``ramps ros --build-interfaces`` builds the type into the environment
-  (``ramps.ros.build``); the action is served when it imports.
+  with state ``running``), result = ok,
+  ``value_json`` or error and error_kind, host, attempts; cancelling the goal
+  withdraws the program. The type is built into the environment by
+  ``ramps ros --build-interfaces`` (``ramps.ros.build``: rosidl from the
+  ROS wheels, cmake and a compiler); the action is served when it imports.
 - topics that need nothing built, for any ROS tool: goals, cancels,
   feedback and results as JSON in ``std_msgs/String``, goal states on
   ``action_msgs/GoalStatusArray`` with the standard codes.
@@ -75,6 +79,7 @@ from std_msgs.msg import String
 from unique_identifier_msgs.msg import UUID
 
 from ramps.ros.battery import bridge_battery
+from ramps.ros.diagnostics import robot_status
 from ramps.runtime.client import ORIGIN_GONE_GRACE
 from ramps.runtime.registry import MAX_ARGS_BYTES
 
@@ -199,9 +204,10 @@ class RosFace(Node):
                 want = "a number" if isinstance(v, float) else wants[v]
                 raise ValueError(f"ROS parameter {k!r} must be {want} ({type(exc).__name__}: {exc})") from None
         out["connect"] = list(out["connect"] or [])
-        for k, least in (("diagnostics_period", 1e-9), ("origin_grace", 0.0)):
-            if not out[k] >= least:
-                raise ValueError(f"{k} must be {'> 0' if least else '>= 0'} s, got {out[k]}")
+        if not out["diagnostics_period"] > 0:
+            raise ValueError(f"diagnostics_period must be > 0 s, got {out['diagnostics_period']}")
+        if not out["origin_grace"] >= 0:
+            raise ValueError(f"origin_grace must be >= 0 s, got {out['origin_grace']}")
         return out
 
     # ------------------------------------------------------------ the one thread that talks to ROS
@@ -439,36 +445,6 @@ class RosFace(Node):
             self.team.close()
         finally:
             self.destroy_node()
-
-
-def robot_status(r, team_size: int, *, stale_after: float) -> DiagnosticStatus:
-    """One robot's load report as a DiagnosticStatus (OK / WARN / ERROR)."""
-    s = DiagnosticStatus(name=f"ramps: {r.robot}", hardware_id=r.robot)
-    if not r.alive and r.leaving:  # stopped, its programs handed back: not a fault
-        s.level, s.message = DiagnosticStatus.WARN, "left the team: its node stopped"
-    elif not r.alive:
-        s.level, s.message = DiagnosticStatus.ERROR, "gone: not in the team"
-    elif r.report_age is None:
-        s.level, s.message = DiagnosticStatus.WARN, "alive, no load report yet"
-    elif r.report_age > stale_after:
-        s.level, s.message = DiagnosticStatus.WARN, f"load report {r.report_age:.1f} s old"
-    elif r.blacklisted or (r.sees is not None and r.sees < team_size - 1):
-        s.level = DiagnosticStatus.WARN
-        s.message = (f"sees {r.sees} of {team_size - 1} teammates" if r.sees is not None and r.sees < team_size - 1
-                     else f"wrote off {', '.join(r.blacklisted)}")
-    else:
-        s.level = DiagnosticStatus.OK
-        s.message = f"{r.cpu_busy:.1f}/{r.cores} cores busy, {r.ramps_running} program(s)"
-    vals = {"cores": r.cores, "speed": f"{r.speed:g}", "cpu busy": f"{r.cpu_busy:.2f}", "run queue": f"{r.runnable:.2f}",
-            "load avg": f"{r.load_avg:.2f}", "programs running": r.ramps_running, "programs done": r.finished_total,
-            "programs moved": r.moves, "node cores": f"{r.node_cpu:.2f}", "mem free MiB": r.mem_free // 2**20, "sees": "-" if r.sees is None else r.sees,
-            "blacklisted": ",".join(r.blacklisted), "dropped messages": r.bad_messages,
-            "report age s": "-" if r.report_age is None else f"{r.report_age:.1f}"}
-    s.values = [KeyValue(key=k, value=str(v)) for k, v in vals.items()]
-    for i, p in enumerate(r.running):  # what runs there, and how far it is
-        s.values.append(KeyValue(key=f"program {i + 1}", value=f"{p.program} from {p.origin}"
-                                 + ("" if p.progress is None else f", {100 * p.progress:.0f}%")))
-    return s
 
 
 def _kind(exc: BaseException) -> str:
