@@ -80,3 +80,30 @@ def test_json_lines_say_state_host_and_attempts(submit):
     [line] = [json.loads(ln) for ln in res.stdout.splitlines() if ln.startswith("{")]
     assert line["ok"] is False and "no route to the dock" in line["error"]
     assert (line["state"], line["host"], line["attempts"]) == ("failed", "r2", 1)
+
+
+def bracketed(grid: list[str]) -> str:
+    """A program whose result and errors hold square brackets (Python types, indexes)."""
+    if not grid:
+        raise ValueError("no route: grid[0] is missing, want list[str]")
+    return "[bold]route[/bold] via bay[2]"
+
+
+def test_brackets_in_results_and_errors_are_printed_as_they_are(monkeypatch):
+    """Results and errors are text, not console markup: a type the node names
+    (``list[str]``), an index (``grid[0]``) and markup-like words come out whole."""
+    mem = MemoryTeam({"r1": (1, 1.0), "r2": (4, 4.0)}, programs=["test_cli_submit_summary:bracketed"])
+    mem.run(3.0)
+    cli_node = sys.modules["ramps.cli.node"]
+    monkeypatch.setattr(cli_node, "_connect_team", lambda *a, **k: _Driven(mem, "r1", 0.01))
+    try:
+        # the client lacks the program, so its node checks the arguments: a wrong type
+        res = runner.invoke(app, ["submit", "bracketed", "--arg", 'grid="x"'], env={"COLUMNS": "400"})
+        assert res.exit_code == 1, res.output
+        assert "argument 'grid' must be list[str]" in res.output, res.output
+        res = runner.invoke(app, ["submit", "bracketed", "--arg", "grid=[]"], env={"COLUMNS": "400"})
+        assert res.exit_code == 1 and "grid[0] is missing, want list[str]" in res.output, res.output
+        res = runner.invoke(app, ["submit", "bracketed", "--arg", 'grid=["."]'], env={"COLUMNS": "400"})
+        assert res.exit_code == 0 and "[bold]route[/bold] via bay[2]" in res.output, res.output
+    finally:
+        mem.close()

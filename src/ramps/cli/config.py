@@ -18,6 +18,7 @@ from typing import Optional
 
 import msgspec
 import typer
+from rich.markup import escape
 
 from ramps.cli.common import command_group, err, fail, out
 
@@ -57,7 +58,7 @@ def check(
     result = check_config(file, environ=environ, robot=robot)
     if not result.ok:
         for p in result.problems:
-            err.print(f"[bold red]error:[/] {file}: {p}", highlight=False, soft_wrap=True)
+            err.print(f"[bold red]error:[/] {escape(f'{file}: {p}')}", highlight=False, soft_wrap=True)
         raise typer.Exit(2)
     assert result.settings is not None
     if as_json:

@@ -108,7 +108,7 @@ def _print_report(rep: DemoReport) -> None:
               f"{sum(p.failed for p in rep.phases)} failed; {rep.wall_seconds:.0f} s in all")
     for ph in rep.phases:
         for e in ph.errors[:3]:
-            err.print(f"[red]{ph.name}: {e}[/]", highlight=False, soft_wrap=True)
+            err.print(f"{ph.name}: {e}", style="red", markup=False, highlight=False, soft_wrap=True)
     if rep.report:
         out.print(f"report of the ramps run: {rep.report} (open it in a browser); the nodes' trace of the whole "
                   f"session, warm-up and baselines included: {rep.trace} (`ramps report {rep.trace}`)",

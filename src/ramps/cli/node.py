@@ -249,7 +249,7 @@ def submit(
                     f.add_update_callback(lambda f, i=i: None if f.done() else err.print(
                         f"[{i + 1}/{count}] {f.program}: {f.state} on {f.host or '?'}"
                         + ("" if f.progress is None else f" {100 * f.progress:.0f}% {f.progress_detail}"),
-                        highlight=False, soft_wrap=True))
+                        markup=False, highlight=False, soft_wrap=True))
         except RampsError as exc:
             fail(str(exc))
         code = 0
@@ -263,10 +263,10 @@ def submit(
             line.update(state=f.state, host=f.host, attempts=f.attempts)
             if as_json:
                 sys.stdout.write(json.dumps(line, default=str) + "\n")
-            elif line["ok"]:
-                out.print(line["value"])
+            elif line["ok"]:  # results and errors are text, not markup: "list[str]", "grid[0]"
+                out.print(line["value"], markup=False)
             else:
-                err.print(f"[red]{line['error']}[/]", highlight=False, soft_wrap=True)
+                err.print(line["error"], style="red", markup=False, highlight=False, soft_wrap=True)
         if not as_json:
             err.print(how_they_ended(futs, t.robot, _time.perf_counter() - started), highlight=False, soft_wrap=True)
     finally:
