@@ -106,3 +106,25 @@ def test_node_client_and_simulator_import_and_run_without_the_extras():
     assert out.returncode == 0, out.stderr
     assert "route_plan: route_plan needs ortools" in out.stdout and "ramps-robotics[route]" in out.stdout
     assert "heavy: []" in out.stdout
+
+
+def _bootstrap(target: str, tmp_path: Path) -> list[str]:
+    """The commands ``make TARGET`` runs from a fresh clone (no venv yet), as ``make -n`` prints them."""
+    out = subprocess.run(["make", "-n", "-C", str(ROOT), target, f"VENV={tmp_path / 'venv'}"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    return [ln for ln in out.stdout.splitlines() if "pip" in ln or "ramps" in ln]
+
+
+@pytest.mark.skipif(subprocess.run(["which", "make"], capture_output=True).returncode != 0, reason="no make")
+def test_make_demo_installs_the_demo_extra_alone_and_make_test_everything(tmp_path):
+    """``make demo`` on a fresh clone installs ramps with its ``demo`` extra and
+    nothing else (no test or check tools, no ROS 2, no action built);
+    ``make test`` installs every extra it tests and builds the ROS action."""
+    demo = _bootstrap("demo", tmp_path)
+    installs = [ln for ln in demo if "pip install" in ln]
+    assert installs and all("-e '.[demo]'" in ln for ln in installs), demo
+    assert not any("--build-interfaces" in ln for ln in demo), demo
+    assert demo[-1].endswith("ramps demo"), demo
+    test = " ".join(_bootstrap("test", tmp_path))
+    assert "-e '.[demo,test,check,ros]'" in test and "ramps ros --build-interfaces" in test, test
