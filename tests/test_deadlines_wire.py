@@ -100,7 +100,7 @@ def _added_since_previous() -> list[tuple[str, str]]:
 def test_protocol_minor_says_what_it_adds_as_the_wire_table_does() -> None:
     added = _added_since_previous()
     assert ("SubmitProgram", "deadline") in added and ("ProgramResult", "worker_died") in added
-    source = (ROOT / "src/ramps/core/messages.py").read_text()
+    source = (ROOT / "src/ramps/core/wirebase.py").read_text()
     comment = source[source.index("#: the protocol this code speaks"):source.index("PROTOCOL_MAJOR =")]
     table = (ROOT / "docs/wire-compatibility.md").read_text()
     [row] = [line for line in table.splitlines() if line.startswith("| 0.2.0 | 1.1 |")]

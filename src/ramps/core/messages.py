@@ -62,57 +62,15 @@ from ramps.core.wirelimits import (  # the limits and field types, re-exported: 
     ProgressText as ProgressText, CheckpointState as CheckpointState,
 )
 from ramps.version import __version__
-
-#: the protocol this code speaks, major.minor. 1.0 is ramps 0.1.0 (strict: it refuses unknown fields
-#: and types); 1.1 (ramps 0.2.0) decodes tolerantly and adds optional fields, left out at their defaults
-#: (docs/wire-compatibility.md): ``ProgramResult.worker_died`` (a program killed its own worker); with
-#: a deadline, ``OffloadRequest.deadline_in``, ``SubmitProgram.deadline``, ``SubmitProgram.on_miss``,
-#: ``ProgramOutcome.missed_deadline``; with a battery, ``LoadReport.battery``, ``LoadReport.low_battery``,
-#: ``LoadReport.power``; with accelerators, ``LoadReport.accelerators`` (``AcceleratorSeen``),
-#: ``OffloadRequest.accelerator``, ``SubmitProgram.accelerator``, ``SubmitProgram.accelerator_work``,
-#: ``SubmitProgram.cpu_fallback``.
-#: The envelope's ``v`` is the major only (1.0 checks ``v == 1``).
-PROTOCOL_MAJOR = 1
-PROTOCOL_MINOR = 1
-#: the envelope's ``v`` (kept under its old name for the fuzzers and tests)
-PROTOCOL_VERSION = PROTOCOL_MAJOR
-#: what this node says it speaks, e.g. "1.1"
-PROTOCOL = f"{PROTOCOL_MAJOR}.{PROTOCOL_MINOR}"
-
-
-class WireError(ValueError):
-    """Bytes from the network that are not a valid message of this protocol."""
-
-
-class VersionRefused(WireError):
-    """A message of another major protocol version: not malformed, not
-    understood. ``version`` is its major, ``minor`` and ``release`` what its
-    envelope said of itself (a node of major 2 or later may say it), and
-    ``sender`` the robot it claims to come from (unchecked; "" if unusable)."""
-
-    def __init__(self, text: str, *, version: int, minor: int | None, release: str, sender: str) -> None:
-        super().__init__(text)
-        self.version, self.minor, self.release, self.sender = version, minor, release, sender
-
-    @property
-    def speaks(self) -> str:
-        """The other node's protocol, as far as its message says: "2" or "2.3"."""
-        return f"{self.version}" if self.minor is None else f"{self.version}.{self.minor}"
-
-
-class UnknownMessageType(WireError):
-    """A message of this major whose type this node does not know: a newer
-    minor's addition, which by the policy an older node may skip."""
-
-    def __init__(self, text: str, *, tag: str, sender: str) -> None:
-        super().__init__(text)
-        self.tag, self.sender = tag, sender
-
-
-class _Msg(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True, tag_field="type"):
-    pass
-
-
+from ramps.core.wirebase import (  # re-exported: ``messages.WireError`` etc.
+    PROTOCOL_MAJOR as PROTOCOL_MAJOR, PROTOCOL_MINOR as PROTOCOL_MINOR, PROTOCOL_VERSION as PROTOCOL_VERSION,
+    PROTOCOL as PROTOCOL, WireError as WireError, VersionRefused as VersionRefused,
+    UnknownMessageType as UnknownMessageType, Record as _Msg,
+)
+from ramps.core.client_messages import (  # re-exported: one schema, ``messages.SubmitProgram`` etc.
+    SubmitProgram as SubmitProgram, CancelSubmitted as CancelSubmitted, ProgramOutcome as ProgramOutcome,
+    ProgramUpdate as ProgramUpdate,
+)
 
 
 class LoadReport(_Msg, frozen=True, kw_only=True, tag="load"):
@@ -188,6 +146,13 @@ class LoadReport(_Msg, frozen=True, kw_only=True, tag="load"):
     #: watts one busy core of this robot draws (None: not known), which
     #: placement weighs with ``RampsConfig.energy_weight``
     power: Load | None = None
+    #: this robot's hardware class (its CPU model, or what its operator set)
+    #: and its own work units per CPU second, before pooling: robots of one
+    #: class go by their median when they differ by no more than noise
+    #: (``ramps.core.speed.SpeedClass``). In reports of the instant only
+    #: (``Node.current_report``); None in the rest
+    speed_class: Name | None = None
+    cpu_rate: Speed | None = None
 
 
 class AcceleratorSeen(msgspec.Struct, frozen=True, array_like=True):
@@ -337,59 +302,6 @@ class CancelProgram(_Msg, frozen=True, kw_only=True, tag="cancel"):
     origin: RobotName
 
 
-class SubmitProgram(_Msg, frozen=True, kw_only=True, tag="submit"):
-    """An application (client) asks its robot's node to run a program."""
-
-    client: RobotName
-    request_id: Count
-    program: Name
-    args: Payload = b""
-    #: expected work in work units (from the program's profile), 0 = default
-    work: Amount = 0.0
-    result_size: Count = 0
-    local_only: bool = False
-    #: placement policy for this program ("" = the node's own)
-    policy: Word = ""
-    #: seconds from the node's receipt by which the result is wanted (None:
-    #: no deadline), and what to do when no robot can meet it: "run" (or
-    #: ""), "local" or "fail" (``ramps.core.origin``). Added in protocol 1.1
-    deadline: Amount | None = None
-    on_miss: Word = ""
-    #: the kind of accelerator the program can use ("" = none), its work
-    #: there in work units (0 = the same as ``work``), and whether it may
-    #: run on a CPU where no robot has one free (``ramps.core.accelerators``)
-    accelerator: Word = ""
-    accelerator_work: Amount = 0.0
-    cpu_fallback: bool = True
-
-
-class CancelSubmitted(_Msg, frozen=True, kw_only=True, tag="withdraw"):
-    client: RobotName
-    request_id: Count
-
-
-class ProgramOutcome(_Msg, frozen=True, kw_only=True, tag="outcome"):
-    """The one result (or error) of a submitted program, for its client."""
-
-    request_id: Count
-    ok: bool
-    value: Payload = b""
-    error: Annotated[str, Meta(max_length=MAX_OUTCOME_TEXT)] = ""
-    #: "program" (the program raised), "refused" (no robot will run it),
-    #: "cancelled", "failed" (gave up after failures), "shutdown"
-    error_kind: Word = ""
-    host: OptRobotName = ""
-    attempts: Count = 0
-    #: times the program was relocated while running (moves after placement)
-    moves: Count = 0
-    #: the progress of the checkpoint its last attempt resumed from (None:
-    #: it ran from the start)
-    resumed_from: Fraction | None = None
-    #: it had a deadline and was delivered after it (or refused as
-    #: unmeetable, ``error_kind`` "deadline"). Added in protocol 1.1
-    missed_deadline: bool = False
-
-
 class ProgramProgress(_Msg, frozen=True, kw_only=True, tag="progress"):
     """A running program said how far it is (host -> origin, at most once a
     heartbeat period per program; advisory: never resent)."""
@@ -412,22 +324,6 @@ class ProgramCheckpoint(_Msg, frozen=True, kw_only=True, tag="checkpoint"):
     state: CheckpointState
     #: the program's progress when it saved, None if it never reported any
     fraction: Fraction | None = None
-
-
-class ProgramUpdate(_Msg, frozen=True, kw_only=True, tag="update"):
-    """Where a submitted program stands, for its client (node -> client;
-    advisory, the one ``ProgramOutcome`` still ends it). ``state`` is
-    "placed" (offered to ``host``), "running" (``host`` accepted it),
-    "replaced" (offered again after a failure or a refusal), "host_failed"
-    (``host`` was written off; it will be placed again) or "progress"."""
-
-    request_id: Count
-    state: Word
-    host: OptRobotName = ""
-    attempt: Count = 0
-    #: the latest progress the program reported (None: none yet)
-    fraction: Fraction | None = None
-    detail: ProgressText = ""
 
 
 class LinkProbe(_Msg, frozen=True, kw_only=True, tag="probe"):
@@ -594,22 +490,3 @@ def _why(exc: Exception) -> str:
     if isinstance(exc, UnicodeDecodeError):
         return f"a string is not UTF-8 ({exc.reason})"
     return str(exc)
-
-
-def wire_size(msg: Message) -> int:
-    """Bytes this message occupies on a link, counting declared payloads.
-
-    The simulator sends messages without encoding them; their declared
-    payload and result sizes stand in for the bytes a real robot would send.
-    """
-    if isinstance(msg, OffloadRequest):
-        return 120 + max(msg.payload_size, len(msg.args)) + len(msg.resume or b"")
-    if isinstance(msg, ProgramCheckpoint):
-        return 120 + len(msg.state)
-    if isinstance(msg, ProgramResult):
-        return 120 + max(msg.result_size, len(msg.value))
-    if isinstance(msg, Heartbeat):
-        return 40 + 24 * len(msg.programs)
-    if isinstance(msg, LinkProbe):
-        return 40 + len(msg.padding)
-    return 120

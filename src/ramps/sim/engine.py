@@ -16,8 +16,7 @@ charge (``ramps.sim.battery``, read before each report); ``load`` changes
 how many busy processes the robot's own software runs (load that changes
 after placement). Programs with ``checkpoint_every`` save their state that
 often while they run (``CheckpointSaved``); a restart that carries it
-resumes with only the work left. Messages in
-flight across a link that goes down are lost. With liveliness on, teammates
+resumes with only the work left. Messages in flight across a link that goes down are lost. With liveliness on, teammates
 learn of a crash after ``network.crash_detect`` and of a cut or freeze after
 ``network.lease``, as Zenoh reports them.
 
@@ -39,7 +38,7 @@ from ramps.core.durable import decode_record, encode_record, program_of, record_
 from ramps.core.cost import NetworkEstimate, nice_weight, program_cores
 from ramps.core.events import (Action, CheckpointSaved, Deliver, Note, PeerAlive, PeerLost, ProgramFinished,
                                PublishReport, Received, Send, StartProgram, StopProgram, Submit)
-from ramps.core.messages import LoadReport, Message, wire_size
+from ramps.core.messages import LoadReport, Message
 from ramps.core.node import Node
 from ramps.core.program import FINAL
 from ramps.core.speed import REMEASURE_PERIOD, SpeedMeasured
@@ -47,6 +46,7 @@ from ramps.sim.battery import Batteries
 from ramps.sim.cpu import CPU, next_completion, set_frozen, take_finished
 from ramps.sim.results import ProgramRecord, SimResult, TraceEntry
 from ramps.sim.scenario import FaultSpec, ProgramSpec, RobotSpec, Scenario
+from ramps.sim.wire import wire_size
 
 
 class _Robot:
