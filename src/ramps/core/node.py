@@ -85,7 +85,7 @@ from ramps.core.origin import Origin
 from ramps.core.policy import Policy, make_policy
 from ramps.core.program import FINAL
 from ramps.core.relink import Stalled
-from ramps.core.speed import HostSpeeds, SpeedEstimate, SpeedMeasured
+from ramps.core.speed import HostSpeeds, SpeedClass, SpeedEstimate, SpeedMeasured, speed_moved
 
 
 class NodeStatistics(msgspec.Struct, frozen=True, kw_only=True):
@@ -128,6 +128,7 @@ class Node:
         core_fraction: float = 1.0,
         accelerators: Sequence[Accelerator] = (),
         bursts: bool = False,
+        speed_class: str = "",
     ) -> None:
         self.robot = robot
         self.cores = cores
@@ -166,6 +167,9 @@ class Node:
         #: this robot's speed (re-measured) and its teammates' as their results
         #: show (policies that share load only; ``ramps.core.speed``)
         self.own_speed = SpeedEstimate(speed, self.config) if self.policy.shares_load else None
+        #: robots of this robot's hardware class and their own figures (a speed it measures itself only)
+        self.speed_class = SpeedClass(speed_class if self.own_speed is not None else "")
+        self.core_fraction = core_fraction
         self.host_speeds = HostSpeeds(self.config) if self.policy.shares_load else None
         if self.host_speeds is not None:
             self.view.speed_factor = self.host_speeds.factor
@@ -255,7 +259,7 @@ class Node:
             return out
         self._published, self._prompted_at, self._prompt_due = counts, now, None
         self._report_seq += 1
-        report = self.current_report()
+        report = self.current_report(with_class=True)
         self.view.on_report(report, now)
         out.append(PublishReport(report=report))
         return out
@@ -290,14 +294,14 @@ class Node:
         elif isinstance(event, Cancel):
             self.origin.cancel(event.program_id, now, out)
         elif isinstance(event, SpeedMeasured):
-            if self.own_speed is not None and self.own_speed.measured(event.speed):
-                out.append(Note(what="speed", robot=self.robot,
-                                detail=f"{self.speed:.4g} -> {event.speed:.4g}: measured again while idle"))
-                self.executor.set_speed(event.speed, now)
-                self.speed = self.view.speed = event.speed
+            if self.own_speed is not None and self.own_speed.measured_event(event):
+                self._published = (-1, -1)  # its class hears its own figure now (a report of the instant)
+                self._go_by_speed(now, out, "measured again while idle")
         elif isinstance(event, PeerLost):
             if event.robot != self.robot:
                 self.executor.on_origin_lost(event.robot, now)  # its programs here: stopped if it stays away
+                if self.speed_class.forget(event.robot):
+                    self._go_by_speed(now, out, f"{event.robot} left its class")
                 self.origin.on_peer_lost(event.robot, now, out)
         elif isinstance(event, PeerAlive):
             if event.robot != self.robot:
@@ -337,6 +341,20 @@ class Node:
         else:
             out.append(Note(what="battery_ok", robot=self.robot, detail=f"charge {charge}: takes teammates' programs again"))
 
+    def _go_by_speed(self, now: float, out: list[Action], why: str) -> None:
+        """Go by this robot's own figure, or its class's (``SpeedClass.rate``),
+        if that moved."""
+        assert self.own_speed is not None
+        own, fraction = self.own_speed.value, self.core_fraction
+        rate, robots = self.speed_class.rate(own / fraction, self.own_speed.se)
+        speed = round(rate * fraction, 6)
+        if not speed_moved(speed, self.speed):
+            return
+        pooled = f" (its own {own:.4g}, the median of {robots} robots of its class)" if robots > 1 else ""
+        out.append(Note(what="speed", robot=self.robot, detail=f"{self.speed:.4g} -> {speed:.4g}: {why}{pooled}"))
+        self.executor.set_speed(speed, now)
+        self.speed = self.view.speed = speed
+
     def _receive(self, sender: str, msg: object, now: float, out: list[Action]) -> None:
         if isinstance(msg, LoadReport) and msg.robot == self.robot and msg.incarnation != self.incarnation:
             taken = self.same_name.heard(msg, now)  # another node under this name, or this one's previous process
@@ -357,6 +375,8 @@ class Node:
                                                                           f"its results' correction starts over"))
                 if self.view.on_checked_report(msg, now):
                     out.append(Note(what="unblacklisted", robot=msg.robot))
+                if self.speed_class.heard(msg.robot, msg.speed_class, msg.cpu_rate):
+                    self._go_by_speed(now, out, f"{msg.robot} measured itself")
         elif isinstance(msg, OffloadRequest):
             self.executor.on_offload(msg, now, out, report_now=self.current_report)
         elif isinstance(msg, OffloadAccepted):
@@ -411,13 +431,20 @@ class Node:
                                    f"(was {before:.3g}): {ap.submit.program} took {msg.work_done:.4g} units "
                                    f"there, less or more elsewhere"))
 
-    def current_report(self) -> LoadReport:
+    def current_report(self, *, with_class: bool = False) -> LoadReport:
         """A report of this instant (sent with a 'busy' rejection); it keeps
-        the last sequence number, see ``LoadView.on_report(fresh=True)``."""
+        the last sequence number, see ``LoadView.on_report(fresh=True)``.
+        ``with_class``: with this robot's speed class and own figure, which
+        go only to teammates' nodes of this protocol (``PublishReport``): a
+        release that decodes strictly (0.1.0) would drop the whole report."""
         running = self.executor.cpu_programs()
         bg = self.executor.background
+        extra: dict[str, Any] = {}
+        if with_class and self.speed_class.name:
+            extra.update(speed_class=self.speed_class.name, cpu_rate=self._cpu_rate())
         return self._report(cpu_busy=min(float(self.cores), bg + running), runnable=bg + running,
-                            ramps_avg=float(running), window=0.0, mem_free=self._mem_free, node_cpu=self._node_cpu)
+                            ramps_avg=float(running), window=0.0, mem_free=self._mem_free, node_cpu=self._node_cpu,
+                            **extra)
 
     def _report(self, **measured: Any) -> LoadReport:
         """A report of this robot: its identity and the executor's counters,
@@ -430,6 +457,12 @@ class Node:
             battery=self.reserve.charge, low_battery=self.reserve.low, power=self.power,
             moves_aborted=self.origin.moves_aborted, accelerators=self._accelerators_seen(), **measured,
         )
+
+    def _cpu_rate(self) -> float | None:
+        """This robot's own work units per CPU second, for its class."""
+        if self.own_speed is None or self.core_fraction <= 0:
+            return None
+        return round(self.own_speed.value / self.core_fraction, 6)
 
     def _accelerators_seen(self) -> list[AcceleratorSeen]:
         """This robot's accelerators as its reports list them."""

@@ -19,6 +19,16 @@ the share of a CPU each core is under the kernel's quota
   it gets no programs, so no result could ever say it is faster. Measured
   on a wall clock instead, a burst that fits in one quota period runs
   faster than the robot's sustained rate.
+- **Robots of one hardware class, pooled** (``SpeedClass``): robots that
+  report the same class (by default their CPU model) and whose own figures
+  differ by no more than their measurements' noise go by the median of the
+  class's figures (per CPU second, each scaled by its own quota): a
+  second's measurement beside busy processes is noisy (identical robots'
+  single measurements differed by up to 1.17x), and a difference the
+  measurements cannot tell from noise is not a difference. A robot further
+  from the median than ``POOL_Z`` standard errors of its own figures (at
+  least ``POOL_MIN``, at most ``POOL_MAX``) keeps its own: a throttled CPU
+  stays slow.
 - **Results, at the origin** (``HostSpeeds``): a host reports the work a
   program took (``ProgramResult.work_done``): its CPU seconds at the speed
   the host believes (``Executor``), and the origin divides it by the work
@@ -103,7 +113,7 @@ def next_remeasure(wall: float, count: int) -> float:
 SPEED_STEP = 0.01
 
 
-def _moved(speed: float, before: float) -> bool:
+def speed_moved(speed: float, before: float) -> bool:
     """``speed`` is a figure and differs from ``before`` by more than ``SPEED_STEP``."""
     return math.isfinite(speed) and speed > 0 and abs(math.log(speed / before)) > math.log1p(SPEED_STEP)
 
@@ -111,10 +121,76 @@ def _moved(speed: float, before: float) -> bool:
 class SpeedMeasured(msgspec.Struct, frozen=True, kw_only=True):
     """The driver measured this robot's speed again (driver -> core), while
     no program ran here: its figure from every measurement so far (on a
-    robot, ``ramps.runtime.speed_probe.SpeedSamples``); see
+    robot, ``ramps.runtime.speed_probe.SpeedSamples``), and that figure's
+    relative standard error (0: not known, ``SPEED_NOISE`` is assumed); see
     ``SpeedEstimate.measured``."""
 
     speed: float
+    se: float = 0.0
+
+
+#: the relative standard error assumed of a figure whose own is not known
+#: (a boot measurement alone): single measurements of identical robots
+#: beside busy processes differed by 4-17%
+SPEED_NOISE = 0.05
+#: a robot goes by its class's median when its own figure is within this many
+#: standard errors of it (``SpeedClass.rate``), ...
+POOL_Z = 3.0
+#: ... or within this fraction whatever its error (costs within 5% tie for
+#: robots that measure themselves: ``measured_tie_tolerance``), ...
+POOL_MIN = 0.05
+#: ... and never when further than this: a robot that far off is another machine
+POOL_MAX = 0.25
+
+
+class SpeedClass:
+    """What robots of this robot's hardware class measured of a CPU second.
+
+    ``name`` is the class (by default the CPU model, ``speed_class``; empty:
+    this robot pools with nobody). Teammates' load reports say their class
+    and their own figure per CPU second (``LoadReport.cpu_rate``, before any
+    pooling, so figures never feed on each other); ``rate`` gives the figure
+    this robot goes by."""
+
+    def __init__(self, name: str = "") -> None:
+        self.name = name
+        #: teammate -> its own work units per CPU second, for those of this class
+        self.rates: dict[str, float] = {}
+
+    def heard(self, robot: str, name: str | None, rate: float | None) -> bool:
+        """A teammate's report said its class and own figure; True if the
+        class's figures changed. A report that names no class (a periodic
+        one, or an older node's) says nothing of it."""
+        if name is None and rate is None:
+            return False
+        if not self.name or name != self.name or rate is None or not (math.isfinite(rate) and rate > 0):
+            return self.forget(robot)
+        before = self.rates.get(robot)
+        self.rates[robot] = rate
+        return before != rate
+
+    def forget(self, robot: str) -> bool:
+        """A teammate is gone (lost, written off); True if it was of this class."""
+        return self.rates.pop(robot, None) is not None
+
+    def rate(self, own: float, se: float) -> tuple[float, int]:
+        """(the work units per CPU second this robot goes by, the robots whose
+        figures gave it: 1 for its own ``own``, whose relative standard error
+        is ``se``): the median of the class, this robot included, when
+        ``own`` is within the tolerance of it (``POOL_Z``, ``POOL_MIN``,
+        ``POOL_MAX``), figures more than ``POOL_MAX`` off the class's
+        median left out; a change of less than ``SPEED_STEP`` moves
+        nothing, so robots of one class may go by figures that far apart."""
+        if not self.rates or not (math.isfinite(own) and own > 0):
+            return own, 1
+        figures = [own, *self.rates.values()]
+        middle = median(figures)  # then without robots that are other machines (a throttled CPU)
+        figures = [f for f in figures if abs(math.log(f / middle)) <= POOL_MAX]
+        pooled = median(figures)
+        tolerance = min(POOL_MAX, max(POOL_MIN, POOL_Z * (se if se > 0 else SPEED_NOISE)))
+        if abs(math.log(own / pooled)) > tolerance:
+            return own, 1
+        return pooled, len(figures)
 
 
 class SpeedEstimate:
@@ -123,6 +199,8 @@ class SpeedEstimate:
     def __init__(self, measured: float, config: RampsConfig) -> None:
         self.value = measured
         self.config = config
+        #: the relative standard error of ``value`` (``SpeedMeasured.se``; 0: not known)
+        self.se = 0.0
 
     def measured(self, speed: float) -> bool:
         """A re-measurement; True if the estimate changed (by more than
@@ -130,10 +208,16 @@ class SpeedEstimate:
         Either way: the driver's figure is already robust to interference
         (the trimmed mean of its latest measurements), and a robot that really
         got slower (a throttled CPU) must say so."""
-        if not self.config.speed_learning or not _moved(speed, self.value):
+        if not self.config.speed_learning or not speed_moved(speed, self.value):
             return False
         self.value = speed
         return True
+
+    def measured_event(self, event: SpeedMeasured) -> bool:
+        """``measured`` for the driver's event, its standard error kept."""
+        if self.config.speed_learning and event.se > 0:
+            self.se = event.se
+        return self.measured(event.speed)
 
 
 class HostSpeeds:
@@ -161,7 +245,7 @@ class HostSpeeds:
         of 0.67 against a boot figure 1.5x too fast went on to scale the
         robot's re-measured true speed down to 0.67 of it, and it got no
         programs.)"""
-        if not (math.isfinite(speed) and speed > 0) or not _moved(speed, self._reported.setdefault(host, speed)):
+        if not (math.isfinite(speed) and speed > 0) or not speed_moved(speed, self._reported.setdefault(host, speed)):
             return False
         self._reported[host] = speed
         self._figures.pop(host, None)

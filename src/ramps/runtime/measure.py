@@ -113,6 +113,28 @@ def detect_cores() -> int:
     return max(1, n)
 
 
+def cpu_model() -> str:
+    """This machine's CPU model as ``/proc/cpuinfo`` names it (``model name``,
+    else ``Hardware`` or the implementer and part), and the board's where it
+    names one (``Model`` on a Raspberry Pi), at most 128 characters; the
+    architecture where it says none: robots of one model measure alike
+    (``ramps.core.speed.SpeedClass``)."""
+    fields: dict[str, str] = {}
+    try:
+        for line in Path("/proc/cpuinfo").read_text(errors="replace").splitlines():
+            key, sep, value = line.partition(":")
+            if sep and value.strip():
+                fields.setdefault(key.strip().lower(), " ".join(value.split()))
+    except OSError:
+        pass
+    cpu = fields.get("model name") or fields.get("cpu model") or fields.get("hardware")
+    if cpu is None and "cpu part" in fields:
+        cpu = f"{fields.get('cpu implementer', '?')}:{fields['cpu part']}"
+    board = fields.get("model", "")  # a board's name on ARM; a number on x86
+    parts = [x for x in (cpu, "" if board.isdigit() else board) if x]
+    return " / ".join(parts)[:128] or os.uname().machine[:128] or "unknown"
+
+
 #: pids of this process's measuring children (``ramps.runtime.speed_probe.chunk_rates_apart``) now
 #: running: the node's own work, like its threads, not load of the robot's
 #: (counted, a re-measurement made every idle robot look busy for a second to

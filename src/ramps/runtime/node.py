@@ -62,7 +62,7 @@ from ramps.runtime.accelerators import resolve as resolve_accelerators
 from ramps.runtime.bulk import OrderedSender
 from ramps.runtime.heap import HeapTrimmer, return_freed_memory
 from ramps.runtime.niceness import prioritize, worker_increment
-from ramps.runtime.measure import LoadSampler, cgroup_dirs, cpu_limit, detect_cores
+from ramps.runtime.measure import LoadSampler, cgroup_dirs, cpu_limit, cpu_model, detect_cores
 from ramps.runtime.registry import Registry, default_registry, node_registry
 from ramps.runtime.security import admission, settings_credentials
 from ramps.runtime.settings import NodeSettings
@@ -247,7 +247,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=core_config(s),
                          rng=random.Random(self.incarnation), incarnation=self.incarnation, bursts=True,
                          registry=self.registry.names(), program_weight=nice_weight(s.worker_nice),
-                         core_fraction=core_fraction(quota, self.cores), accelerators=self.accel.accelerators)
+                         core_fraction=core_fraction(quota, self.cores), accelerators=self.accel.accelerators,
+                         speed_class="" if s.speed else cpu_model() if s.speed_class == "auto" else s.speed_class)
         if s.state_dir not in ("", "off"):  # a foreign record: ConfigError, before anything starts
             self.store = OriginStore(s.state_dir, team=self.team, robot=self.robot, sync=s.state_sync)
             self.node.origin.changed = set()

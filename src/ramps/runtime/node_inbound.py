@@ -240,7 +240,7 @@ class Inbound(DriverState):
         if kind == "speed":  # the measurement's moment on the grid, its own figure, the node's
             if self._trace is not None:
                 self._write_trace("speed_measured", "", "", 0,
-                                  f"{item[3]:.5g} at {item[2]:.1f}, node figure {item[1].speed:.5g}")
+                                  f"{item[3]:.5g} at {item[2]:.1f}, node figure {item[1].speed:.5g}, se {item[1].se:.3g}")
             return node.handle(item[1], now)
         if kind == "progress":
             return node.handle(item[1], now)

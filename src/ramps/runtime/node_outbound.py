@@ -324,7 +324,7 @@ class Outbound(DriverState):
             return
         finally:
             self._remeasuring.release()
-        self._q.put(("speed", SpeedMeasured(speed=speed), at, figure))
+        self._q.put(("speed", SpeedMeasured(speed=speed, se=self._speed_samples.se()), at, figure))
 
     def _publish(self, now: float) -> None:
         due = self._remeasure_at

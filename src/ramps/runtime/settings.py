@@ -53,6 +53,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 
 from ramps.core.config import RampsConfig
+from ramps.core.wirelimits import MAX_NAME
 from ramps.errors import ConfigError
 from ramps.runtime import keys
 from ramps.runtime.endpoints import check_endpoint, parse_metrics_address
@@ -203,6 +204,11 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     #: CPU second of a reference core). Default: measured at start and again
     #: while idle, so leave it unset except to pin a figure
     speed: float | None = None
+    #: this robot's hardware class for its measured speed: robots of one class
+    #: whose measurements differ by no more than their noise go by the class's
+    #: median (docs/deploying.md, "Robots of one kind"). ``auto``: the CPU model; a name
+    #: (``orin-nx-15w``) for robots an operator knows alike; empty: none
+    speed_class: str = "auto"
     #: accelerators this robot advertises (docs/accelerators.md): ``auto``
     #: finds NVIDIA GPUs (with the ``nvidia-ml-py`` package) as ``cuda``;
     #: ``KIND[:COUNT[:SPEED]]`` declares one kind (``cuda:1:20``: one slot of
@@ -324,6 +330,8 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
             raise ValueError(f"cores must be >= 1, got {self.cores}")
         if self.speed is not None and not self.speed > 0:
             raise ValueError(f"speed must be > 0, got {self.speed}")
+        if len(self.speed_class) > MAX_NAME:
+            raise ValueError(f"speed_class must be at most {MAX_NAME} characters, got {len(self.speed_class)}")
         check_accelerators(self.accelerators)
         if not self.publish_period > 0 or not 0 < self.window:
             raise ValueError("publish_period and window must be > 0")
@@ -392,6 +400,7 @@ _ENV: dict[str, tuple[str, _EnvForm | type[str] | type[int] | type[float]]] = {
     "RAMPS_MULTICAST": ("multicast", "bool"),
     "RAMPS_CORES": ("cores", int),
     "RAMPS_SPEED": ("speed", float),
+    "RAMPS_SPEED_CLASS": ("speed_class", str),
     "RAMPS_ACCELERATORS": ("accelerators", "list"),
     "RAMPS_POLICY": ("policy", str),
     "RAMPS_PROGRAMS": ("programs", "list"),

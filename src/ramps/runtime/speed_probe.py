@@ -201,6 +201,16 @@ class SpeedSamples:
             figures = sorted(figures)[1:-1]
         return statistics.fmean(figures)
 
+    def se(self) -> float:
+        """The relative standard error of ``rate``: the spread of the latest
+        measurements' figures over the square root of their number (0.0
+        before three)."""
+        figures = [f for f in self._figures if f > 0]
+        if len(figures) < 3:
+            return 0.0
+        logs = [math.log(f) for f in figures]
+        return statistics.stdev(logs) / math.sqrt(len(logs))
+
     def speed(self, *, quota: float | None = None, cores: int = 1) -> float:
         """Work units per second of one of this robot's cores."""
         return round(self.rate() * core_fraction(quota, cores), 4)

@@ -7,8 +7,10 @@ measures itself, as it does on a real robot), optionally with the robots'
 own busy processes starting beside the nodes. The speed each node measured
 at boot comes from its log's join line; the speed it reports later (after
 its first re-measurements, ``ramps.core.speed.next_remeasure``) from its
-load reports, read by a client in the root namespace. The figure of a start
-is the spread: the fastest robot's speed over the slowest's.
+load reports, read by a client in the root namespace, with each robot's own
+figure before it pools with robots of its class (``ramps.core.speed.SpeedClass``).
+The figure of a start is the spread: the fastest robot's speed over the
+slowest's.
 """
 
 from __future__ import annotations
@@ -30,13 +32,16 @@ def spread(speeds: dict[str, float]) -> float:
     return max(values) / min(values) if values and min(values) > 0 else float("inf")
 
 
-def reported_speeds(obs, robots: int, timeout: float = 10.0) -> dict[str, float]:
+def reported_speeds(obs, robots: int, timeout: float = 10.0, *, own: float = 0.0) -> dict[str, float]:
     """robot -> the speed in its latest load report (0.0: none yet), once every
-    robot has reported or ``timeout`` seconds have passed."""
+    robot has reported or ``timeout`` seconds have passed; ``own``: the
+    robots' own figures instead, their reported work units per CPU second
+    times this share of a CPU per core."""
     names = [f"r{i}" for i in range(1, robots + 1)]
     deadline = time.monotonic() + timeout
     while True:
-        seen = {row["robot"]: float(row["speed"]) for row in obs.view() if "speed" in row}
+        seen = {row["robot"]: float(row["speed"]) if not own else float(row.get("cpu_rate") or 0.0) * own
+                for row in obs.view() if "speed" in row}
         if all(r in seen for r in names) or time.monotonic() >= deadline:
             return {r: seen.get(r, 0.0) for r in names}
         time.sleep(0.2)
@@ -47,6 +52,8 @@ class SpeedStart(msgspec.Struct, kw_only=True):
     boot: dict[str, float]
     #: seconds after the team was up -> robot -> the speed in its latest report
     reported: dict[str, dict[str, float]]
+    #: the same moments -> robot -> its own figure, before pooling with its class
+    own: dict[str, dict[str, float]] = {}
     #: robot -> its re-measurements from its trace: [moment on the team's grid
     #: (Unix time), that measurement's own figure, the node's figure after it]
     measured: dict[str, list[list[float]]] = {}
@@ -60,18 +67,22 @@ class SpeedsReport(msgspec.Struct, kw_only=True):
     starts: list[SpeedStart]
 
     def table(self) -> str:
-        heads = ["start", "boot speeds", "boot spread"] + [f"spread at +{t:g} s" for t in READ_AT]
+        heads = ["start", "boot speeds", "boot spread"] + [f"spread at +{t:g} s" for t in READ_AT] + \
+            [f"own figures' spread at +{READ_AT[-1]:g} s"]
         lines = [" | ".join(heads)]
         for i, s in enumerate(self.starts, 1):
             boot = " ".join(f"{s.boot.get(r, 0):.4f}" for r in sorted(s.boot))
             cells = [str(i), boot, f"{spread(s.boot):.3f}"]
             cells += [f"{spread(s.reported.get(str(t), {})):.3f}" for t in READ_AT]
+            cells.append(f"{spread(s.own.get(str(READ_AT[-1]), {})):.3f}")
             lines.append(" | ".join(cells))
         last = str(READ_AT[-1])
         within = sum(1 for s in self.starts if spread(s.boot) <= 1.05)
         later = sum(1 for s in self.starts if spread(s.reported.get(last, {})) <= 1.05)
+        own = sum(1 for s in self.starts if spread(s.own.get(last, {})) <= 1.05)
         lines.append(f"within 5% of each other: {within}/{len(self.starts)} at boot, "
-                     f"{later}/{len(self.starts)} at +{READ_AT[-1]:g} s")
+                     f"{later}/{len(self.starts)} at +{READ_AT[-1]:g} s "
+                     f"({own}/{len(self.starts)} by their own figures, before pooling)")
         return "\n".join(lines)
 
 
@@ -113,6 +124,7 @@ def boot_speeds(log_dir, names: list[str]) -> dict[str, float]:
 def run_speeds(*, starts: int = 10, robots: int = 5, cores: int = 4, quota: float = 0.32, loaded: int = 0,
                log: Callable[[str], None] | None = None) -> SpeedsReport:
     """``starts`` fresh testbeds of ``robots`` identical robots (see the module docstring)."""
+    from ramps.runtime.speed_probe import core_fraction
     from ramps.testbed import Testbed
     from ramps.testbed.bed import watch_team
 
@@ -125,12 +137,14 @@ def run_speeds(*, starts: int = 10, robots: int = 5, cores: int = 4, quota: floa
             up = time.monotonic()
             boot = boot_speeds(tb.log_dir, names)
             reported: dict[str, dict[str, float]] = {}
+            own: dict[str, dict[str, float]] = {}
             with watch_team(tb) as obs:
                 for at in READ_AT:
                     time.sleep(max(0.0, up + at - time.monotonic()))
                     reported[str(at)] = reported_speeds(obs, robots, timeout=0.0)
+                    own[str(at)] = reported_speeds(obs, robots, timeout=0.0, own=core_fraction(quota, cores))
             measured = measurements(tb.log_dir, names)
-        start = SpeedStart(boot=boot, reported=reported, measured=measured)
+        start = SpeedStart(boot=boot, reported=reported, own=own, measured=measured)
         out.append(start)
         log(f"start {i + 1}/{starts}: boot spread {spread(boot):.3f}, "
             f"+{READ_AT[-1]:g} s {spread(reported[str(READ_AT[-1])]):.3f}")
