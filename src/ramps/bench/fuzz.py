@@ -53,6 +53,7 @@ import msgspec
 
 from ramps.core import messages as m
 from ramps.core.battery import BatteryMeasured
+from ramps.core.deadlines import ON_MISS
 from ramps.core.events import (
     Cancel,
     Deliver,
@@ -71,7 +72,6 @@ from ramps.core.events import (
     Submit,
 )
 from ramps.core.node import Node
-from ramps.core.origin import ON_MISS
 from ramps.core.policy import POLICIES
 from ramps.errors import BadArguments
 from ramps.runtime.registry import decode_args

@@ -24,14 +24,19 @@ its arguments and checkpoint) and to recognise its live copies (attempts
 and hosts); timers and estimates are not kept: they start afresh.
 
 Rules: no clock, no I/O; bytes in, bytes out (msgpack via msgspec).
+``restore`` is a function of the origin it resumes programs for, which it
+sees as a ``RestoringOrigin``.
 """
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import msgspec
 
-from ramps.core.events import Submit
-from ramps.core.program import AutonomousProgram, ProgramState
+from ramps.core.events import Action, Note, Submit
+from ramps.core.program import AutonomousProgram, Event, ProgramState
+from ramps.core.timers import Timers
 
 #: seconds a resumed program waits to hear of its host before it is written off
 RESTORE_GRACE = 10.0
@@ -107,3 +112,74 @@ def program_of(rec: OriginRecord, now: float) -> AutonomousProgram:
     ap.checkpoint_fraction = rec.checkpoint_fraction
     ap.state = ProgramState.BACKOFF  # Origin.restore makes it offered again, or places it
     return ap
+
+
+class RestoringOrigin(Protocol):
+    """What ``restore`` reads and changes of ``ramps.core.origin.Origin``."""
+
+    me: str
+    programs: dict[str, AutonomousProgram]
+    #: host -> the ids of its live programs, in placement order
+    by_host: dict[str, dict[str, None]]
+    #: restored programs offered to their host again and not answered yet: id -> attempt
+    resumed: dict[str, int]
+    timers: Timers
+
+    def add_policy(self, name: str) -> None: ...
+
+    def work_estimate(self, sub: Submit) -> float: ...
+
+    def offer(self, ap: AutonomousProgram, out: list[Action]) -> None: ...
+
+
+def restore(origin: RestoringOrigin, programs: list[AutonomousProgram], now: float, out: list[Action]) -> None:
+    """Resume ``programs`` (``program_of``) in ``origin``: one whose current
+    attempt ran on a teammate waits ``RESTORE_GRACE`` to hear of it there,
+    as if just offered; one that ran here or was backing off is placed
+    again now."""
+    for ap in programs:
+        if ap.program_id in origin.programs:
+            raise ValueError(f"program id {ap.program_id!r} is already here")
+        sub = ap.submit
+        if sub.policy:
+            try:
+                origin.add_policy(sub.policy)
+            except ValueError:  # a policy this version does not have: the node's own places it
+                ap.submit = msgspec.structs.replace(sub, policy="")
+        origin.programs[ap.program_id] = ap
+        for attempt, host in list(ap.live.items()):
+            if host == origin.me:  # its copy here died with the previous process
+                del ap.live[attempt]
+            else:
+                origin.by_host.setdefault(host, {})[ap.program_id] = None
+        out.append(Note(what="restored", program_id=ap.program_id, robot=ap.host or "", attempt=ap.attempt,
+                        detail=f"{len(ap.live)} live cop{'y' if len(ap.live) == 1 else 'ies'}"))
+        if ap.host is not None and ap.live.get(ap.attempt) == ap.host:
+            # offered there again: a host that has it says yes again, one
+            # that never got it (the offer went down with the old process)
+            # or lost it (it restarted too) takes it now; the offer goes
+            # again when the host's liveliness is heard (the first may
+            # precede the link)
+            ap.state = ProgramState.OFFERED
+            ap.last_heard = ap.placed_at = ap.accepted_at = ap.done_at = now
+            resume = ap.checkpoint is not None
+            ap.work = origin.work_estimate(ap.submit) * (1.0 - (ap.checkpoint_fraction if resume else 0.0))
+            ap.resumed_from = ap.checkpoint_fraction if resume else None
+            origin.resumed[ap.program_id] = ap.attempt
+            origin.offer(ap, out)
+            origin.timers.set(ap, now + RESTORE_GRACE, Event.CONNECT_TIMEOUT)
+        else:
+            ap.state = ProgramState.BACKOFF
+            origin.timers.set(ap, now, Event.BACKOFF_DONE)
+
+
+def offer_again(origin: RestoringOrigin, robot: str, out: list[Action]) -> None:
+    """``robot``'s liveliness is heard: offer it again the restored programs
+    offered to it and not answered yet (the first offer may have preceded
+    the link); forget those answered meanwhile."""
+    for pid, attempt in list(origin.resumed.items()):
+        ap = origin.programs.get(pid)
+        if ap is None or ap.state is not ProgramState.OFFERED or ap.attempt != attempt:
+            del origin.resumed[pid]
+        elif ap.host == robot:
+            origin.offer(ap, out)

@@ -10,8 +10,8 @@ and nothing sent to it does (an offer). The driver says so with one event,
 every teammate is *relinking* until it is heard again:
 
 - a teammate's silence is not counted while it relinks: the origin's
-  heartbeat and connect timeouts on it wait for the link (``Origin.tick``),
-  and once it is back they count from that moment (``Origin.relinked``);
+  heartbeat and connect timeouts on it wait for the link, and once it is
+  back they count from that moment (``ramps.core.silence``);
 - no new offer goes to a teammate that relinks while another is back
   (placement excludes it); while every teammate relinks, the policy chooses
   among all of them, as before, rather than pile everything on this robot;

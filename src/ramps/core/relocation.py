@@ -17,7 +17,7 @@ the program's policy for the best other host with a generator of the
 origin's own for relocation, so turning relocation on leaves every
 placement's draws unchanged. A move found worth it is the ``relocate``
 event of the program's state machine; the move itself (``MOVING``, the old
-copy running until the new host accepts) is the origin's.
+copy running until the new host accepts) is ``ramps.core.moves``.
 
 Calm (issue 23: corrections of robots' speeds swung 0.56-1.87x within
 minutes and moves followed them, back and forth, restarting programs from

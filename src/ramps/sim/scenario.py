@@ -21,7 +21,7 @@ import msgspec
 from ramps.core.accelerators import parse_accelerator
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NODE_CPU_MAX
-from ramps.core.origin import ON_MISS
+from ramps.core.deadlines import ON_MISS
 
 POLICIES = ("ramps", "paper", "round_robin", "random", "local_only")
 FaultKind = Literal["crash", "network", "freeze", "recover", "load", "battery"]

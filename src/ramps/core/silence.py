@@ -1,0 +1,89 @@
+"""When a host's silence is a failure: the origin's timeouts around its own stalls.
+
+How this works: an origin writes a host off when it does not accept an
+offer within ``connect_timeout`` or a running program's heartbeats stop for
+``heartbeat_timeout`` (``ramps.core.timers``). When this robot's own driver
+stalled (``stalled``: the seconds taken out of the core's clock, and the
+wake), what its hosts sent meanwhile is still on its way in, read by a node
+that runs again at the pace it was starved at: a host's silence counts
+only from the wake plus the stall's length (at most a heartbeat timeout),
+so a stall of the origin's never writes off a healthy host (issue 23).
+After a stall that may have closed links, ``ramps.core.relink`` says which
+hosts' links are not back: their timeouts wait for the link, and once it is
+back (``relinked``) count from that moment. ``held_off`` sets a due timeout
+again for later when any of this says it is too early.
+
+Rules: functions of the origin they act for, which they see as a
+``SilentOrigin``; no clock (``now`` comes in), no I/O.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+from ramps.core.config import RampsConfig
+from ramps.core.program import AutonomousProgram, Event, ProgramState
+from ramps.core.relink import Relink
+from ramps.core.timers import Timers
+
+S = ProgramState
+E = Event
+
+
+class SilentOrigin(Protocol):
+    """What the silence rules read and change of ``ramps.core.origin.Origin``."""
+
+    config: RampsConfig
+    relink: Relink
+    timers: Timers
+    programs: dict[str, AutonomousProgram]
+    #: host -> the ids of its live programs, in placement order
+    by_host: dict[str, dict[str, None]]
+    #: this robot's stalls: their seconds in all, the latest wake, and the
+    #: grace after it before a host's silence counts
+    stalled_s: float
+    woke_at: float
+    wake_grace: float
+
+
+def stalled(origin: SilentOrigin, seconds: float, now: float, *, links: bool) -> None:
+    """This robot's driver did not run for ``seconds`` and woke at ``now``
+    (``links``: long enough that its links may have closed: relink instead)."""
+    seconds = max(0.0, seconds)
+    origin.stalled_s += seconds
+    origin.woke_at = now
+    origin.wake_grace = 0.0 if links else min(seconds, origin.config.heartbeat_timeout)
+
+
+def held_off(origin: SilentOrigin, ap: AutonomousProgram, kind: Event, now: float) -> bool:
+    """Whether ``ap``'s due timer ``kind`` waits on (set again for later): its
+    host's link is not back since this robot's stall, or the silence counts
+    from this robot's wake and has not lasted long enough."""
+    config, timers = origin.config, origin.timers
+    if origin.relink.waiting(ap.host, now) and kind in (E.HEARTBEAT_TIMEOUT, E.CONNECT_TIMEOUT):
+        timers.set(ap, origin.relink.until, kind)  # its link is not back since this robot stalled
+        return True
+    heard_from = origin.woke_at + origin.wake_grace  # after this robot's stall
+    if kind == E.CONNECT_TIMEOUT and heard_from + config.connect_timeout > now:
+        # this robot stalled meanwhile: the acceptance may be behind the stall
+        timers.set(ap, heard_from + config.connect_timeout, kind)
+        return True
+    if kind == E.HEARTBEAT_TIMEOUT:
+        # silence counts from the last word of the host, or from this
+        # robot's latest stall, whichever is later
+        due = max(ap.last_heard, heard_from) + config.heartbeat_timeout
+        if due > now:  # heard from the host since the timer was set, or this robot stalled
+            timers.set(ap, due, kind)
+            return True
+    return False
+
+
+def relinked(origin: SilentOrigin, host: str, now: float) -> None:
+    """``host``'s link is back after this robot's stall: its silence counts
+    from now, for a heartbeat or a connect timeout."""
+    for pid in origin.by_host.get(host, ()):
+        ap = origin.programs[pid]
+        if ap.host == host and ap.state in (S.OFFERED, S.RUNNING) and ap.deadline is not None:
+            ap.last_heard = max(ap.last_heard, now)
+            if ap.timer == E.CONNECT_TIMEOUT:
+                origin.timers.set(ap, max(ap.deadline, now + origin.config.connect_timeout), ap.timer)
