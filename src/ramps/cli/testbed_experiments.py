@@ -390,7 +390,8 @@ def testbed_experiment_peers(
     nice-10 programs land beside a busy robot's load (round robin; Ray and Dask at --peer-nice 10),
     so 1.5-2.5 hours for all 24 runs."""
     from ramps.errors import RampsError
-    from ramps.testbed.peers import DEFAULT_ENGINES, ENGINES, SCENARIOS, Setup, format_report, run_peers
+    from ramps.testbed.peers import DEFAULT_ENGINES, ENGINES, run_peers
+    from ramps.testbed.peers_scenarios import SCENARIOS, Setup, format_report
 
     for name, known, what in ((scenario, SCENARIOS, "scenario"), (engine, ENGINES, "engine")):
         bad = [n for n in name or [] if n not in known]
