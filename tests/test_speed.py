@@ -341,3 +341,17 @@ def test_the_speeds_experiment_reads_each_re_measurement_from_a_trace(tmp_path):
              {"t": 2.0, "what": "speed_measured", "detail": "0.04123 at 1800000003.0, node figure 0.04101"}]
     (tmp_path / "r1.trace.jsonl").write_text("".join(json.dumps(x) + "\n" for x in lines))
     assert measurements(tmp_path, ["r1", "r2"]) == {"r1": [[1800000003.0, 0.04123, 0.04101]], "r2": []}
+
+
+def test_the_speeds_experiment_tells_each_robots_own_figure_beside_the_pooled_one():
+    from ramps.testbed.speeds import SpeedsReport, SpeedStart, own_figures
+
+    boot = {"r1": 0.040, "r2": 0.044}
+    measured = {"r1": [[100.0, 0.041, 0.041], [103.0, 0.039, 0.040]], "r2": [[103.0, 0.045, 0.0445]]}
+    assert own_figures(boot, measured, 101.0) == {"r1": 0.041, "r2": 0.044}
+    assert own_figures(boot, measured, 110.0) == {"r1": 0.040, "r2": 0.0445}
+    start = SpeedStart(boot=boot, reported={"20.0": {"r1": 0.042, "r2": 0.042}},
+                       own={"20.0": own_figures(boot, measured, 110.0)})
+    table = SpeedsReport(robots=2, cores=4, quota=0.32, loaded=8, starts=[start]).table()
+    assert "1 | 0.0400 0.0440 | 1.100 | inf | inf | 1.000 | 1.112" in table
+    assert table.endswith("1/1 at +20 s (0/1 by their own figures, before pooling)")

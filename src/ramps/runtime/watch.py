@@ -108,8 +108,7 @@ class TeamWatcher:
                 row: dict[str, Any] = dict(robot=r, alive=r in self.alive)
                 if rep is not None:
                     row.update(cores=rep.cores, speed=rep.speed, cpu_busy=rep.cpu_busy, runnable=rep.runnable,
-                               running=rep.ramps_running, sees=rep.sees, report_age=round(now - at, 3),
-                               cpu_rate=rep.cpu_rate)
+                               running=rep.ramps_running, sees=rep.sees, report_age=round(now - at, 3))
                 rows.append(row)
             return rows
 

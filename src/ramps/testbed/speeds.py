@@ -7,8 +7,9 @@ measures itself, as it does on a real robot), optionally with the robots'
 own busy processes starting beside the nodes. The speed each node measured
 at boot comes from its log's join line; the speed it reports later (after
 its first re-measurements, ``ramps.core.speed.next_remeasure``) from its
-load reports, read by a client in the root namespace, with each robot's own
-figure before it pools with robots of its class (``ramps.core.speed.SpeedClass``).
+load reports, read by a client in the root namespace, and its own figure
+then, before it pools with robots of its class (``ramps.core.speed.SpeedClass``),
+from its trace.
 The figure of a start is the spread: the fastest robot's speed over the
 slowest's.
 """
@@ -32,16 +33,13 @@ def spread(speeds: dict[str, float]) -> float:
     return max(values) / min(values) if values and min(values) > 0 else float("inf")
 
 
-def reported_speeds(obs, robots: int, timeout: float = 10.0, *, own: float = 0.0) -> dict[str, float]:
+def reported_speeds(obs, robots: int, timeout: float = 10.0) -> dict[str, float]:
     """robot -> the speed in its latest load report (0.0: none yet), once every
-    robot has reported or ``timeout`` seconds have passed; ``own``: the
-    robots' own figures instead, their reported work units per CPU second
-    times this share of a CPU per core."""
+    robot has reported or ``timeout`` seconds have passed."""
     names = [f"r{i}" for i in range(1, robots + 1)]
     deadline = time.monotonic() + timeout
     while True:
-        seen = {row["robot"]: float(row["speed"]) if not own else float(row.get("cpu_rate") or 0.0) * own
-                for row in obs.view() if "speed" in row}
+        seen = {row["robot"]: float(row["speed"]) for row in obs.view() if "speed" in row}
         if all(r in seen for r in names) or time.monotonic() >= deadline:
             return {r: seen.get(r, 0.0) for r in names}
         time.sleep(0.2)
@@ -108,6 +106,18 @@ def measurements(log_dir, names: list[str]) -> dict[str, list[list[float]]]:
     return out
 
 
+def own_figures(boot: dict[str, float], measured: dict[str, list[list[float]]], wall: float) -> dict[str, float]:
+    """robot -> its own figure at Unix time ``wall``: that of its latest
+    measurement on the grid by then (``measurements``), else its boot figure."""
+    out = {}
+    for r, figure in boot.items():
+        for moment, _one, node_figure in measured.get(r, []):
+            if moment <= wall:
+                figure = node_figure
+        out[r] = figure
+    return out
+
+
 def boot_speeds(log_dir, names: list[str]) -> dict[str, float]:
     """robot -> the speed its node printed when it joined (0.0 if none yet)."""
     out = {}
@@ -124,7 +134,6 @@ def boot_speeds(log_dir, names: list[str]) -> dict[str, float]:
 def run_speeds(*, starts: int = 10, robots: int = 5, cores: int = 4, quota: float = 0.32, loaded: int = 0,
                log: Callable[[str], None] | None = None) -> SpeedsReport:
     """``starts`` fresh testbeds of ``robots`` identical robots (see the module docstring)."""
-    from ramps.runtime.speed_probe import core_fraction
     from ramps.testbed import Testbed
     from ramps.testbed.bed import watch_team
 
@@ -136,14 +145,14 @@ def run_speeds(*, starts: int = 10, robots: int = 5, cores: int = 4, quota: floa
             tb.up()
             up = time.monotonic()
             boot = boot_speeds(tb.log_dir, names)
+            up_wall = time.time()
             reported: dict[str, dict[str, float]] = {}
-            own: dict[str, dict[str, float]] = {}
             with watch_team(tb) as obs:
                 for at in READ_AT:
                     time.sleep(max(0.0, up + at - time.monotonic()))
                     reported[str(at)] = reported_speeds(obs, robots, timeout=0.0)
-                    own[str(at)] = reported_speeds(obs, robots, timeout=0.0, own=core_fraction(quota, cores))
             measured = measurements(tb.log_dir, names)
+        own = {str(at): own_figures(boot, measured, up_wall + at) for at in READ_AT}
         start = SpeedStart(boot=boot, reported=reported, own=own, measured=measured)
         out.append(start)
         log(f"start {i + 1}/{starts}: boot spread {spread(boot):.3f}, "
