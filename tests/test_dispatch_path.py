@@ -300,9 +300,9 @@ def test_a_client_decodes_load_reports_only_when_asked_for_the_team():
         put(encode("r9", report("r9", seq=1, cores=3)))
         put(encode("r9", report("r9", seq=2, cores=5)))
         put(b"\x93garbage")
-        assert client._raw_reports["r9"][0] != b"\x93garbage"  # nothing decoded yet, garbage not kept
+        assert client._reports.raw["r9"][0] != b"\x93garbage"  # nothing decoded yet, garbage not kept
         [r9] = [r for r in client.status().robots if r.robot == "r9"]
-        assert r9.cores == 5 and client._raw_reports == {}
+        assert r9.cores == 5 and client._reports.raw == {}
         put(encode("r9", report("r9", seq=3, cores=0)))  # out of bounds: refused when decoded
         [r9] = [r for r in client.status().robots if r.robot == "r9"]
         assert r9.cores == 5

@@ -357,14 +357,16 @@ def test_a_local_only_program_never_leaves_its_robot_even_when_swamped_or_failin
 # =================================================================== outside this change
 def test_a_garbage_result_value_fails_the_future_instead_of_hanging_it() -> None:
     from ramps.runtime.client import Team
+    from ramps.runtime.pending import Pending
+    from ramps.runtime.transport import REAL_CLOCK
 
     team = Team.__new__(Team)
     team._lock = threading.Lock()
     fut: Future = Future()
     fut.program = "echo"  # type: ignore[attr-defined]
-    team._futures = {7: fut}
-    team._unacked = {}
-    team._sent = {}
+    team._pending = Pending(team._lock, REAL_CLOCK, send=lambda data: None, reachable=lambda: True,
+                            withdraw=lambda rid: None)
+    team._pending.futures[7] = fut  # type: ignore[assignment]
     team._on_outcome(encode("r1", m.ProgramOutcome(request_id=7, ok=True, value=b"\xc1", host="r1")))
     assert fut.done()
     with pytest.raises(Exception, match="could not be decoded"):

@@ -30,53 +30,37 @@ it did not (see ``Team.options``). Errors are the ``ramps.errors`` tree.
 
 The client reaches the team through ``ramps.runtime.transport`` and reads
 time from its injected clock, as the node does (``ramps.testing.memory``
-runs it in memory). Over 500 lines for a reason: ``Team`` is one class
-whose threads (transport callbacks, timers) share one lock and its state;
-its futures live in ``ramps.runtime.futures``.
+runs it in memory). ``Team`` is the connection to its node (found by its
+liveliness; programs lost with it after ``origin_grace``) and the API; its
+parts: the pending programs, resent until the node has them and timed out
+by a thread of their own (``ramps.runtime.pending``), the futures, how an
+outcome settles them and the team's status (``ramps.runtime.futures``), and
+the Teams left open, closed at exit (``ramps.runtime.open_teams``). One
+lock, the Team's, guards its state and its parts' against the transport's
+callback threads and the timer thread.
 """
 
 from __future__ import annotations
 
 import asyncio
-import atexit
-import heapq
 import itertools
 import os
 import socket
 import sys
 import threading
-import weakref
 from concurrent.futures import Future
 from typing import Any, Iterable, Iterator
 
 import msgspec
 
-from ramps.core.messages import (
-    CancelSubmitted,
-    LoadReport,
-    ProgramOutcome,
-    ProgramUpdate,
-    SubmitProgram,
-    WireError,
-    decode,
-    encode,
-)
-from ramps.errors import (
-    BadArguments,
-    DeadlineUnmeetable,
-    NoTeam,
-    NotAdmitted,
-    ProgramFailed,
-    ProgramLost,
-    ProgramNotFound,
-    ProgramRefused,
-    TransportError,
-)
-from ramps.runtime import argtypes, keys
-from ramps.runtime.registry import MAX_ARGS_BYTES, Registry, decode_value, default_registry, encode_args
+from ramps.core.messages import CancelSubmitted, ProgramOutcome, ProgramUpdate, SubmitProgram, WireError, decode, encode
+from ramps.errors import BadArguments, NoTeam, NotAdmitted, ProgramLost, ProgramNotFound, TransportError
+from ramps.runtime import argtypes, keys, open_teams
+from ramps.runtime.futures import ProgramFuture, TeamReports, TeamStatus, report_about, settle
+from ramps.runtime.pending import SUBMIT_RESEND as SUBMIT_RESEND, Pending  # SUBMIT_RESEND: named here by the node
+from ramps.runtime.registry import MAX_ARGS_BYTES, Registry, default_registry, encode_args
 from ramps.runtime.security import admission, settings_credentials, tls_listeners
 from ramps.runtime.settings import NodeSettings, load_settings
-from ramps.runtime.futures import ProgramFuture, RobotStatus, TeamStatus, report_about
 from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
 
 
@@ -88,48 +72,8 @@ from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
 #: record (``ramps.runtime.store``) and its programs, which hosts keep running
 #: for it as long by default (``RampsConfig.origin_hold``)
 ORIGIN_GONE_GRACE = 30.0
-#: seconds between two looks for the node while submissions wait for it
-HELD_RETRY = 0.05
-#: a submission the node has not acknowledged (no update, no outcome) is sent
-#: again after this many seconds; the node runs one program per request
-SUBMIT_RESEND = 1.0
-
-_ERRORS = {"program": ProgramFailed, "refused": ProgramRefused, "bad_arguments": BadArguments,
-           "deadline": DeadlineUnmeetable}
 #: what a call with a deadline may do when no robot can meet it (``Team.options``)
 ON_MISS = ("run", "local", "fail")
-
-
-#: Teams still open, closed at interpreter exit if the application did not
-_OPEN: "weakref.WeakSet[Team]" = weakref.WeakSet()
-_OPEN_LOCK = threading.Lock()
-_EXIT_HOOKED = False
-
-
-def _close_open_teams() -> None:
-    """Close every Team the application left open. Zenoh runs subscriber
-    callbacks on non-daemon threads, so an open session would keep the
-    process alive after the script's last line; this runs before Python
-    waits for those threads (plain ``atexit`` would be too late)."""
-    with _OPEN_LOCK:
-        teams = list(_OPEN)
-    for team in teams:
-        try:
-            team.close()
-        except Exception:
-            pass
-
-
-def _track(team: "Team") -> None:
-    global _EXIT_HOOKED
-    with _OPEN_LOCK:
-        _OPEN.add(team)
-        if not _EXIT_HOOKED:
-            try:  # the hook concurrent.futures uses: before non-daemon threads are joined
-                threading._register_atexit(_close_open_teams)  # type: ignore[attr-defined]
-            except (AttributeError, RuntimeError):
-                atexit.register(_close_open_teams)
-            _EXIT_HOOKED = True
 
 
 class Team:
@@ -158,23 +102,14 @@ class Team:
         self.registry = registry or default_registry
         self.client_id = keys.keys_safe_id(f"{socket.gethostname()}-{os.getpid()}-{os.urandom(3).hex()}")
         self._lock = threading.Lock()
-        self._futures: dict[int, ProgramFuture] = {}
+        #: the programs submitted and not finished (the timer thread resends and times them out)
+        self._pending = Pending(self._lock, clock, send=lambda data: self._pub.put(data),
+                                reachable=self._node_reachable, withdraw=self._withdraw)
         self._ids = itertools.count(1)
         self._alive: set[str] = set()
         #: robots whose node said it is leaving (``keys.leaving``), until they are back
         self._leaving: set[str] = set()
-        self._reports: dict[str, tuple[LoadReport, float]] = {}
-        #: each robot's newest load report as it came, not decoded yet (``_on_report``)
-        self._raw_reports: dict[str, tuple[bytes, float]] = {}
-        self._timers: list[tuple[float, int]] = []
-        self._timer_cv = threading.Condition(self._lock)
-        #: when the timer thread wakes next, monotonic (-inf while it runs): a new
-        #: timer or resend wakes it only if due sooner (``_wake_timers``)
-        self._timer_wake_at = -float("inf")
-        #: submissions the node has not acknowledged yet: request id -> (bytes, when to send again)
-        self._unacked: dict[int, tuple[bytes, float]] = {}
-        #: every pending submission as sent, to ask again once the node's link is back after a lapse
-        self._sent: dict[int, bytes] = {}
+        self._reports = TeamReports()
         #: the node's liveliness went (its link lapsed) and has not come back yet
         self._node_lapsed = False
         self._closed = False
@@ -190,7 +125,7 @@ class Team:
                 settings, credentials=creds, fail_fast=exit_on_failure, listen=listen, scout_first=False)
         except TransportError as exc:
             raise TransportError(f"cannot open a Zenoh session for team {self.team!r}: {exc}") from exc
-        _track(self)
+        open_teams.track(self)
         t = self.transport
         self._subs = [
             t.subscribe(keys.client(self.team, self.client_id), self._on_outcome),
@@ -198,7 +133,7 @@ class Team:
             t.subscribe_liveliness(keys.alive(self.team), self._on_alive, history=True),
             t.subscribe_liveliness(keys.leaving(self.team), self._on_leaving, history=True),
         ]
-        self._timer_thread = threading.Thread(target=self._timeouts, name="ramps-client-timers", daemon=True)
+        self._timer_thread = threading.Thread(target=self._pending.run, name="ramps-client-timers", daemon=True)
         self._timer_thread.start()
         self.robot = self._find_robot(robot, timeout)
         self._pub = t.publisher(keys.inbox(self.team, self.robot), block=True)
@@ -235,16 +170,12 @@ class Team:
                     # the outcome, and never runs a request twice (a node that restarted
                     # meanwhile runs it anew: its programs died with the old one)
                     self._node_lapsed = False
-                    now = self.clock.monotonic()
-                    for rid in self._futures:
-                        if rid in self._sent:
-                            self._unacked[rid] = (self._sent[rid], now)
-                    self._timer_cv.notify()
+                    self._pending.ask_again()
             else:
                 self._alive.discard(robot)
                 if robot == getattr(self, "robot", None):
                     self._node_lapsed = True
-                if robot == getattr(self, "robot", None) and self._futures and not self._closed:
+                if robot == getattr(self, "robot", None) and self._pending.futures and not self._closed:
                     # our node, the origin of every pending program, is gone: unless it
                     # is back soon (a lease that flapped), nobody will ever answer them
                     t = threading.Timer(self.origin_grace, self._origin_gone, args=(robot,))
@@ -263,8 +194,7 @@ class Team:
         with self._lock:
             if robot in self._alive or self._closed:
                 return
-            futs = list(self._futures.values())
-            self._futures.clear()
+            futs = self._pending.take_all()
         for f in futs:
             try:
                 f.set_exception(ProgramLost(f"{f.program}: robot {robot}, the origin of this program (the node this "
@@ -275,26 +205,11 @@ class Team:
                 pass
 
     def _on_report(self, data: bytes) -> None:
-        """A periodic load report (reports of the instant go to nodes only):
-        kept as it came, read only as far as the robot it is about;
-        ``status()`` decodes the newest of each robot, so a client that never
-        asks decodes none. A newest report that turns out malformed leaves
-        the one decoded before."""
+        """A periodic load report: kept as it came (``TeamReports``)."""
         robot = report_about(data)
         if robot:
             with self._lock:
-                self._raw_reports[robot] = (data, self.clock.monotonic())
-
-    def _decode_reports(self) -> None:
-        """With the lock held: the newest report of each robot, decoded (see ``_on_report``)."""
-        raw, self._raw_reports = self._raw_reports, {}
-        for robot, (data, at) in raw.items():
-            try:
-                env = decode(data)
-            except WireError:
-                continue
-            if isinstance(env.msg, LoadReport) and env.msg.robot == robot:
-                self._reports[robot] = (env.msg, at)
+                self._reports.keep(robot, data, self.clock.monotonic())
 
     def _find_robot(self, robot: str | None, timeout: float) -> str:
         deadline = self.clock.monotonic() + timeout
@@ -410,44 +325,27 @@ class Team:
         rid = next(self._ids)
         fut = ProgramFuture(program)
         with self._lock:
-            self._futures[rid] = fut
-            if timeout is not None:
-                when = self.clock.monotonic() + timeout
-                heapq.heappush(self._timers, (when, rid))
-                self._wake_timers(when)
+            self._pending.add(rid, fut, timeout)
         fut.add_done_callback(lambda f: self._on_done(rid, f))
         msg = SubmitProgram(client=self.client_id, request_id=rid, program=program, args=args,
                             work=work or 0.0, local_only=local_only, policy=policy,
                             deadline=None if deadline is None else float(deadline),
                             on_miss="" if on_miss == "run" else on_miss)
         data = encode(self.client_id, msg)
-        # until the node acknowledges it (an update or the outcome), _timeouts sends it again: a
+        # until the node acknowledges it (an update or the outcome), the timer thread sends it again: a
         # submission published while the node's link lapsed (a node stalled, starved of CPU) is lost
         reachable = self._node_reachable()
         with self._lock:
-            again = self.clock.monotonic() + (SUBMIT_RESEND if reachable else 0.0)
-            self._unacked[rid] = (data, again)
-            self._sent[rid] = data
-            self._wake_timers(again)
+            self._pending.sending(rid, data, reachable)
         if not reachable:
             return fut
         try:
             self._pub.put(data)
         except Exception as exc:
             with self._lock:
-                self._futures.pop(rid, None)
-                self._unacked.pop(rid, None)
-                self._sent.pop(rid, None)
+                self._pending.forget(rid)
             raise TransportError(f"could not send {program!r} to {self.robot}: {exc}") from exc
         return fut
-
-    def _wake_timers(self, due: float) -> None:
-        """With the lock held: wake the timer thread if something is now due
-        before it would wake (a burst of submissions, each resent only after
-        ``SUBMIT_RESEND``, wakes it none)."""
-        if due < self._timer_wake_at:
-            self._timer_wake_at = -float("inf")
-            self._timer_cv.notify()
 
     def _node_reachable(self) -> bool:
         """Whether this client's node subscribes to what it publishes right now
@@ -458,39 +356,18 @@ class Team:
         except Exception:  # cannot tell: send
             return True
 
-    def _resend_unacked(self) -> float | None:
-        """With the lock held: send again the submissions that are due, if
-        the node is reachable (withdrawn ones are forgotten). Returns the
-        seconds until the next is due."""
-        now = self.clock.monotonic()
-        due = [(rid, data) for rid, (data, at) in self._unacked.items() if at <= now]
-        if due and self._node_reachable():
-            for rid, data in due:
-                if rid not in self._futures:
-                    self._unacked.pop(rid, None)
-                    continue
-                self._unacked[rid] = (data, now + SUBMIT_RESEND)
-                self._lock.release()
-                try:
-                    self._pub.put(data)
-                except Exception:
-                    pass
-                finally:
-                    self._lock.acquire()
-        if not self._unacked:
-            return None
-        return max(HELD_RETRY, min(at for _, at in self._unacked.values()) - self.clock.monotonic())
-
     def _on_done(self, rid: int, fut: Future) -> None:
         with self._lock:
-            self._futures.pop(rid, None)
-            self._unacked.pop(rid, None)
-            self._sent.pop(rid, None)
+            self._pending.forget(rid)
         if fut.cancelled() and not self._closed:
             try:
-                self._pub.put(encode(self.client_id, CancelSubmitted(client=self.client_id, request_id=rid)))
+                self._withdraw(rid)
             except Exception:
                 pass
+
+    def _withdraw(self, rid: int) -> None:
+        """Tell the node to withdraw program ``rid`` (raises what the transport raises)."""
+        self._pub.put(encode(self.client_id, CancelSubmitted(client=self.client_id, request_id=rid)))
 
     def _on_outcome(self, data: bytes) -> None:
         try:
@@ -500,75 +377,16 @@ class Team:
         o = env.msg
         if isinstance(o, ProgramUpdate):
             with self._lock:
-                fut = self._futures.get(o.request_id)
-                self._unacked.pop(o.request_id, None)  # the node has it
+                fut = self._pending.acked(o.request_id)  # the node has it
             if fut is not None:
                 fut._updated(o)
             return
         if not isinstance(o, ProgramOutcome):
             return
         with self._lock:
-            fut = self._futures.pop(o.request_id, None)
-            self._unacked.pop(o.request_id, None)
-            self._sent.pop(o.request_id, None)
-        if fut is None or fut.done():
-            return
-        fut.host = o.host  # which robot ran it
-        fut.attempts = o.attempts
-        fut.moves, fut.resumed_from = o.moves, o.resumed_from
-        fut.missed_deadline = o.missed_deadline
-        try:
-            if o.ok:
-                try:
-                    value = decode_value(o.value)
-                except Exception as exc:  # a result this client cannot read is an error, never a hang
-                    fut.set_exception(ProgramFailed(f"{fut.program} on {o.host or env.sender}: its result could not "
-                                                    f"be decoded ({type(exc).__name__}: {exc})", host=o.host,
-                                                    attempts=o.attempts))
-                    return
-                fut.set_result(value)
-            else:
-                cls = _ERRORS.get(o.error_kind, ProgramLost)
-                if cls is BadArguments:
-                    fut.set_exception(BadArguments(o.error))
-                else:
-                    fut.set_exception(cls(f"{fut.program} on {o.host or env.sender}: {o.error}", host=o.host,
-                                          attempts=o.attempts))
-        except Exception:  # the future was cancelled meanwhile
-            pass
-
-    def _timeouts(self) -> None:
-        with self._lock:
-            while not self._closed:
-                retry = self._resend_unacked() if self._unacked else None
-                if not self._timers:
-                    self._wait_timers(retry or 0.5)
-                    continue
-                when, rid = self._timers[0]
-                delay = when - self.clock.monotonic()
-                if delay > 0:
-                    self._wait_timers(min(delay, retry) if retry else delay)
-                    continue
-                heapq.heappop(self._timers)
-                fut = self._futures.get(rid)
-                if fut is not None and not fut.done():
-                    self._lock.release()
-                    try:
-                        try:
-                            fut.set_exception(TimeoutError(f"{fut.program} did not finish in time; withdrawn"))
-                        except Exception:
-                            pass
-                        self._pub.put(encode(self.client_id, CancelSubmitted(client=self.client_id, request_id=rid)))
-                    except Exception:
-                        pass
-                    finally:
-                        self._lock.acquire()
-
-    def _wait_timers(self, seconds: float) -> None:
-        """With the lock held: the timer thread waits ``seconds``, or until woken."""
-        self._timer_wake_at = self.clock.monotonic() + seconds
-        self._timer_cv.wait(seconds)
-        self._timer_wake_at = -float("inf")
+            fut = self._pending.forget(o.request_id)
+        if fut is not None and not fut.done():
+            settle(fut, o, env.sender)
 
     # ------------------------------------------------------------ looking
     def status(self) -> TeamStatus:
@@ -578,30 +396,12 @@ class Team:
         What ``ramps status`` prints."""
         now = self.clock.monotonic()
         with self._lock:
-            self._decode_reports()
-            names = sorted(self._alive | set(self._reports))
-            rows = []
-            for name in names:
-                got = self._reports.get(name)
-                base: dict[str, Any] = dict(robot=name, alive=name in self._alive, leaving=name in self._leaving)
-                if got is not None:
-                    rep, at = got
-                    base.update(cores=rep.cores, speed=rep.speed, cpu_busy=rep.cpu_busy, runnable=rep.runnable,
-                                ramps_running=rep.ramps_running, accepted_total=rep.accepted_total,
-                                finished_total=rep.finished_total, blacklisted=list(rep.blacklisted),
-                                cpu_per_core=list(rep.cpu_per_core), load_avg=rep.load_avg,
-                                mem_free=rep.mem_free, bad_messages=rep.bad_messages, report_age=now - at,
-                                sees=rep.sees, running=list(rep.running), links=list(rep.links),
-                                learned=list(rep.learned), moves=rep.moves, moves_aborted=rep.moves_aborted,
-                                node_cpu=rep.node_cpu, accelerators=list(rep.accelerators), battery=rep.battery,
-                                low_battery=rep.low_battery, power=rep.power)
-                rows.append(RobotStatus(**base))
-        return TeamStatus(team=self.team, robots=rows)
+            return self._reports.status(self.team, self._alive, self._leaving, now)
 
     def pending(self) -> int:
         """How many of this client's programs have not finished yet."""
         with self._lock:
-            return len(self._futures)
+            return len(self._pending.futures)
 
     # ------------------------------------------------------------ closing
     def close(self) -> None:
@@ -614,9 +414,8 @@ class Team:
             return
         with self._lock:
             self._closed = True
-            futs = list(self._futures.values())
-            self._futures.clear()
-            self._timer_cv.notify_all()
+            futs = self._pending.take_all()
+            self._pending.stop()
         for f in futs:
             if not f.done():
                 f.set_exception(ProgramLost("the Team connection was closed before the program finished"))
@@ -629,8 +428,7 @@ class Team:
             self.transport.close()
         except Exception:
             pass
-        with _OPEN_LOCK:
-            _OPEN.discard(self)
+        open_teams.forget(self)
 
     def __enter__(self) -> "Team":
         return self

@@ -2,11 +2,13 @@
 
 How this works: ``ramps.connect()`` (``ramps.runtime.client``) returns a
 ``Team`` whose ``submit`` gives a ``ProgramFuture``: a
-``concurrent.futures.Future`` that the client's callbacks resolve with the
-one ``ProgramOutcome`` of its program, and update (state, host, attempts,
-progress) with each advisory ``ProgramUpdate`` on the way.
+``concurrent.futures.Future`` that ``settle`` resolves with the one
+``ProgramOutcome`` of its program (its value, or the error of the
+``ramps.errors`` tree its ``error_kind`` names), and that is updated (state,
+host, attempts, progress) with each advisory ``ProgramUpdate`` on the way.
 ``Team.status()`` answers with a ``TeamStatus``: one ``RobotStatus`` per
-robot, from its latest load report and liveliness.
+robot, from its liveliness and its newest load report, which
+``TeamReports`` keeps as it came and decodes only when asked.
 """
 
 from __future__ import annotations
@@ -16,9 +18,22 @@ from typing import Any, Callable
 
 import msgspec
 
-from ramps.core.messages import PROTOCOL_MAJOR, AcceleratorSeen, LearnedWork, LinkSeen, ProgramUpdate, RunningProgram
+from ramps.core.messages import (
+    PROTOCOL_MAJOR,
+    AcceleratorSeen,
+    LearnedWork,
+    LinkSeen,
+    LoadReport,
+    ProgramOutcome,
+    ProgramUpdate,
+    RunningProgram,
+    WireError,
+    decode,
+)
+from ramps.errors import BadArguments, DeadlineUnmeetable, ProgramFailed, ProgramLost, ProgramRefused
+from ramps.runtime.registry import decode_value
 
-__all__ = ["ProgramFuture", "RobotStatus", "TeamStatus", "report_about"]
+__all__ = ["ProgramFuture", "RobotStatus", "TeamReports", "TeamStatus", "report_about", "settle"]
 
 
 class _ReportAbout(msgspec.Struct, frozen=True):
@@ -103,6 +118,52 @@ class TeamStatus(msgspec.Struct, frozen=True, kw_only=True):
     robots: list[RobotStatus]
 
 
+class TeamReports:
+    """Each robot's newest periodic load report as a client keeps it (reports
+    of the instant go to nodes only): as it came, read only as far as the
+    robot it is about (``report_about``); ``status`` decodes the newest of
+    each robot, so a client that never asks decodes none. A newest report
+    that turns out malformed leaves the one decoded before. Not thread-safe:
+    the Team's lock guards it."""
+
+    def __init__(self) -> None:
+        #: each robot's newest report as it came, not decoded yet, and when it came
+        self.raw: dict[str, tuple[bytes, float]] = {}
+        self.decoded: dict[str, tuple[LoadReport, float]] = {}
+
+    def keep(self, robot: str, data: bytes, at: float) -> None:
+        """A report about ``robot`` came at ``at`` (``report_about(data)``)."""
+        self.raw[robot] = (data, at)
+
+    def status(self, team: str, alive: set[str], leaving: set[str], now: float) -> TeamStatus:
+        """The team at ``now``: every robot alive or reported, by name."""
+        raw, self.raw = self.raw, {}
+        for robot, (data, at) in raw.items():
+            try:
+                env = decode(data)
+            except WireError:
+                continue
+            if isinstance(env.msg, LoadReport) and env.msg.robot == robot:
+                self.decoded[robot] = (env.msg, at)
+        rows = []
+        for name in sorted(alive | set(self.decoded)):
+            got = self.decoded.get(name)
+            base: dict[str, Any] = dict(robot=name, alive=name in alive, leaving=name in leaving)
+            if got is not None:
+                rep, at = got
+                base.update(cores=rep.cores, speed=rep.speed, cpu_busy=rep.cpu_busy, runnable=rep.runnable,
+                            ramps_running=rep.ramps_running, accepted_total=rep.accepted_total,
+                            finished_total=rep.finished_total, blacklisted=list(rep.blacklisted),
+                            cpu_per_core=list(rep.cpu_per_core), load_avg=rep.load_avg,
+                            mem_free=rep.mem_free, bad_messages=rep.bad_messages, report_age=now - at,
+                            sees=rep.sees, running=list(rep.running), links=list(rep.links),
+                            learned=list(rep.learned), moves=rep.moves, moves_aborted=rep.moves_aborted,
+                            node_cpu=rep.node_cpu, accelerators=list(rep.accelerators), battery=rep.battery,
+                            low_battery=rep.low_battery, power=rep.power)
+            rows.append(RobotStatus(**base))
+        return TeamStatus(team=team, robots=rows)
+
+
 class ProgramFuture(Future):
     """A ``concurrent.futures.Future`` that follows its program on the team.
 
@@ -178,3 +239,37 @@ class ProgramFuture(Future):
                 fn(self)
             except Exception:  # a callback's bug must not stop the others (Future does the same)
                 pass
+
+
+#: the error each ``ProgramOutcome.error_kind`` raises (any other: ``ProgramLost``)
+_ERRORS = {"program": ProgramFailed, "refused": ProgramRefused, "bad_arguments": BadArguments,
+           "deadline": DeadlineUnmeetable}
+
+
+def settle(fut: ProgramFuture, o: ProgramOutcome, sender: str) -> None:
+    """Resolve ``fut`` with its program's outcome (``sender``: the node that
+    sent it): its value, or its error; a result this client cannot read is
+    an error, never a hang. One cancelled meanwhile stays so."""
+    fut.host = o.host  # which robot ran it
+    fut.attempts = o.attempts
+    fut.moves, fut.resumed_from = o.moves, o.resumed_from
+    fut.missed_deadline = o.missed_deadline
+    try:
+        if o.ok:
+            try:
+                value = decode_value(o.value)
+            except Exception as exc:
+                fut.set_exception(ProgramFailed(f"{fut.program} on {o.host or sender}: its result could not "
+                                                f"be decoded ({type(exc).__name__}: {exc})", host=o.host,
+                                                attempts=o.attempts))
+                return
+            fut.set_result(value)
+        else:
+            cls = _ERRORS.get(o.error_kind, ProgramLost)
+            if cls is BadArguments:
+                fut.set_exception(BadArguments(o.error))
+            else:
+                fut.set_exception(cls(f"{fut.program} on {o.host or sender}: {o.error}", host=o.host,
+                                      attempts=o.attempts))
+    except Exception:  # the future was cancelled meanwhile
+        pass
