@@ -21,7 +21,7 @@ from ramps.experiments.metrics import Machine, model_makespan
 from ramps.testbed.peers import ENGINES, run_peers
 from ramps.testbed.peers_engines import ClusterEngine, _running
 from ramps.testbed.peers_scenarios import (
-    SCENARIOS, SPACING, EngineRun, PeersReport, ScenarioResult, Setup, distribution, format_report, ideal, releases,
+    SCENARIOS, SPACING, EngineRun, PeersReport, ScenarioResult, Setup, distribution, format_report, ideal, medians, releases,
     victim,
 )
 
@@ -102,6 +102,24 @@ def test_the_report_prints_every_engine_and_reads_back_from_json():
     assert [line.split()[5] for line in text.splitlines() if line.strip().startswith("round-robin")] == ["3"]
     back = msgspec.json.decode(msgspec.json.encode(rep), type=PeersReport)
     assert back == rep and back.scenarios[0].scenario.crash_at == 10.0
+
+
+def test_rounds_in_turns_compare_each_engines_median_and_an_engine_that_lost_programs_has_none():
+    sc = SCENARIOS["idle"]
+
+    def run(engine: str, span: float, rnd: int, **kw) -> EngineRun:
+        return EngineRun(engine=engine, makespan=span, completed=15, speed=0.04, ideal=40.0,
+                         ratio=round(span / 40.0, 3), round=rnd, **kw)
+    runs = [run("ramps", 48.9, 1), run("dask", 45.5, 1), run("round-robin", 47.0, 1, lost=1),
+            run("ramps", 44.0, 2), run("dask", 46.0, 2), run("round-robin", 44.0, 2),
+            run("ramps", 45.2, 3), run("dask", 47.0, 3), run("round-robin", 45.0, 3)]
+    assert medians(runs) == {"ramps": (45.2, 1.13, 3), "dask": (46.0, 1.15, 3)}
+    rep = PeersReport(cores=4, quota=0.32, work=1.5, worker_nice=0, repeats=3,
+                      scenarios=[ScenarioResult(scenario=sc, ideal=44.0, ideal_distribution=[4, 4, 4, 2, 1],
+                                                sim=None, runs=runs)])
+    text = format_report(rep)
+    assert "medians of rounds in turns: ramps 45.2 s (ratio 1.13), dask 46.0 s (ratio 1.15)" in text
+    assert "ramps / the best other engine: 0.983" in text
 
 
 def test_the_command_rejects_unknown_scenarios_and_engines():

@@ -379,6 +379,7 @@ def testbed_experiment_peers(
     keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="keep each ramps run's node logs and traces in this folder (<scenario>-<engine>/)"),
     timeout: float = typer.Option(1500.0, "--timeout", min=10.0, help="seconds an engine's burst may take; programs still running then are reported as not done, with no makespan"),
     peer_nice: int = typer.Option(10, "--peer-nice", min=0, max=19, help="niceness of Ray's and Dask's programs (10: as ramps' workers, fair to a busy robot's own software; 0: as they run out of the box); their daemons run at 0, as ramps node"),
+    repeats: int = typer.Option(1, "--repeats", min=1, max=20, help="rounds of every engine in turns, with each engine's median makespan: the host's speed drifts more between runs than engines differ on idle robots"),
     as_json: bool = typer.Option(False, "--json", help="write the report as JSON to stdout"),
     out_file: Optional[Path] = typer.Option(None, "--out", help="also save the JSON here"),
 ) -> None:
@@ -403,7 +404,7 @@ def testbed_experiment_peers(
     try:
         rep = run_peers(chosen, engines, Setup(cores=cores, quota=quota, work=work, peer_nice=peer_nice, timeout=timeout,
                                          keep_logs=str(keep_logs) if keep_logs else None),
-                        log=lambda m: err.print(m, highlight=False, markup=False))
+                        repeats=repeats, log=lambda m: err.print(m, highlight=False, markup=False))
     except (PermissionError, RampsError, RuntimeError, ValueError) as exc:
         fail(str(exc))
     emit([rep], lambda r, console: console.print(format_report(r), highlight=False, markup=False), as_json=as_json,

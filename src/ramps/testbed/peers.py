@@ -89,8 +89,12 @@ DEFAULT_ENGINES = ("ramps", "round-robin", "ray", "dask")
 
 
 def run_peers(scenarios: Sequence[PeerScenario], engines: Sequence[str], setup: Setup = Setup(), *,
-              log: Callable[[str], None] | None = None) -> PeersReport:
-    """Every scenario through every engine (module docstring)."""
+              repeats: int = 1, log: Callable[[str], None] | None = None) -> PeersReport:
+    """Every scenario through every engine (module docstring), ``repeats``
+    rounds of every engine in turns: the host's speed drifts by up to 25%
+    between runs minutes apart, more than engines differ on idle robots, so
+    a comparison of wall times takes each engine's median over rounds run
+    in turns (``peers_scenarios.medians``)."""
     from ramps.testbed.experiments import identical_speed
 
     log = log or (lambda _m: None)
@@ -101,11 +105,12 @@ def run_peers(scenarios: Sequence[PeerScenario], engines: Sequence[str], setup: 
         log(f"{sc.name}: {sc.description}")
         runs: list[EngineRun] = []
         first: tuple[float, float, list[int]] | None = None  # speed, ideal, distribution
-        for eng in chosen:
+        for rnd, eng in ((r, e) for r in range(repeats) for e in chosen):
             why = eng.missing()
             if why:
-                log(f"  {eng.name}: skipped, {why}")
-                runs.append(EngineRun(engine=eng.name, error=f"skipped: {why}"))
+                if rnd == 0:
+                    log(f"  {eng.name}: skipped, {why}")
+                    runs.append(EngineRun(engine=eng.name, error=f"skipped: {why}"))
                 continue
             speed = identical_speed(1, setup.cores, setup.quota)  # the host's speed now, before the robots start
             if first is None:
@@ -118,7 +123,7 @@ def run_peers(scenarios: Sequence[PeerScenario], engines: Sequence[str], setup: 
                 run = eng.run(sc, setup, log)
             except Exception as exc:  # an engine that fails says so; the others run
                 run = EngineRun(engine=eng.name, error=f"{type(exc).__name__}: {str(exc)[:2000]}")
-            run.speed = speed
+            run.speed, run.round = speed, rnd + 1
             run.ideal = round(first[1] * first[0] / speed, 2)
             run.ratio = round(run.makespan / run.ideal, 3) if run.makespan else None
             run.host_load = round(os.getloadavg()[0], 2)
@@ -130,5 +135,5 @@ def run_peers(scenarios: Sequence[PeerScenario], engines: Sequence[str], setup: 
         out.append(ScenarioResult(scenario=sc, ideal=round(first[1], 2) if first else None,
                                   ideal_distribution=first[2] if first else [], sim=sim, runs=runs))
     return PeersReport(cores=setup.cores, quota=setup.quota, work=setup.work, worker_nice=setup.peer_nice,
-                       scenarios=out, wall=round(time.monotonic() - started, 1))
+                       scenarios=out, wall=round(time.monotonic() - started, 1), repeats=repeats)
 

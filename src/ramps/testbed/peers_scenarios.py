@@ -21,6 +21,7 @@ Rules: pure (no testbed, no processes): these run anywhere.
 from __future__ import annotations
 
 import math
+import statistics
 import time
 from collections.abc import Sequence
 
@@ -94,6 +95,8 @@ class EngineRun(msgspec.Struct, kw_only=True):
     own_cpu: float | None = None
     #: why it did not run, or failed
     error: str | None = None
+    #: the round of engines in turns it ran in (1 first; ``run_peers``' ``repeats``)
+    round: int = 1
 
 
 class ScenarioResult(msgspec.Struct, kw_only=True):
@@ -113,6 +116,8 @@ class PeersReport(msgspec.Struct, kw_only=True):
     worker_nice: int
     scenarios: list[ScenarioResult]
     wall: float = 0.0
+    #: rounds of every engine in turns
+    repeats: int = 1
 
 
 class Setup(msgspec.Struct, kw_only=True, frozen=True):
@@ -186,6 +191,22 @@ def victim(running: dict[str, int], origins: Sequence[str]) -> str | None:
     return max(cands, key=lambda c: (c[0], c[1]))[1] if cands else None
 
 
+def medians(runs: Sequence[EngineRun]) -> dict[str, tuple[float, float | None, int]]:
+    """engine -> (median makespan, median ratio, rounds) over its runs that
+    finished every program (an engine that left programs unfinished or lost
+    in any round has none)."""
+    by: dict[str, list[EngineRun]] = {}
+    for r in runs:
+        by.setdefault(r.engine, []).append(r)
+    out = {}
+    for engine, rs in by.items():
+        spans = [r.makespan for r in rs if r.makespan is not None and not r.unfinished and not r.lost]
+        if spans and len(spans) == len(rs):
+            ratios = [r.ratio for r in rs if r.ratio is not None]
+            out[engine] = (statistics.median(spans), statistics.median(ratios) if ratios else None, len(rs))
+    return out
+
+
 def format_report(rep: PeersReport) -> str:
     lines = [f"robots of {rep.cores} emulated cores on {rep.quota:g} host cores, programs of {rep.work:g} units "
              f"of burn; Ray's and Dask's programs at nice {rep.worker_nice} (ramps' workers at the node's "
@@ -216,6 +237,14 @@ def format_report(rep: PeersReport) -> str:
                 notes.append(r.error)
             lines.append(f"  {r.engine:12s} {span:>9s} {(r.ideal or 0):7.1f} {(r.ratio or math.nan):6.2f} "
                          f"{r.lost:4d}  {'-'.join(map(str, r.distribution)):16s} {'; '.join(notes)}")
+        if rep.repeats > 1:
+            med = medians(s.runs)
+            lines.append("  medians of rounds in turns: " + ", ".join(
+                f"{e} {m[0]:.1f} s (ratio {m[1]:.2f})" if m[1] is not None else f"{e} {m[0]:.1f} s"
+                for e, m in med.items()))
+            others = [m[0] for e, m in med.items() if not e.startswith("ramps")]
+            if "ramps" in med and others:
+                lines.append(f"  ramps / the best other engine: {med['ramps'][0] / min(others):.3f}")
     lines.append(f"\nratio: makespan / ideal at the speed measured before that run; {rep.wall:.0f} s in all")
     return "\n".join(lines)
 
