@@ -47,7 +47,6 @@ from typing import Any
 from ramps.core import deadlines, durable, failures, moves, placing, progress, silence
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate
-from ramps.core.deadlines import ON_MISS as ON_MISS  # what node clients and scenarios check on_miss against
 from ramps.core.events import Action, Deliver, Note, Send, Submit
 from ramps.core.isolation import Isolation
 from ramps.core.learning import Learning

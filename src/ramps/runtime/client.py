@@ -53,11 +53,12 @@ from typing import Any, Iterable, Iterator
 
 import msgspec
 
+from ramps.core.deadlines import ON_MISS
 from ramps.core.messages import CancelSubmitted, ProgramOutcome, ProgramUpdate, SubmitProgram, WireError, decode, encode
 from ramps.errors import BadArguments, NoTeam, NotAdmitted, ProgramLost, ProgramNotFound, TransportError
 from ramps.runtime import argtypes, keys, open_teams
 from ramps.runtime.futures import ProgramFuture, TeamReports, TeamStatus, report_about, settle
-from ramps.runtime.pending import SUBMIT_RESEND as SUBMIT_RESEND, Pending  # SUBMIT_RESEND: named here by the node
+from ramps.runtime.pending import Pending
 from ramps.runtime.registry import MAX_ARGS_BYTES, Registry, default_registry, encode_args
 from ramps.runtime.security import admission, settings_credentials, tls_listeners
 from ramps.runtime.settings import NodeSettings, load_settings
@@ -72,8 +73,6 @@ from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
 #: record (``ramps.runtime.store``) and its programs, which hosts keep running
 #: for it as long by default (``RampsConfig.origin_hold``)
 ORIGIN_GONE_GRACE = 30.0
-#: what a call with a deadline may do when no robot can meet it (``Team.options``)
-ON_MISS = ("run", "local", "fail")
 
 
 class Team:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import logging
 
+from ramps.core.deadlines import ON_MISS
 from ramps.core.durable import program_of, record_of, same_to_restore
 from ramps.core.events import (
     Action,
@@ -35,7 +36,6 @@ from ramps.core.messages import (
     SubmitProgram,
     encode,
 )
-from ramps.core.origin import ON_MISS
 from ramps.core.policy import POLICIES
 from ramps.core.program import FINAL, ProgramState
 from ramps.errors import ProgramNotFound
@@ -55,7 +55,7 @@ OUTCOME_RETRY = 0.05
 #: seconds a program's update to its client waits (then its newest state goes):
 #: most programs end sooner, and their outcome says all an update would; one
 #: that runs longer is told within this (a client resends a submission that
-#: nothing acknowledged only after ``ramps.runtime.client.SUBMIT_RESEND``)
+#: nothing acknowledged only after ``ramps.runtime.pending.SUBMIT_RESEND``)
 UPDATE_HOLD = 0.1
 #: states a client hears at once, never folded into a later one: its program's
 #: host failed and it is placed again (a ROS goal's feedback shows the failover)
