@@ -17,7 +17,7 @@ re-placement (a move, under weak mobility). Faults come from the simulator
 (``fault`` entries: crash, network, freeze, recover); node traces show what
 the origin noticed (failures, blacklistings) and, on a host, what it ran
 for other origins (``started``, ``finished``, ``stopped``: see
-``ramps.runtime.node_outbound``), so a host's trace alone shows its
+``ramps.runtime.node_trace``), so a host's trace alone shows its
 attempts, and with its origins' traces the origin's view wins.
 
 Rules: pure data, no plotting (``ramps.observe.plots`` draws it). Times are

@@ -73,6 +73,7 @@ from ramps.runtime.workers import WorkerPool
 from ramps.runtime.node_clients import OUTCOME_HOLD, ClientAnswers
 from ramps.runtime.node_inbound import DROP_LOG_PERIOD, LONELY_AFTER, STALL_GRACE, Inbound
 from ramps.runtime.node_outbound import Outbound
+from ramps.runtime.node_trace import NodeTrace
 from ramps.runtime.node_state import Key, SamplerLike, WorkerPoolLike
 
 if TYPE_CHECKING:
@@ -168,8 +169,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         #: a flood of bad messages is logged one line per DROP_LOG_PERIOD
         self._drop_logged_at = -DROP_LOG_PERIOD
         self._drops_unlogged = 0
-        self._trace = None
-        self._trace_wire = False
+        self.trace = NodeTrace(self.robot, clock)
         self.transport = None
         self.node = None
         #: the driver's stalls (see _clock): how many, seconds in all
@@ -219,9 +219,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         #: the record last written of each program (``ClientAnswers._persist``)
         self._recorded = {}
         self._outcomes_ready = {}
-        #: the last periodic load report, and the origins of the programs this robot hosts for others
+        #: the last periodic load report
         self._last_report = None
-        self._hosted_origins = {}
         #: called on the driver thread after every round of its loop (systemd's watchdog, ramps.runtime.service)
         self.on_turn: Callable[[], None] | None = None
         #: when to look whether this node has heard any teammate (None: looked, or no need)
@@ -272,11 +271,10 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self.node_cpu = 0.0
         if s.trace:
             try:
-                self._trace = open(s.trace, "a", buffering=1)
-            except OSError as exc:
+                self.trace.open(s.trace, wire=s.trace_wire)
+            except ConfigError:
                 self._teardown()
-                raise ConfigError(f"cannot write the trace file {s.trace}: {exc.strerror or exc}") from None
-            self._trace_wire = s.trace_wire
+                raise
         if s.metrics:
             self._serve_metrics(s.metrics)
         self._join_team(creds, exit_on_failure)
@@ -452,10 +450,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
                 except OSError:
                     pass
             self.store = None
-        if self._trace is not None:
-            self._trace_wire = False
-            self._trace.close()
-            self._trace = None
+        self.trace.close()
         self._stopped.set()
 
     # ================================================================ inputs
@@ -507,8 +502,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             self._stall_pending += late
             if late >= self._relink_after:
                 self._stall_links = True
-            if self._trace is not None:
-                self._write_trace("stalled", "", "", 0, f"{late:.3f}", at=t)
+            self.trace.write("stalled", "", "", 0, f"{late:.3f}", at=t)
             log.warning("node %s: driver stalled for %.1f s (frozen, starved of CPU or paused); "
                         "that time does not count as silence from teammates", self.robot, late)
         self._last_read = t

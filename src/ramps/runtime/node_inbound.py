@@ -86,8 +86,8 @@ class Inbound(DriverState):
             self._held_lost[robot] = now + STALL_GRACE
             return []
         if alive and self._held_lost.pop(robot, None) is not None:
-            if self._trace is not None:
-                self._write_trace("peer_back", "", robot, 0, "lost and back while this node recovered from a stall")
+            if self.trace.on:
+                self.trace.write("peer_back", "", robot, 0, "lost and back while this node recovered from a stall")
             return self._peer_event(robot, True, now)  # its link is back: the core counts its silence again
         return self._peer_event(robot, alive, now)
 
@@ -140,8 +140,8 @@ class Inbound(DriverState):
                         self._revocation_file, exc)
         out: list[Action] = []
         for robot in new:
-            if self._trace is not None:
-                self._write_trace("revoked", "", robot, 0, f"list {rl.seq}")
+            if self.trace.on:
+                self.trace.write("revoked", "", robot, 0, f"list {rl.seq}")
             if robot == self.robot:
                 self.revoked_self = True
                 continue
@@ -215,8 +215,8 @@ class Inbound(DriverState):
             if env.sender in self._revoked:  # refused at the ramps layer (see ramps.runtime.revocation)
                 self.revoked_dropped += 1
                 return []
-            if self._trace_wire:
-                self._write_trace("rx", getattr(msg, "program_id", ""), env.sender, getattr(msg, "attempt", 0),
+            if self.trace.wire:
+                self.trace.write("rx", getattr(msg, "program_id", ""), env.sender, getattr(msg, "attempt", 0),
                                   f"{type(msg).__name__} queued {now - item[2]:.3f} s", at=item[2])
             if isinstance(msg, SubmitProgram):
                 return self._client_submit(msg, now)
@@ -238,8 +238,8 @@ class Inbound(DriverState):
             held = self.accel.release((item[1].program_id, item[1].attempt))  # the next on its slot starts
             return node.handle(item[1] if held is None else msgspec.structs.replace(item[1], slot_s=held), now)
         if kind == "speed":  # the measurement's moment on the grid, its own figure, the node's
-            if self._trace is not None:
-                self._write_trace("speed_measured", "", "", 0,
+            if self.trace.on:
+                self.trace.write("speed_measured", "", "", 0,
                                   f"{item[3]:.5g} at {item[2]:.1f}, node figure {item[1].speed:.5g}, se {item[1].se:.3g}")
             return node.handle(item[1], now)
         if kind == "progress":
@@ -248,8 +248,8 @@ class Inbound(DriverState):
             robot, alive = item[1], item[2]
             if robot == self.robot:
                 return []
-            if self._trace_wire:
-                self._write_trace("peer_alive" if alive else "peer_lost", "", robot, 0, "liveliness")
+            if self.trace.wire:
+                self.trace.write("peer_alive" if alive else "peer_lost", "", robot, 0, "liveliness")
             return self._on_liveliness(robot, alive, now)
         if kind == "call":
             item[1]()

@@ -8,7 +8,7 @@ worker pool, ``Deliver`` becomes the client's outcome
 (``ramps.runtime.node_clients``), ``Note`` a client update, a trace line and
 a log line, ``NameTaken`` (another node under this robot's name) this
 node's leaving or a line saying the other leaves; programs it hosts for
-other origins are traced as this robot runs them (``_trace_hosted``). ``PublishReport`` (a report of the instant:
+other origins are traced as this robot runs them (``NodeTrace.hosted``). ``PublishReport`` (a report of the instant:
 the programs running here changed) is published to the teammates' nodes
 (``keys.load_now``) once per batch of actions, the newest after the batch's
 messages: in a burst each change made one, and
@@ -22,7 +22,6 @@ periodic report the driver reads the robot's battery (``ramps.runtime.battery``)
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 import os
@@ -53,8 +52,6 @@ from ramps.core.messages import (
     LearnedWork,
     LinkSeen,
     LoadReport,
-    ProgramCheckpoint,
-    ProgramResult,
     RunningProgram,
     encode,
 )
@@ -111,14 +108,14 @@ class Outbound(DriverState):
         for a in actions:
             if self.metrics is not None:
                 self.metrics.on_action(a, self.node, mnow)
-            if self._trace is not None and isinstance(a, (StartProgram, StopProgram, Send)):
-                self._trace_hosted(a)
+            if self.trace.on and isinstance(a, (StartProgram, StopProgram, Send)):
+                self.trace.hosted(a, closing=self.node is not None and self.node.executor.closing)
             if isinstance(a, Send):
                 key, data = keys.inbox(self.team, a.to), encode(self.robot, a.msg)
                 if not self._bulk.send(key, data):  # large (or behind a large one): its thread sends it
                     self._put(key, data)
-                if self._trace_wire:
-                    self._write_trace("tx", getattr(a.msg, "program_id", ""), a.to, getattr(a.msg, "attempt", 0),
+                if self.trace.wire:
+                    self.trace.write("tx", getattr(a.msg, "program_id", ""), a.to, getattr(a.msg, "attempt", 0),
                                       type(a.msg).__name__)
             elif isinstance(a, StartProgram):
                 if a.accelerator:  # when one of its slots is free (AcceleratorProbe.start)
@@ -129,8 +126,8 @@ class Outbound(DriverState):
                 self.pool.cancel((a.program_id, a.attempt))
                 self.accel.release((a.program_id, a.attempt))
             elif isinstance(a, Deliver):
-                if self._trace is not None:  # first, so a caller holding the result finds it traced
-                    self._write_trace("delivered", a.program_id, a.host, a.attempts, a.error_kind)
+                if self.trace.on:  # first, so a caller holding the result finds it traced
+                    self.trace.write("delivered", a.program_id, a.host, a.attempts, a.error_kind)
                 t = self._as_told(a)
                 self._tell_client(t.program_id, ok=t.ok, value=t.value, error=t.error, kind=t.error_kind, host=t.host,
                                   attempts=t.attempts, moves=t.moves, resumed_from=t.resumed_from,
@@ -147,8 +144,8 @@ class Outbound(DriverState):
                     state = _CLIENT_STATES[a.what]
                     self._update_client(a.program_id, "replaced" if state == "placed" and a.attempt > 1 else state,
                                         a.robot, a.attempt)
-                if self._trace is not None:
-                    self._write_trace(a.what, a.program_id, a.robot, a.attempt, a.detail)
+                if self.trace.on:
+                    self.trace.write(a.what, a.program_id, a.robot, a.attempt, a.detail)
                 if a.what in ("blacklisted", "unblacklisted", "failed", "anomaly"):
                     log.info("node %s: %s %s %s %s", self.robot, a.what, a.robot, a.program_id, a.detail)
                 elif a.what == "misdeclared":
@@ -191,8 +188,8 @@ class Outbound(DriverState):
         mine, theirs = started_at(self.incarnation), started_at(a.other)
         fix = ("give each machine its own robot name: --robot NAME or RAMPS_ROBOT=NAME (the default name is "
                "the host name, which machines cloned from one disk image share)")
-        if self._trace is not None:
-            self._write_trace("name_taken", "", self.robot, 0,
+        if self.trace.on:
+            self.trace.write("name_taken", "", self.robot, 0,
                               f"{'this node leaves' if a.leave else 'the other leaves'}: incarnation {a.other:x}")
         where = self.endpoints_of.get(a.other)
         at = f" listening on {', '.join(where)}" if where else ""
@@ -218,54 +215,6 @@ class Outbound(DriverState):
         log.warning("node %s: %s on %s; placements learn only from runs of at least %g work units, so declare "
                     "what a call really does (@ramps.program(work=...) or team.options(work=...))",
                     self.robot, note.detail, note.robot, MIN_RUN_WORK)
-
-    def _write_trace(self, what: str, program_id: str, other: str, attempt: int, detail: str, *,
-                     at: float | None = None) -> None:
-        """One JSON line per decision: ``t`` is self.clock.monotonic() (one clock for
-        every process of a host), ``wall`` the Unix time, fields as the
-        simulator's trace (``ramps.sim.engine.TraceEntry``)."""
-        trace = self._trace
-        if trace is None:  # closed meanwhile (a write failed, or the node was torn down)
-            return
-        rec = {"t": round(self.clock.monotonic() if at is None else at, 6), "wall": round(self.clock.time(), 6),
-               "robot": self.robot, "what": what, "program_id": program_id, "other": other, "attempt": attempt,
-               "detail": detail}
-        try:
-            trace.write(json.dumps(rec) + "\n")
-        except OSError as exc:  # a full disk must not stop the node
-            log.warning("node %s: trace file write failed, trace off: %s", self.robot, exc)
-            self._trace = None
-            self._trace_wire = False
-
-    def _trace_hosted(self, a: StartProgram | StopProgram | Send) -> None:
-        """The host's side of the trace, for programs of other origins (this
-        robot's own are in its origin notes), ``other`` the origin:
-        ``started`` (detail: the program, and the progress it resumes from),
-        ``checkpointed`` (detail: its progress then, if it reported any),
-        ``finished`` (its result is sent; detail: empty if it returned, else
-        its error's last line) or ``stopped`` (no longer wanted: withdrawn,
-        another copy won, its origin gone; "handed back" when this node
-        leaves)."""
-        hosted = self._hosted_origins
-        if isinstance(a, StartProgram):
-            if a.origin != self.robot:
-                hosted[(a.program_id, a.attempt)] = a.origin
-                self._write_trace("started", a.program_id, a.origin, a.attempt, a.program + (
-                    f" resumed from {a.resume_fraction:.2f}" if a.resume is not None else ""))
-        elif isinstance(a, StopProgram):
-            origin = hosted.pop((a.program_id, a.attempt), None)
-            if origin is not None:
-                closing = self.node is not None and self.node.executor.closing
-                self._write_trace("stopped", a.program_id, origin, a.attempt, "handed back" if closing else "")
-        elif isinstance(a.msg, ProgramResult):  # the first send only: resends find it gone
-            origin = hosted.pop((a.msg.program_id, a.msg.attempt), None)
-            if origin is not None:
-                error = a.msg.error.strip().splitlines()
-                self._write_trace("finished", a.msg.program_id, origin, a.msg.attempt,
-                                  "" if a.msg.ok else (error[-1][:200] if error else "error"))
-        elif isinstance(a.msg, ProgramCheckpoint) and (a.msg.program_id, a.msg.attempt) in hosted:
-            self._write_trace("checkpointed", a.msg.program_id, a.to, a.msg.attempt,
-                              "" if a.msg.fraction is None else f"{a.msg.fraction:.2f}")
 
     def _put(self, key: str, data: bytes, *, block: bool = False) -> None:
         """Publish on ``key``. Messages to robots use Zenoh's DROP congestion
@@ -369,8 +318,8 @@ class Outbound(DriverState):
                                    reports_received=st.reports_received)
         try:
             self._load_pub.put(encode(self.robot, report))
-            if self._trace_wire:
-                self._write_trace("tx", "", "*", 0, "LoadReport")
+            if self.trace.wire:
+                self.trace.write("tx", "", "*", 0, "LoadReport")
         except Exception as exc:
             log.warning("node %s could not publish its load: %s", self.robot, exc)
         self._republish(now)

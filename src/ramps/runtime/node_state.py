@@ -20,7 +20,7 @@ from __future__ import annotations
 import queue
 import threading
 from collections import deque
-from typing import TYPE_CHECKING, Any, Callable, Protocol, TextIO
+from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 if TYPE_CHECKING:
     from cryptography import x509
@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from ramps.runtime.bulk import OrderedSender
     from ramps.runtime.speed_probe import SpeedSamples
     from ramps.runtime.metrics import NodeMetrics
+    from ramps.runtime.node_trace import NodeTrace
     from ramps.runtime.registry import Registry
     from ramps.runtime.revocation import RevocationList
     from ramps.runtime.settings import NodeSettings
@@ -110,8 +111,7 @@ class DriverState:
     _backlog_bytes: int
     _drop_logged_at: float
     _drops_unlogged: int
-    _trace: TextIO | None
-    _trace_wire: bool
+    trace: NodeTrace
     transport: Transport | None
     node: Node | None
     _stall_offset: float
@@ -132,7 +132,6 @@ class DriverState:
     store: OriginStore | None
     restored: int
     _last_report: LoadReport | None
-    _hosted_origins: dict[Key, str]
 
     # ------------------------------------------------ set by start
     cores: int
@@ -178,9 +177,6 @@ class DriverState:
         def _held_due(self, now: float) -> float: ...  # Outbound
 
         def _flush_held(self, now: float) -> None: ...
-
-        def _write_trace(self, what: str, program_id: str, other: str, attempt: int, detail: str, *,
-                         at: float | None = None) -> None: ...  # Outbound
 
         def _put(self, key: str, data: bytes, *, block: bool = False) -> None: ...
 
