@@ -163,7 +163,7 @@ def test_a_cut_link_is_healed_and_its_programs_complete_once(team):
     assert all(len(v) == 1 for v in app.outcomes.values())
     assert sum(app.outcome(r).attempts == 2 for r in rids) == len(on_r2)
     assert "r2" in rt1.node.view.candidates(rt1._clock())  # seen again
-    assert team.nodes["r2"].stalls == 0  # a cut is not a stall
+    assert team.nodes["r2"].awake.stalls == 0  # a cut is not a stall
 
 
 def test_a_stall_is_taken_out_of_the_core_clock(team):
@@ -174,7 +174,7 @@ def test_a_stall_is_taken_out_of_the_core_clock(team):
     before = rt._clock()
     team.clock.advance(rt.s.lease_ms / 1000.0 * 3)
     rt.step()
-    assert rt.stalls == 1 and rt._clock() - before < 1.0
+    assert rt.awake.stalls == 1 and rt._clock() - before < 1.0
 
 
 def test_the_real_client_over_the_memory_transport(team):

@@ -22,7 +22,7 @@ from ramps.testing.memory import FakeClock, MemoryBus
 
 def wait(rt, fake: FakeClock, seconds: float) -> None:
     """The driver sleeps ``seconds`` because it chose to (not a stall)."""
-    rt._sleep_until = fake.t + seconds
+    rt.awake.sleep_until = fake.t + seconds
     fake.t += seconds
 
 
@@ -33,29 +33,29 @@ def driver():
     rt.node = Node("r1", cores=2, speed=1.0, rng=random.Random(0))
     for r in ("r2", "r3"):  # teammates the load server knows
         rt.node.handle(Received(sender=r, msg=report(r)), fake.t)
-    rt._last_read = fake.t
+    rt.awake.last_read = fake.t
     return rt, fake
 
 
 def test_a_wait_the_driver_chose_is_not_a_stall_but_a_late_wake_is(driver):
     rt, fake = driver
     now0 = rt._clock()
-    rt._sleep_until = fake.t + 2.0  # the driver sleeps 2 s until its next deadline
+    rt.awake.sleep_until = fake.t + 2.0  # the driver sleeps 2 s until its next deadline
     fake.t += 2.2  # woke a little late: normal jitter
-    assert rt._clock() == pytest.approx(now0 + 2.2) and rt.stalls == 0
-    rt._sleep_until = fake.t + 1.0
+    assert rt._clock() == pytest.approx(now0 + 2.2) and rt.awake.stalls == 0
+    rt.awake.sleep_until = fake.t + 1.0
     fake.t += 6.0  # frozen 5 s past its wake-up
     now = rt._clock()
-    assert rt.stalls == 1 and rt.stalled_s == pytest.approx(5.0)
+    assert rt.awake.stalls == 1 and rt.awake.stalled_s == pytest.approx(5.0)
     assert now == pytest.approx(now0 + 2.2 + 1.0)  # the core never sees the 5 s
     fake.t += 0.3  # handling items back to back: no stall
-    assert rt._clock() == pytest.approx(now + 0.3) and rt.stalls == 1
+    assert rt._clock() == pytest.approx(now + 0.3) and rt.awake.stalls == 1
 
 
 def test_teammates_lost_right_after_a_stall_are_held_and_forgotten_if_back(driver):
     rt, fake = driver
     rt._clock()
-    rt._sleep_until = fake.t
+    rt.awake.sleep_until = fake.t
     fake.t += 4.0
     now = rt._clock()  # a 4 s stall
     assert rt._on_liveliness("r2", False, now) == []  # held, not yet a loss
@@ -78,7 +78,7 @@ def test_far_from_a_stall_a_lost_teammate_is_lost_at_once(driver):
     rt, fake = driver
     rt._clock()
     fake.t += rn.STALL_GRACE + 10  # no stall: the driver allowed itself this wait
-    rt._sleep_until = fake.t
+    rt.awake.sleep_until = fake.t
     rt._on_liveliness("r2", False, rt._clock())
     assert rt._held_lost == {} and rt.node.view.is_lost("r2")
 
@@ -127,17 +127,17 @@ def test_a_stall_that_may_have_closed_links_is_told_to_the_core_once(driver):
     rt, fake = driver
     lease = rt.s.lease_ms / 1000.0
     rt._clock()
-    rt._sleep_until = fake.t
+    rt.awake.sleep_until = fake.t
     fake.t += lease * 0.3  # a short stall (busy robot): links stay up
     now = rt._clock()
-    assert rt.stalls == 1 and not rt._stall_links  # told to the core (silence counts from the wake), no relinking
+    assert rt.awake.stalls == 1 and not rt.awake.links  # told to the core (silence counts from the wake), no relinking
     assert [a.what for a in rt._stall_told(now)] == [] and rt.node.origin.woke_at == now
     assert not rt.node.origin.relink.active(now)
-    rt._sleep_until = fake.t
+    rt.awake.sleep_until = fake.t
     fake.t += lease * 2  # frozen past the lease: teammates' links closed
     now = rt._clock()
     notes = [a.what for a in rt._stall_told(now)]
-    assert notes == ["relinking"] and rt._stall_pending == 0.0
+    assert notes == ["relinking"] and rt.awake.pending == 0.0
     assert rt.node.origin.relink.waiting("r2", now)
     rt._on_liveliness("r2", False, now)  # held, see above
     wait(rt, fake, 0.2)

@@ -62,7 +62,7 @@ def driver():
     rt = rn.NodeRuntime(load_settings(flags={"robot": "r1", "team": "t"}, environ={}), clock=fake)
     rt.node = Node("r1", cores=2, speed=1.0, rng=random.Random(0))
     rt.node.handle(Received(sender="r2", msg=report("r2")), fake.t)
-    rt._last_read = fake.t
+    rt.awake.last_read = fake.t
     rt._next_pub = fake.t
     return rt, fake
 

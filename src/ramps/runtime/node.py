@@ -53,7 +53,6 @@ from ramps.core.events import (
 )
 from ramps.core.identity import new_incarnation
 from ramps.core.node import Node
-from ramps.core.relink import Stalled
 from ramps.core.speed import next_remeasure
 from ramps.errors import ConfigError, NotAdmitted, TransportError
 from ramps.runtime import keys, revocation
@@ -73,6 +72,7 @@ from ramps.runtime.workers import WorkerPool
 from ramps.runtime.node_clients import OUTCOME_HOLD, ClientAnswers
 from ramps.runtime.node_inbound import DROP_LOG_PERIOD, LONELY_AFTER, STALL_GRACE, Inbound
 from ramps.runtime.node_outbound import Outbound
+from ramps.runtime.node_awake import AwakeClock
 from ramps.runtime.node_trace import NodeTrace
 from ramps.runtime.node_state import Key, SamplerLike, WorkerPoolLike
 
@@ -82,14 +82,6 @@ if TYPE_CHECKING:
 log = logging.getLogger("ramps.node")
 #: bytes of received messages waiting for the driver before new ones are dropped
 MAX_BACKLOG_BYTES = 64 * 1024 * 1024
-#: a driver that wakes this much later than it allowed itself was stalled
-#: (frozen, starved of CPU, paused): see NodeRuntime._clock
-STALL_MIN = 0.5
-#: a stall this long, as a fraction of the Zenoh lease, may have let
-#: teammates' leases on this node run out and their links close (Zenoh sends
-#: keep-alives every quarter lease): the core is told (``Stalled``), so it
-#: waits for their links before counting silence
-RELINK_LEASE_FRACTION = 0.75
 #: queued items handled before the timers fire (the rest after them)
 MAX_ITEMS_PER_ROUND = 10_000
 #: seconds of queued items one round handles before this robot's own duties
@@ -172,23 +164,14 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self.trace = NodeTrace(self.robot, clock)
         self.transport = None
         self.node = None
-        #: the driver's stalls (see _clock): how many, seconds in all
-        self.stalls = 0
-        self.stalled_s = 0.0
-        self._stall_offset = 0.0
-        self._stalled_at = 0.0
+        #: the core's clock: the time this node was awake, its stalls taken out
+        self.awake = AwakeClock(clock, lease_s=settings.lease_ms / 1000.0, robot=self.robot, trace=self.trace)
         #: the wall-clock time of the next re-measurement (None: told its speed)
         self._remeasure_at = None
         self._remeasures = 0
         self._remeasuring = threading.Lock()
-        #: stalls not yet told to the core (seconds), and whether one was long enough to close links
-        self._stall_pending = 0.0
-        self._stall_links = False
         #: rounds that stopped handling queued items to send what was due (ROUND_SECONDS)
         self.rounds_cut = 0
-        self._relink_after = settings.lease_ms / 1000.0 * RELINK_LEASE_FRACTION
-        self._last_read = 0.0
-        self._sleep_until = 0.0
         #: teammates whose liveliness went just after a stall: robot -> core time it counts as lost
         self._held_lost = {}
         #: messages waiting for their receiver to be reachable: (key, bytes, monotonic deadline, block)
@@ -279,8 +262,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             self._serve_metrics(s.metrics)
         self._join_team(creds, exit_on_failure)
         self._threaded = threaded
-        self._last_read = self.clock.monotonic()
-        self._next_pub = self._clock()
+        self._next_pub = self.awake.start()
         if s.connect or not s.multicast:  # else a lone robot on a LAN with multicast is no surprise
             self._lonely_at = self.clock.monotonic() + LONELY_AFTER
         if self.store is not None:
@@ -482,41 +464,15 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
 
     # ================================================================ driver
     def _clock(self) -> float:
-        """The core's clock: monotonic time less every stall of this node.
-
-        A stall is a reading later than the driver allowed itself to be
-        (``_sleep_until``, or the previous reading) by more than STALL_MIN: the
-        process was frozen (SIGSTOP), starved of CPU on a busy robot, or
-        paused in a long collection. Nothing could be heard meanwhile, so the
-        core must not count that time as silence from its hosts (it would
-        write off healthy programs, its own included, the moment the node
-        wakes): the stall is taken out of the core's time. Deadlines stay
-        as long in the time the node was awake to hear."""
-        t = self.clock.monotonic()
-        late = t - max(self._last_read, self._sleep_until)
-        if late > STALL_MIN:
-            self._stall_offset += late
-            self.stalls += 1
-            self.stalled_s += late
-            self._stalled_at = t
-            self._stall_pending += late
-            if late >= self._relink_after:
-                self._stall_links = True
-            self.trace.write("stalled", "", "", 0, f"{late:.3f}", at=t)
-            log.warning("node %s: driver stalled for %.1f s (frozen, starved of CPU or paused); "
-                        "that time does not count as silence from teammates", self.robot, late)
-        self._last_read = t
-        self._sleep_until = 0.0
-        return t - self._stall_offset
+        """The core's clock (``AwakeClock.read``): monotonic time less every stall of this node."""
+        return self.awake.read()
 
     def _stall_told(self, now: float) -> list[Action]:
         """Tell the core about stalls, before anything that arrived meanwhile:
         a host's silence counts from the wake (``Origin.on_stalled``), and after
         one that may have closed links, teammates relink (``ramps.core.relink``)."""
-        seconds, self._stall_pending = self._stall_pending, 0.0
-        links, self._stall_links = self._stall_links, False
         assert self.node is not None
-        return self.node.handle(Stalled(seconds=seconds, links=links), now)
+        return self.node.handle(self.awake.told(), now)
 
     def _drive(self) -> None:
         while self._round(block=True):
@@ -533,7 +489,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
     def next_wake(self) -> float:
         """The clock's monotonic time at which the driver wants its next round
         (the time it allowed itself to sleep until)."""
-        return self._sleep_until
+        return self.awake.sleep_until
 
     def _round(self, *, block: bool) -> bool:
         node = self.node
@@ -546,7 +502,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         wake = next_pub if deadline is None else min(deadline, next_pub)
         wake = min(wake, self._next_release()) if self._held_lost else wake
         wait = max(0.0, min(wake, self._held_due(now)) - now)
-        self._sleep_until = self.clock.monotonic() + wait
+        self.awake.sleep(wait)
         try:
             item = q.get(timeout=wait) if block else q.get_nowait()
         except queue.Empty:
@@ -559,7 +515,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         behind = False  # items left queued: this robot's duties first, the origin's timeouts after them
         while item is not None:
             now = clock()
-            if self._stall_pending:
+            if self.awake.pending:
                 actions.extend(self._stall_told(now))
             if item[0] == "stop":
                 self._apply(actions)
@@ -584,7 +540,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             except queue.Empty:
                 item = None
         now = clock()
-        if self._stall_pending:
+        if self.awake.pending:
             actions.extend(self._stall_told(now))
         if self._held_lost:
             actions.extend(self._release_lost(now))
@@ -606,7 +562,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             deadline = node.next_deadline()
             wake = wake if deadline is None else min(wake, deadline)
             wake = min(wake, self._next_release()) if self._held_lost else wake
-            self._sleep_until = self.clock.monotonic() + max(0.0, min(wake, self._held_due(now)) - now)
+            self.awake.sleep(max(0.0, min(wake, self._held_due(now)) - now))
         return True
 
 def run_node(settings: NodeSettings, *, install_signals: bool = True) -> NodeRuntime:

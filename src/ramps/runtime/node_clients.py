@@ -272,7 +272,7 @@ class ClientAnswers(DriverState):
         if held is not None:
             held[1:] = [state, host, attempt]
         elif pid in self._clients:
-            self._held_updates[pid] = [self.clock.monotonic() - self._stall_offset + UPDATE_HOLD, state, host, attempt]
+            self._held_updates[pid] = [self.awake.now() + UPDATE_HOLD, state, host, attempt]
 
     def _flush_updates(self, now: float) -> None:
         """Send the held updates that are due by the core's time ``now``

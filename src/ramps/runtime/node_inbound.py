@@ -82,7 +82,7 @@ class Inbound(DriverState):
         robot comes back meanwhile; a robot that does not is lost then."""
         if robot in self._revoked:
             return []
-        if not alive and self._stalled_at and self.clock.monotonic() - self._stalled_at < STALL_GRACE:
+        if not alive and self.awake.since_stall(STALL_GRACE):
             self._held_lost[robot] = now + STALL_GRACE
             return []
         if alive and self._held_lost.pop(robot, None) is not None:

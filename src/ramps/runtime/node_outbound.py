@@ -103,7 +103,7 @@ class Outbound(DriverState):
     def _apply(self, actions: list[Action]) -> None:
         if self.store is not None:  # written before anything of it is sent
             self._persist(actions)
-        mnow = self.clock.monotonic() - self._stall_offset  # the core's clock, for metrics' latencies
+        mnow = self.awake.now()  # the core's clock, for metrics' latencies
         prompt = None  # the newest report of the instant: the only one of a batch that goes out
         for a in actions:
             if self.metrics is not None:
@@ -154,7 +154,7 @@ class Outbound(DriverState):
                     self.on_note(a)
         if prompt is not None:  # held a moment: the changes that follow it go with it
             if self._prompt_held is None:
-                self._prompt_due = self.clock.monotonic() - self._stall_offset + PROMPT_HOLD
+                self._prompt_due = self.awake.now() + PROMPT_HOLD
             self._prompt_held = prompt
 
     def _held_due(self, now: float) -> float:

@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from ramps.runtime.bulk import OrderedSender
     from ramps.runtime.speed_probe import SpeedSamples
     from ramps.runtime.metrics import NodeMetrics
+    from ramps.runtime.node_awake import AwakeClock
     from ramps.runtime.node_trace import NodeTrace
     from ramps.runtime.registry import Registry
     from ramps.runtime.revocation import RevocationList
@@ -114,8 +115,7 @@ class DriverState:
     trace: NodeTrace
     transport: Transport | None
     node: Node | None
-    _stall_offset: float
-    _stalled_at: float
+    awake: AwakeClock
     _remeasure_at: float | None
     _remeasures: int
     _remeasuring: threading.Lock
