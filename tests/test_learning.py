@@ -146,3 +146,15 @@ def test_a_client_and_a_node_declare_each_call_by_the_work_function(caplog):
     finally:
         app.close()
         team.close()
+
+
+def test_route_plan_declares_its_work_by_picks_within_its_time_limit():
+    from ramps.runtime.registry import BUILTINS, ROUTE_WORK, route_plan_work
+
+    spec = BUILTINS["route_plan"]
+    works = [spec.declared_work({"picks": p}) for p in range(4, 18)]
+    assert works == sorted(works) and len(set(works)) == len(works)  # more picks, more work
+    assert all(route_plan_work(picks=p) == pytest.approx(w) for p, w in ROUTE_WORK if w < 30)
+    assert spec.declared_work({}) == pytest.approx(0.024)  # the program's default picks=8
+    assert route_plan_work(picks=30) == 30.0  # capped by what 60 s of one worker computes
+    assert route_plan_work(picks=30, time_limit=4.0, workers=2) == pytest.approx(4.0)

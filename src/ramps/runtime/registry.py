@@ -163,9 +163,28 @@ def _where(exc: BaseException) -> str:
     return f" (at {frames[-1].filename}:{frames[-1].lineno})" if frames else ""
 
 
+#: route_plan's work by picks: the median over seeds 0-4 on the default 20x12 grid with a tote of 4,
+#: measured (ramps.programs.route's table; 2026-11-27, this project's 2-core VM, 0.57 units a CPU
+#: second), in work units. NP-hard: one seed may take 10x another of the same size
+ROUTE_WORK = ((6, 0.012), (8, 0.024), (10, 0.04), (12, 0.15), (14, 0.8), (16, 10.0), (18, 50.0))
+
+
+def route_plan_work(picks: int = 8, time_limit: float = 60.0, workers: int = 1, **_: Any) -> float:
+    """The work a route_plan call declares: ``ROUTE_WORK`` interpolated on a
+    log scale between the sizes measured (3x a pick beyond them), at most
+    what its ``time_limit`` lets its workers compute (at 0.5 units a CPU second)."""
+    sizes = [p for p, _ in ROUTE_WORK]
+    picks = max(1, int(picks))
+    i = min(max(1, next((k for k, p in enumerate(sizes) if p >= picks), len(sizes) - 1)), len(sizes) - 1)
+    (p0, w0), (p1, w1) = ROUTE_WORK[i - 1], ROUTE_WORK[i]
+    slope = math.log(w1 / w0) / (p1 - p0) if picks <= p1 else math.log(3.0)
+    work = w1 * math.exp(slope * (picks - p1))
+    return min(work, max(0.001, 0.5 * float(time_limit) * max(1, int(workers))))
+
+
 BUILTINS = {
-    "route_plan": ProgramSpec("route_plan", "ramps.programs.route:plan_route", work=2.0, payload=200, result=2000,
-                              preload=("ortools.sat.python.cp_model",)),
+    "route_plan": ProgramSpec("route_plan", "ramps.programs.route:plan_route", work=route_plan_work, payload=200,
+                              result=2000, preload=("ortools.sat.python.cp_model",)),
     "burn": ProgramSpec("burn", "ramps.programs.burn:burn", work=1.0, payload=50, result=100),
     "burn_accel": ProgramSpec("burn_accel", "ramps.programs.burn:burn_accel", payload=60, result=100,
                               work=lambda units=1.0, **_: units, accelerator="cuda",
