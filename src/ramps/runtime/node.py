@@ -53,7 +53,6 @@ from ramps.core.events import (
 )
 from ramps.core.identity import new_incarnation
 from ramps.core.node import Node
-from ramps.core.speed import next_remeasure
 from ramps.errors import ConfigError, NotAdmitted, TransportError
 from ramps.runtime import keys, revocation
 from ramps.runtime.accelerators import AcceleratorProbe
@@ -61,11 +60,10 @@ from ramps.runtime.accelerators import resolve as resolve_accelerators
 from ramps.runtime.bulk import OrderedSender
 from ramps.runtime.heap import HeapTrimmer, return_freed_memory
 from ramps.runtime.niceness import prioritize, worker_increment
-from ramps.runtime.measure import LoadSampler, cgroup_dirs, cpu_limit, cpu_model, detect_cores
+from ramps.runtime.measure import LoadSampler
 from ramps.runtime.registry import Registry, default_registry, node_registry
 from ramps.runtime.security import admission, settings_credentials
 from ramps.runtime.settings import NodeSettings
-from ramps.runtime.speed_probe import SpeedSamples, core_fraction, measure_speed
 from ramps.runtime.store import OriginStore
 from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
 from ramps.runtime.workers import WorkerPool
@@ -73,6 +71,7 @@ from ramps.runtime.node_clients import OUTCOME_HOLD, ClientAnswers
 from ramps.runtime.node_inbound import DROP_LOG_PERIOD, LONELY_AFTER, STALL_GRACE, Inbound
 from ramps.runtime.node_outbound import Outbound
 from ramps.runtime.node_awake import AwakeClock
+from ramps.runtime.node_robot import RobotMeasure
 from ramps.runtime.node_trace import NodeTrace
 from ramps.runtime.node_state import Key, SamplerLike, WorkerPoolLike
 
@@ -166,10 +165,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self.node = None
         #: the core's clock: the time this node was awake, its stalls taken out
         self.awake = AwakeClock(clock, lease_s=settings.lease_ms / 1000.0, robot=self.robot, trace=self.trace)
-        #: the wall-clock time of the next re-measurement (None: told its speed)
-        self._remeasure_at = None
-        self._remeasures = 0
-        self._remeasuring = threading.Lock()
+        #: the robot's cores, speed and quota, where its load is measured (``RobotMeasure.measure`` at start)
+        self.measured = RobotMeasure(settings, clock, self.robot)
         #: rounds that stopped handling queued items to send what was due (ROUND_SECONDS)
         self.rounds_cut = 0
         #: teammates whose liveliness went just after a stall: robot -> core time it counts as lost
@@ -219,7 +216,9 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         creds, exit_on_failure = self._join_checks()
         if creds is not None:
             self._load_revocations(creds)
-        cg, acct, quota, scope = self._measure_robot()
+        m = self.measured
+        m.measure()
+        self.cores, self.speed, self.load_scope = m.cores, m.speed, m.scope
         #: programs whose calls were found far from their declaration, said once each
         self._misdeclared_warned = set()
         # its start time and random bits: a node started later has a larger one (ramps.core.identity)
@@ -229,8 +228,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=core_config(s),
                          rng=random.Random(self.incarnation), incarnation=self.incarnation, bursts=True,
                          registry=self.registry.names(), program_weight=nice_weight(s.worker_nice),
-                         core_fraction=core_fraction(quota, self.cores), accelerators=self.accel.accelerators,
-                         speed_class="" if s.speed else cpu_model() if s.speed_class == "auto" else s.speed_class)
+                         core_fraction=m.core_fraction(), accelerators=self.accel.accelerators,
+                         speed_class=m.speed_class())
         if s.state_dir not in ("", "off"):  # a foreign record: ConfigError, before anything starts
             self.store = OriginStore(s.state_dir, team=self.team, robot=self.robot, sync=s.state_sync)
             self.node.origin.changed = set()
@@ -240,18 +239,9 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         # programs on an accelerator are not CPU programs (ramps.core.accelerators)
         self.sampler = self._load_sampler(lambda: self.pool.busy() + self.pool.queued() - self.accel.held(),
                                           window=s.window,
-                                   scope=scope, cgroup=cg if scope == "cgroup" else None,
-                                   acct=acct if scope == "cgroup" else None)
+                                          scope=m.scope, cgroup=m.cgroup if m.scope == "cgroup" else None,
+                                          acct=m.acct if m.scope == "cgroup" else None)
         self.sampler.start()
-        self.load_scope = scope
-        # a cgroup's CPU use is in host cores; a robot of ``cores`` emulated at a
-        # smaller quota reports it in its own cores, as its speed is scaled
-        self._busy_scale = (self.cores / quota if scope == "cgroup" and quota is not None and quota < self.cores
-                            else 1.0)
-        #: this process's CPU seconds and the time when last read, and the cores it used
-        #: (averaged), for load reports: the cost model takes them off a full robot's cores
-        self._node_cpu_at = None
-        self.node_cpu = 0.0
         if s.trace:
             try:
                 self.trace.open(s.trace, wire=s.trace_wire)
@@ -272,28 +262,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             self._driver.start()
         self._started = True
         log.info("node %s joined team %s: %d cores, speed %.2f, load scope %s", self.robot, self.team,
-                 self.cores, self.speed, scope)
+                 self.cores, self.speed, m.scope)
         return self
-
-    def _measure_robot(self) -> tuple[Path | None, Path | None, float | None, str]:
-        """Cores, speed, and where load is measured: (cpu cgroup, its accounting, quota, scope)."""
-        s = self.s
-        cg, acct = cgroup_dirs()
-        quota = cpu_limit(cg)
-        scope = s.load_scope
-        if scope == "auto":
-            scope = "cgroup" if quota is not None else "host"
-        self.cores = s.cores or detect_cores()
-        self._speed_samples = SpeedSamples()
-        self.speed = s.speed or measure_speed(quota=quota, cores=self.cores, samples=self._speed_samples,
-                                                   boot=True)
-        # a speed measured at boot is measured again while no program runs, soon
-        # after boot and then now and then (robots booting together measure
-        # each other's start-up; ramps.core.speed)
-        self._quota = quota
-        self._remeasures = 0
-        self._remeasure_at = None if s.speed else next_remeasure(self.clock.time(), 0)
-        return cg, acct, quota, scope
 
     def _join_team(self, creds: Credentials | None, exit_on_failure: bool) -> None:
         """Open the transport, subscribe, declare this robot's load publisher and liveliness token."""

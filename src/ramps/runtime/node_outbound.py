@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import threading
 import time
 from collections.abc import Callable
@@ -55,18 +54,15 @@ from ramps.core.messages import (
     RunningProgram,
     encode,
 )
-from ramps.core.speed import MIN_RUN_WORK, REMEASURE_CPU, SpeedMeasured, next_remeasure
+from ramps.core.speed import MIN_RUN_WORK
 from ramps.runtime.accelerators import Grant
 from ramps.runtime import keys
 from ramps.runtime.battery import BatteryReader
-from ramps.runtime.speed_probe import core_fraction, measure_speed
 from ramps.runtime.node_clients import OUTCOME_RETRY
 from ramps.runtime.transport import Publisher
 from ramps.runtime.node_state import DriverState
 
 log = logging.getLogger("ramps.node")
-#: how long before its moment a re-measurement's thread starts (more than a report period)
-REMEASURE_LEAD = 1.5
 #: core notes a client hears about (ProgramUpdate.state), as placed/running/host_failed
 _CLIENT_STATES = {"placed": "placed", "accepted": "running", "failed": "host_failed"}
 
@@ -75,8 +71,6 @@ _CLIENT_STATES = {"placed": "placed", "accepted": "running", "failed": "host_fai
 #: then: a host's acceptance and the end of a short program go as one report, after its
 #: result, and the teammates it wakes do not take the CPU from the program meanwhile
 PROMPT_HOLD = 0.005
-#: weight of the latest report period in the node's averaged own CPU (about 10 reports)
-NODE_CPU_ALPHA = 0.1
 
 
 def _started(other: float | None, mine: float | None, order: str) -> str:
@@ -250,58 +244,22 @@ class Outbound(DriverState):
                 pubs.pop(next(iter(pubs))).undeclare()
         return pub
 
-    def _remeasure(self, at: float) -> None:
-        """Measure this robot's speed again at wall-clock time ``at`` (the
-        team's grid, ``next_remeasure``), off the driver's thread (briefly:
-        ``REMEASURE_CPU`` s of CPU), with every piece timed so far
-        (``SpeedSamples``), unless a program started meanwhile; the core
-        takes the figure if it moved. A measurement still running when the
-        next one's thread starts (one beside busy processes takes longer than
-        its second) is waited for until the moment: a moment one robot skips
-        and its teammates measure sets their figures apart."""
-        if not self._remeasuring.acquire(timeout=max(0.0, at + 0.5 - self.clock.time())):
-            return
-        try:
-            self.clock.sleep(max(0.0, at - self.clock.time()))
-            if self.pool.busy() or self.pool.queued():
-                return
-            speed = measure_speed(REMEASURE_CPU, quota=self._quota, cores=self.cores, samples=self._speed_samples,
-                                  apart=True)
-            figure = self._speed_samples.latest * core_fraction(self._quota, self.cores)
-        except Exception:  # never worth a node
-            log.exception("node %s: measuring its speed again failed", self.robot)
-            return
-        finally:
-            self._remeasuring.release()
-        self._q.put(("speed", SpeedMeasured(speed=speed, se=self._speed_samples.se()), at, figure))
-
     def _publish(self, now: float) -> None:
-        due = self._remeasure_at
-        # the thread starts up to REMEASURE_LEAD early and waits for the grid's moment, so every
-        # robot measures then, whatever the phase of its reports; a moment missed (a program ran,
-        # a stall) is skipped for the next on the grid
-        wall = self.clock.time()
-        if due is not None and wall >= due - REMEASURE_LEAD:
-            if due > wall - 0.5 and not self.pool.busy() and not self.pool.queued():
-                threading.Thread(target=self._remeasure, args=(due,), name=f"ramps-speed-{self.robot}",
-                                 daemon=True).start()
-            self._remeasures += 1
-            self._remeasure_at = next_remeasure(due, self._remeasures)
+        self.measured.remeasure_due(lambda: not self.pool.busy() and not self.pool.queued(), self._q.put)
         node = self.node
         assert node is not None
         busy, runnable, ramps_avg = self.sampler.averages()
         per_core, load1, mem_free = self.sampler.extras()
         node.executor.background = max(0.0, runnable - ramps_avg)
-        if self.load_scope == "cgroup":
-            busy = min(busy * self._busy_scale, float(self.cores))
-        self._measure_node_cpu()
+        busy = self.measured.busy(busy)
+        node_cpu = self.measured.read_node_cpu()
         self._read_battery(now, busy)
         if self.accel.declared:
             node.accelerator_measured = self.accel.measure()
         report = node.make_report(cpu_busy=busy,
                                        runnable=runnable, ramps_avg=ramps_avg, window=self.s.window,
                                        mem_free=mem_free, cpu_per_core=per_core, load_avg=load1,
-                                       node_cpu=round(self.node_cpu, 4))
+                                       node_cpu=round(node_cpu, 4))
         sees = frozenset(node.view.candidates(now)) - {self.robot}
         if sees != self._sees:
             self._log_view_change(self._sees, sees)
@@ -344,19 +302,6 @@ class Outbound(DriverState):
             self._prompt_pub.put(encode(self.robot, report))
         except Exception as exc:
             log.warning("node %s could not publish its load: %s", self.robot, exc)
-
-    def _measure_node_cpu(self) -> None:
-        """The cores this node's own process used since the last report (its threads:
-        Zenoh, the driver, the sampler; programs run in other processes), in the robot's
-        cores, averaged over about ``1 / NODE_CPU_ALPHA`` reports. Real CPU seconds over
-        real seconds, whatever clock drives the node."""
-        t = os.times()
-        used, wall = t.user + t.system, time.monotonic()
-        last, self._node_cpu_at = self._node_cpu_at, (used, wall)
-        if last is None or wall - last[1] < 0.05:
-            return
-        rate = min(float(self.cores), max(0.0, used - last[0]) / (wall - last[1]) * self._busy_scale)
-        self.node_cpu += NODE_CPU_ALPHA * (rate - self.node_cpu)
 
     def _learned(self) -> dict[str, list]:
         """What this node measured of its links and learned of its programs'

@@ -18,7 +18,6 @@ ones of ``ramps.testing.memory``).
 from __future__ import annotations
 
 import queue
-import threading
 from collections import deque
 from typing import TYPE_CHECKING, Any, Callable, Protocol
 
@@ -31,9 +30,9 @@ if TYPE_CHECKING:
     from ramps.core.node import Node
     from ramps.runtime.accelerators import AcceleratorProbe
     from ramps.runtime.bulk import OrderedSender
-    from ramps.runtime.speed_probe import SpeedSamples
     from ramps.runtime.metrics import NodeMetrics
     from ramps.runtime.node_awake import AwakeClock
+    from ramps.runtime.node_robot import RobotMeasure
     from ramps.runtime.node_trace import NodeTrace
     from ramps.runtime.registry import Registry
     from ramps.runtime.revocation import RevocationList
@@ -116,9 +115,7 @@ class DriverState:
     transport: Transport | None
     node: Node | None
     awake: AwakeClock
-    _remeasure_at: float | None
-    _remeasures: int
-    _remeasuring: threading.Lock
+    measured: RobotMeasure
     _held_lost: dict[str, float]
     revocations: RevocationList | None
     _revoked: frozenset[str]
@@ -141,11 +138,6 @@ class DriverState:
     pool: WorkerPoolLike
     sampler: SamplerLike
     accel: AcceleratorProbe
-    _quota: float | None
-    _speed_samples: SpeedSamples
-    _busy_scale: float
-    _node_cpu_at: tuple[float, float] | None
-    node_cpu: float
     _misdeclared_warned: set[str]
     _load_pub: Publisher
     _prompt_pub: Publisher
