@@ -239,7 +239,7 @@ def test_one_report_of_the_instant_goes_out_per_moment_the_newest():
     clock = FakeClock()
     rt = rn.NodeRuntime(load_settings(flags={"robot": "r1", "team": "t"}, environ={}), clock=clock)
     rt.node = Node("r1", cores=2, speed=1.0, rng=random.Random(0))
-    rt._load_pub, rt._prompt_pub = periodic, pub = _Pub(), _Pub()
+    rt.membership.load_pub, rt.membership.prompt_pub = periodic, pub = _Pub(), _Pub()
     first, second, third = (report("r1", seq=s, accepted_total=s) for s in (1, 2, 3))
     now = clock.monotonic()
     rt._apply([PublishReport(report=first), Note(what="placed", robot="r2"), PublishReport(report=second)])

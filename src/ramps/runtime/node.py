@@ -54,7 +54,6 @@ from ramps.core.events import (
 from ramps.core.identity import new_incarnation
 from ramps.core.node import Node
 from ramps.errors import ConfigError, NotAdmitted, TransportError
-from ramps.runtime import keys, revocation
 from ramps.runtime.accelerators import AcceleratorProbe
 from ramps.runtime.accelerators import resolve as resolve_accelerators
 from ramps.runtime.bulk import OrderedSender
@@ -72,6 +71,7 @@ from ramps.runtime.node_inbound import DROP_LOG_PERIOD, LONELY_AFTER, STALL_GRAC
 from ramps.runtime.node_outbound import Outbound
 from ramps.runtime.node_awake import AwakeClock
 from ramps.runtime.node_robot import RobotMeasure
+from ramps.runtime.node_team import Membership
 from ramps.runtime.node_trace import NodeTrace
 from ramps.runtime.node_state import Key, SamplerLike, WorkerPoolLike
 
@@ -162,6 +162,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self._drops_unlogged = 0
         self.trace = NodeTrace(self.robot, clock)
         self.transport = None
+        #: its subscriptions, publishers and tokens on the transport
+        self.membership = Membership(self.team, self.robot)
         self.node = None
         #: the core's clock: the time this node was awake, its stalls taken out
         self.awake = AwakeClock(clock, lease_s=settings.lease_ms / 1000.0, robot=self.robot, trace=self.trace)
@@ -266,28 +268,12 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         return self
 
     def _join_team(self, creds: Credentials | None, exit_on_failure: bool) -> None:
-        """Open the transport, subscribe, declare this robot's load publisher and liveliness token."""
+        """Open the transport and take this node's place on it (``Membership.join``)."""
         try:
             self.transport = self._given_transport or ZenohTransport.open(self.s, credentials=creds,
                                                                           fail_fast=exit_on_failure)
-            put = self._q.put
-            t = self.transport
-            self._subs = [
-                t.subscribe(keys.inbox(self.team, self.robot), self._on_wire),
-                t.subscribe(keys.load(self.team), self._on_wire),
-                t.subscribe(keys.load_now(self.team), self._on_wire),
-                t.subscribe_liveliness(keys.alive(self.team),
-                                       lambda key, alive: put(("live", keys.robot_of(key), alive)), history=True),
-            ]
-            if self._ca_cert is not None:
-                self._subs.append(t.subscribe(revocation.revoked_key(self.team),
-                                              lambda data: put(("revoked", data))))
-            self._load_pub = t.publisher(keys.load(self.team, self.robot))
-            self._prompt_pub = t.publisher(keys.load_now(self.team, self.robot))
-            self._token = t.declare_token(keys.alive(self.team, self.robot))
-            # where this node listens, for a node that meets it under its own name (Outbound._name_taken)
-            self._subs.append(t.subscribe_liveliness(keys.where(self.team, self.robot), self._on_where, history=True))
-            self._where_token = t.declare_token(keys.where(self.team, self.robot, self.incarnation, t.locators()))
+            self.membership.join(self.transport, self.incarnation, on_wire=self._on_wire, put=self._q.put,
+                                 on_where=self._on_where, revocations=self._ca_cert is not None)
         except TransportError as exc:
             self._teardown()
             raise TransportError(f"cannot join team {self.team!r} over Zenoh: {exc}") from exc
@@ -365,24 +351,8 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
             return []
 
     def _teardown(self) -> None:
-        for attr in ("_token", "_where_token"):
-            obj = getattr(self, attr, None)
-            if obj is not None:
-                try:
-                    obj.undeclare()
-                except Exception:
-                    pass
-        for sub in getattr(self, "_subs", []):
-            try:
-                sub.undeclare()
-            except Exception:
-                pass
-        if self.transport is not None:
-            try:
-                self.transport.close()
-            except Exception:
-                pass
-            self.transport = None
+        self.membership.leave(self.transport)
+        self.transport = None
         if getattr(self, "sampler", None):
             self.sampler.stop()
         if getattr(self, "pool", None):

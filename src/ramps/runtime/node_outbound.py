@@ -275,7 +275,7 @@ class Outbound(DriverState):
                                    blacklisted=len(st.blacklisted), dropped=report.bad_messages,
                                    reports_received=st.reports_received)
         try:
-            self._load_pub.put(encode(self.robot, report))
+            self.membership.load_pub.put(encode(self.robot, report))
             if self.trace.wire:
                 self.trace.write("tx", "", "*", 0, "LoadReport")
         except Exception as exc:
@@ -299,7 +299,7 @@ class Outbound(DriverState):
         the one applications hear: a client busy submitting hears no report
         per program start and end."""
         try:
-            self._prompt_pub.put(encode(self.robot, report))
+            self.membership.prompt_pub.put(encode(self.robot, report))
         except Exception as exc:
             log.warning("node %s could not publish its load: %s", self.robot, exc)
 
@@ -349,10 +349,7 @@ class Outbound(DriverState):
         # before its liveliness goes: a client (ramps top) tells this from a crash (not when the name
         # is another node's: that node stays)
         if self.transport is not None and not self.name_taken:
-            try:
-                self._leaving_token = self.transport.declare_token(keys.leaving(self.team, self.robot))
-            except Exception as exc:
-                log.warning("node %s could not say it is leaving: %s", self.robot, exc)
+            self.membership.say_leaving(self.transport)
         now = self._clock()
         node = self.node
         assert node is not None

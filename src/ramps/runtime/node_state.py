@@ -33,12 +33,13 @@ if TYPE_CHECKING:
     from ramps.runtime.metrics import NodeMetrics
     from ramps.runtime.node_awake import AwakeClock
     from ramps.runtime.node_robot import RobotMeasure
+    from ramps.runtime.node_team import Membership
     from ramps.runtime.node_trace import NodeTrace
     from ramps.runtime.registry import Registry
     from ramps.runtime.revocation import RevocationList
     from ramps.runtime.settings import NodeSettings
     from ramps.runtime.store import OriginStore
-    from ramps.runtime.transport import Clock, Declared, Publisher, Transport
+    from ramps.runtime.transport import Clock, Publisher, Transport
 
 #: a running program: (program id, attempt)
 Key = tuple[str, int]
@@ -114,6 +115,7 @@ class DriverState:
     trace: NodeTrace
     transport: Transport | None
     node: Node | None
+    membership: Membership
     awake: AwakeClock
     measured: RobotMeasure
     _held_lost: dict[str, float]
@@ -139,9 +141,6 @@ class DriverState:
     sampler: SamplerLike
     accel: AcceleratorProbe
     _misdeclared_warned: set[str]
-    _load_pub: Publisher
-    _prompt_pub: Publisher
-    _leaving_token: Declared
     endpoints_of: dict[int, list[str]]
 
     if TYPE_CHECKING:
