@@ -103,20 +103,20 @@ def test_an_outcome_waits_for_its_own_client_only_and_not_for_ever(driver):
     rt.transport = MemoryBus().transport("r1")  # only _pubs is used
     gone, here = FakePub(matching=False), FakePub(matching=True)
     rt._pubs = {"k/gone": gone, "k/here": here}
-    rt._send_outcome("k/gone", b"1")
-    rt._send_outcome("k/here", b"2")
-    rt._send_outcome("k/gone", b"3")
+    rt.clients.send_outcome("k/gone", b"1")
+    rt.clients.send_outcome("k/here", b"2")
+    rt.clients.send_outcome("k/gone", b"3")
     assert here.sent == [b"2"] and gone.sent == []
-    rt._flush_outcomes()
+    rt.clients.flush_outcomes()
     assert gone.sent == []
     gone._matching = True  # the client's link is back
-    rt._flush_outcomes()
-    assert gone.sent == [b"1", b"3"] and rt._held_outcomes == []
+    rt.clients.flush_outcomes()
+    assert gone.sent == [b"1", b"3"] and rt.clients.held_outcomes == []
     gone._matching = False
-    rt._send_outcome("k/gone", b"4")
+    rt.clients.send_outcome("k/gone", b"4")
     fake.t += rn.OUTCOME_HOLD + 0.1
-    rt._flush_outcomes()
-    assert gone.sent[-1] == b"4" and rt._held_outcomes == []  # sent regardless, in the end
+    rt.clients.flush_outcomes()
+    assert gone.sent[-1] == b"4" and rt.clients.held_outcomes == []  # sent regardless, in the end
 
 
 def test_a_stall_that_may_have_closed_links_is_told_to_the_core_once(driver):
@@ -167,28 +167,28 @@ def test_a_request_asked_again_is_answered_again_and_never_run_twice(driver, mon
     monkeypatch.setattr(node_clients, "OUTCOMES_KEPT_BYTES", 500)
     sub = [SubmitProgram(client="app", request_id=i, program="echo", args=encode_args(x=1))
            for i in (1, 2)]
-    first = rt._client_submit(sub[0], rt._clock())
+    first = rt.clients.submit(sub[0], rt._clock())
     assert sum(isinstance(a, Note) and a.what == "placed" for a in first) == 1
-    again = rt._client_submit(sub[0], rt._clock())
+    again = rt.clients.submit(sub[0], rt._clock())
     assert not any(isinstance(a, Note) and a.what == "placed" for a in again)
     [data] = heard
     assert isinstance(decode(data).msg, ProgramUpdate)
-    [pid] = list(rt._clients)
-    rt._tell_client(pid, ok=True, value=b"v" * 100, host="r1", attempts=1)
+    [pid] = list(rt.clients.clients)
+    rt.clients.tell(pid, ok=True, value=b"v" * 100, host="r1", attempts=1)
 
     def outcomes() -> list[bytes]:  # blocking puts on the client's key
         return [d for k, d, block in rt.transport.sent if block and k == keys.client(rt.team, "app")]
 
     assert len(outcomes()) == 1 and len(heard) == 2
-    rt._client_submit(sub[0], rt._clock())  # the outcome went nowhere: asked again
+    rt.clients.submit(sub[0], rt._clock())  # the outcome went nowhere: asked again
     assert outcomes()[1] == outcomes()[0] and decode(outcomes()[1]).msg.value == b"v" * 100
-    rt._client_submit(sub[1], rt._clock())
-    [pid2] = list(rt._clients)
-    rt._tell_client(pid2, ok=True, value=b"w" * 300, host="r1", attempts=1)  # over the bytes kept: 1 goes
-    rt._client_submit(sub[0], rt._clock())
+    rt.clients.submit(sub[1], rt._clock())
+    [pid2] = list(rt.clients.clients)
+    rt.clients.tell(pid2, ok=True, value=b"w" * 300, host="r1", attempts=1)  # over the bytes kept: 1 goes
+    rt.clients.submit(sub[0], rt._clock())
     lost = decode(outcomes()[-1]).msg
     assert isinstance(lost, ProgramOutcome) and not lost.ok and "no longer keeps" in lost.error
-    assert rt._kept_bytes == len(outcomes()[2])  # only request 2's outcome is kept
+    assert rt.clients.kept_bytes == len(outcomes()[2])  # only request 2's outcome is kept
 
 
 def encode_args(**kw) -> bytes:

@@ -36,7 +36,6 @@ import os
 import queue
 import random
 import threading
-from collections import deque
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
@@ -105,7 +104,7 @@ def core_config(s: NodeSettings) -> RampsConfig:
         core = msgspec.structs.replace(core, tie_tolerance=core.measured_tie_tolerance)
     return core
 
-class NodeRuntime(Inbound, ClientAnswers, Outbound):
+class NodeRuntime(Inbound, Outbound):
     """One robot's node. ``transport`` (default: a Zenoh session opened
     from ``settings`` at ``start()``), ``clock`` (default: the real one),
     ``worker_pool`` and ``load_sampler`` (factories with the signatures of
@@ -134,19 +133,9 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self.registry = node_registry(registry or default_registry, settings.programs, settings.commands)
         self.on_note = on_note
         self._q = queue.SimpleQueue()
-        self._clients = {}
-        self._requests = {}
-        #: requests already answered (the newest ANSWERED_KEPT), in answer order, with
-        #: their outcome as sent while it is among the newest OUTCOMES_KEPT_BYTES
-        self._answered = {}
-        self._kept_outcomes = deque()
-        self._kept_bytes = 0
-        #: the newest progress of programs this node is origin of, until delivered
-        self._progress = {}
-        self._seq = 0
+        #: its clients' requests, their outcomes and updates
+        self.clients = ClientAnswers(self)
         self._pubs = {}
-        #: publishers of clients' advisory updates (never blocking), apart from their outcomes' (blocking)
-        self._update_pubs = {}
         #: large messages to teammates: sent whole, in order, off the driver's thread
         self._bulk = OrderedSender(self._bulk_put, name=self.robot)
         self._stopped = threading.Event()
@@ -173,10 +162,6 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         self.rounds_cut = 0
         #: teammates whose liveliness went just after a stall: robot -> core time it counts as lost
         self._held_lost = {}
-        #: messages waiting for their receiver to be reachable: (key, bytes, monotonic deadline, block)
-        self._held_outcomes = []
-        #: clients' updates waiting for their moment, as they fall due (``ClientAnswers._update_client``)
-        self._held_updates = {}
         #: secured team: the newest revocation list, the robots it names, the CA that signs it
         self.revocations = None
         self._revoked = frozenset()
@@ -194,13 +179,9 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         #: Prometheus metrics (``--metrics``), fed from the driver thread (ramps.runtime.metrics)
         self.metrics = None
         #: the durable record of the programs this node is origin of (``state_dir``;
-        #: ramps.runtime.store), how many it resumed at start, and the outcomes
-        #: written to it that are about to be sent
+        #: ramps.runtime.store), and how many it resumed at start
         self.store = None
         self.restored = 0
-        #: the record last written of each program (``ClientAnswers._persist``)
-        self._recorded = {}
-        self._outcomes_ready = {}
         #: the last periodic load report
         self._last_report = None
         #: called on the driver thread after every round of its loop (systemd's watchdog, ramps.runtime.service)
@@ -258,7 +239,7 @@ class NodeRuntime(Inbound, ClientAnswers, Outbound):
         if s.connect or not s.multicast:  # else a lone robot on a LAN with multicast is no surprise
             self._lonely_at = self.clock.monotonic() + LONELY_AFTER
         if self.store is not None:
-            self._apply(self._restore(self._clock()))
+            self._apply(self.clients.restore(self.store, self._clock()))
         if threaded:
             self._driver = threading.Thread(target=self._drive, name=f"ramps-node-{self.robot}", daemon=True)
             self._driver.start()

@@ -219,9 +219,9 @@ class Inbound(DriverState):
                 self.trace.write("rx", getattr(msg, "program_id", ""), env.sender, getattr(msg, "attempt", 0),
                                   f"{type(msg).__name__} queued {now - item[2]:.3f} s", at=item[2])
             if isinstance(msg, SubmitProgram):
-                return self._client_submit(msg, now)
+                return self.clients.submit(msg, now)
             if isinstance(msg, CancelSubmitted):
-                pid = self._requests.get((msg.client, msg.request_id))
+                pid = self.clients.requests.get((msg.client, msg.request_id))
                 if pid is None or node.origin.programs[pid].state in ("done", "failed"):
                     return []
                 return node.handle(Cancel(program_id=pid), now)

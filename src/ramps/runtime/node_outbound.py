@@ -58,7 +58,6 @@ from ramps.core.speed import MIN_RUN_WORK
 from ramps.runtime.accelerators import Grant
 from ramps.runtime import keys
 from ramps.runtime.battery import BatteryReader
-from ramps.runtime.node_clients import OUTCOME_RETRY
 from ramps.runtime.transport import Publisher
 from ramps.runtime.node_state import DriverState
 
@@ -96,7 +95,7 @@ class Outbound(DriverState):
 
     def _apply(self, actions: list[Action]) -> None:
         if self.store is not None:  # written before anything of it is sent
-            self._persist(actions)
+            self.clients.persist(self.store, actions)
         mnow = self.awake.now()  # the core's clock, for metrics' latencies
         prompt = None  # the newest report of the instant: the only one of a batch that goes out
         for a in actions:
@@ -122,21 +121,17 @@ class Outbound(DriverState):
             elif isinstance(a, Deliver):
                 if self.trace.on:  # first, so a caller holding the result finds it traced
                     self.trace.write("delivered", a.program_id, a.host, a.attempts, a.error_kind)
-                t = self._as_told(a)
-                self._tell_client(t.program_id, ok=t.ok, value=t.value, error=t.error, kind=t.error_kind, host=t.host,
-                                  attempts=t.attempts, moves=t.moves, resumed_from=t.resumed_from,
-                                  missed_deadline=t.missed_deadline)
+                self.clients.deliver(a)
             elif isinstance(a, PublishReport):
                 prompt = a.report
             elif isinstance(a, Progress):
-                self._progress[a.program_id] = (a.fraction, a.detail)
-                self._update_client(a.program_id, "progress", a.host, a.attempt)
+                self.clients.progressed(a.program_id, a.fraction, a.detail, a.host, a.attempt)
             elif isinstance(a, NameTaken):
                 self._name_taken(a)
             elif isinstance(a, Note):
-                if a.what in _CLIENT_STATES and a.program_id in self._clients:
+                if a.what in _CLIENT_STATES and a.program_id in self.clients.clients:
                     state = _CLIENT_STATES[a.what]
-                    self._update_client(a.program_id, "replaced" if state == "placed" and a.attempt > 1 else state,
+                    self.clients.update(a.program_id, "replaced" if state == "placed" and a.attempt > 1 else state,
                                         a.robot, a.attempt)
                 if self.trace.on:
                     self.trace.write(a.what, a.program_id, a.robot, a.attempt, a.detail)
@@ -154,17 +149,12 @@ class Outbound(DriverState):
     def _held_due(self, now: float) -> float:
         """The core's time at which something held is due: an outcome to look
         at again, a client's update, a report of the instant (inf: none)."""
-        due = now + OUTCOME_RETRY if self._held_outcomes else float("inf")
-        if self._held_updates:
-            due = min(due, next(iter(self._held_updates.values()))[0])
+        due = self.clients.held_due(now)
         return min(due, self._prompt_due) if self._prompt_held is not None else due
 
     def _flush_held(self, now: float) -> None:
         """Send what is held and due by the core's time ``now``."""
-        if self._held_outcomes:
-            self._flush_outcomes()
-        if self._held_updates:
-            self._flush_updates(now)
+        self.clients.flush(now)
         if self._prompt_held is not None and now >= self._prompt_due:
             report, self._prompt_held = self._prompt_held, None
             self._publish_prompt(report)
@@ -233,7 +223,7 @@ class Outbound(DriverState):
         """The declared publisher of ``key`` (declared on first use; at most
         4096 kept, the oldest undeclared: clients come and go), from ``pubs``
         (default: those of messages and outcomes; a client's advisory updates
-        have their own, ``_update_pubs``, as they never block). Needs a
+        have their own, ``ClientAnswers``', as they never block). Needs a
         transport; raises what it raises."""
         pubs = self._pubs if pubs is None else pubs
         pub = pubs.get(key)
@@ -337,14 +327,6 @@ class Outbound(DriverState):
                  f"-{names(before - after)}" if before - after else ""]
         log.info("node %s sees %d teammate(s): %s", self.robot, len(after), " ".join(p for p in parts if p))
 
-    def _as_told(self, a: Deliver) -> Deliver:
-        """An outcome as its client is told it: a program cancelled because
-        this node is shutting down ends as ``shutdown``."""
-        assert self.node is not None
-        if self.node.executor.closing and a.error_kind == "cancelled":
-            return msgspec.structs.replace(a, error_kind="shutdown", error=f"origin {self.robot} shut down")
-        return a
-
     def _shutdown(self, done: threading.Event) -> None:
         # before its liveliness goes: a client (ramps top) tells this from a crash (not when the name
         # is another node's: that node stays)
@@ -363,9 +345,7 @@ class Outbound(DriverState):
         if self.store is not None and node.origin.active():
             log.info("node %s keeps %d program(s) in its record %s for its next start", self.robot,
                      node.origin.active(), self.store.path)
-        for key, data, _, block in self._held_outcomes:  # leaving: the last chance to send them
-            self._put(key, data, block=block)
-        self._held_outcomes = []
+        self.clients.flush_outcomes(leaving=True)
         log.info("node %s leaving team %s: handed back %d program(s)", self.robot, self.team, handed)
         if self.bad_messages or self.overflow:  # what `ramps status` counted as dropped, both kinds
             log.warning("node %s dropped %d malformed message(s) and %d over its backlog while it ran", self.robot,

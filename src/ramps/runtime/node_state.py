@@ -1,38 +1,39 @@
 """The state a node's driver shares between its parts, declared once.
 
 How this works: ``NodeRuntime`` (``ramps.runtime.node``) is its lifecycle
-and loop plus three parts, ``Inbound`` (``node_inbound``), ``ClientAnswers``
-(``node_clients``) and ``Outbound`` (``node_outbound``), each a base of it
-and of ``DriverState`` here. ``DriverState`` holds no value and runs
-nothing: it declares, with their types, the attributes the parts read and
-write (``NodeRuntime.__init__`` and ``start`` set them) and, for the type
-checker only, the methods one part calls on another, so that mypy checks
-each part against the others. ``node``, ``transport``, ``metrics`` and
-``store`` are None before ``start`` (the last two also when not asked
-for): the parts run on the driver thread, after ``start``, and narrow them.
+and loop, two mixins, ``Inbound`` (``node_inbound``) and ``Outbound``
+(``node_outbound``), bases of it and of ``DriverState`` here, and composed
+parts it holds, each with its own state: ``ClientAnswers`` (``node_clients``,
+which sees the driver through ``ClientsDriver``), ``AwakeClock``
+(``node_awake``), ``RobotMeasure`` (``node_robot``), ``Membership``
+(``node_team``) and ``NodeTrace`` (``node_trace``). ``DriverState`` holds no
+value and runs nothing: it declares, with their types, the attributes the
+mixins read and write (``NodeRuntime.__init__`` and ``start`` set them)
+and, for the type checker only, the methods one calls on another, so that
+mypy checks each against the others. ``node``, ``transport``, ``metrics``
+and ``store`` are None before ``start`` (the last two also when not asked
+for): the mixins run on the driver thread, after ``start``, and narrow them.
 ``WorkerPoolLike`` and ``SamplerLike`` are what the driver uses of its worker
 pool and load sampler (``WorkerPool``/``LoadSampler`` or the in-memory
 ones of ``ramps.testing.memory``).
 """
-
 from __future__ import annotations
 
 import queue
-from collections import deque
 from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 if TYPE_CHECKING:
     from cryptography import x509
 
-    from ramps.core.durable import OriginRecord
-    from ramps.core.events import Action, Deliver, Note
-    from ramps.core.messages import LoadReport, SubmitProgram
+    from ramps.core.events import Note
+    from ramps.core.messages import LoadReport
     from ramps.core.node import Node
     from ramps.runtime.accelerators import AcceleratorProbe
     from ramps.runtime.bulk import OrderedSender
     from ramps.runtime.metrics import NodeMetrics
     from ramps.runtime.node_awake import AwakeClock
     from ramps.runtime.node_robot import RobotMeasure
+    from ramps.runtime.node_clients import ClientAnswers
     from ramps.runtime.node_team import Membership
     from ramps.runtime.node_trace import NodeTrace
     from ramps.runtime.registry import Registry
@@ -76,6 +77,26 @@ class SamplerLike(Protocol):
     def extras(self) -> tuple[list[float], float, int]: ...
 
 
+class ClientsDriver(Protocol):
+    """What a node's answers to its clients (``node_clients.ClientAnswers``) use of its driver."""
+
+    s: NodeSettings
+    clock: Clock
+    awake: AwakeClock
+    robot: str
+    team: str
+    registry: Registry
+    transport: Transport | None
+    node: Node | None
+    incarnation: int
+    #: programs resumed from the durable record at start
+    restored: int
+
+    def _put(self, key: str, data: bytes, *, block: bool = False) -> None: ...
+
+    def _publisher(self, key: str, block: bool, pubs: dict[str, Publisher] | None = None) -> Publisher: ...
+
+
 class DriverState:
     """The attributes and methods the parts of ``NodeRuntime`` share (declarations only)."""
 
@@ -88,23 +109,7 @@ class DriverState:
     on_note: Callable[[Note], None] | None
     #: the driver's queue: (kind, ...) items (``Inbound._handle``)
     _q: queue.SimpleQueue[tuple[Any, ...]]
-    #: client requests: program id -> request, request -> program id, answered -> outcome sent
-    _clients: dict[str, RequestKey]
-    _requests: dict[RequestKey, str]
-    _answered: dict[RequestKey, bytes | None]
-    _kept_outcomes: deque[RequestKey]
-    _kept_bytes: int
-    _progress: dict[str, tuple[float, str]]
-    _seq: int
-    _outcomes_ready: dict[str, bytes]
-    #: the durable record last written of each program not delivered yet
-    _recorded: dict[str, OriginRecord]
-    #: messages waiting for their receiver: (key, bytes, monotonic deadline, block)
-    _held_outcomes: list[tuple[str, bytes, float, bool]]
-    #: clients' updates waiting for their moment: program id -> [core time due, state, host, attempt]
-    _held_updates: dict[str, list[Any]]
     _pubs: dict[str, Publisher]
-    _update_pubs: dict[str, Publisher]
     _bulk: OrderedSender
     bad_messages: int
     overflow: int
@@ -118,6 +123,7 @@ class DriverState:
     membership: Membership
     awake: AwakeClock
     measured: RobotMeasure
+    clients: ClientAnswers
     _held_lost: dict[str, float]
     revocations: RevocationList | None
     _revoked: frozenset[str]
@@ -151,20 +157,6 @@ class DriverState:
 
         def _republish(self, now: float) -> None: ...  # Inbound
 
-        def _client_submit(self, m: SubmitProgram, now: float) -> list[Action]: ...  # ClientAnswers
-
-        def _persist(self, actions: list[Action]) -> None: ...
-
-        def _tell_client(self, pid: str, *, ok: bool, value: bytes = b"", error: str = "", kind: str = "",
-                         host: str = "", attempts: int = 0, moves: int = 0, resumed_from: float | None = None,
-                         missed_deadline: bool = False) -> list[Action]: ...
-
-        def _update_client(self, pid: str, state: str, host: str, attempt: int) -> None: ...
-
-        def _flush_updates(self, now: float) -> None: ...
-
-        def _flush_outcomes(self) -> None: ...
-
         def _held_due(self, now: float) -> float: ...  # Outbound
 
         def _flush_held(self, now: float) -> None: ...
@@ -173,4 +165,3 @@ class DriverState:
 
         def _publisher(self, key: str, block: bool, pubs: dict[str, Publisher] | None = None) -> Publisher: ...
 
-        def _as_told(self, a: Deliver) -> Deliver: ...
