@@ -21,12 +21,15 @@ clients told, then the liveliness token, subscribers and transport close.
 
 The driver reaches the team only through ``ramps.runtime.transport`` (a
 Zenoh session in production, ``ramps.testing.memory`` in tests) and reads
-time only from its injected clock. This module is its lifecycle and loop;
-what it does with each input is ``node_inbound``, with the core's actions and
-load reports ``node_outbound``, with clients' requests and outcomes
-``node_clients`` (bases of ``NodeRuntime``; the state and methods they
-share are declared, typed, in ``node_state``). About 500 lines: the
-lifecycle and the loop only.
+time only from its injected clock. This module is its lifecycle and loop.
+What it does with each input is ``node_inbound``, with the core's actions and
+load reports ``node_outbound`` (bases of ``NodeRuntime``; the state they
+share is declared, typed, in ``node_state``). The rest are parts it holds,
+each with its own state: its clients' requests and outcomes
+(``node_clients.ClientAnswers``), the core's clock with stalls taken out
+(``node_awake.AwakeClock``), the robot's cores and speed
+(``node_robot.RobotMeasure``), its subscriptions and tokens on the transport
+(``node_team.Membership``) and its trace file (``node_trace.NodeTrace``).
 """
 
 from __future__ import annotations
@@ -36,7 +39,6 @@ import os
 import queue
 import random
 import threading
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 import msgspec
@@ -45,10 +47,7 @@ from ramps.core.config import RampsConfig
 from ramps.core.cost import nice_weight
 from ramps.core.events import (
     Action,
-    CheckpointSaved,
     Note,
-    ProgramFinished,
-    ProgressReported,
 )
 from ramps.core.identity import new_incarnation
 from ramps.core.node import Node
@@ -65,14 +64,14 @@ from ramps.runtime.settings import NodeSettings
 from ramps.runtime.store import OriginStore
 from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
 from ramps.runtime.workers import WorkerPool
-from ramps.runtime.node_clients import OUTCOME_HOLD, ClientAnswers
+from ramps.runtime.node_clients import OUTCOME_HOLD, ClientAnswers, close_record
 from ramps.runtime.node_inbound import DROP_LOG_PERIOD, LONELY_AFTER, STALL_GRACE, Inbound
 from ramps.runtime.node_outbound import Outbound
 from ramps.runtime.node_awake import AwakeClock
 from ramps.runtime.node_robot import RobotMeasure
 from ramps.runtime.node_team import Membership
 from ramps.runtime.node_trace import NodeTrace
-from ramps.runtime.node_state import Key, SamplerLike, WorkerPoolLike
+from ramps.runtime.node_state import SamplerLike, WorkerPoolLike
 
 if TYPE_CHECKING:
     from ramps.runtime.credentials import Credentials
@@ -343,15 +342,7 @@ class NodeRuntime(Inbound, Outbound):
         if self.metrics is not None:
             self.metrics.close()
         if self.store is not None:
-            keep = self.store.programs()
-            self.store.close()
-            if not keep:  # nothing to resume: leave no file behind (nor the team's folder, if it was the last)
-                for suffix in ("", "-wal", "-shm", ".lock"):
-                    Path(str(self.store.path) + suffix).unlink(missing_ok=True)
-                try:
-                    self.store.path.parent.rmdir()
-                except OSError:
-                    pass
+            close_record(self.store)
             self.store = None
         self.trace.close()
         self._stopped.set()
@@ -368,20 +359,6 @@ class NodeRuntime(Inbound, Outbound):
             return
         self._backlog_bytes += len(data)
         self._q.put(("wire", data, self.clock.monotonic()))
-
-    def _finished(self, key: Key, ok: bool, value: bytes, error: str, retryable: bool, cpu_s: float | None = None,
-                  died: bool = False) -> None:
-        self._q.put(("finished", ProgramFinished(program_id=key[0], attempt=key[1], ok=ok, value=value, error=error,
-                                                 result_size=len(value), retryable=retryable, cpu_s=cpu_s,
-                                                 worker_died=died)))
-
-    def _checkpoint_saved(self, key: Key, state: bytes, fraction: float | None) -> None:
-        self._q.put(("progress", CheckpointSaved(program_id=key[0], attempt=key[1], state=state,
-                                                 fraction=fraction if isinstance(fraction, float) else None)))
-
-    def _progress_reported(self, key: Key, fraction: float, detail: str) -> None:
-        self._q.put(("progress", ProgressReported(program_id=key[0], attempt=key[1], fraction=fraction,
-                                                  detail=detail)))
 
     # ================================================================ driver
     def _clock(self) -> float:

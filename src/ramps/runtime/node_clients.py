@@ -2,7 +2,7 @@
 
 How this works: ``ClientAnswers`` is a part of the node's driver
 (``ramps.runtime.node``), with the state it keeps of clients' requests; it
-sees the driver through ``node_state.ClientsDriver``. A client
+sees the driver through ``ClientsDriver``. A client
 (``ramps.connect()``) sends ``SubmitProgram`` to its robot's node;
 ``submit`` checks the program's name, arguments
 (against its signature and annotated types, ``ramps.runtime.argtypes``),
@@ -26,7 +26,8 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from typing import TYPE_CHECKING, Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
 
 import msgspec
 
@@ -48,10 +49,13 @@ from ramps.core.program import FINAL, ProgramState
 from ramps.errors import ProgramNotFound
 from ramps.runtime import keys
 from ramps.runtime.registry import decode_args
-from ramps.runtime.node_state import ClientsDriver, RequestKey
-from ramps.runtime.transport import Publisher
+from ramps.runtime.transport import Clock, Publisher, Transport
 
 if TYPE_CHECKING:
+    from ramps.core.node import Node
+    from ramps.runtime.node_awake import AwakeClock
+    from ramps.runtime.registry import Registry
+    from ramps.runtime.settings import NodeSettings
     from ramps.runtime.store import OriginStore
 
 log = logging.getLogger("ramps.node")
@@ -71,6 +75,28 @@ UPDATE_HOLD = 0.1
 #: states a client hears at once, never folded into a later one: its program's
 #: host failed and it is placed again (a ROS goal's feedback shows the failover)
 TOLD_AT_ONCE = frozenset({"host_failed", "replaced"})
+#: a client's request: (client, request id)
+RequestKey = tuple[str, int]
+
+
+class ClientsDriver(Protocol):
+    """What a node's answers to its clients (``node_clients.ClientAnswers``) use of its driver."""
+
+    s: NodeSettings
+    clock: Clock
+    awake: AwakeClock
+    robot: str
+    team: str
+    registry: Registry
+    transport: Transport | None
+    node: Node | None
+    incarnation: int
+    #: programs resumed from the durable record at start
+    restored: int
+
+    def _put(self, key: str, data: bytes, *, block: bool = False) -> None: ...
+
+    def _publisher(self, key: str, block: bool, pubs: dict[str, Publisher] | None = None) -> Publisher: ...
 
 
 class ClientAnswers:
@@ -371,3 +397,17 @@ class ClientAnswers:
             d._publisher(keys.client(d.team, target[0]), False, self._update_pubs).put(data)
         except Exception as exc:
             log.debug("node %s could not send a program update: %s", d.robot, exc)
+
+
+def close_record(store: OriginStore) -> None:
+    """Close the durable record; with nothing in it to resume, leave no file
+    behind (nor the team's folder, if it was the last)."""
+    keep = store.programs()
+    store.close()
+    if not keep:
+        for suffix in ("", "-wal", "-shm", ".lock"):
+            Path(str(store.path) + suffix).unlink(missing_ok=True)
+        try:
+            store.path.parent.rmdir()
+        except OSError:
+            pass

@@ -7,7 +7,8 @@ period; a message of another major protocol version is refused, counted
 apart too, and logged naming both versions the first time each robot sends
 one; a message type of a newer minor is skipped likewise), a client's
 submission goes to ``ramps.runtime.node_clients``, a teammate's message,
-a program's end or progress to the core. A teammate's liveliness becomes
+a program's end or progress (queued by the worker pool's callbacks here)
+to the core. A teammate's liveliness becomes
 ``PeerAlive``/``PeerLost`` for the core, except that just after this node
 stalled a loss is held for ``STALL_GRACE`` (it may be only the teammate's
 lease on this frozen node that ran out). On a secured team, a newer
@@ -26,8 +27,11 @@ import msgspec
 from ramps.core.events import (
     Action,
     Cancel,
+    CheckpointSaved,
     PeerAlive,
     PeerLost,
+    ProgramFinished,
+    ProgressReported,
     Received,
 )
 from ramps.core.messages import (
@@ -44,7 +48,7 @@ from ramps.core.messages import (
 from ramps.core.relink import RELINK_TIMEOUT
 from ramps.errors import NotAdmitted
 from ramps.runtime import keys, revocation
-from ramps.runtime.node_state import DriverState
+from ramps.runtime.node_state import DriverState, Key
 
 if TYPE_CHECKING:
     from ramps.runtime.credentials import Credentials
@@ -73,6 +77,21 @@ class Inbound(DriverState):
     version_refused = 0
     unknown_types = 0
     _version_logged: frozenset[tuple[str, str]] = frozenset()
+
+    # the worker pool's callbacks (on its threads): each only queues an item for the driver
+    def _finished(self, key: Key, ok: bool, value: bytes, error: str, retryable: bool, cpu_s: float | None = None,
+                  died: bool = False) -> None:
+        self._q.put(("finished", ProgramFinished(program_id=key[0], attempt=key[1], ok=ok, value=value, error=error,
+                                                 result_size=len(value), retryable=retryable, cpu_s=cpu_s,
+                                                 worker_died=died)))
+
+    def _checkpoint_saved(self, key: Key, state: bytes, fraction: float | None) -> None:
+        self._q.put(("progress", CheckpointSaved(program_id=key[0], attempt=key[1], state=state,
+                                                 fraction=fraction if isinstance(fraction, float) else None)))
+
+    def _progress_reported(self, key: Key, fraction: float, detail: str) -> None:
+        self._q.put(("progress", ProgressReported(program_id=key[0], attempt=key[1], fraction=fraction,
+                                                  detail=detail)))
 
     def _on_liveliness(self, robot: str, alive: bool, now: float) -> list[Action]:
         """A teammate's liveliness token came or went. Just after this node

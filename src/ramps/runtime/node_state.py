@@ -3,10 +3,10 @@
 How this works: ``NodeRuntime`` (``ramps.runtime.node``) is its lifecycle
 and loop, two mixins, ``Inbound`` (``node_inbound``) and ``Outbound``
 (``node_outbound``), bases of it and of ``DriverState`` here, and composed
-parts it holds, each with its own state: ``ClientAnswers`` (``node_clients``,
-which sees the driver through ``ClientsDriver``), ``AwakeClock``
-(``node_awake``), ``RobotMeasure`` (``node_robot``), ``Membership``
-(``node_team``) and ``NodeTrace`` (``node_trace``). ``DriverState`` holds no
+parts it holds, each with its own state: ``ClientAnswers``
+(``node_clients``), ``AwakeClock`` (``node_awake``), ``RobotMeasure``
+(``node_robot``), ``Membership`` (``node_team``) and ``NodeTrace``
+(``node_trace``). ``DriverState`` holds no
 value and runs nothing: it declares, with their types, the attributes the
 mixins read and write (``NodeRuntime.__init__`` and ``start`` set them)
 and, for the type checker only, the methods one calls on another, so that
@@ -44,8 +44,6 @@ if TYPE_CHECKING:
 
 #: a running program: (program id, attempt)
 Key = tuple[str, int]
-#: a client's request: (client, request id)
-RequestKey = tuple[str, int]
 
 
 class WorkerPoolLike(Protocol):
@@ -75,26 +73,6 @@ class SamplerLike(Protocol):
     def averages(self) -> tuple[float, float, float]: ...
 
     def extras(self) -> tuple[list[float], float, int]: ...
-
-
-class ClientsDriver(Protocol):
-    """What a node's answers to its clients (``node_clients.ClientAnswers``) use of its driver."""
-
-    s: NodeSettings
-    clock: Clock
-    awake: AwakeClock
-    robot: str
-    team: str
-    registry: Registry
-    transport: Transport | None
-    node: Node | None
-    incarnation: int
-    #: programs resumed from the durable record at start
-    restored: int
-
-    def _put(self, key: str, data: bytes, *, block: bool = False) -> None: ...
-
-    def _publisher(self, key: str, block: bool, pubs: dict[str, Publisher] | None = None) -> Publisher: ...
 
 
 class DriverState:
