@@ -142,7 +142,7 @@ def test_a_full_backlog_drops_and_counts_and_the_node_stays_up(team, monkeypatch
     for rid, x in ((first, 7), (after, 8)):
         assert app.outcome(rid).ok and msgspec.msgpack.decode(app.outcome(rid).value) == {"x": x}
     team.run(1.5)
-    assert rt._last_report.bad_messages == 100  # `ramps status` counts both
+    assert rt.reports.last.bad_messages == 100  # `ramps status` counts both
 
 
 def test_a_cut_link_is_healed_and_its_programs_complete_once(team):

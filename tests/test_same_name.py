@@ -162,7 +162,7 @@ def test_a_restarted_node_joins_though_its_previous_process_reports_arrive():
     try:
         old = clone(team, "r2", DRAW_MASK, key="r2-old")
         team.run(3.0)
-        last = old._last_report
+        last = old.reports.last
         stale = [last, msgspec.structs.replace(last, seq=last.seq + 1)]
         team.kill("r2-old")
         team.run(0.5)

@@ -140,7 +140,7 @@ def test_a_node_counts_refused_versions_and_unknown_types_apart_and_logs_each_on
     assert len([x for x in lines if "'gossip'" in x]) == 1
     # r9 never became a place for programs, and the team still works
     assert sorted(r1.node.view.candidates(r1._clock())) == ["r1", "r2"]
-    assert r1._last_report.bad_messages == 7  # `ramps status` "dropped msgs" counts them all
+    assert r1.reports.last.bad_messages == 7  # `ramps status` "dropped msgs" counts them all
     assert not [r for r in caplog.records if "malformed" in r.getMessage() and "r9" in r.getMessage()]
 
 

@@ -68,10 +68,11 @@ from ramps.runtime.node_clients import OUTCOME_HOLD, ClientAnswers, close_record
 from ramps.runtime.node_inbound import DROP_LOG_PERIOD, LONELY_AFTER, STALL_GRACE, Inbound
 from ramps.runtime.node_outbound import Outbound
 from ramps.runtime.node_awake import AwakeClock
+from ramps.runtime.node_reports import LoadReports
 from ramps.runtime.node_robot import RobotMeasure
 from ramps.runtime.node_team import Membership
 from ramps.runtime.node_trace import NodeTrace
-from ramps.runtime.node_state import SamplerLike, WorkerPoolLike
+from ramps.runtime.node_seams import SamplerLike, WorkerPoolLike
 
 if TYPE_CHECKING:
     from ramps.runtime.credentials import Credentials
@@ -142,7 +143,6 @@ class NodeRuntime(Inbound, Outbound):
         self.bad_messages = 0
         #: messages dropped because the driver's backlog was full, and its size
         self.overflow = 0
-        self._sees = frozenset()  # teammates in this robot's view at the last report
         self._backlog_bytes = 0
         self.heap = HeapTrimmer()  # gives the memory of a drained burst back (ramps.runtime.heap)
         #: a flood of bad messages is logged one line per DROP_LOG_PERIOD
@@ -181,8 +181,8 @@ class NodeRuntime(Inbound, Outbound):
         #: ramps.runtime.store), and how many it resumed at start
         self.store = None
         self.restored = 0
-        #: the last periodic load report
-        self._last_report = None
+        #: its periodic load reports and those of the instant
+        self.reports = LoadReports(self)
         #: called on the driver thread after every round of its loop (systemd's watchdog, ramps.runtime.service)
         self.on_turn: Callable[[], None] | None = None
         #: when to look whether this node has heard any teammate (None: looked, or no need)

@@ -48,7 +48,8 @@ from ramps.core.messages import (
 from ramps.core.relink import RELINK_TIMEOUT
 from ramps.errors import NotAdmitted
 from ramps.runtime import keys, revocation
-from ramps.runtime.node_state import DriverState, Key
+from ramps.runtime.node_seams import Key
+from ramps.runtime.node_state import DriverState
 
 if TYPE_CHECKING:
     from ramps.runtime.credentials import Credentials

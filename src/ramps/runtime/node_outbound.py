@@ -1,4 +1,4 @@
-"""What a node's driver does with the core's actions, and its load reports.
+"""What a node's driver does with the core's actions, and how it publishes.
 
 How this works: ``_apply`` turns each action of the core into its effect:
 ``Send`` is published to the teammate's inbox (DROP under congestion: the
@@ -9,30 +9,21 @@ worker pool, ``Deliver`` becomes the client's outcome
 a log line, ``NameTaken`` (another node under this robot's name) this
 node's leaving or a line saying the other leaves; programs it hosts for
 other origins are traced as this robot runs them (``NodeTrace.hosted``). ``PublishReport`` (a report of the instant:
-the programs running here changed) is published to the teammates' nodes
-(``keys.load_now``) once per batch of actions, the newest after the batch's
-messages: in a burst each change made one, and
-every teammate and client decoded reports that the next one superseded at
-once (every report carries the executor's counters, so a later one says all
-an earlier one did). ``_publish`` builds the periodic load report from the sampler
-and the core (what it runs, its links, what it learned) and publishes it;
-``_shutdown`` hands running programs back and cancels this origin's. Before each
-periodic report the driver reads the robot's battery (``ramps.runtime.battery``) for the core.
+the programs running here changed) goes to ``LoadReports``
+(``ramps.runtime.node_reports``), the newest of a batch only, after the
+batch's messages; ``_publish`` has it publish the periodic load report.
+``_shutdown`` hands running programs back and cancels this origin's.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections.abc import Callable
-from itertools import islice
 from typing import Any
 
-import msgspec
 
-from ramps.core.battery import BatteryMeasured
 from ramps.core.events import (
     Action,
     Cancel,
@@ -47,17 +38,12 @@ from ramps.core.events import (
 )
 from ramps.core.identity import started_at
 from ramps.core.messages import (
-    MAX_LISTED,
-    LearnedWork,
-    LinkSeen,
-    LoadReport,
-    RunningProgram,
     encode,
 )
 from ramps.core.speed import MIN_RUN_WORK
 from ramps.runtime.accelerators import Grant
 from ramps.runtime import keys
-from ramps.runtime.battery import BatteryReader
+from ramps.runtime.node_reports import PROMPT_HOLD as PROMPT_HOLD  # tests name it here
 from ramps.runtime.transport import Publisher
 from ramps.runtime.node_state import DriverState
 
@@ -66,10 +52,6 @@ log = logging.getLogger("ramps.node")
 _CLIENT_STATES = {"placed": "placed", "accepted": "running", "failed": "host_failed"}
 
 
-#: seconds a report of the instant waits for the changes that follow it, the newest going
-#: then: a host's acceptance and the end of a short program go as one report, after its
-#: result, and the teammates it wakes do not take the CPU from the program meanwhile
-PROMPT_HOLD = 0.005
 
 
 def _started(other: float | None, mine: float | None, order: str) -> str:
@@ -86,18 +68,11 @@ def _started(other: float | None, mine: float | None, order: str) -> str:
 class Outbound(DriverState):
     """The driver's outputs (mixed into ``NodeRuntime``)."""
 
-    #: the newest report of the instant not published yet, and the core's time it is due (``PROMPT_HOLD``)
-    _prompt_held: LoadReport | None = None
-    _prompt_due = 0.0
-
-    #: reads this robot's battery before each periodic report (made at the first)
-    _battery: BatteryReader | None = None
-
     def _apply(self, actions: list[Action]) -> None:
         if self.store is not None:  # written before anything of it is sent
             self.clients.persist(self.store, actions)
         mnow = self.awake.now()  # the core's clock, for metrics' latencies
-        prompt = None  # the newest report of the instant: the only one of a batch that goes out
+        prompt = None  # the newest report of the instant: the only one of a batch that goes out (``LoadReports``)
         for a in actions:
             if self.metrics is not None:
                 self.metrics.on_action(a, self.node, mnow)
@@ -142,22 +117,17 @@ class Outbound(DriverState):
                 if self.on_note is not None:
                     self.on_note(a)
         if prompt is not None:  # held a moment: the changes that follow it go with it
-            if self._prompt_held is None:
-                self._prompt_due = self.awake.now() + PROMPT_HOLD
-            self._prompt_held = prompt
+            self.reports.hold(prompt)
 
     def _held_due(self, now: float) -> float:
         """The core's time at which something held is due: an outcome to look
         at again, a client's update, a report of the instant (inf: none)."""
-        due = self.clients.held_due(now)
-        return min(due, self._prompt_due) if self._prompt_held is not None else due
+        return min(self.clients.held_due(now), self.reports.due())
 
     def _flush_held(self, now: float) -> None:
         """Send what is held and due by the core's time ``now``."""
         self.clients.flush(now)
-        if self._prompt_held is not None and now >= self._prompt_due:
-            report, self._prompt_held = self._prompt_held, None
-            self._publish_prompt(report)
+        self.reports.flush(now)
 
     def _runner(self, a: StartProgram) -> Callable[[Grant | None], None]:
         """How to start ``a`` in a worker once its accelerator slot is granted."""
@@ -235,97 +205,10 @@ class Outbound(DriverState):
         return pub
 
     def _publish(self, now: float) -> None:
-        self.measured.remeasure_due(lambda: not self.pool.busy() and not self.pool.queued(), self._q.put)
-        node = self.node
-        assert node is not None
-        busy, runnable, ramps_avg = self.sampler.averages()
-        per_core, load1, mem_free = self.sampler.extras()
-        node.executor.background = max(0.0, runnable - ramps_avg)
-        busy = self.measured.busy(busy)
-        node_cpu = self.measured.read_node_cpu()
-        self._read_battery(now, busy)
-        if self.accel.declared:
-            node.accelerator_measured = self.accel.measure()
-        report = node.make_report(cpu_busy=busy,
-                                       runnable=runnable, ramps_avg=ramps_avg, window=self.s.window,
-                                       mem_free=mem_free, cpu_per_core=per_core, load_avg=load1,
-                                       node_cpu=round(node_cpu, 4))
-        sees = frozenset(node.view.candidates(now)) - {self.robot}
-        if sees != self._sees:
-            self._log_view_change(self._sees, sees)
-            self._sees = sees
-        report = msgspec.structs.replace(report, bad_messages=self.bad_messages + self.overflow,  # `ramps status`
-                                         sees=len(sees), running=self._running_list(), **self._learned())
-        self._last_report = report
-        self._prompt_held = None  # this report says all a held one would
-        if self.metrics is not None:
-            st = node.statistics()
-            self.metrics.on_report(cpu_busy=busy, runnable=runnable, load_avg=load1, mem_free=mem_free,
-                                   running=st.running, in_flight=st.active_programs, sees=len(sees),
-                                   blacklisted=len(st.blacklisted), dropped=report.bad_messages,
-                                   reports_received=st.reports_received)
-        try:
-            self.membership.load_pub.put(encode(self.robot, report))
-            if self.trace.wire:
-                self.trace.write("tx", "", "*", 0, "LoadReport")
-        except Exception as exc:
-            log.warning("node %s could not publish its load: %s", self.robot, exc)
+        """The periodic load report (``LoadReports.publish``), and the team's
+        revocation list when it is due again."""
+        self.reports.publish(now)
         self._republish(now)
-
-    def _read_battery(self, now: float, busy: float) -> None:
-        """Hand the core this robot's battery (``ramps.core.battery``): below
-        its reserve it hands back its teammates' programs, in this report period."""
-        if self._battery is None:
-            self._battery = BatteryReader.for_settings(self.s)
-        charge, power = self._battery.read(busy)
-        assert self.node is not None
-        self._apply(self.node.handle(BatteryMeasured(charge=charge, power=power), now))
-
-    def _publish_prompt(self, report: LoadReport) -> None:
-        """A report of the instant from the core (its programs changed), to its
-        teammates' nodes only (``keys.load_now``), as the core made it: what
-        their decisions read. What only a person reads (what runs here, the
-        links, ``ramps status``'s counters) goes with the periodic report,
-        the one applications hear: a client busy submitting hears no report
-        per program start and end."""
-        try:
-            self.membership.prompt_pub.put(encode(self.robot, report))
-        except Exception as exc:
-            log.warning("node %s could not publish its load: %s", self.robot, exc)
-
-    def _learned(self) -> dict[str, list]:
-        """What this node measured of its links and learned of its programs'
-        work, for its load report (``ramps status``)."""
-        def ok(x: float | None) -> float | None:  # within the schema, or the whole report would be refused
-            return x if x is not None and math.isfinite(x) and x >= 0 else None
-
-        node = self.node
-        assert node is not None
-        measured = node.links.measured()
-        factors = node.host_speeds.factor if node.host_speeds is not None else {}
-        # teammates only: an origin also compares the runs on its own robot
-        links = [(r, measured.get(r)) for r in sorted((set(measured) | set(factors)) - {self.robot})[:MAX_LISTED]]
-        work = sorted(node.origin.learned_work().items())[:MAX_LISTED]
-        return dict(links=[LinkSeen(r, ok(e.latency) if e else None, ok(e.bandwidth) if e else None,
-                                    ok(factors.get(r))) for r, e in links],
-                    learned=[LearnedWork(p, w) for p, w in work if ok(w) is not None])
-
-    def _running_list(self) -> list[RunningProgram]:
-        """The programs this robot runs, with their progress (``ramps status``)."""
-        assert self.node is not None
-        jobs = islice(self.node.executor.running.values(), MAX_LISTED)
-        return [RunningProgram(j.program, j.origin, j.progress) for j in jobs]
-
-    def _log_view_change(self, before: frozenset[str], after: frozenset[str]) -> None:
-        """One line when teammates enter or leave this robot's view (the
-        robots it could place programs on), so a log tells who it saw when."""
-        def names(robots: frozenset[str]) -> str:
-            shown = sorted(robots)
-            return ", ".join(shown[:8]) + (f" and {len(shown) - 8} more" if len(shown) > 8 else "")
-
-        parts = [f"+{names(after - before)}" if after - before else "",
-                 f"-{names(before - after)}" if before - after else ""]
-        log.info("node %s sees %d teammate(s): %s", self.robot, len(after), " ".join(p for p in parts if p))
 
     def _shutdown(self, done: threading.Event) -> None:
         # before its liveliness goes: a client (ramps top) tells this from a crash (not when the name

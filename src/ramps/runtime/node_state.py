@@ -4,35 +4,36 @@ How this works: ``NodeRuntime`` (``ramps.runtime.node``) is its lifecycle
 and loop, two mixins, ``Inbound`` (``node_inbound``) and ``Outbound``
 (``node_outbound``), bases of it and of ``DriverState`` here, and composed
 parts it holds, each with its own state: ``ClientAnswers``
-(``node_clients``), ``AwakeClock`` (``node_awake``), ``RobotMeasure``
-(``node_robot``), ``Membership`` (``node_team``) and ``NodeTrace``
-(``node_trace``). ``DriverState`` holds no
+(``node_clients``), ``LoadReports`` (``node_reports``), ``AwakeClock``
+(``node_awake``), ``RobotMeasure`` (``node_robot``), ``Membership``
+(``node_team``) and ``NodeTrace`` (``node_trace``). ``DriverState`` holds no
 value and runs nothing: it declares, with their types, the attributes the
 mixins read and write (``NodeRuntime.__init__`` and ``start`` set them)
 and, for the type checker only, the methods one calls on another, so that
 mypy checks each against the others. ``node``, ``transport``, ``metrics``
 and ``store`` are None before ``start`` (the last two also when not asked
 for): the mixins run on the driver thread, after ``start``, and narrow them.
-``WorkerPoolLike`` and ``SamplerLike`` are what the driver uses of its worker
-pool and load sampler (``WorkerPool``/``LoadSampler`` or the in-memory
-ones of ``ramps.testing.memory``).
+What the driver uses of its worker pool and load sampler is declared in
+``node_seams``.
 """
+
 from __future__ import annotations
 
 import queue
-from typing import TYPE_CHECKING, Any, Callable, Protocol
+from typing import TYPE_CHECKING, Any, Callable
 
 if TYPE_CHECKING:
     from cryptography import x509
 
     from ramps.core.events import Note
-    from ramps.core.messages import LoadReport
     from ramps.core.node import Node
     from ramps.runtime.accelerators import AcceleratorProbe
     from ramps.runtime.bulk import OrderedSender
     from ramps.runtime.metrics import NodeMetrics
     from ramps.runtime.node_awake import AwakeClock
+    from ramps.runtime.node_reports import LoadReports
     from ramps.runtime.node_robot import RobotMeasure
+    from ramps.runtime.node_seams import SamplerLike, WorkerPoolLike
     from ramps.runtime.node_clients import ClientAnswers
     from ramps.runtime.node_team import Membership
     from ramps.runtime.node_trace import NodeTrace
@@ -41,39 +42,6 @@ if TYPE_CHECKING:
     from ramps.runtime.settings import NodeSettings
     from ramps.runtime.store import OriginStore
     from ramps.runtime.transport import Clock, Publisher, Transport
-
-#: a running program: (program id, attempt)
-Key = tuple[str, int]
-
-
-class WorkerPoolLike(Protocol):
-    """What the driver uses of its worker pool (``ramps.runtime.workers.WorkerPool``)."""
-
-    def start(self) -> None: ...
-
-    def stop(self) -> None: ...
-
-    def run(self, key: Key, program: str, args: bytes, resume: bytes | None = None,
-            accelerator: dict[str, Any] | None = None) -> None: ...
-
-    def cancel(self, key: Key) -> None: ...
-
-    def busy(self) -> int: ...
-
-    def queued(self) -> int: ...
-
-
-class SamplerLike(Protocol):
-    """What the driver uses of its load sampler (``ramps.runtime.measure.LoadSampler``)."""
-
-    def start(self) -> None: ...
-
-    def stop(self) -> None: ...
-
-    def averages(self) -> tuple[float, float, float]: ...
-
-    def extras(self) -> tuple[list[float], float, int]: ...
-
 
 class DriverState:
     """The attributes and methods the parts of ``NodeRuntime`` share (declarations only)."""
@@ -91,7 +59,6 @@ class DriverState:
     _bulk: OrderedSender
     bad_messages: int
     overflow: int
-    _sees: frozenset[str]
     _backlog_bytes: int
     _drop_logged_at: float
     _drops_unlogged: int
@@ -114,7 +81,7 @@ class DriverState:
     metrics: NodeMetrics | None
     store: OriginStore | None
     restored: int
-    _last_report: LoadReport | None
+    reports: LoadReports
 
     # ------------------------------------------------ set by start
     cores: int

@@ -1,0 +1,197 @@
+"""A node's load reports: the periodic one, and those of the instant.
+
+How this works: ``LoadReports`` is a part of the node's driver
+(``ramps.runtime.node``); it sees the driver through ``ReportsDriver``.
+Every report period the driver calls ``publish``: it starts a
+re-measurement of the robot's speed when one is due (``RobotMeasure``),
+reads the sampler, the robot's battery (``ramps.runtime.battery``, handed
+to the core: below its reserve it hands back its teammates' programs) and
+the accelerators, has the core make the report, adds what only a person
+reads (what runs here, the links and learned work, ``ramps status``'s
+counters) and publishes it on ``keys.load``, the report applications hear.
+A report of the instant (``PublishReport``: the programs running here
+changed) goes to the teammates' nodes only (``keys.load_now``), held
+``PROMPT_HOLD`` so the changes that follow it go with it, the newest only:
+in a burst each change made one, and every report carries the executor's
+counters, so a later one says all an earlier one did. A periodic report
+supersedes a held one.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+from itertools import islice
+from typing import TYPE_CHECKING, Any, Protocol
+
+import msgspec
+
+from ramps.core.battery import BatteryMeasured
+from ramps.core.events import Action
+from ramps.core.messages import MAX_LISTED, LearnedWork, LinkSeen, LoadReport, RunningProgram, encode
+from ramps.runtime.battery import BatteryReader
+
+if TYPE_CHECKING:
+    from ramps.core.node import Node
+    from ramps.runtime.accelerators import AcceleratorProbe
+    from ramps.runtime.metrics import NodeMetrics
+    from ramps.runtime.node_awake import AwakeClock
+    from ramps.runtime.node_robot import RobotMeasure
+    from ramps.runtime.node_seams import SamplerLike, WorkerPoolLike
+    from ramps.runtime.node_team import Membership
+    from ramps.runtime.node_trace import NodeTrace
+    from ramps.runtime.settings import NodeSettings
+
+log = logging.getLogger("ramps.node")
+#: seconds a report of the instant waits for the changes that follow it, the newest going
+#: then: a host's acceptance and the end of a short program go as one report, after its
+#: result, and the teammates it wakes do not take the CPU from the program meanwhile
+PROMPT_HOLD = 0.005
+
+
+class ReportsDriver(Protocol):
+    """What a node's load reports (``LoadReports``) use of its driver."""
+
+    s: NodeSettings
+    robot: str
+    node: Node | None
+    awake: AwakeClock
+    measured: RobotMeasure
+    pool: WorkerPoolLike
+    sampler: SamplerLike
+    accel: AcceleratorProbe
+    metrics: NodeMetrics | None
+    membership: Membership
+    trace: NodeTrace
+    #: messages dropped as malformed and over the driver's backlog (``ramps status``)
+    bad_messages: int
+    overflow: int
+    _q: queue.SimpleQueue[tuple[Any, ...]]
+
+    def _apply(self, actions: list[Action]) -> None: ...
+
+
+class LoadReports:
+    """The load reports of ``driver``'s node."""
+
+    def __init__(self, driver: ReportsDriver) -> None:
+        self.d = driver
+        #: the last periodic report, and the teammates in this robot's view then
+        self.last: LoadReport | None = None
+        self._sees: frozenset[str] = frozenset()
+        #: the newest report of the instant not published yet, and the core's time it is due
+        self._held: LoadReport | None = None
+        self._due = 0.0
+        #: reads this robot's battery before each periodic report (made at the first)
+        self._battery: BatteryReader | None = None
+
+    def hold(self, report: LoadReport) -> None:
+        """A report of the instant from the core: published ``PROMPT_HOLD`` after
+        the first not yet published, the newest then."""
+        if self._held is None:
+            self._due = self.d.awake.now() + PROMPT_HOLD
+        self._held = report
+
+    def due(self) -> float:
+        """The core's time a held report of the instant is due (inf: none held)."""
+        return self._due if self._held is not None else float("inf")
+
+    def flush(self, now: float) -> None:
+        """Publish the held report of the instant if it is due by the core's time ``now``."""
+        if self._held is not None and now >= self._due:
+            report, self._held = self._held, None
+            self._publish_prompt(report)
+
+    def publish(self, now: float) -> None:
+        """The periodic load report, at the core's time ``now``."""
+        d = self.d
+        d.measured.remeasure_due(lambda: not d.pool.busy() and not d.pool.queued(), d._q.put)
+        node = d.node
+        assert node is not None
+        busy, runnable, ramps_avg = d.sampler.averages()
+        per_core, load1, mem_free = d.sampler.extras()
+        node.executor.background = max(0.0, runnable - ramps_avg)
+        busy = d.measured.busy(busy)
+        node_cpu = d.measured.read_node_cpu()
+        self._read_battery(now, busy)
+        if d.accel.declared:
+            node.accelerator_measured = d.accel.measure()
+        report = node.make_report(cpu_busy=busy, runnable=runnable, ramps_avg=ramps_avg, window=d.s.window,
+                                  mem_free=mem_free, cpu_per_core=per_core, load_avg=load1,
+                                  node_cpu=round(node_cpu, 4))
+        sees = frozenset(node.view.candidates(now)) - {d.robot}
+        if sees != self._sees:
+            self._log_view_change(self._sees, sees)
+            self._sees = sees
+        report = msgspec.structs.replace(report, bad_messages=d.bad_messages + d.overflow,  # `ramps status`
+                                         sees=len(sees), running=self._running_list(), **self._learned())
+        self.last = report
+        self._held = None  # this report says all a held one would
+        if d.metrics is not None:
+            st = node.statistics()
+            d.metrics.on_report(cpu_busy=busy, runnable=runnable, load_avg=load1, mem_free=mem_free,
+                                running=st.running, in_flight=st.active_programs, sees=len(sees),
+                                blacklisted=len(st.blacklisted), dropped=report.bad_messages,
+                                reports_received=st.reports_received)
+        try:
+            d.membership.load_pub.put(encode(d.robot, report))
+            if d.trace.wire:
+                d.trace.write("tx", "", "*", 0, "LoadReport")
+        except Exception as exc:
+            log.warning("node %s could not publish its load: %s", d.robot, exc)
+
+    def _read_battery(self, now: float, busy: float) -> None:
+        """Hand the core this robot's battery (``ramps.core.battery``): below
+        its reserve it hands back its teammates' programs, in this report period."""
+        if self._battery is None:
+            self._battery = BatteryReader.for_settings(self.d.s)
+        charge, power = self._battery.read(busy)
+        assert self.d.node is not None
+        self.d._apply(self.d.node.handle(BatteryMeasured(charge=charge, power=power), now))
+
+    def _publish_prompt(self, report: LoadReport) -> None:
+        """A report of the instant from the core (its programs changed), to its
+        teammates' nodes only (``keys.load_now``), as the core made it: what
+        their decisions read. What only a person reads (what runs here, the
+        links, ``ramps status``'s counters) goes with the periodic report,
+        the one applications hear: a client busy submitting hears no report
+        per program start and end."""
+        try:
+            self.d.membership.prompt_pub.put(encode(self.d.robot, report))
+        except Exception as exc:
+            log.warning("node %s could not publish its load: %s", self.d.robot, exc)
+
+    def _learned(self) -> dict[str, list[Any]]:
+        """What this node measured of its links and learned of its programs'
+        work, for its load report (``ramps status``)."""
+        def ok(x: float | None) -> float | None:  # within the schema, or the whole report would be refused
+            return x if x is not None and math.isfinite(x) and x >= 0 else None
+
+        node = self.d.node
+        assert node is not None
+        measured = node.links.measured()
+        factors = node.host_speeds.factor if node.host_speeds is not None else {}
+        # teammates only: an origin also compares the runs on its own robot
+        links = [(r, measured.get(r)) for r in sorted((set(measured) | set(factors)) - {self.d.robot})[:MAX_LISTED]]
+        work = sorted(node.origin.learned_work().items())[:MAX_LISTED]
+        return dict(links=[LinkSeen(r, ok(e.latency) if e else None, ok(e.bandwidth) if e else None,
+                                    ok(factors.get(r))) for r, e in links],
+                    learned=[LearnedWork(p, w) for p, w in work if ok(w) is not None])
+
+    def _running_list(self) -> list[RunningProgram]:
+        """The programs this robot runs, with their progress (``ramps status``)."""
+        assert self.d.node is not None
+        jobs = islice(self.d.node.executor.running.values(), MAX_LISTED)
+        return [RunningProgram(j.program, j.origin, j.progress) for j in jobs]
+
+    def _log_view_change(self, before: frozenset[str], after: frozenset[str]) -> None:
+        """One line when teammates enter or leave this robot's view (the
+        robots it could place programs on), so a log tells who it saw when."""
+        def names(robots: frozenset[str]) -> str:
+            shown = sorted(robots)
+            return ", ".join(shown[:8]) + (f" and {len(shown) - 8} more" if len(shown) > 8 else "")
+
+        parts = [f"+{names(after - before)}" if after - before else "",
+                 f"-{names(before - after)}" if before - after else ""]
+        log.info("node %s sees %d teammate(s): %s", self.d.robot, len(after), " ".join(p for p in parts if p))
