@@ -69,6 +69,7 @@ from ramps.runtime.node_inbound import DROP_LOG_PERIOD, LONELY_AFTER, STALL_GRAC
 from ramps.runtime.node_outbound import Outbound
 from ramps.runtime.node_awake import AwakeClock
 from ramps.runtime.node_reports import LoadReports
+from ramps.runtime.node_revoked import Revoked
 from ramps.runtime.node_robot import RobotMeasure
 from ramps.runtime.node_team import Membership
 from ramps.runtime.node_trace import NodeTrace
@@ -76,6 +77,7 @@ from ramps.runtime.node_seams import SamplerLike, WorkerPoolLike
 
 if TYPE_CHECKING:
     from ramps.runtime.credentials import Credentials
+    from ramps.runtime.revocation import RevocationList
 
 log = logging.getLogger("ramps.node")
 #: bytes of received messages waiting for the driver before new ones are dropped
@@ -161,15 +163,8 @@ class NodeRuntime(Inbound, Outbound):
         self.rounds_cut = 0
         #: teammates whose liveliness went just after a stall: robot -> core time it counts as lost
         self._held_lost = {}
-        #: secured team: the newest revocation list, the robots it names, the CA that signs it
-        self.revocations = None
-        self._revoked = frozenset()
-        self._ca_cert = None
-        self._revocation_file = None
-        self._republish_at = 0.0
-        #: messages dropped because their sender is revoked; this robot itself was revoked
-        self.revoked_dropped = 0
-        self.revoked_self = False
+        #: secured team: the newest revocation list, the robots it names (``revocations``, ``revoked_self``)
+        self.revoked = Revoked(self.team, self.robot)
         #: another node runs under this robot's name and started first: why this one
         #: left ("" = it did not; ramps.core.identity, Outbound._name_taken)
         self.name_taken = ""
@@ -197,7 +192,7 @@ class NodeRuntime(Inbound, Outbound):
         s = self.s
         creds, exit_on_failure = self._join_checks()
         if creds is not None:
-            self._load_revocations(creds)
+            self.revoked.load(creds)
         m = self.measured
         m.measure()
         self.cores, self.speed, self.load_scope = m.cores, m.speed, m.scope
@@ -253,7 +248,7 @@ class NodeRuntime(Inbound, Outbound):
             self.transport = self._given_transport or ZenohTransport.open(self.s, credentials=creds,
                                                                           fail_fast=exit_on_failure)
             self.membership.join(self.transport, self.incarnation, on_wire=self._on_wire, put=self._q.put,
-                                 on_where=self._on_where, revocations=self._ca_cert is not None)
+                                 on_where=self._on_where, revocations=self.revoked.secured)
         except TransportError as exc:
             self._teardown()
             raise TransportError(f"cannot join team {self.team!r} over Zenoh: {exc}") from exc
@@ -322,6 +317,16 @@ class NodeRuntime(Inbound, Outbound):
         if not ev.wait(timeout):
             raise TimeoutError("the node's driver did not answer")
         return box[0]
+
+    @property
+    def revocations(self) -> RevocationList | None:
+        """The team's newest revocation list this node holds (a secured team)."""
+        return self.revoked.current
+
+    @property
+    def revoked_self(self) -> bool:
+        """Whether this robot was revoked by its team (then it leaves)."""
+        return self.revoked.me
 
     def endpoints(self) -> list[str]:
         """Where this node listens (with the real ports)."""
@@ -418,7 +423,7 @@ class NodeRuntime(Inbound, Outbound):
             if item[0] == "stop":
                 self._apply(actions)
                 self._shutdown(item[1])
-                if self.revoked_self or self.name_taken:  # nobody asked: leave now (the CLI sees wait())
+                if self.revoked.me or self.name_taken:  # nobody asked: leave now (the CLI sees wait())
                     self._teardown()
                 return False
             try:

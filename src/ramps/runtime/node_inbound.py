@@ -46,13 +46,12 @@ from ramps.core.messages import (
     decode,
 )
 from ramps.core.relink import RELINK_TIMEOUT
-from ramps.errors import NotAdmitted
 from ramps.runtime import keys, revocation
 from ramps.runtime.node_seams import Key
 from ramps.runtime.node_state import DriverState
 
 if TYPE_CHECKING:
-    from ramps.runtime.credentials import Credentials
+    pass
 
 log = logging.getLogger("ramps.node")
 #: seconds between two log lines about dropped messages (each is counted)
@@ -100,7 +99,7 @@ class Inbound(DriverState):
         close and their tokens vanish here, then come back as soon as Zenoh
         reconnects. Such a loss is held for STALL_GRACE and forgotten if the
         robot comes back meanwhile; a robot that does not is lost then."""
-        if robot in self._revoked:
+        if robot in self.revoked.robots:
             return []
         if not alive and self.awake.since_stall(STALL_GRACE):
             self._held_lost[robot] = now + STALL_GRACE
@@ -118,69 +117,45 @@ class Inbound(DriverState):
         assert self.node is not None
         return self.node.handle(PeerAlive(robot=robot) if alive else PeerLost(robot=robot), now)
 
-    def _load_revocations(self, creds: Credentials) -> None:
-        """Secured team: the list saved beside this robot's credentials, if
-        any. A robot on it does not join (``NotAdmitted``)."""
-        from ramps.runtime.security import _load_cert
-
-        self._ca_cert = _load_cert(creds.ca, "team CA certificate")
-        self._revocation_file = str(creds.cert.parent / revocation.REVOKED_FILE)
-        rl = revocation.load(self._revocation_file, self._ca_cert, self.team)
-        if rl is None:
-            return
-        if self.robot in rl.robots:
-            raise NotAdmitted(f"robot {self.robot!r} is revoked by team {self.team!r} (revocation list {rl.seq} "
-                              f"of {rl.issued}, {self._revocation_file}): it may not join the team")
-        self.revocations, self._revoked = rl, frozenset(rl.robots)
-
     def _on_revocations(self, data: bytes, now: float) -> list[Action]:
         """A revocation list from the team: adopt it if it is newer and signed
         by the team CA; shut the newly revoked robots out (or leave, if this
         robot is one of them). Anything else is remote bad input: counted.
         Only a node with the team CA (a secured team) subscribes to them."""
-        if self._ca_cert is None or self._revocation_file is None:
+        if not self.revoked.secured:
             return []
         try:
-            rl = revocation.decode(data, self._ca_cert, self.team)
+            new = self.revoked.adopt(data)
         except Exception as exc:  # CredentialsError, or anything odd in a foreign message
             self.bad_messages += 1
             if now - self._drop_logged_at >= DROP_LOG_PERIOD:  # a flood is one line a period
                 log.warning("node %s ignored a revocation list: %s", self.robot, exc)
                 self._drop_logged_at = now
             return []
-        if self.revocations is not None and rl.seq <= self.revocations.seq:
+        rl = self.revoked.current
+        if new is None or rl is None:
             return []
-        new = sorted(set(rl.robots) - self._revoked)
-        self.revocations, self._revoked = rl, frozenset(rl.robots)
-        self._republish_at = 0.0  # pass it on now
-        try:
-            revocation.save(self._revocation_file, rl)
-        except OSError as exc:
-            log.warning("node %s could not save revocation list %d to %s: %s", self.robot, rl.seq,
-                        self._revocation_file, exc)
         out: list[Action] = []
         for robot in new:
-            if self.trace.on:
-                self.trace.write("revoked", "", robot, 0, f"list {rl.seq}")
+            self.trace.write("revoked", "", robot, 0, f"list {rl.seq}")
             if robot == self.robot:
-                self.revoked_self = True
                 continue
             log.warning("node %s: robot %s is revoked by the team (list %d): shut out", self.robot, robot, rl.seq)
             self._held_lost.pop(robot, None)
             assert self.node is not None
             self.node.executor.stop_origin(robot, now, out)
             out.extend(self.node.handle(PeerLost(robot=robot), now))
-        if self.revoked_self:
+        if self.revoked.me:
             log.error("node %s: this robot is revoked by team %s (list %d): handing programs back and leaving",
                       self.robot, self.team, rl.seq)
             self._q.put(("stop", threading.Event()))
         return out
 
     def _republish(self, now: float) -> None:
-        if self.revocations is None or now < self._republish_at or self.transport is None:
-            return
-        self._republish_at = now + revocation.REPUBLISH_PERIOD
-        self._put(revocation.revoked_key(self.team), revocation.encode(self.revocations))
+        """Publish the team's revocation list again, if it is due (``Revoked.republish``)."""
+        data = self.revoked.republish(now) if self.transport is not None else None
+        if data is not None:
+            self._put(revocation.revoked_key(self.team), data)
 
     def _next_release(self) -> float:
         return min(self._held_lost.values())
@@ -232,8 +207,7 @@ class Inbound(DriverState):
                 return []
             msg = env.msg
             assert node is not None
-            if env.sender in self._revoked:  # refused at the ramps layer (see ramps.runtime.revocation)
-                self.revoked_dropped += 1
+            if self.revoked.shuts_out(env.sender):  # refused at the ramps layer (see ramps.runtime.revocation)
                 return []
             if self.trace.wire:
                 self.trace.write("rx", getattr(msg, "program_id", ""), env.sender, getattr(msg, "attempt", 0),

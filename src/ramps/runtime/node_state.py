@@ -23,7 +23,6 @@ import queue
 from typing import TYPE_CHECKING, Any, Callable
 
 if TYPE_CHECKING:
-    from cryptography import x509
 
     from ramps.core.events import Note
     from ramps.core.node import Node
@@ -32,13 +31,13 @@ if TYPE_CHECKING:
     from ramps.runtime.metrics import NodeMetrics
     from ramps.runtime.node_awake import AwakeClock
     from ramps.runtime.node_reports import LoadReports
+    from ramps.runtime.node_revoked import Revoked
     from ramps.runtime.node_robot import RobotMeasure
     from ramps.runtime.node_seams import SamplerLike, WorkerPoolLike
     from ramps.runtime.node_clients import ClientAnswers
     from ramps.runtime.node_team import Membership
     from ramps.runtime.node_trace import NodeTrace
     from ramps.runtime.registry import Registry
-    from ramps.runtime.revocation import RevocationList
     from ramps.runtime.settings import NodeSettings
     from ramps.runtime.store import OriginStore
     from ramps.runtime.transport import Clock, Publisher, Transport
@@ -70,13 +69,7 @@ class DriverState:
     measured: RobotMeasure
     clients: ClientAnswers
     _held_lost: dict[str, float]
-    revocations: RevocationList | None
-    _revoked: frozenset[str]
-    _ca_cert: x509.Certificate | None
-    _revocation_file: str | None
-    _republish_at: float
-    revoked_dropped: int
-    revoked_self: bool
+    revoked: Revoked
     name_taken: str
     metrics: NodeMetrics | None
     store: OriginStore | None
