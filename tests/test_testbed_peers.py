@@ -216,3 +216,31 @@ def test_the_busy_robots_own_cpu_is_read_from_their_load_processes():
     burst.start(tb, 0.0)  # a burst that began long ago (monotonic 0): a small share of a core
     burst.stop(tb)
     assert burst.result("ramps").own_cpu is not None and burst.result("ramps").own_cpu >= 0
+
+
+def test_rounds_run_every_engine_in_turns_each_round_starting_with_the_next(monkeypatch):
+    import ramps.testbed.experiments as experiments
+    import ramps.testbed.peers as peers
+
+    order: list[tuple[str, int]] = []
+
+    class Fake:
+        def __init__(self, name: str) -> None:
+            self.name = name
+
+        def missing(self):
+            return None
+
+        def run(self, sc, setup, log):
+            order.append((self.name, len(order)))
+            return EngineRun(engine=self.name, makespan=40.0 + len(order), distribution=[3] * 5, completed=15)
+
+    monkeypatch.setattr(peers, "ENGINES", {n: (lambda n=n: Fake(n)) for n in ("a", "b", "c")})
+    monkeypatch.setattr(experiments, "identical_speed", lambda *a, **k: 0.04)
+    monkeypatch.setattr(peers, "ideal", lambda sc, **k: (37.5, [3] * 5))
+    monkeypatch.setattr(peers, "simulated", lambda sc, **k: None)
+    rep = peers.run_peers([SCENARIOS["idle"]], ["a", "b", "c"], repeats=3)
+    assert [name for name, _ in order] == ["a", "b", "c", "b", "c", "a", "c", "a", "b"]
+    runs = rep.scenarios[0].runs
+    assert [(r.engine, r.round) for r in runs][:4] == [("a", 1), ("b", 1), ("c", 1), ("b", 2)]
+    assert medians(runs)["a"] == (46.0, pytest.approx(46.0 / 37.5, abs=1e-3), 3)

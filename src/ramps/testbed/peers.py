@@ -91,10 +91,11 @@ DEFAULT_ENGINES = ("ramps", "round-robin", "ray", "dask")
 def run_peers(scenarios: Sequence[PeerScenario], engines: Sequence[str], setup: Setup = Setup(), *,
               repeats: int = 1, log: Callable[[str], None] | None = None) -> PeersReport:
     """Every scenario through every engine (module docstring), ``repeats``
-    rounds of every engine in turns: the host's speed drifts by up to 25%
-    between runs minutes apart, more than engines differ on idle robots, so
-    a comparison of wall times takes each engine's median over rounds run
-    in turns (``peers_scenarios.medians``)."""
+    rounds of every engine in turns, each round starting with the next
+    engine: the host's speed drifts by up to 25% between runs minutes apart,
+    more than engines differ on idle robots, so a comparison of wall times
+    takes each engine's median over rounds run in turns
+    (``peers_scenarios.medians``)."""
     from ramps.testbed.experiments import identical_speed
 
     log = log or (lambda _m: None)
@@ -105,7 +106,10 @@ def run_peers(scenarios: Sequence[PeerScenario], engines: Sequence[str], setup: 
         log(f"{sc.name}: {sc.description}")
         runs: list[EngineRun] = []
         first: tuple[float, float, list[int]] | None = None  # speed, ideal, distribution
-        for rnd, eng in ((r, e) for r in range(repeats) for e in chosen):
+        # each round starts with the next engine: one that always ran first (after the previous
+        # scenario's, or round's, last) would meet the host in a state of its own
+        rounds = ((r, chosen[(r + k) % len(chosen)]) for r in range(repeats) for k in range(len(chosen)))
+        for rnd, eng in rounds:
             why = eng.missing()
             if why:
                 if rnd == 0:
