@@ -251,13 +251,13 @@ def test_zenoh_config_of_a_secured_team(team):
 
 
 def test_insecure_node_warns_once_per_process(monkeypatch, caplog):
-    from ramps.runtime import node as node_mod
+    from ramps.runtime import node_team
 
-    monkeypatch.setattr(node_mod, "_insecure_warned", False)
-    rt = node_mod.NodeRuntime(NodeSettings(robot="r1", team="lab"))
+    monkeypatch.setattr(node_team, "_insecure_warned", False)
+    s = NodeSettings(robot="r1", team="lab")
     with caplog.at_level(logging.WARNING, logger="ramps.node"):
-        assert rt._join_checks() == (None, False)
-        rt._join_checks()
+        assert node_team.join_checks(s) == (None, False)
+        node_team.join_checks(s)
     warnings = [r.getMessage() for r in caplog.records if "INSECURE" in r.getMessage()]
     assert len(warnings) == 1
     assert "anyone who can reach this network" in warnings[0] and "--secure" in warnings[0]

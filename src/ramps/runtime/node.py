@@ -59,7 +59,6 @@ from ramps.runtime.heap import HeapTrimmer, return_freed_memory
 from ramps.runtime.niceness import prioritize, worker_increment
 from ramps.runtime.measure import LoadSampler
 from ramps.runtime.registry import Registry, default_registry, node_registry
-from ramps.runtime.security import admission, settings_credentials
 from ramps.runtime.settings import NodeSettings
 from ramps.runtime.store import OriginStore
 from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
@@ -71,7 +70,7 @@ from ramps.runtime.node_awake import AwakeClock
 from ramps.runtime.node_reports import LoadReports
 from ramps.runtime.node_revoked import Revoked
 from ramps.runtime.node_robot import RobotMeasure
-from ramps.runtime.node_team import Membership
+from ramps.runtime.node_team import Membership, join_checks
 from ramps.runtime.node_trace import NodeTrace
 from ramps.runtime.node_seams import SamplerLike, WorkerPoolLike
 
@@ -89,13 +88,6 @@ MAX_ITEMS_PER_ROUND = 10_000
 #: origin's timeouts wait until the queue is drained, as it may hold the
 #: heartbeats they wait for (issue 23: a saturated robot's node)
 ROUND_SECONDS = 0.1
-
-INSECURE_WARNING = (
-    "INSECURE: team {team!r} runs without authentication or encryption: anyone who can reach this network "
-    "can join it, read its traffic, submit programs and run them on this robot. To secure it: "
-    "`ramps team init`, `ramps team add ROBOT`, then `ramps node --secure --credentials DIR` (README, Security).")
-_insecure_warned = False
-
 
 def core_config(s: NodeSettings) -> RampsConfig:
     """The core's settings for a node of ``s``: on a node that measures its own
@@ -190,7 +182,7 @@ class NodeRuntime(Inbound, Outbound):
         """Join the team and start driving. ``threaded=False``: no driver
         thread; the caller drives it with ``step()`` (tests)."""
         s = self.s
-        creds, exit_on_failure = self._join_checks()
+        creds, exit_on_failure = join_checks(self.s)
         if creds is not None:
             self.revoked.load(creds)
         m = self.measured
@@ -267,25 +259,6 @@ class NodeRuntime(Inbound, Outbound):
             self._teardown()
             raise ConfigError(f"cannot serve metrics on {address}: {getattr(exc, 'strerror', None) or exc}") from None
         log.info("node %s serves Prometheus metrics on http://%s:%d/metrics", self.robot, *served)
-
-    def _join_checks(self) -> tuple[Credentials | None, bool]:
-        """Secure mode: this robot's checked credentials, and whether Zenoh may
-        fail fast (every connect endpoint admitted them; see
-        ``security.admission``, which raises ``NotAdmitted`` when the team
-        refuses them). Insecure mode: say so, once per process."""
-        global _insecure_warned
-        s = self.s
-        if not s.secure:
-            if not _insecure_warned:
-                _insecure_warned = True
-                log.warning(INSECURE_WARNING.format(team=s.team))
-            return None, False
-        creds = settings_credentials(s, robot=self.robot)
-        everyone = admission(s.connect, creds, team=self.team)
-        if s.connect and not everyone:
-            log.info("node %s: not every teammate at %s answers yet; Zenoh keeps trying", self.robot,
-                     ", ".join(s.connect))
-        return creds, everyone
 
     def stop(self, timeout: float = 5.0) -> None:
         """Hand programs back, leave the team, stop workers. Idempotent."""

@@ -1,6 +1,9 @@
 """A node's place on its team's transport: what it subscribes to and declares.
 
-How this works: ``Membership`` is a part of the node's driver
+How this works: before a node joins, ``join_checks`` checks its
+credentials on a secured team (and whether the teammates it connects to
+admit them) or warns, once per process, that the team is not secured.
+``Membership`` is a part of the node's driver
 (``ramps.runtime.node``). Once the driver has opened its transport, ``join``
 subscribes to this robot's inbox and the team's load reports (periodic and
 of the instant), to the team's liveliness tokens and, on a secured team, to
@@ -15,12 +18,23 @@ declares the token that tells a client a node leaving from one that crashed;
 from __future__ import annotations
 
 import logging
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from ramps.runtime import keys, revocation
+from ramps.runtime.security import admission, settings_credentials
 from ramps.runtime.transport import Declared, Publisher, Transport
 
+if TYPE_CHECKING:
+    from ramps.runtime.credentials import Credentials
+    from ramps.runtime.settings import NodeSettings
+
 log = logging.getLogger("ramps.node")
+#: what a node of a team that is not secured says, once per process
+INSECURE_WARNING = (
+    "INSECURE: team {team!r} runs without authentication or encryption: anyone who can reach this network "
+    "can join it, read its traffic, submit programs and run them on this robot. To secure it: "
+    "`ramps team init`, `ramps team add ROBOT`, then `ramps node --secure --credentials DIR` (README, Security).")
+_insecure_warned = False
 
 
 class Membership:
@@ -82,3 +96,23 @@ class Membership:
                 t.close()
             except Exception:
                 pass
+
+
+def join_checks(s: NodeSettings) -> tuple[Credentials | None, bool]:
+    """Before a node of settings ``s`` joins. Secure mode: its robot's
+    checked credentials, and whether Zenoh may fail fast (every connect
+    endpoint admitted them; see ``security.admission``, which raises
+    ``NotAdmitted`` when the team refuses them). Insecure mode: say so, once
+    per process."""
+    global _insecure_warned
+    if not s.secure:
+        if not _insecure_warned:
+            _insecure_warned = True
+            log.warning(INSECURE_WARNING.format(team=s.team))
+        return None, False
+    creds = settings_credentials(s, robot=s.robot)
+    everyone = admission(s.connect, creds, team=s.team)
+    if s.connect and not everyone:
+        log.info("node %s: not every teammate at %s answers yet; Zenoh keeps trying", s.robot,
+                 ", ".join(s.connect))
+    return creds, everyone
