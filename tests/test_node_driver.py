@@ -100,9 +100,9 @@ def test_an_outcome_waits_for_its_own_client_only_and_not_for_ever(driver):
     is gone) is held; outcomes for other clients are not held behind it; it
     goes when its client is back, or after OUTCOME_HOLD regardless."""
     rt, fake = driver
-    rt.transport = MemoryBus().transport("r1")  # only _pubs is used
+    rt.transport = MemoryBus().transport("r1")  # only outbox.pubs is used
     gone, here = FakePub(matching=False), FakePub(matching=True)
-    rt._pubs = {"k/gone": gone, "k/here": here}
+    rt.outbox.pubs = {"k/gone": gone, "k/here": here}
     rt.clients.send_outcome("k/gone", b"1")
     rt.clients.send_outcome("k/here", b"2")
     rt.clients.send_outcome("k/gone", b"3")

@@ -54,7 +54,6 @@ from ramps.core.node import Node
 from ramps.errors import ConfigError, NotAdmitted, TransportError
 from ramps.runtime.accelerators import AcceleratorProbe
 from ramps.runtime.accelerators import resolve as resolve_accelerators
-from ramps.runtime.bulk import OrderedSender
 from ramps.runtime.heap import HeapTrimmer, return_freed_memory
 from ramps.runtime.niceness import prioritize, worker_increment
 from ramps.runtime.measure import LoadSampler
@@ -67,6 +66,7 @@ from ramps.runtime.node_clients import OUTCOME_HOLD, ClientAnswers, close_record
 from ramps.runtime.node_inbound import DROP_LOG_PERIOD, LONELY_AFTER, STALL_GRACE, Inbound
 from ramps.runtime.node_outbound import Outbound
 from ramps.runtime.node_awake import AwakeClock
+from ramps.runtime.node_outbox import Outbox
 from ramps.runtime.node_reports import LoadReports
 from ramps.runtime.node_revoked import Revoked
 from ramps.runtime.node_robot import RobotMeasure
@@ -129,9 +129,8 @@ class NodeRuntime(Inbound, Outbound):
         self._q = queue.SimpleQueue()
         #: its clients' requests, their outcomes and updates
         self.clients = ClientAnswers(self)
-        self._pubs = {}
-        #: large messages to teammates: sent whole, in order, off the driver's thread
-        self._bulk = OrderedSender(self._bulk_put, name=self.robot)
+        #: its publishers, and the threads that send large messages
+        self.outbox = Outbox(self.robot, lambda: self.transport)
         self._stopped = threading.Event()
         self._started = False
         self.bad_messages = 0

@@ -49,11 +49,12 @@ from ramps.core.program import FINAL, ProgramState
 from ramps.errors import ProgramNotFound
 from ramps.runtime import keys
 from ramps.runtime.registry import decode_args
-from ramps.runtime.transport import Clock, Publisher, Transport
+from ramps.runtime.transport import Clock, Publisher
 
 if TYPE_CHECKING:
     from ramps.core.node import Node
     from ramps.runtime.node_awake import AwakeClock
+    from ramps.runtime.node_outbox import Outbox
     from ramps.runtime.registry import Registry
     from ramps.runtime.settings import NodeSettings
     from ramps.runtime.store import OriginStore
@@ -88,15 +89,11 @@ class ClientsDriver(Protocol):
     robot: str
     team: str
     registry: Registry
-    transport: Transport | None
     node: Node | None
     incarnation: int
     #: programs resumed from the durable record at start
     restored: int
-
-    def _put(self, key: str, data: bytes, *, block: bool = False) -> None: ...
-
-    def _publisher(self, key: str, block: bool, pubs: dict[str, Publisher] | None = None) -> Publisher: ...
+    outbox: Outbox
 
 
 class ClientAnswers:
@@ -311,18 +308,10 @@ class ClientAnswers:
         lost, and the client waited for ever), it is held until one does, for
         OUTCOME_HOLD at most, then sent regardless."""
         until, block = self.d.clock.monotonic() + OUTCOME_HOLD, True
-        if any(k == key for k, _, _, _ in self.held_outcomes) or not self._reachable(key, block):
+        if any(k == key for k, _, _, _ in self.held_outcomes) or not self.d.outbox.reachable(key, block):
             self.held_outcomes.append((key, data, until, block))
             return
-        self.d._put(key, data, block=block)
-
-    def _reachable(self, key: str, block: bool) -> bool:
-        if self.d.transport is None:
-            return True
-        try:
-            return bool(self.d._publisher(key, block).matching())
-        except Exception:  # cannot tell: send
-            return True
+        self.d.outbox.put(key, data, block=block)
 
     def held_due(self, now: float) -> float:
         """The core's time at which something held is due: an outcome to look
@@ -347,11 +336,11 @@ class ClientAnswers:
         now = self.d.clock.monotonic()
         waiting: set[str] = set()
         for key, data, until, block in held:
-            if not leaving and (key in waiting or (now < until and not self._reachable(key, block))):
+            if not leaving and (key in waiting or (now < until and not self.d.outbox.reachable(key, block))):
                 waiting.add(key)
                 self.held_outcomes.append((key, data, until, block))
             else:
-                self.d._put(key, data, block=block)
+                self.d.outbox.put(key, data, block=block)
 
     def progressed(self, pid: str, fraction: float, detail: str, host: str, attempt: int) -> None:
         """Program ``pid`` reported its progress: its client is told (``update``)."""
@@ -388,13 +377,13 @@ class ClientAnswers:
         self.held_updates.pop(pid, None)
         target = self.clients.get(pid)
         d = self.d
-        if target is None or d.transport is None:
+        if target is None or not d.outbox.connected():
             return
         fraction, detail = self.progress.get(pid, (None, ""))
         data = encode(d.robot, ProgramUpdate(request_id=target[1], state=state, host=host, attempt=attempt,
                                                 fraction=fraction, detail=detail))
-        try:  # advisory: dropped rather than let a stalled client stall this driver (outcomes block, see _put)
-            d._publisher(keys.client(d.team, target[0]), False, self._update_pubs).put(data)
+        try:  # advisory: dropped rather than let a stalled client stall this driver (outcomes block)
+            d.outbox.publisher(keys.client(d.team, target[0]), False, self._update_pubs).put(data)
         except Exception as exc:
             log.debug("node %s could not send a program update: %s", d.robot, exc)
 

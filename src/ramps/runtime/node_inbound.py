@@ -155,7 +155,7 @@ class Inbound(DriverState):
         """Publish the team's revocation list again, if it is due (``Revoked.republish``)."""
         data = self.revoked.republish(now) if self.transport is not None else None
         if data is not None:
-            self._put(revocation.revoked_key(self.team), data)
+            self.outbox.put(revocation.revoked_key(self.team), data)
 
     def _next_release(self) -> float:
         return min(self._held_lost.values())

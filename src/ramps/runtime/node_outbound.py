@@ -21,7 +21,6 @@ import logging
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
 
 
 from ramps.core.events import (
@@ -44,7 +43,6 @@ from ramps.core.speed import MIN_RUN_WORK
 from ramps.runtime.accelerators import Grant
 from ramps.runtime import keys
 from ramps.runtime.node_reports import PROMPT_HOLD as PROMPT_HOLD  # tests name it here
-from ramps.runtime.transport import Publisher
 from ramps.runtime.node_state import DriverState
 
 log = logging.getLogger("ramps.node")
@@ -80,8 +78,7 @@ class Outbound(DriverState):
                 self.trace.hosted(a, closing=self.node is not None and self.node.executor.closing)
             if isinstance(a, Send):
                 key, data = keys.inbox(self.team, a.to), encode(self.robot, a.msg)
-                if not self._bulk.send(key, data):  # large (or behind a large one): its thread sends it
-                    self._put(key, data)
+                self.outbox.send(key, data)
                 if self.trace.wire:
                     self.trace.write("tx", getattr(a.msg, "program_id", ""), a.to, getattr(a.msg, "attempt", 0),
                                       type(a.msg).__name__)
@@ -169,40 +166,6 @@ class Outbound(DriverState):
         log.warning("node %s: %s on %s; placements learn only from runs of at least %g work units, so declare "
                     "what a call really does (@ramps.program(work=...) or team.options(work=...))",
                     self.robot, note.detail, note.robot, MIN_RUN_WORK)
-
-    def _put(self, key: str, data: bytes, *, block: bool = False) -> None:
-        """Publish on ``key``. Messages to robots use Zenoh's DROP congestion
-        control: a frozen teammate must never stall this node's only driver
-        thread, and the core already survives lost messages (connect
-        timeouts, periodic heartbeats, results resent until acknowledged).
-        Outcomes to a client (``block=True``) are not resent, so they wait."""
-        if self.transport is None:
-            return
-        try:
-            self._publisher(key, block).put(data)
-        except Exception as exc:
-            log.warning("node %s could not publish on %s: %s", self.robot, key, exc)
-
-    def _bulk_put(self, key: str, data: bytes, block: bool) -> None:
-        """The sender thread's publish (``ramps.runtime.bulk``): a large message
-        waits for room on the link instead of being dropped."""
-        if self.transport is not None:
-            self.transport.put(key, data, block=block)
-
-    def _publisher(self, key: str, block: bool, pubs: dict[str, Any] | None = None) -> Publisher:
-        """The declared publisher of ``key`` (declared on first use; at most
-        4096 kept, the oldest undeclared: clients come and go), from ``pubs``
-        (default: those of messages and outcomes; a client's advisory updates
-        have their own, ``ClientAnswers``', as they never block). Needs a
-        transport; raises what it raises."""
-        pubs = self._pubs if pubs is None else pubs
-        pub = pubs.get(key)
-        if pub is None:
-            assert self.transport is not None
-            pub = pubs[key] = self.transport.publisher(key, block=block)
-            if len(pubs) > 4096:
-                pubs.pop(next(iter(pubs))).undeclare()
-        return pub
 
     def _publish(self, now: float) -> None:
         """The periodic load report (``LoadReports.publish``), and the team's

@@ -27,9 +27,9 @@ if TYPE_CHECKING:
     from ramps.core.events import Note
     from ramps.core.node import Node
     from ramps.runtime.accelerators import AcceleratorProbe
-    from ramps.runtime.bulk import OrderedSender
     from ramps.runtime.metrics import NodeMetrics
     from ramps.runtime.node_awake import AwakeClock
+    from ramps.runtime.node_outbox import Outbox
     from ramps.runtime.node_reports import LoadReports
     from ramps.runtime.node_revoked import Revoked
     from ramps.runtime.node_robot import RobotMeasure
@@ -40,7 +40,7 @@ if TYPE_CHECKING:
     from ramps.runtime.registry import Registry
     from ramps.runtime.settings import NodeSettings
     from ramps.runtime.store import OriginStore
-    from ramps.runtime.transport import Clock, Publisher, Transport
+    from ramps.runtime.transport import Clock, Transport
 
 class DriverState:
     """The attributes and methods the parts of ``NodeRuntime`` share (declarations only)."""
@@ -54,8 +54,7 @@ class DriverState:
     on_note: Callable[[Note], None] | None
     #: the driver's queue: (kind, ...) items (``Inbound._handle``)
     _q: queue.SimpleQueue[tuple[Any, ...]]
-    _pubs: dict[str, Publisher]
-    _bulk: OrderedSender
+    outbox: Outbox
     bad_messages: int
     overflow: int
     _backlog_bytes: int
@@ -99,7 +98,4 @@ class DriverState:
 
         def _flush_held(self, now: float) -> None: ...
 
-        def _put(self, key: str, data: bytes, *, block: bool = False) -> None: ...
-
-        def _publisher(self, key: str, block: bool, pubs: dict[str, Publisher] | None = None) -> Publisher: ...
 
