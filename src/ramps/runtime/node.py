@@ -111,8 +111,8 @@ class NodeRuntime(Inbound, Outbound):
                  on_note: Callable[[Note], None] | None = None, transport: Transport | None = None,
                  clock: Clock = REAL_CLOCK, worker_pool: Callable[..., WorkerPoolLike] = WorkerPool,
                  load_sampler: Callable[..., SamplerLike] = LoadSampler, incarnation: int | None = None) -> None:
-        """Long because it gives every attribute of the driver's state (ramps.runtime.node_state) its
-        first value, one a line with its comment; nothing starts before ``start``."""
+        """Every attribute of the driver's state (``ramps.runtime.node_state``) and
+        its parts get their first value; nothing starts before ``start``."""
         if not settings.robot:
             raise ValueError("a node needs a robot name")
         self.s = settings
