@@ -63,14 +63,14 @@ def test_teammates_lost_right_after_a_stall_are_held_and_forgotten_if_back(drive
     wait(rt, fake, 0.2)
     back = rt._on_liveliness("r2", True, rt._clock())  # back: both forgotten
     assert [type(a) for a in back] == [PublishReport]  # and it hears this robot's load at once
-    assert rt._held_lost == {}
+    assert rt.held_lost.held == {}
     # r3 goes just after the stall and does not come back: lost when the grace ends
     rt._on_liveliness("r3", False, rt._clock())
     wait(rt, fake, rn.STALL_GRACE / 2)
-    assert rt._release_lost(rt._clock()) == [] and "r3" in rt._held_lost
+    assert rt._release_lost(rt._clock()) == [] and "r3" in rt.held_lost.held
     wait(rt, fake, rn.STALL_GRACE)
     rt._release_lost(rt._clock())
-    assert rt._held_lost == {}
+    assert rt.held_lost.held == {}
     assert rt.node.view.is_lost("r3")
 
 
@@ -80,7 +80,7 @@ def test_far_from_a_stall_a_lost_teammate_is_lost_at_once(driver):
     fake.t += rn.STALL_GRACE + 10  # no stall: the driver allowed itself this wait
     rt.awake.sleep_until = fake.t
     rt._on_liveliness("r2", False, rt._clock())
-    assert rt._held_lost == {} and rt.node.view.is_lost("r2")
+    assert rt.held_lost.held == {} and rt.node.view.is_lost("r2")
 
 
 class FakePub:

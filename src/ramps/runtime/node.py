@@ -65,7 +65,7 @@ from ramps.runtime.workers import WorkerPool
 from ramps.runtime.node_clients import OUTCOME_HOLD, ClientAnswers, close_record
 from ramps.runtime.node_inbound import DROP_LOG_PERIOD, LONELY_AFTER, STALL_GRACE, Inbound
 from ramps.runtime.node_outbound import Outbound
-from ramps.runtime.node_awake import AwakeClock
+from ramps.runtime.node_awake import AwakeClock, HeldLosses
 from ramps.runtime.node_outbox import Outbox
 from ramps.runtime.node_reports import LoadReports
 from ramps.runtime.node_revoked import Revoked
@@ -152,8 +152,8 @@ class NodeRuntime(Inbound, Outbound):
         self.measured = RobotMeasure(settings, clock, self.robot)
         #: rounds that stopped handling queued items to send what was due (ROUND_SECONDS)
         self.rounds_cut = 0
-        #: teammates whose liveliness went just after a stall: robot -> core time it counts as lost
-        self._held_lost = {}
+        #: teammates whose liveliness went just after a stall, held a moment
+        self.held_lost = HeldLosses(self.awake, STALL_GRACE)
         #: secured team: the newest revocation list, the robots it names (``revocations``, ``revoked_self``)
         self.revoked = Revoked(self.team, self.robot)
         #: another node runs under this robot's name and started first: why this one
@@ -375,7 +375,7 @@ class NodeRuntime(Inbound, Outbound):
         deadline = node.next_deadline()
         next_pub = self._next_pub
         wake = next_pub if deadline is None else min(deadline, next_pub)
-        wake = min(wake, self._next_release()) if self._held_lost else wake
+        wake = min(wake, self.held_lost.next_due())
         wait = max(0.0, min(wake, self._held_due(now)) - now)
         self.awake.sleep(wait)
         try:
@@ -417,7 +417,7 @@ class NodeRuntime(Inbound, Outbound):
         now = clock()
         if self.awake.pending:
             actions.extend(self._stall_told(now))
-        if self._held_lost:
+        if self.held_lost.held:
             actions.extend(self._release_lost(now))
         if now >= next_pub:
             self._publish(now)
@@ -436,7 +436,7 @@ class NodeRuntime(Inbound, Outbound):
             wake = self._next_pub
             deadline = node.next_deadline()
             wake = wake if deadline is None else min(wake, deadline)
-            wake = min(wake, self._next_release()) if self._held_lost else wake
+            wake = min(wake, self.held_lost.next_due())
             self.awake.sleep(max(0.0, min(wake, self._held_due(now)) - now))
         return True
 

@@ -12,7 +12,9 @@ programs, its own included, the moment the node wakes): the stall is taken
 out of the core's time. Deadlines stay as long in the time the node was
 awake to hear. Each stall is told to the core once (``told``: a
 ``Stalled`` event), saying whether it was long enough, as a fraction of the
-Zenoh lease, to have let teammates' links to this node close.
+Zenoh lease, to have let teammates' links to this node close. Teammates
+whose liveliness went just after a stall are held a moment (``HeldLosses``):
+it may be only their lease on this stalled node that ran out.
 """
 
 from __future__ import annotations
@@ -97,3 +99,43 @@ class AwakeClock:
         seconds, self.pending = self.pending, 0.0
         links, self.links = self.links, False
         return Stalled(seconds=seconds, links=links)
+
+
+class HeldLosses:
+    """Teammates whose liveliness went just after this node stalled (``awake``), held ``grace`` seconds.
+
+    Just after a stall, every teammate's lease on this node may have run
+    out: their links close and their tokens vanish, then come back as soon
+    as Zenoh reconnects. Such a loss is held and forgotten if the robot
+    comes back meanwhile; a robot that does not is lost when it falls due."""
+
+    def __init__(self, awake: AwakeClock, grace: float) -> None:
+        self.awake = awake
+        self.grace = grace
+        #: robot -> the core's time it counts as lost
+        self.held: dict[str, float] = {}
+
+    def lost(self, robot: str, now: float) -> bool:
+        """``robot``'s token went at the core's time ``now``: whether the core hears it now (else it is held)."""
+        if self.awake.since_stall(self.grace):
+            self.held[robot] = now + self.grace
+            return False
+        return True
+
+    def back(self, robot: str) -> bool:
+        """``robot``'s token came: whether its loss was held (lost and back during the grace)."""
+        return self.held.pop(robot, None) is not None
+
+    def forget(self, robot: str) -> None:
+        self.held.pop(robot, None)
+
+    def next_due(self) -> float:
+        """The core's time the next held loss falls due (inf: none held)."""
+        return min(self.held.values(), default=float("inf"))
+
+    def due(self, now: float) -> list[str]:
+        """The robots whose held loss falls due by the core's time ``now`` (no longer held)."""
+        robots = [robot for robot, when in self.held.items() if when <= now]
+        for robot in robots:
+            del self.held[robot]
+        return robots

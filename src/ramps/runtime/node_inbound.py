@@ -95,19 +95,15 @@ class Inbound(DriverState):
 
     def _on_liveliness(self, robot: str, alive: bool, now: float) -> list[Action]:
         """A teammate's liveliness token came or went. Just after this node
-        stalled, every teammate's lease on it may have run out: their links
-        close and their tokens vanish here, then come back as soon as Zenoh
-        reconnects. Such a loss is held for STALL_GRACE and forgotten if the
-        robot comes back meanwhile; a robot that does not is lost then."""
+        stalled, a loss is held for STALL_GRACE and forgotten if the robot
+        comes back meanwhile (``HeldLosses``); a robot that does not is lost
+        then (``_release_lost``)."""
         if robot in self.revoked.robots:
             return []
-        if not alive and self.awake.since_stall(STALL_GRACE):
-            self._held_lost[robot] = now + STALL_GRACE
+        if not alive and not self.held_lost.lost(robot, now):
             return []
-        if alive and self._held_lost.pop(robot, None) is not None:
-            if self.trace.on:
-                self.trace.write("peer_back", "", robot, 0, "lost and back while this node recovered from a stall")
-            return self._peer_event(robot, True, now)  # its link is back: the core counts its silence again
+        if alive and self.held_lost.back(robot):  # its link is back: the core counts its silence again
+            self.trace.write("peer_back", "", robot, 0, "lost and back while this node recovered from a stall")
         return self._peer_event(robot, alive, now)
 
     def _peer_event(self, robot: str, alive: bool, now: float) -> list[Action]:
@@ -141,7 +137,7 @@ class Inbound(DriverState):
             if robot == self.robot:
                 continue
             log.warning("node %s: robot %s is revoked by the team (list %d): shut out", self.robot, robot, rl.seq)
-            self._held_lost.pop(robot, None)
+            self.held_lost.forget(robot)
             assert self.node is not None
             self.node.executor.stop_origin(robot, now, out)
             out.extend(self.node.handle(PeerLost(robot=robot), now))
@@ -157,16 +153,9 @@ class Inbound(DriverState):
         if data is not None:
             self.outbox.put(revocation.revoked_key(self.team), data)
 
-    def _next_release(self) -> float:
-        return min(self._held_lost.values())
-
     def _release_lost(self, now: float) -> list[Action]:
-        out: list[Action] = []
-        for robot, when in list(self._held_lost.items()):
-            if when <= now:
-                del self._held_lost[robot]
-                out.extend(self._peer_event(robot, False, now))
-        return out
+        """The teammates whose held loss falls due by ``now``, lost for the core."""
+        return [a for robot in self.held_lost.due(now) for a in self._peer_event(robot, False, now)]
 
     def _log_version(self, sender: str, what: str, line: str) -> None:
         """Log a refused version or an unknown type the first time a robot sends it."""

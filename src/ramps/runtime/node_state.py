@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from ramps.core.node import Node
     from ramps.runtime.accelerators import AcceleratorProbe
     from ramps.runtime.metrics import NodeMetrics
-    from ramps.runtime.node_awake import AwakeClock
+    from ramps.runtime.node_awake import AwakeClock, HeldLosses
     from ramps.runtime.node_outbox import Outbox
     from ramps.runtime.node_reports import LoadReports
     from ramps.runtime.node_revoked import Revoked
@@ -67,7 +67,7 @@ class DriverState:
     awake: AwakeClock
     measured: RobotMeasure
     clients: ClientAnswers
-    _held_lost: dict[str, float]
+    held_lost: HeldLosses
     revoked: Revoked
     name_taken: str
     metrics: NodeMetrics | None
