@@ -63,7 +63,8 @@ from ramps.runtime.store import OriginStore
 from ramps.runtime.transport import REAL_CLOCK, Clock, Transport, ZenohTransport
 from ramps.runtime.workers import WorkerPool
 from ramps.runtime.node_clients import OUTCOME_HOLD, ClientAnswers, close_record
-from ramps.runtime.node_inbound import DROP_LOG_PERIOD, LONELY_AFTER, STALL_GRACE, Inbound
+from ramps.runtime.node_inbound import LONELY_AFTER, STALL_GRACE, Inbound
+from ramps.runtime.node_intake import DROP_LOG_PERIOD, WireIntake
 from ramps.runtime.node_outbound import Outbound
 from ramps.runtime.node_awake import AwakeClock, HeldLosses
 from ramps.runtime.node_outbox import Outbox
@@ -133,14 +134,12 @@ class NodeRuntime(Inbound, Outbound):
         self.outbox = Outbox(self.robot, lambda: self.transport)
         self._stopped = threading.Event()
         self._started = False
-        self.bad_messages = 0
+        #: what it makes of the bytes it receives, and the drops it counts
+        self.intake = WireIntake(self.robot)
         #: messages dropped because the driver's backlog was full, and its size
         self.overflow = 0
         self._backlog_bytes = 0
         self.heap = HeapTrimmer()  # gives the memory of a drained burst back (ramps.runtime.heap)
-        #: a flood of bad messages is logged one line per DROP_LOG_PERIOD
-        self._drop_logged_at = -DROP_LOG_PERIOD
-        self._drops_unlogged = 0
         self.trace = NodeTrace(self.robot, clock)
         self.transport = None
         #: its subscriptions, publishers and tokens on the transport

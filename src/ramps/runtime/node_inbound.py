@@ -2,10 +2,8 @@
 
 How this works: ``NodeRuntime`` (``ramps.runtime.node``) takes each queued
 item on its driver thread and hands it to ``_handle`` here: bytes from the
-wire are decoded (a bad message is counted and dropped, one log line a
-period; a message of another major protocol version is refused, counted
-apart too, and logged naming both versions the first time each robot sends
-one; a message type of a newer minor is skipped likewise), a client's
+wire are decoded (a bad message is counted and dropped: ``WireIntake``,
+``ramps.runtime.node_intake``), a client's
 submission goes to ``ramps.runtime.node_clients``, a teammate's message,
 a program's end or progress (queued by the worker pool's callbacks here)
 to the core. A teammate's liveliness becomes
@@ -40,10 +38,6 @@ from ramps.core.messages import (
     ProgramOutcome,
     ProgramUpdate,
     SubmitProgram,
-    UnknownMessageType,
-    VersionRefused,
-    WireError,
-    decode,
 )
 from ramps.core.relink import RELINK_TIMEOUT
 from ramps.runtime import keys, revocation
@@ -54,8 +48,6 @@ if TYPE_CHECKING:
     pass
 
 log = logging.getLogger("ramps.node")
-#: seconds between two log lines about dropped messages (each is counted)
-DROP_LOG_PERIOD = 1.0
 #: seconds after a stall during which a teammate's lost liveliness is held,
 #: in case it is only its lease on this stalled node that ran out (the core
 #: does not count a teammate's silence for as long: ramps.core.relink)
@@ -63,20 +55,25 @@ STALL_GRACE = RELINK_TIMEOUT
 #: a node told to --connect somewhere, or with multicast off, that has heard
 #: no teammate this many seconds after it started says so, once (``_lonely``)
 LONELY_AFTER = 8.0
-#: (robot, version) pairs of refused versions and unknown types, each logged
-#: once; more than this (a hostile sender inventing names) are only counted
-VERSION_LOG_KEYS = 64
 
 
 class Inbound(DriverState):
     """The driver's inputs (mixed into ``NodeRuntime``)."""
 
-    #: of the messages dropped (``bad_messages``), those refused as another
-    #: major protocol version and those skipped as a message type of a newer
-    #: minor (docs/wire-compatibility.md): logged as such, not as malformed
-    version_refused = 0
-    unknown_types = 0
-    _version_logged: frozenset[tuple[str, str]] = frozenset()
+    @property
+    def bad_messages(self) -> int:
+        """Messages dropped as bad input (``WireIntake``; ``ramps status``)."""
+        return self.intake.bad
+
+    @property
+    def version_refused(self) -> int:
+        """Of them, those refused as another major protocol version."""
+        return self.intake.version_refused
+
+    @property
+    def unknown_types(self) -> int:
+        """Of them, those skipped as a message type of a newer minor."""
+        return self.intake.unknown_types
 
     # the worker pool's callbacks (on its threads): each only queues an item for the driver
     def _finished(self, key: Key, ok: bool, value: bytes, error: str, retryable: bool, cpu_s: float | None = None,
@@ -123,10 +120,7 @@ class Inbound(DriverState):
         try:
             new = self.revoked.adopt(data)
         except Exception as exc:  # CredentialsError, or anything odd in a foreign message
-            self.bad_messages += 1
-            if now - self._drop_logged_at >= DROP_LOG_PERIOD:  # a flood is one line a period
-                log.warning("node %s ignored a revocation list: %s", self.robot, exc)
-                self._drop_logged_at = now
+            self.intake.refused("a revocation list", exc, now)
             return []
         rl = self.revoked.current
         if new is None or rl is None:
@@ -157,42 +151,13 @@ class Inbound(DriverState):
         """The teammates whose held loss falls due by ``now``, lost for the core."""
         return [a for robot in self.held_lost.due(now) for a in self._peer_event(robot, False, now)]
 
-    def _log_version(self, sender: str, what: str, line: str) -> None:
-        """Log a refused version or an unknown type the first time a robot sends it."""
-        key = (sender, what)
-        if key in self._version_logged or len(self._version_logged) >= VERSION_LOG_KEYS:
-            return
-        self._version_logged = self._version_logged | {key}
-        log.warning("%s", line)
-
     def _handle(self, item: tuple[Any, ...], now: float) -> list[Action]:
         kind = item[0]
         node = self.node
         if kind == "wire":  # a message the wire refuses needs no core to be dropped and counted
             self._backlog_bytes -= len(item[1])
-            try:
-                env = decode(item[1])  # the wire limit; client arguments are checked on submit
-            except VersionRefused as exc:
-                self.bad_messages += 1  # dropped (`ramps status`), but not logged as malformed
-                self.version_refused += 1
-                self._log_version(exc.sender, f"protocol {exc.speaks}",
-                                  f"node {self.robot} refuses the messages of {exc.sender or 'a robot'!r}: {exc}; "
-                                  f"run one major protocol version in a team")
-                return []
-            except UnknownMessageType as exc:
-                self.bad_messages += 1
-                self.unknown_types += 1
-                self._log_version(exc.sender, exc.tag, f"node {self.robot} skipped a message: {exc}")
-                return []
-            except WireError as exc:
-                self.bad_messages += 1
-                if now - self._drop_logged_at < DROP_LOG_PERIOD:
-                    self._drops_unlogged += 1
-                else:
-                    n = self._drops_unlogged
-                    more = f" ({n} more dropped since the last such line)" if n else ""
-                    log.warning("node %s dropped a message: %s%s", self.robot, exc, more)
-                    self._drop_logged_at, self._drops_unlogged = now, 0
+            env = self.intake.decode(item[1], now)
+            if env is None:
                 return []
             msg = env.msg
             assert node is not None
@@ -211,7 +176,7 @@ class Inbound(DriverState):
             if isinstance(msg, (ProgramOutcome, ProgramUpdate)):
                 return []
             if isinstance(msg, LoadReport) and msg.robot != env.sender:
-                self.bad_messages += 1
+                self.intake.refused("a load report in another robot's name", None, now)
                 return []
             return node.handle(Received(sender=env.sender, msg=msg), now)
         assert node is not None

@@ -193,8 +193,8 @@ class Outbound(DriverState):
                      node.origin.active(), self.store.path)
         self.clients.flush_outcomes(leaving=True)
         log.info("node %s leaving team %s: handed back %d program(s)", self.robot, self.team, handed)
-        if self.bad_messages or self.overflow:  # what `ramps status` counted as dropped, both kinds
+        if self.intake.bad or self.overflow:  # what `ramps status` counted as dropped, both kinds
             log.warning("node %s dropped %d malformed message(s) and %d over its backlog while it ran", self.robot,
-                        self.bad_messages, self.overflow)
+                        self.intake.bad, self.overflow)
         self.clock.sleep(0.05)  # let Zenoh flush the hand-backs
         done.set()

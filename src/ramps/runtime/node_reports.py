@@ -37,6 +37,7 @@ if TYPE_CHECKING:
     from ramps.runtime.accelerators import AcceleratorProbe
     from ramps.runtime.metrics import NodeMetrics
     from ramps.runtime.node_awake import AwakeClock
+    from ramps.runtime.node_intake import WireIntake
     from ramps.runtime.node_robot import RobotMeasure
     from ramps.runtime.node_seams import SamplerLike, WorkerPoolLike
     from ramps.runtime.node_team import Membership
@@ -64,8 +65,8 @@ class ReportsDriver(Protocol):
     metrics: NodeMetrics | None
     membership: Membership
     trace: NodeTrace
-    #: messages dropped as malformed and over the driver's backlog (``ramps status``)
-    bad_messages: int
+    #: messages dropped as bad input and over the driver's backlog (``ramps status``)
+    intake: WireIntake
     overflow: int
     _q: queue.SimpleQueue[tuple[Any, ...]]
 
@@ -124,7 +125,7 @@ class LoadReports:
         if sees != self._sees:
             self._log_view_change(self._sees, sees)
             self._sees = sees
-        report = msgspec.structs.replace(report, bad_messages=d.bad_messages + d.overflow,  # `ramps status`
+        report = msgspec.structs.replace(report, bad_messages=d.intake.bad + d.overflow,  # `ramps status`
                                          sees=len(sees), running=self._running_list(), **self._learned())
         self.last = report
         self._held = None  # this report says all a held one would

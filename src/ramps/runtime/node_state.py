@@ -29,6 +29,7 @@ if TYPE_CHECKING:
     from ramps.runtime.accelerators import AcceleratorProbe
     from ramps.runtime.metrics import NodeMetrics
     from ramps.runtime.node_awake import AwakeClock, HeldLosses
+    from ramps.runtime.node_intake import WireIntake
     from ramps.runtime.node_outbox import Outbox
     from ramps.runtime.node_reports import LoadReports
     from ramps.runtime.node_revoked import Revoked
@@ -55,11 +56,9 @@ class DriverState:
     #: the driver's queue: (kind, ...) items (``Inbound._handle``)
     _q: queue.SimpleQueue[tuple[Any, ...]]
     outbox: Outbox
-    bad_messages: int
+    intake: WireIntake
     overflow: int
     _backlog_bytes: int
-    _drop_logged_at: float
-    _drops_unlogged: int
     trace: NodeTrace
     transport: Transport | None
     node: Node | None
