@@ -3,15 +3,15 @@
 How this works: ``NodeRuntime`` (``ramps.runtime.node``) takes each queued
 item on its driver thread and hands it to ``_handle`` here: bytes from the
 wire are decoded (a bad message is counted and dropped: ``WireIntake``,
-``ramps.runtime.node_intake``), a client's
-submission goes to ``ramps.runtime.node_clients``, a teammate's message,
-a program's end or progress (queued by the worker pool's callbacks here)
-to the core. A teammate's liveliness becomes
-``PeerAlive``/``PeerLost`` for the core, except that just after this node
-stalled a loss is held for ``STALL_GRACE`` (it may be only the teammate's
-lease on this frozen node that ran out). On a secured team, a newer
-revocation list signed by the team CA shuts the robots it names out (or
-makes this robot leave).
+``ramps.runtime.node_intake``), a client's submission goes to
+``ramps.runtime.node_clients``, a teammate's message, a program's end or
+progress (queued by the worker pool's callbacks here) to the core. A
+teammate's liveliness becomes ``PeerAlive``/``PeerLost`` for the core,
+except that just after this node stalled a loss is held for
+``STALL_GRACE`` (``HeldLosses``: it may be only the teammate's lease on
+this frozen node that ran out). On a secured team, a newer revocation list
+signed by the team CA (``Revoked``) shuts the robots it names out (or makes
+this robot leave).
 """
 
 from __future__ import annotations
