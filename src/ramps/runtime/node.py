@@ -22,14 +22,18 @@ clients told, then the liveliness token, subscribers and transport close.
 The driver reaches the team only through ``ramps.runtime.transport`` (a
 Zenoh session in production, ``ramps.testing.memory`` in tests) and reads
 time only from its injected clock. This module is its lifecycle and loop.
-What it does with each input is ``node_inbound``, with the core's actions and
-load reports ``node_outbound`` (bases of ``NodeRuntime``; the state they
-share is declared, typed, in ``node_state``). The rest are parts it holds,
-each with its own state: its clients' requests and outcomes
-(``node_clients.ClientAnswers``), the core's clock with stalls taken out
-(``node_awake.AwakeClock``), the robot's cores and speed
-(``node_robot.RobotMeasure``), its subscriptions and tokens on the transport
-(``node_team.Membership``) and its trace file (``node_trace.NodeTrace``).
+What it does with each input is ``node_inbound``, with the core's actions
+``node_outbound`` (bases of ``NodeRuntime``; the state they share is
+declared, typed, in ``node_state``). The rest are parts it holds, each with
+its own state: its clients' requests and outcomes
+(``node_clients.ClientAnswers``), its load reports
+(``node_reports.LoadReports``), its publishing (``node_outbox.Outbox``),
+what it makes of the bytes it receives (``node_intake.WireIntake``), the
+core's clock with stalls taken out and the teammates lost during one
+(``node_awake``), the robot's cores and speed (``node_robot.RobotMeasure``),
+its subscriptions and tokens on the transport (``node_team.Membership``),
+the team's revocation list (``node_revoked.Revoked``) and its trace file
+(``node_trace.NodeTrace``).
 """
 
 from __future__ import annotations
@@ -45,10 +49,7 @@ import msgspec
 
 from ramps.core.config import RampsConfig
 from ramps.core.cost import nice_weight
-from ramps.core.events import (
-    Action,
-    Note,
-)
+from ramps.core.events import Action, Note
 from ramps.core.identity import new_incarnation
 from ramps.core.node import Node
 from ramps.errors import ConfigError, NotAdmitted, TransportError
@@ -89,6 +90,7 @@ MAX_ITEMS_PER_ROUND = 10_000
 #: origin's timeouts wait until the queue is drained, as it may hold the
 #: heartbeats they wait for (issue 23: a saturated robot's node)
 ROUND_SECONDS = 0.1
+
 
 def core_config(s: NodeSettings) -> RampsConfig:
     """The core's settings for a node of ``s``: on a node that measures its own
