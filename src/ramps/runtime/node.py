@@ -69,6 +69,7 @@ from ramps.runtime.node_intake import DROP_LOG_PERIOD, WireIntake
 from ramps.runtime.node_outbound import Outbound
 from ramps.runtime.node_awake import AwakeClock, HeldLosses
 from ramps.runtime.node_outbox import Outbox
+from ramps.runtime.node_name import SameName
 from ramps.runtime.node_reports import LoadReports
 from ramps.runtime.node_revoked import Revoked
 from ramps.runtime.node_robot import RobotMeasure
@@ -157,11 +158,8 @@ class NodeRuntime(Inbound, Outbound):
         self.held_lost = HeldLosses(self.awake, STALL_GRACE)
         #: secured team: the newest revocation list, the robots it names (``revocations``, ``revoked_self``)
         self.revoked = Revoked(self.team, self.robot)
-        #: another node runs under this robot's name and started first: why this one
-        #: left ("" = it did not; ramps.core.identity, Outbound._name_taken)
-        self.name_taken = ""
-        #: where each node under this robot's name listens, by incarnation (``keys.where``)
-        self.endpoints_of: dict[int, list[str]] = {}
+        #: the other nodes under this robot's name, and why this one left for one (``name_taken``)
+        self.same_name = SameName(self.team, self.robot, self.trace)
         #: Prometheus metrics (``--metrics``), fed from the driver thread (ramps.runtime.metrics)
         self.metrics = None
         #: the durable record of the programs this node is origin of (``state_dir``;
@@ -240,7 +238,7 @@ class NodeRuntime(Inbound, Outbound):
             self.transport = self._given_transport or ZenohTransport.open(self.s, credentials=creds,
                                                                           fail_fast=exit_on_failure)
             self.membership.join(self.transport, self.incarnation, on_wire=self._on_wire, put=self._q.put,
-                                 on_where=self._on_where, revocations=self.revoked.secured)
+                                 on_where=self.same_name.on_where, revocations=self.revoked.secured)
         except TransportError as exc:
             self._teardown()
             raise TransportError(f"cannot join team {self.team!r} over Zenoh: {exc}") from exc
@@ -295,6 +293,11 @@ class NodeRuntime(Inbound, Outbound):
     def revocations(self) -> RevocationList | None:
         """The team's newest revocation list this node holds (a secured team)."""
         return self.revoked.current
+
+    @property
+    def name_taken(self) -> str:
+        """Why this node left the team, another node under its name having started first ("" = it did not)."""
+        return self.same_name.taken
 
     @property
     def revoked_self(self) -> bool:
@@ -396,7 +399,7 @@ class NodeRuntime(Inbound, Outbound):
             if item[0] == "stop":
                 self._apply(actions)
                 self._shutdown(item[1])
-                if self.revoked.me or self.name_taken:  # nobody asked: leave now (the CLI sees wait())
+                if self.revoked.me or self.same_name.taken:  # nobody asked: leave now (the CLI sees wait())
                     self._teardown()
                 return False
             try:

@@ -40,7 +40,7 @@ from ramps.core.messages import (
     SubmitProgram,
 )
 from ramps.core.relink import RELINK_TIMEOUT
-from ramps.runtime import keys, revocation
+from ramps.runtime import revocation
 from ramps.runtime.node_seams import Key
 from ramps.runtime.node_state import DriverState
 
@@ -238,12 +238,3 @@ class Inbound(DriverState):
                        f"starting ({'; '.join(tried)}); {why}. It keeps running: a lone robot runs its "
                        "programs itself")
         log.warning(self.lonely)
-
-    def _on_where(self, key: str, declared: bool) -> None:
-        """A ``where`` token of a node under this robot's name came or went."""
-        found = keys.where_of(key)
-        if found is not None:
-            if declared:
-                self.endpoints_of[found[1]] = found[2]
-            else:
-                self.endpoints_of.pop(found[1], None)

@@ -1,27 +1,26 @@
-"""What a node's driver does with the core's actions, and how it publishes.
+"""What a node's driver does with the core's actions.
 
 How this works: ``_apply`` turns each action of the core into its effect:
-``Send`` is published to the teammate's inbox (DROP under congestion: the
-core survives lost messages; a message over 60 KB waits for room instead, on
-a thread of its own destination, ``ramps.runtime.bulk``), ``StartProgram``/``StopProgram`` go to the
-worker pool, ``Deliver`` becomes the client's outcome
-(``ramps.runtime.node_clients``), ``Note`` a client update, a trace line and
-a log line, ``NameTaken`` (another node under this robot's name) this
-node's leaving or a line saying the other leaves; programs it hosts for
-other origins are traced as this robot runs them (``NodeTrace.hosted``). ``PublishReport`` (a report of the instant:
-the programs running here changed) goes to ``LoadReports``
-(``ramps.runtime.node_reports``), the newest of a batch only, after the
-batch's messages; ``_publish`` has it publish the periodic load report.
-``_shutdown`` hands running programs back and cancels this origin's.
+``Send`` is published to the teammate's inbox (``Outbox``: DROP under
+congestion, the core survives lost messages; a message over 60 KB waits
+for room instead, on a thread of its own destination), ``StartProgram`` and
+``StopProgram`` go to the worker pool (or an accelerator's slot),
+``Deliver`` becomes the client's outcome (``ClientAnswers``), ``Note`` a
+client update, a trace line and a log line, ``NameTaken`` (another node
+under this robot's name, ``SameName``) this node's leaving or a line saying
+the other leaves; programs it hosts for other origins are traced as this
+robot runs them (``NodeTrace.hosted``). ``PublishReport`` (a report of the
+instant: the programs running here changed) goes to ``LoadReports``, the
+newest of a batch only, after the batch's messages; ``_publish`` has it
+publish the periodic load report. ``_shutdown`` hands running programs back
+and cancels this origin's.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
-import time
 from collections.abc import Callable
-
 
 from ramps.core.events import (
     Action,
@@ -35,10 +34,7 @@ from ramps.core.events import (
     StartProgram,
     StopProgram,
 )
-from ramps.core.identity import started_at
-from ramps.core.messages import (
-    encode,
-)
+from ramps.core.messages import encode
 from ramps.core.speed import MIN_RUN_WORK
 from ramps.runtime.accelerators import Grant
 from ramps.runtime import keys
@@ -50,17 +46,6 @@ log = logging.getLogger("ramps.node")
 _CLIENT_STATES = {"placed": "placed", "accepted": "running", "failed": "host_failed"}
 
 
-
-
-def _started(other: float | None, mine: float | None, order: str) -> str:
-    """When another node started, as its incarnation tells, for a log line:
-    "at 2026-11-27 10:31:05 UTC (12.3 s before this one, by the two machines' clocks)"."""
-    if other is None:
-        return "at a time its incarnation does not tell (ramps 0.1.0)"
-    when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(other))
-    if mine is None:
-        return f"at {when}"
-    return f"at {when} ({abs(mine - other):.1f} s {order} this one, by the two machines' clocks)"
 
 
 class Outbound(DriverState):
@@ -99,7 +84,8 @@ class Outbound(DriverState):
             elif isinstance(a, Progress):
                 self.clients.progressed(a.program_id, a.fraction, a.detail, a.host, a.attempt)
             elif isinstance(a, NameTaken):
-                self._name_taken(a)
+                if self.same_name.clash(a, self.incarnation):  # this node started later: it leaves
+                    self._q.put(("stop", threading.Event()))
             elif isinstance(a, Note):
                 if a.what in _CLIENT_STATES and a.program_id in self.clients.clients:
                     state = _CLIENT_STATES[a.what]
@@ -133,27 +119,6 @@ class Outbound(DriverState):
                           None if grant is None else grant.as_wire())
         return run
 
-    def _name_taken(self, a: NameTaken) -> None:
-        """Another node runs under this robot's name (``ramps.core.identity``):
-        the one that started later leaves, and both say why."""
-        mine, theirs = started_at(self.incarnation), started_at(a.other)
-        fix = ("give each machine its own robot name: --robot NAME or RAMPS_ROBOT=NAME (the default name is "
-               "the host name, which machines cloned from one disk image share)")
-        if self.trace.on:
-            self.trace.write("name_taken", "", self.robot, 0,
-                              f"{'this node leaves' if a.leave else 'the other leaves'}: incarnation {a.other:x}")
-        where = self.endpoints_of.get(a.other)
-        at = f" listening on {', '.join(where)}" if where else ""
-        if a.leave:
-            self.name_taken = (f"robot name {self.robot!r} is taken in team {self.team!r} by another node{at}, "
-                               f"started {_started(theirs, mine, 'before')}; {fix}")
-            log.error("node %s: %s; this node started later and leaves the team", self.robot, self.name_taken)
-            self._q.put(("stop", threading.Event()))
-        else:
-            log.error("node %s: another node of team %s joined under this robot's name%s, started %s: it leaves "
-                      "the team and this node stays; %s", self.robot, self.team, at, _started(theirs, mine, "after"),
-                      fix)
-
     def _warn_misdeclared(self, note: Note) -> None:
         """A call took far more or less than its program declares: said once
         per program (every call is in the trace and the metric)."""
@@ -176,7 +141,7 @@ class Outbound(DriverState):
     def _shutdown(self, done: threading.Event) -> None:
         # before its liveliness goes: a client (ramps top) tells this from a crash (not when the name
         # is another node's: that node stays)
-        if self.transport is not None and not self.name_taken:
+        if self.transport is not None and not self.same_name.taken:
             self.membership.say_leaving(self.transport)
         now = self._clock()
         node = self.node

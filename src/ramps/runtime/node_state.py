@@ -31,6 +31,7 @@ if TYPE_CHECKING:
     from ramps.runtime.node_awake import AwakeClock, HeldLosses
     from ramps.runtime.node_intake import WireIntake
     from ramps.runtime.node_outbox import Outbox
+    from ramps.runtime.node_name import SameName
     from ramps.runtime.node_reports import LoadReports
     from ramps.runtime.node_revoked import Revoked
     from ramps.runtime.node_robot import RobotMeasure
@@ -68,7 +69,7 @@ class DriverState:
     clients: ClientAnswers
     held_lost: HeldLosses
     revoked: Revoked
-    name_taken: str
+    same_name: SameName
     metrics: NodeMetrics | None
     store: OriginStore | None
     restored: int
@@ -83,7 +84,6 @@ class DriverState:
     sampler: SamplerLike
     accel: AcceleratorProbe
     _misdeclared_warned: set[str]
-    endpoints_of: dict[int, list[str]]
 
     if TYPE_CHECKING:
         # what one part calls on another

@@ -1,0 +1,77 @@
+"""Two nodes under one robot name: which one leaves, and both say why.
+
+How this works: ``SameName`` is a part of the node's driver
+(``ramps.runtime.node``). Every node declares a ``where`` token (its
+incarnation and where it listens, ``keys.where``) and watches those under
+its own robot name (``on_where``), so that when the core finds another node
+under this name (``NameTaken``, ``ramps.core.identity``: the one that
+started later leaves) ``clash`` can say where the other listens and when
+each started, by their incarnations. The node that leaves keeps why
+(``taken``) for the CLI's last line.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+from ramps.core.events import NameTaken
+from ramps.core.identity import started_at
+from ramps.runtime import keys
+from ramps.runtime.node_trace import NodeTrace
+
+log = logging.getLogger("ramps.node")
+#: how to end a clash of names, said by both nodes
+FIX = ("give each machine its own robot name: --robot NAME or RAMPS_ROBOT=NAME (the default name is "
+       "the host name, which machines cloned from one disk image share)")
+
+
+def _started(other: float | None, mine: float | None, order: str) -> str:
+    """When another node started, as its incarnation tells, for a log line:
+    "at 2026-11-27 10:31:05 UTC (12.3 s before this one, by the two machines' clocks)"."""
+    if other is None:
+        return "at a time its incarnation does not tell (ramps 0.1.0)"
+    when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(other))
+    if mine is None:
+        return f"at {when}"
+    return f"at {when} ({abs(mine - other):.1f} s {order} this one, by the two machines' clocks)"
+
+
+class SameName:
+    """Robot ``robot``'s node of team ``team`` and the others under its name."""
+
+    def __init__(self, team: str, robot: str, trace: NodeTrace) -> None:
+        self.team = team
+        self.robot = robot
+        self.trace = trace
+        #: where each node under this robot's name listens, by incarnation (``keys.where``)
+        self.endpoints_of: dict[int, list[str]] = {}
+        #: why this node left, another under its name having started first ("" = it did not)
+        self.taken = ""
+
+    def on_where(self, key: str, declared: bool) -> None:
+        """A ``where`` token of a node under this robot's name came or went (a transport callback)."""
+        found = keys.where_of(key)
+        if found is not None:
+            if declared:
+                self.endpoints_of[found[1]] = found[2]
+            else:
+                self.endpoints_of.pop(found[1], None)
+
+    def clash(self, a: NameTaken, incarnation: int) -> bool:
+        """Another node runs under this robot's name (this one is of
+        ``incarnation``): whether this one leaves. Both say why."""
+        mine, theirs = started_at(incarnation), started_at(a.other)
+        self.trace.write("name_taken", "", self.robot, 0,
+                         f"{'this node leaves' if a.leave else 'the other leaves'}: incarnation {a.other:x}")
+        where = self.endpoints_of.get(a.other)
+        at = f" listening on {', '.join(where)}" if where else ""
+        if a.leave:
+            self.taken = (f"robot name {self.robot!r} is taken in team {self.team!r} by another node{at}, "
+                          f"started {_started(theirs, mine, 'before')}; {FIX}")
+            log.error("node %s: %s; this node started later and leaves the team", self.robot, self.taken)
+        else:
+            log.error("node %s: another node of team %s joined under this robot's name%s, started %s: it leaves "
+                      "the team and this node stays; %s", self.robot, self.team, at, _started(theirs, mine, "after"),
+                      FIX)
+        return a.leave
