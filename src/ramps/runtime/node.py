@@ -32,7 +32,8 @@ what it makes of the bytes it receives (``node_intake.WireIntake``), the
 core's clock with stalls taken out and the teammates lost during one
 (``node_awake``), the robot's cores and speed (``node_robot.RobotMeasure``),
 its subscriptions and tokens on the transport (``node_team.Membership``),
-the team's revocation list (``node_revoked.Revoked``) and its trace file
+other nodes under its robot name (``node_name.SameName``), the team's
+revocation list (``node_revoked.Revoked``) and its trace file
 (``node_trace.NodeTrace``).
 """
 

@@ -1,20 +1,19 @@
-"""The state a node's driver shares between its parts, declared once.
+"""The state a node's driver shares between its mixins, declared once.
 
 How this works: ``NodeRuntime`` (``ramps.runtime.node``) is its lifecycle
 and loop, two mixins, ``Inbound`` (``node_inbound``) and ``Outbound``
-(``node_outbound``), bases of it and of ``DriverState`` here, and composed
-parts it holds, each with its own state: ``ClientAnswers``
-(``node_clients``), ``LoadReports`` (``node_reports``), ``AwakeClock``
-(``node_awake``), ``RobotMeasure`` (``node_robot``), ``Membership``
-(``node_team``) and ``NodeTrace`` (``node_trace``). ``DriverState`` holds no
-value and runs nothing: it declares, with their types, the attributes the
-mixins read and write (``NodeRuntime.__init__`` and ``start`` set them)
-and, for the type checker only, the methods one calls on another, so that
-mypy checks each against the others. ``node``, ``transport``, ``metrics``
-and ``store`` are None before ``start`` (the last two also when not asked
-for): the mixins run on the driver thread, after ``start``, and narrow them.
-What the driver uses of its worker pool and load sampler is declared in
-``node_seams``.
+(``node_outbound``), bases of it and of ``DriverState`` here, and the
+composed parts it holds, each with its own state (``ClientAnswers``,
+``LoadReports``, ``Outbox``, ``WireIntake``, ``AwakeClock``, ``RobotMeasure``,
+``Membership``, ``SameName``, ``Revoked``, ``NodeTrace``: the ``node_*``
+modules). ``DriverState`` holds no value and runs nothing: it declares,
+with their types, the attributes the mixins read and write
+(``NodeRuntime.__init__`` and ``start`` set them) and, for the type checker
+only, the methods one calls on another, so that mypy checks each against
+the others. ``node``, ``transport``, ``metrics`` and ``store`` are None
+before ``start`` (the last two also when not asked for): the mixins run on
+the driver thread, after ``start``, and narrow them. What the driver uses
+of its worker pool and load sampler is declared in ``node_seams``.
 """
 
 from __future__ import annotations
