@@ -68,6 +68,19 @@ def test_a_finished_program_reports_the_cpu_seconds_it_used_not_the_time_it_slep
         pool.stop()
 
 
+def test_a_call_of_a_few_milliseconds_counts_the_cpu_it_used_not_zero():
+    """``os.times`` counts clock ticks (10 ms): a warm-up call of a few
+    milliseconds measured 0 CPU seconds, and its host reported no work."""
+    cpu: dict = {}
+    pool, done = make_pool(1, cpu=cpu)
+    try:
+        pool.run(("t", 1), "burn", args(units=0.002))
+        assert wait_until(lambda: len(done) == 1, 30), done
+        assert 0 < cpu[("t", 1)] < 1.0, cpu
+    finally:
+        pool.stop()
+
+
 def test_more_programs_than_cores_all_run_at_once_then_extra_workers_retire():
     pool, done = make_pool(1)
     try:
