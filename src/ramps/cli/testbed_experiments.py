@@ -376,7 +376,7 @@ def testbed_experiment_peers(
     work: float = typer.Option(1.5, "--work", min=0.05, max=20.0, help="work units of each burn program (1.5: about 19-28 s alone on an emulated core)"),
     quota: float = typer.Option(0.32, "--quota", min=0.05, max=4.0, help="host cores of each robot"),
     cores: int = typer.Option(4, "--cores", min=1, max=16, help="emulated cores of each robot (Ray's --num-cpus, Dask's --nworkers)"),
-    keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="keep each ramps run's node logs and traces in this folder (<scenario>-<engine>/)"),
+    keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="keep each ramps run's node logs and traces in this folder (<scenario>-<engine>/, under round-<n>/ with --repeats)"),
     timeout: float = typer.Option(1500.0, "--timeout", min=10.0, help="seconds an engine's burst may take; programs still running then are reported as not done, with no makespan"),
     peer_nice: int = typer.Option(10, "--peer-nice", min=0, max=19, help="niceness of Ray's and Dask's programs (10: as ramps' workers, fair to a busy robot's own software; 0: as they run out of the box); their daemons run at 0, as ramps node"),
     repeats: int = typer.Option(1, "--repeats", min=1, max=20, help="rounds of every engine in turns, with each engine's median makespan: the host's speed drifts more between runs than engines differ on idle robots"),

@@ -73,6 +73,8 @@ import os
 import time
 from collections.abc import Callable, Sequence
 
+import msgspec
+
 from ramps.testbed.peers_engines import ClusterEngine, Engine, RampsEngine
 from ramps.testbed.peers_scenarios import EngineRun, PeerScenario, PeersReport, ScenarioResult, Setup, ideal, simulated
 
@@ -124,7 +126,9 @@ def run_peers(scenarios: Sequence[PeerScenario], engines: Sequence[str], setup: 
             t = time.monotonic()
             log(f"  {eng.name}: one emulated core runs {speed:.4f} units/s ...")
             try:
-                run = eng.run(sc, setup, log)
+                kept = setup if repeats == 1 or not setup.keep_logs else \
+                    msgspec.structs.replace(setup, keep_logs=os.path.join(setup.keep_logs, f"round-{rnd + 1}"))
+                run = eng.run(sc, kept, log)
             except Exception as exc:  # an engine that fails says so; the others run
                 run = EngineRun(engine=eng.name, error=f"{type(exc).__name__}: {str(exc)[:2000]}")
             run.speed, run.round = speed, rnd + 1
