@@ -146,7 +146,7 @@ def test_simulated_accelerator_programs_run_on_its_slots_and_beat_round_robin() 
     ramps, rr = simulate(mixed(), seed=1), simulate(mixed("round_robin"), seed=1)
     assert ramps.completed == rr.completed == 24 and ramps.lost == 0
     detect_hosts = [p.host for p in ramps.programs if p.origin == "r1"]
-    assert detect_hosts.count("gpu") >= 10  # 1 s each there, 10 s on a core
+    assert detect_hosts.count("gpu") >= 9  # 1 s each there, 10 s on a core (the 10th ends as soon on one)
     # round robin puts two thirds of them on cores: it takes longer than the accelerator's queue
     assert ramps.makespan < rr.makespan
 

@@ -40,8 +40,10 @@ from ramps.core.messages import (
     MAX_NAME,
     MAX_TEXT,
     PROTOCOL_VERSION,
+    BurstClaim,
     CancelProgram,
     CancelSubmitted,
+    ClaimedPool,
     Heartbeat,
     LinkProbe,
     LinkProbeReply,
@@ -113,6 +115,7 @@ SAMPLES: list[Message] = [
     ProgramUpdate(request_id=5, state="progress", host="r1", attempt=2, fraction=0.4, detail="row 12 of 30"),
     LinkProbe(sent_at=12.5, padding=b"\0" * 64),
     LinkProbeReply(sent_at=12.5, size=64),
+    BurstClaim(planned=True, pools=[ClaimedPool("r1", "cuda", [30.0, 10.0]), ClaimedPool("r2", "", [1.5])]),
     ProgramCheckpoint(program_id="o#1", attempt=2, host="r1", state=b"\x82\xa1i\x0c", fraction=0.4),
 ]
 

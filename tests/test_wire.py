@@ -82,6 +82,7 @@ REP = _body(report("r1"))
 RES = _body(m.ProgramResult(program_id="p", attempt=1, host="h", ok=True))
 PRB = _body(m.LinkProbe(sent_at=1.0))
 PRR = _body(m.LinkProbeReply(sent_at=1.0))
+CLM = _body(m.BurstClaim(planned=True))
 
 
 @pytest.mark.parametrize("body, field, value", [
@@ -130,6 +131,11 @@ PRR = _body(m.LinkProbeReply(sent_at=1.0))
     (REP, "remaining", [-1.0]),
     (REP, "remaining", [math.inf]),
     (REP, "blacklisted", ["r2", "*"]),
+    (CLM, "pools", [["g", "", [1.0]]] * (m.MAX_LISTED + 1)),
+    (CLM, "pools", [["g", "", [math.nan]]]),
+    (CLM, "pools", [["g", "", [-1.0]]]),
+    (CLM, "pools", [["g", "", [1.0] * (m.MAX_LISTED + 1)]]),
+    (CLM, "pools", [["*", "", [1.0]]]),
 ], ids=lambda x: x if isinstance(x, str) else None)
 def test_field_limits_are_enforced_while_decoding(body: dict, field: str, value) -> None:
     bad = dict(body, **{field: value})

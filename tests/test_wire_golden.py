@@ -182,8 +182,13 @@ def test_random_honest_messages_of_today_decode_under_the_previous_release(seed:
     old = _old_wire(PREVIOUS)
     rng = random.Random(seed)
     for _ in range(250):
-        msg = _as_previous(old, hostile.random_message(rng))
+        msg = hostile.random_message(rng)
         sender = rng.choice(hostile.PEERS)
+        if not hasattr(old, type(msg).__name__):  # a type added since: the previous release skips it
+            with pytest.raises(old.WireError):
+                old.decode(m.encode(sender, msg))
+            continue
+        msg = _as_previous(old, msg)
         data = m.encode(sender, msg)
         try:
             m.decode(data)

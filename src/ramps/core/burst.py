@@ -29,6 +29,10 @@ Without it every program is placed as it comes, a burst of one.
   longest first (each program's time alone computed once per distinct
   request), each where it ends first.
 
+Teammates' bursts of the same instant (``ramps.core.claims``) come as
+``Origin.claimed``: their work counts on the pools they claimed, and a
+burst of equal programs is then planned too.
+
 A pool's end with the programs ``works`` planned there: when the largest of
 them ends under processor sharing with the rest and with the work left of
 those already there (``shared_finish_time``; one whose work the view does
@@ -41,6 +45,8 @@ from __future__ import annotations
 import heapq
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
+
+import msgspec
 
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate, shared_finish_time
@@ -153,6 +159,8 @@ class BurstOrigin(Protocol):
     """What ``place_held`` reads of ``ramps.core.origin.Origin``."""
 
     held: list[AutonomousProgram]
+    #: (robot, accelerator kind) -> work teammates' bursts of the instant put there (``ramps.core.claims``)
+    claimed: dict[tuple[str, str], list[float]]
     view: LoadView
     net: NetworkEstimate
     config: RampsConfig
@@ -202,7 +210,8 @@ def _place_together(origin: BurstOrigin, group: list[AutonomousProgram], now: fl
     kinds: dict[tuple[object, ...], list[AutonomousProgram]] = {}
     for ap in group:
         kinds.setdefault(_alike(ap.submit), []).append(ap)
-    if len(kinds) == 1:
+    claimed = origin.claimed
+    if len(kinds) == 1 and not claimed:
         for ap in group:
             origin.place(ap, now, out)
         return
@@ -222,6 +231,9 @@ def _place_together(origin: BurstOrigin, group: list[AutonomousProgram], now: fl
         if exclude is None:
             continue  # nowhere it may go now: it waits, or failed
         pools = policy.pools(_request(origin, ap), origin.view, now, net=origin.net, exclude=exclude, links=links)
+        if claimed:  # teammates' bursts of the instant, as work there
+            pools = [msgspec.structs.replace(p, known=p.known + tuple(claimed[p.robot, p.kind]))
+                     if (p.robot, p.kind) in claimed else p for p in pools]
         if len(pools) > PLAN_POOLS:
             pools = heapq.nsmallest(PLAN_POOLS, pools, key=lambda p: pool_end(p, [p.work], [p.comm]))
         planned.append(ap)

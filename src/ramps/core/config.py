@@ -98,6 +98,11 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: the shortest time between two such reports of the instant (0: one per
     #: change)
     prompt_report_interval: float = 0.0
+    #: origins whose bursts come at one instant place them in the order of
+    #: their names, each counting where those before it put theirs: a wait
+    #: of about twice the link's latency, only where teammates submit too
+    #: (``ramps.core.claims``; policies that plan only)
+    burst_claims: bool = True
     #: a node probes each teammate's link this often to measure T_comm
     #: (``ramps.core.links``); 0 = assume the configured network estimate
     probe_period: float = 5.0

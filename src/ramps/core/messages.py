@@ -71,6 +71,7 @@ from ramps.core.client_messages import (  # re-exported: one schema, ``messages.
     SubmitProgram as SubmitProgram, CancelSubmitted as CancelSubmitted, ProgramOutcome as ProgramOutcome,
     ProgramUpdate as ProgramUpdate,
 )
+from ramps.core.claim_messages import BurstClaim as BurstClaim, ClaimedPool as ClaimedPool  # re-exported
 
 
 class LoadReport(_Msg, frozen=True, kw_only=True, tag="load"):
@@ -153,6 +154,9 @@ class LoadReport(_Msg, frozen=True, kw_only=True, tag="load"):
     #: (``Node.current_report``); None in the rest
     speed_class: Name | None = None
     cpu_rate: Speed | None = None
+    #: an application submits programs on this robot: its bursts may claim
+    #: pools (``ramps.core.claims``). In reports of the instant only
+    submits: bool = False
 
 
 class AcceleratorSeen(msgspec.Struct, frozen=True, array_like=True):
@@ -358,6 +362,7 @@ Message = Union[
     LinkProbe,
     LinkProbeReply,
     ProgramCheckpoint,
+    BurstClaim,
 ]
 
 

@@ -25,8 +25,8 @@ own robot runs. This is the paper's cNAMP (origins learn each other's
 bookings) done by the host, which is the one robot that knows them all.
 
 Bursts (``bursts``): programs submitted in one batch of the driver's events
-wait for its end, ``flush`` (or the next ``tick``: ``next_deadline`` is due
-at once while any wait), and are placed together (``ramps.core.burst``).
+wait for its end (``flush``, or the next ``tick``) and for the claims of the
+teammates' bursts before it (``ramps.core.claims``), then go together (``ramps.core.burst``).
 
 A load report under this robot's own name from another incarnation is no
 teammate's: ``ramps.core.identity`` tells whether a second node runs under
@@ -44,7 +44,7 @@ import msgspec
 
 from ramps.core.accelerators import Accelerator
 from ramps.core.battery import BatteryMeasured, Reserve, sane_power
-from ramps.core.burst import place_held
+from ramps.core.claims import Claims
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate
 from ramps.core.events import (
@@ -68,6 +68,7 @@ from ramps.core.links import Links
 from ramps.core.loadview import LoadView, report_problem
 from ramps.core.messages import (
     AcceleratorSeen,
+    BurstClaim,
     CancelProgram,
     Heartbeat,
     LinkProbe,
@@ -129,6 +130,7 @@ class Node:
         accelerators: Sequence[Accelerator] = (),
         bursts: bool = False,
         speed_class: str = "",
+        submits: bool = False,
     ) -> None:
         self.robot = robot
         self.cores = cores
@@ -160,6 +162,8 @@ class Node:
         self.executor = Executor(robot, config=self.config, registry=registry, incarnation=incarnation,
                                  cores=cores, speed=speed, program_weight=program_weight,
                                  core_fraction=core_fraction, accelerators=accelerators)
+        #: an application submits here (told in reports of the instant); the bursts' claims
+        self.submits, self.claims = submits, Claims(self.executor)
         #: what the driver last measured of each accelerator kind: (memory
         #: total, memory free, utilisation or None), for the load reports
         self.accelerator_measured: dict[str, tuple[int, int, float | None]] = {}
@@ -183,7 +187,7 @@ class Node:
         #: prompt reports: (accepted, finished) counts last published, the
         #: time of the last one, and when the next one is due
         self._prompt = self.policy.shares_load and self.config.prompt_reports
-        self._published = (0, 0)
+        self._published = (-1, -1) if submits else (0, 0)  # a submitter tells it at once
         self._prompted_at = -float("inf")
         self._prompt_due: float | None = None
         #: this robot's battery: below its reserve or not, and the watts a busy core draws (None: not known)
@@ -209,8 +213,8 @@ class Node:
         self._now = now
         out: list[Action] = []
         self.executor.tick(now, out)
-        if self.origin.held:  # the batch the programs came in is over
-            place_held(self.origin, now, out)
+        if self.origin.held:  # the batch the programs came in is over, or its claims' wait
+            self.claims.flush(self.origin, now, out)
         out = self._loopback(out, now)
         if not origin:
             return self._prompt_report(out, now)
@@ -231,12 +235,12 @@ class Node:
             return []
         self._now = now
         out: list[Action] = []
-        place_held(self.origin, now, out)
+        self.claims.flush(self.origin, now, out)
         return self._prompt_report(self._loopback(out, now), now)
 
     def next_deadline(self) -> float | None:
-        if self.origin.held:  # at once: the end of the batch they came in (``flush``)
-            return self.origin.held[0].submitted_at
+        if self.origin.held:  # at once (the end of their batch, ``flush``), or the claims' wait
+            return self.claims.due(self.origin.held[0].submitted_at)
         first = self.origin.next_deadline()  # the driver asks twice a round: no list built
         for t in (self.executor.next_deadline(), self._prompt_due, self._probe_due):
             if t is not None and (first is None or t < first):
@@ -377,6 +381,10 @@ class Node:
                     out.append(Note(what="unblacklisted", robot=msg.robot))
                 if self.speed_class.heard(msg.robot, msg.speed_class, msg.cpu_rate):
                     self._go_by_speed(now, out, f"{msg.robot} measured itself")
+                if msg.submits:
+                    self.claims.submitters.add(msg.robot)
+        elif isinstance(msg, BurstClaim):
+            self.claims.on_claim(self.origin, sender, msg, now, out)
         elif isinstance(msg, OffloadRequest):
             self.executor.on_offload(msg, now, out, report_now=self.current_report)
         elif isinstance(msg, OffloadAccepted):
@@ -442,6 +450,8 @@ class Node:
         extra: dict[str, Any] = {}
         if with_class and self.speed_class.name:
             extra.update(speed_class=self.speed_class.name, cpu_rate=self._cpu_rate())
+        if with_class and self.submits:
+            extra["submits"] = True
         return self._report(cpu_busy=min(float(self.cores), bg + running), runnable=bg + running,
                             ramps_avg=float(running), window=0.0, mem_free=self._mem_free, node_cpu=self._node_cpu,
                             **extra)

@@ -135,6 +135,8 @@ class Origin(Learning):
         #: end of batch (``ramps.core.burst``: placed together); else placed at once
         self.bursts = False
         self.held: list[AutonomousProgram] = []
+        #: teammates' claims on pools while a burst is placed (``ramps.core.claims``)
+        self.claimed: dict[tuple[str, str], list[float]] = {}
         # statistics
         self.delivered = 0
         #: programs delivered after their deadline or refused as unmeetable

@@ -19,7 +19,8 @@ import msgspec
 #: ``LoadReport.power``; with accelerators, ``LoadReport.accelerators`` (``AcceleratorSeen``),
 #: ``OffloadRequest.accelerator``, ``SubmitProgram.accelerator``, ``SubmitProgram.accelerator_work``,
 #: ``SubmitProgram.cpu_fallback``; from robots that measure their own speed, in reports of the
-#: instant only, ``LoadReport.speed_class`` and ``LoadReport.cpu_rate``.
+#: instant only, ``LoadReport.speed_class`` and ``LoadReport.cpu_rate``; from robots whose application
+#: submits, in reports of the instant only, ``LoadReport.submits``, and one new type, ``BurstClaim``.
 #: The envelope's ``v`` is the major only (1.0 checks ``v == 1``).
 PROTOCOL_MAJOR = 1
 PROTOCOL_MINOR = 1

@@ -165,7 +165,7 @@ class Simulator:
             spec.name, cores=spec.cores, speed=spec.measured_speed or spec.speed, policy=self.policy, config=self.sc.config,
             rng=random.Random(self.rng.getrandbits(64)), incarnation=r.incarnation,
             net=NetworkEstimate(latency=self.net.latency, bandwidth=self.net.bandwidth), program_weight=weight,
-            accelerators=accels, bursts=True,
+            accelerators=accels, bursts=True, submits=spec.name in self.subscribers,
         )
         r.node.executor.background = float(spec.background)
         r.wake_at = math.inf

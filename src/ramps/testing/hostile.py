@@ -108,6 +108,7 @@ def random_report(rng: random.Random, robot: str | None = None) -> m.LoadReport:
                       for _ in range(rng.choice([0, 0, 1, 2]))],
         moves=random_count(rng), moves_aborted=random_count(rng), node_cpu=_amount(rng, 2.0),
         battery=rng.choice([None, None, 0.0, 1.0, rng.random()]), low_battery=rng.random() < 0.1,
+        submits=rng.random() < 0.3,
         power=rng.choice([None, None, _amount(rng, 40.0)]),
     )
 
@@ -118,7 +119,7 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
     pid = pid or rng.choice(PROGRAM_IDS)
     attempt = rng.randint(0, 4) if attempt is None else attempt
     host = host or rng.choice(PEERS)
-    kind = rng.randrange(16)
+    kind = rng.randrange(17)
     if kind == 0:
         return random_report(rng)
     if kind == 1:
@@ -177,6 +178,11 @@ def random_message(rng: random.Random, *, pid: str | None = None, attempt: int |
         return m.LinkProbe(sent_at=_amount(rng, 1e6), padding=b"\0" * rng.choice([0, 16, m.MAX_PROBE_BYTES]))
     if kind == 14:
         return m.LinkProbeReply(sent_at=_amount(rng, 1e6), size=rng.choice([0, 16384, m.MAX_PROBE_BYTES]))
+    if kind == 16:
+        pools = [m.ClaimedPool(rng.choice(PEERS), rng.choice(["", "", "cuda"]),
+                               [_amount(rng, 60.0) for _ in range(rng.choice([0, 1, 3, m.MAX_LISTED]))])
+                 for _ in range(rng.choice([0, 1, 2, m.MAX_LISTED]))]
+        return m.BurstClaim(planned=rng.random() < 0.7, pools=pools)
     if kind == 12:
         return m.ProgramUpdate(request_id=random_count(rng), state=rng.choice(["placed", "running", "replaced", ""]),
                                host=rng.choice(["", *PEERS]), attempt=random_count(rng),
