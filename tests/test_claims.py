@@ -5,6 +5,8 @@ waits for nothing."""
 
 from __future__ import annotations
 
+import msgspec
+
 from ramps.core.config import RampsConfig
 from ramps.core.messages import BurstClaim, ClaimedPool, decode, encode
 from ramps.sim.engine import Simulator
@@ -13,7 +15,7 @@ from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario
 # three one-core robots of speed 1, g with one slot of speed 10. At one
 # instant, origin a submits a long program (30 units on the slot, 3 s; 60 on
 # a core) with large parameters (0.1 s on the link), origin b a short one (10
-# units on the slot, 1 s; 1.5 on a core) and a small CPU one. Each alone ends
+# units on the slot, 1 s; 1.5 on a core); each a small CPU one too. Each alone ends
 # first on the slot. Blind to each other, b's offer reaches g first and is
 # taken; a's comes 0.1 s later, one program more than it expected, within
 # admission's slack and its budget: the two share the slot and a's ends at
@@ -24,9 +26,10 @@ LONG = ProgramSpec(origin="a", program="long", work=60.0, accelerator="cuda", ac
 SHORT = ProgramSpec(origin="b", program="short", work=1.5, accelerator="cuda", accelerator_work=10.0,
                     payload=100, result=100)
 CPU = ProgramSpec(origin="b", program="cpu", work=0.5, payload=100, result=100)
+A_CPU = msgspec.structs.replace(CPU, origin="a")
 
 
-def one_slot(programs: tuple[ProgramSpec, ...] = (LONG, SHORT, CPU), claims: bool = True) -> Scenario:
+def one_slot(programs: tuple[ProgramSpec, ...] = (LONG, A_CPU, SHORT, CPU), claims: bool = True) -> Scenario:
     robots = [RobotSpec(name=n, cores=1) for n in ("a", "b")] + [RobotSpec(name="g", cores=1, accelerators=["cuda:1:10"])]
     return Scenario(name="one-slot", seed=3, robots=robots, config=RampsConfig(burst_claims=claims),
                     programs=list(programs))
@@ -36,20 +39,33 @@ def res_net() -> float:
     return one_slot().network.latency
 
 
+class _Recording(Simulator):
+    """The simulator, keeping every claim sent: (from, to, planned)."""
+
+    def _send(self, src, to, msg) -> None:
+        if isinstance(msg, BurstClaim):
+            self.claims.append((src.spec.name, to, msg.planned))
+        super()._send(src, to, msg)
+
+
 def _run(sc: Scenario):
-    res = Simulator(sc, seed=sc.seed, trace=True).run()
+    sim = _Recording(sc, seed=sc.seed, trace=True)
+    sim.claims = []
+    res = sim.run()
     assert res.completed == len(sc.programs) and res.lost == res.duplicated == 0
-    return res
+    return res, sim.claims
 
 
 def test_two_origins_bursts_at_one_instant_do_not_both_take_the_one_slot() -> None:
-    blind = _run(one_slot(claims=False))
-    assert [p.host for p in blind.programs if p.program_id != "b#3"] == ["g", "g"]  # each planned the slot as free
-    res = _run(one_slot())
+    blind, none = _run(one_slot(claims=False))
+    assert none == []
+    assert [p.host for p in blind.programs if p.program_id in ("a#1", "b#3")] == ["g", "g"]  # the slot, as if free
+    res, claims = _run(one_slot())
+    assert claims == [("a", "b", True)]  # a, first, claims at once; b has nobody after it to tell
     hosts = {p.program_id: p.host for p in res.programs}
-    assert hosts["a#1"] == "g" and hosts["b#2"] == "b"  # b counted a's claim on the slot
+    assert hosts["a#1"] == "g" and hosts["b#3"] == "b"  # b counted a's claim on the slot
     latency, warmup = res_net(), one_slot().warmup
-    by = {e.robot: e.t for e in res.trace if e.what == "placed"}
+    by = {e.robot: e.t for e in res.trace if e.what == "placed" and e.t < warmup + 1}
     assert by["a"] == warmup  # first by name: at once
     assert warmup + latency <= by["b"] < warmup + 2 * latency  # as a's claim came, before its bound
     assert res.makespan < blind.makespan - 0.5
@@ -57,7 +73,8 @@ def test_two_origins_bursts_at_one_instant_do_not_both_take_the_one_slot() -> No
 
 def test_an_origin_alone_waits_for_nothing_and_claims_nothing() -> None:
     sc = one_slot((SHORT, CPU))  # b submits, a does not: no teammate of b's could claim
-    res = _run(sc)
+    res, claims = _run(sc)
+    assert claims == []
     placed = [e for e in res.trace if e.what == "placed"]
     assert [e.t for e in placed] == [sc.warmup] * 2  # at the instant they were submitted
     assert not [e for e in res.trace if e.what == "anomaly"]
@@ -67,3 +84,17 @@ def test_a_claim_crosses_the_wire() -> None:
     # (a node of the previous release drops it as an unknown type: tests/test_wire_golden.py)
     claim = BurstClaim(planned=True, pools=[ClaimedPool("g", "cuda", [30.0]), ClaimedPool("b", "", [1.5])])
     assert decode(encode("a", claim)).msg == claim
+
+
+def test_three_origins_place_in_turn_each_after_the_claims_before_it() -> None:
+    progs = [msgspec.structs.replace(p, origin=o, program=f"{p.program}-{o}") for o in ("a", "b", "c")
+             for p in (SHORT, CPU)]
+    sc = msgspec.structs.replace(one_slot(tuple(progs)), robots=[*one_slot().robots, RobotSpec(name="c", cores=1)])
+    res, claims = _run(sc)
+    # b tells c it has a burst and waits for a's claim; c waits for both
+    assert sorted(claims) == [("a", "b", True), ("a", "c", True), ("b", "c", False), ("b", "c", True)]
+    at = {e.robot: e.t for e in res.trace if e.what == "placed" and e.t < sc.warmup + 1}
+    latency = res_net()
+    assert at["a"] == sc.warmup < at["b"] < at["c"] < sc.warmup + 3 * latency
+    short = {p.origin: p.host for p in res.programs if p.program_id in ("a#1", "b#3", "c#5")}
+    assert short == {"a": "g", "b": "b", "c": "c"}  # the slot once; the others, seeing it taken, on cores

@@ -12,17 +12,17 @@ a burst that its policy plans (``Policy.plans``, ``RampsConfig.burst_claims``):
   no teammate before it in the order of names could claim (a candidate
   whose reports of the instant say an application submits there,
   ``LoadReport.submits``);
-- else tells the teammates that could claim that it has a burst
+- else tells the teammates after it that could claim that it has a burst
   (``BurstClaim``, ``planned`` False) and holds it: ``wait`` (twice the
   link's latency: a claim of the same instant has come by then) to hear
   which teammates before it have one, then until each of them has sent
   where its programs went (``planned`` True), at most ``wait`` more per
   teammate before it.
 
-Once placed, an origin sends the teammates that could claim where its
-burst went: the work it put on each pool (robot, accelerator kind). A plan
-counts a claim as work on its pools (``claimed``, ``Pool.known``) until the
-view shows it: on this robot, as the claimer's programs start here; on the
+Once placed, an origin sends the teammates after it that could claim
+where its burst of two programs or more went: the work it put on each pool
+(robot, accelerator kind). A plan counts a claim as work on its pools
+(``claimed``, ``Pool.known``) until the view shows it: on this robot, as the claimer's programs start here; on the
 claimer, once its reports reach the claim's ``accepted`` count; elsewhere,
 once a report comes a latency after the claim. An origin none of whose
 teammates submit never waits.
@@ -142,8 +142,8 @@ class Claims:
         finally:
             origin.claimed = {}
             self.since = self.check = None
-        if not plans:
-            return
+        if not plans or len(held) < 2:
+            return  # one program: a claim for it would cost a message per teammate and program
         later = [r for r in self._claimers(origin, now) if r > origin.me]
         if not later:
             return
