@@ -234,7 +234,7 @@ def test_one_report_of_the_instant_goes_out_per_moment_the_newest():
     hold is over (each says all the earlier ones did: the executor's
     counters only grow), as the core made it, on the key only teammates'
     nodes hear."""
-    from ramps.runtime.node_outbound import PROMPT_HOLD
+    from ramps.runtime.node_reports import PROMPT_HOLD
 
     clock = FakeClock()
     rt = rn.NodeRuntime(load_settings(flags={"robot": "r1", "team": "t"}, environ={}), clock=clock)
@@ -242,21 +242,21 @@ def test_one_report_of_the_instant_goes_out_per_moment_the_newest():
     rt.membership.load_pub, rt.membership.prompt_pub = periodic, pub = _Pub(), _Pub()
     first, second, third = (report("r1", seq=s, accepted_total=s) for s in (1, 2, 3))
     now = clock.monotonic()
-    rt._apply([PublishReport(report=first), Note(what="placed", robot="r2"), PublishReport(report=second)])
-    assert rt._held_due(now) == now + PROMPT_HOLD
+    rt.outbound.apply([PublishReport(report=first), Note(what="placed", robot="r2"), PublishReport(report=second)])
+    assert rt.outbound.held_due(now) == now + PROMPT_HOLD
     clock.advance(PROMPT_HOLD / 2)
-    rt._apply([PublishReport(report=third)])  # a later batch within the hold: it goes too, not later
-    rt._flush_held(clock.monotonic())
-    assert pub.sent == [] and rt._held_due(clock.monotonic()) == now + PROMPT_HOLD
+    rt.outbound.apply([PublishReport(report=third)])  # a later batch within the hold: it goes too, not later
+    rt.outbound.flush_held(clock.monotonic())
+    assert pub.sent == [] and rt.outbound.held_due(clock.monotonic()) == now + PROMPT_HOLD
     clock.advance(PROMPT_HOLD / 2)
-    rt._flush_held(clock.monotonic())
+    rt.outbound.flush_held(clock.monotonic())
     assert len(pub.sent) == 1 and periodic.sent == []
     sent = decode(pub.sent[0]).msg
     assert sent.seq == 3 and sent.accepted_total == 3 and sent == third
-    rt._apply([Note(what="placed", robot="r2")])
+    rt.outbound.apply([Note(what="placed", robot="r2")])
     clock.advance(PROMPT_HOLD)
-    rt._flush_held(clock.monotonic())
-    assert len(pub.sent) == 1 and rt._held_due(clock.monotonic()) == float("inf")  # nothing changed
+    rt.outbound.flush_held(clock.monotonic())
+    assert len(pub.sent) == 1 and rt.outbound.held_due(clock.monotonic()) == float("inf")  # nothing changed
 
 
 def test_reports_of_the_instant_reach_the_nodes_not_the_clients():

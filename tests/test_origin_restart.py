@@ -142,7 +142,7 @@ def test_restore_waits_for_the_host_then_places_again(tmp_path):
         again: list = []
         origin.on_peer_alive("r2", now + 1.0, again)  # its liveliness heard: offered once more
         assert [a.msg.program_id for a in again if isinstance(a, Send)] == ["old-1"]
-        team.nodes["r1"]._apply(out + again)
+        team.nodes["r1"].outbound.apply(out + again)
         team.run(3.0)  # r2 takes it (it never had it) and runs it; the other is placed again
         assert away.state is not ProgramState.OFFERED and here.state is not ProgramState.BACKOFF
     finally:

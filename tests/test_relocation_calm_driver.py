@@ -78,8 +78,8 @@ def test_a_long_queue_does_not_hold_back_the_load_report_nor_wait_for_the_origin
         return []
 
     monkeypatch.setattr(rt, "_handle", handle)
-    monkeypatch.setattr(rt, "_publish", lambda now: published.append(now))
-    monkeypatch.setattr(rt, "_apply", lambda actions: None)
+    monkeypatch.setattr(rt.outbound, "publish", lambda now: published.append(now))
+    monkeypatch.setattr(rt.outbound, "apply", lambda actions: None)
     real_tick = rt.node.tick
     monkeypatch.setattr(rt.node, "tick", lambda now, origin=True: ticks.append(origin) or real_tick(now, origin=origin))
     monkeypatch.setattr(rt.node, "next_deadline", lambda: fake.t - 1.0)  # the origin's timers are due

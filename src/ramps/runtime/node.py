@@ -22,10 +22,11 @@ clients told, then the liveliness token, subscribers and transport close.
 The driver reaches the team only through ``ramps.runtime.transport`` (a
 Zenoh session in production, ``ramps.testing.memory`` in tests) and reads
 time only from its injected clock. This module is its lifecycle and loop.
-What it does with each input is ``node_inbound``, with the core's actions
-``node_outbound`` (bases of ``NodeRuntime``; the state they share is
-declared, typed, in ``node_state``). The rest are parts it holds, each with
-its own state: its clients' requests and outcomes
+What it does with each input is ``node_inbound`` (a base of
+``NodeRuntime``; what it reads of the driver is declared, typed, in
+``node_state``). The rest are parts it holds, each with its own state: the
+core's actions applied (``node_outbound.Outbound``), its clients' requests
+and outcomes
 (``node_clients.ClientAnswers``), its load reports
 (``node_reports.LoadReports``), its publishing (``node_outbox.Outbox``),
 what it makes of the bytes it receives (``node_intake.WireIntake``), the
@@ -103,7 +104,7 @@ def core_config(s: NodeSettings) -> RampsConfig:
         core = msgspec.structs.replace(core, tie_tolerance=core.measured_tie_tolerance)
     return core
 
-class NodeRuntime(Inbound, Outbound):
+class NodeRuntime(Inbound):
     """One robot's node. ``transport`` (default: a Zenoh session opened
     from ``settings`` at ``start()``), ``clock`` (default: the real one),
     ``worker_pool`` and ``load_sampler`` (factories with the signatures of
@@ -130,7 +131,6 @@ class NodeRuntime(Inbound, Outbound):
         self.robot = settings.robot
         self.team = settings.team
         self.registry = node_registry(registry or default_registry, settings.programs, settings.commands)
-        self.on_note = on_note
         self._q = queue.SimpleQueue()
         #: its clients' requests, their outcomes and updates
         self.clients = ClientAnswers(self)
@@ -168,7 +168,13 @@ class NodeRuntime(Inbound, Outbound):
         self.store = None
         self.restored = 0
         #: its periodic load reports and those of the instant
-        self.reports = LoadReports(self)
+        self.reports = LoadReports(self, apply=lambda actions: self.outbound.apply(actions))
+        #: the core's actions applied to its parts and to the world
+        self.outbound = Outbound(self, robot=self.robot, team=self.team, clock=clock, awake=self.awake,
+                                 outbox=self.outbox, trace=self.trace, clients=self.clients, reports=self.reports,
+                                 membership=self.membership, same_name=self.same_name, revoked=self.revoked,
+                                 intake=self.intake, on_note=on_note,
+                                 stop=lambda: self._q.put(("stop", threading.Event())))
         #: called on the driver thread after every round of its loop (systemd's watchdog, ramps.runtime.service)
         self.on_turn: Callable[[], None] | None = None
         #: when to look whether this node has heard any teammate (None: looked, or no need)
@@ -187,8 +193,6 @@ class NodeRuntime(Inbound, Outbound):
         m = self.measured
         m.measure()
         self.cores, self.speed, self.load_scope = m.cores, m.speed, m.scope
-        #: programs whose calls were found far from their declaration, said once each
-        self._misdeclared_warned = set()
         # its start time and random bits: a node started later has a larger one (ramps.core.identity)
         self.incarnation = self._incarnation or new_incarnation(self.clock.time(), int.from_bytes(os.urandom(4), "big"))
         return_freed_memory()
@@ -224,7 +228,7 @@ class NodeRuntime(Inbound, Outbound):
         if s.connect or not s.multicast:  # else a lone robot on a LAN with multicast is no surprise
             self._lonely_at = self.clock.monotonic() + LONELY_AFTER
         if self.store is not None:
-            self._apply(self.clients.restore(self.store, self._clock()))
+            self.outbound.apply(self.clients.restore(self.store, self._clock()))
         if threaded:
             self._driver = threading.Thread(target=self._drive, name=f"ramps-node-{self.robot}", daemon=True)
             self._driver.start()
@@ -381,7 +385,7 @@ class NodeRuntime(Inbound, Outbound):
         next_pub = self._next_pub
         wake = next_pub if deadline is None else min(deadline, next_pub)
         wake = min(wake, self.held_lost.next_due())
-        wait = max(0.0, min(wake, self._held_due(now)) - now)
+        wait = max(0.0, min(wake, self.outbound.held_due(now)) - now)
         self.awake.sleep(wait)
         try:
             item = q.get(timeout=wait) if block else q.get_nowait()
@@ -398,8 +402,8 @@ class NodeRuntime(Inbound, Outbound):
             if self.awake.pending:
                 actions.extend(self._stall_told(now))
             if item[0] == "stop":
-                self._apply(actions)
-                self._shutdown(item[1])
+                self.outbound.apply(actions)
+                self.outbound.shutdown(item[1])
                 if self.revoked.me or self.same_name.taken:  # nobody asked: leave now (the CLI sees wait())
                     self._teardown()
                 return False
@@ -408,7 +412,7 @@ class NodeRuntime(Inbound, Outbound):
             except Exception:  # a bug must not take the node down; say so loudly
                 log.exception("node %s: error handling %s", self.robot, item[0])
             if len(actions) >= 256:
-                self._apply(actions)
+                self.outbound.apply(actions)
                 actions = []
             budget -= 1
             if budget <= 0 or self.clock.monotonic() >= until:
@@ -425,7 +429,7 @@ class NodeRuntime(Inbound, Outbound):
         if self.held_lost.held:
             actions.extend(self._release_lost(now))
         if now >= next_pub:
-            self._publish(now)
+            self.outbound.publish(now)
             self.heap.maybe_trim(self._backlog_bytes)
             if self._lonely_at is not None and self.clock.monotonic() >= self._lonely_at:
                 self._lonely_at = None
@@ -435,14 +439,14 @@ class NodeRuntime(Inbound, Outbound):
         deadline = node.next_deadline()
         if deadline is not None and deadline <= now:
             actions.extend(node.tick(now, origin=not behind))
-        self._apply(actions)
-        self._flush_held(now)
+        self.outbound.apply(actions)
+        self.outbound.flush_held(now)
         if not block:  # the next round is due at the earliest of its timers
             wake = self._next_pub
             deadline = node.next_deadline()
             wake = wake if deadline is None else min(wake, deadline)
             wake = min(wake, self.held_lost.next_due())
-            self.awake.sleep(max(0.0, min(wake, self._held_due(now)) - now))
+            self.awake.sleep(max(0.0, min(wake, self.outbound.held_due(now)) - now))
         return True
 
 def run_node(settings: NodeSettings, *, install_signals: bool = True) -> NodeRuntime:

@@ -40,7 +40,6 @@ from ramps.core.messages import (
     SubmitProgram,
 )
 from ramps.core.relink import RELINK_TIMEOUT
-from ramps.runtime import revocation
 from ramps.runtime.node_seams import Key
 from ramps.runtime.node_state import DriverState
 
@@ -140,12 +139,6 @@ class Inbound(DriverState):
                       self.robot, self.team, rl.seq)
             self._q.put(("stop", threading.Event()))
         return out
-
-    def _republish(self, now: float) -> None:
-        """Publish the team's revocation list again, if it is due (``Revoked.republish``)."""
-        data = self.revoked.republish(now) if self.transport is not None else None
-        if data is not None:
-            self.outbox.put(revocation.revoked_key(self.team), data)
 
     def _release_lost(self, now: float) -> list[Action]:
         """The teammates whose held loss falls due by ``now``, lost for the core."""

@@ -1,19 +1,25 @@
 """What a node's driver does with the core's actions.
 
-How this works: ``_apply`` turns each action of the core into its effect:
-``Send`` is published to the teammate's inbox (``Outbox``: DROP under
-congestion, the core survives lost messages; a message over 60 KB waits
-for room instead, on a thread of its own destination), ``StartProgram`` and
-``StopProgram`` go to the worker pool (or an accelerator's slot),
-``Deliver`` becomes the client's outcome (``ClientAnswers``), ``Note`` a
-client update, a trace line and a log line, ``NameTaken`` (another node
-under this robot's name, ``SameName``) this node's leaving or a line saying
-the other leaves; programs it hosts for other origins are traced as this
-robot runs them (``NodeTrace.hosted``). ``PublishReport`` (a report of the
-instant: the programs running here changed) goes to ``LoadReports``, the
-newest of a batch only, after the batch's messages; ``_publish`` has it
-publish the periodic load report. ``_shutdown`` hands running programs back
-and cancels this origin's.
+How this works: ``Outbound`` is a part of the node's driver
+(``ramps.runtime.node``), given at construction the parts it sends
+through; of the driver it reads only what ``OutboundDriver`` names, what
+the driver has once started (the core, its worker pool and accelerators,
+its record and metrics, its transport). ``apply`` turns each action of the
+core into its effect: ``Send`` is published to the teammate's inbox
+(``Outbox``: DROP under congestion, the core survives lost messages; a
+message over 60 KB waits for room instead, on a thread of its own
+destination), ``StartProgram`` and ``StopProgram`` go to the worker pool
+(or an accelerator's slot), ``Deliver`` becomes the client's outcome
+(``ClientAnswers``), ``Note`` a client update, a trace line and a log
+line, ``NameTaken`` (another node under this robot's name, ``SameName``)
+this node's leaving or a line saying the other leaves; programs it hosts
+for other origins are traced as this robot runs them
+(``NodeTrace.hosted``). ``PublishReport`` (a report of the instant: the
+programs running here changed) goes to ``LoadReports``, the newest of a
+batch only, after the batch's messages; ``publish`` has it publish the
+periodic load report, and the team's revocation list when it is due again
+(``Revoked``). ``shutdown`` hands running programs back and cancels this
+origin's.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable
+from typing import TYPE_CHECKING, Protocol
 
 from ramps.core.events import (
     Action,
@@ -36,45 +43,91 @@ from ramps.core.events import (
 )
 from ramps.core.messages import encode
 from ramps.core.speed import MIN_RUN_WORK
-from ramps.runtime.accelerators import Grant
-from ramps.runtime import keys
-from ramps.runtime.node_reports import PROMPT_HOLD as PROMPT_HOLD  # tests name it here
-from ramps.runtime.node_state import DriverState
+from ramps.runtime import keys, revocation
+
+if TYPE_CHECKING:
+    from ramps.core.node import Node
+    from ramps.runtime.accelerators import AcceleratorProbe, Grant
+    from ramps.runtime.metrics import NodeMetrics
+    from ramps.runtime.node_awake import AwakeClock
+    from ramps.runtime.node_clients import ClientAnswers
+    from ramps.runtime.node_intake import WireIntake
+    from ramps.runtime.node_name import SameName
+    from ramps.runtime.node_outbox import Outbox
+    from ramps.runtime.node_reports import LoadReports
+    from ramps.runtime.node_revoked import Revoked
+    from ramps.runtime.node_seams import WorkerPoolLike
+    from ramps.runtime.node_team import Membership
+    from ramps.runtime.node_trace import NodeTrace
+    from ramps.runtime.store import OriginStore
+    from ramps.runtime.transport import Clock, Transport
 
 log = logging.getLogger("ramps.node")
 #: core notes a client hears about (ProgramUpdate.state), as placed/running/host_failed
 _CLIENT_STATES = {"placed": "placed", "accepted": "running", "failed": "host_failed"}
+#: programs found far from their declaration that are named in a warning, at most
+MISDECLARED_WARNED = 1024
 
 
+class OutboundDriver(Protocol):
+    """What ``Outbound`` reads of its driver: what the driver has once started
+    (None before ``start``, or once it let go of it)."""
+
+    node: Node | None
+    transport: Transport | None
+    pool: WorkerPoolLike
+    accel: AcceleratorProbe
+    #: the durable record of the programs this node is origin of
+    store: OriginStore | None
+    metrics: NodeMetrics | None
+    incarnation: int
+    #: messages dropped over the driver's backlog
+    overflow: int
 
 
-class Outbound(DriverState):
-    """The driver's outputs (mixed into ``NodeRuntime``)."""
+class Outbound:
+    """The outputs of ``driver``'s node, robot ``robot`` of team ``team``:
+    the core's actions applied to its parts and to the world."""
 
-    def _apply(self, actions: list[Action]) -> None:
-        if self.store is not None:  # written before anything of it is sent
-            self.clients.persist(self.store, actions)
+    def __init__(self, driver: OutboundDriver, *, robot: str, team: str, clock: Clock, awake: AwakeClock,
+                 outbox: Outbox, trace: NodeTrace, clients: ClientAnswers, reports: LoadReports,
+                 membership: Membership, same_name: SameName, revoked: Revoked, intake: WireIntake,
+                 on_note: Callable[[Note], None] | None, stop: Callable[[], None]) -> None:
+        self.d = driver
+        self.robot, self.team, self.clock, self.awake = robot, team, clock, awake
+        self.outbox, self.trace, self.clients, self.reports = outbox, trace, clients, reports
+        self.membership, self.same_name, self.revoked, self.intake = membership, same_name, revoked, intake
+        self.on_note = on_note
+        #: asks the driver to stop (this node leaves: another under its name started first)
+        self._stop = stop
+        #: programs whose calls were found far from their declaration, said once each
+        self.misdeclared_warned: set[str] = set()
+
+    def apply(self, actions: list[Action]) -> None:
+        """Each of the core's ``actions``, in order, to its effect."""
+        d = self.d
+        if d.store is not None:  # written before anything of it is sent
+            self.clients.persist(d.store, actions)
         mnow = self.awake.now()  # the core's clock, for metrics' latencies
         prompt = None  # the newest report of the instant: the only one of a batch that goes out (``LoadReports``)
         for a in actions:
-            if self.metrics is not None:
-                self.metrics.on_action(a, self.node, mnow)
+            if d.metrics is not None:
+                d.metrics.on_action(a, d.node, mnow)
             if self.trace.on and isinstance(a, (StartProgram, StopProgram, Send)):
-                self.trace.hosted(a, closing=self.node is not None and self.node.executor.closing)
+                self.trace.hosted(a, closing=d.node is not None and d.node.executor.closing)
             if isinstance(a, Send):
-                key, data = keys.inbox(self.team, a.to), encode(self.robot, a.msg)
-                self.outbox.send(key, data)
+                self.outbox.send(keys.inbox(self.team, a.to), encode(self.robot, a.msg))
                 if self.trace.wire:
                     self.trace.write("tx", getattr(a.msg, "program_id", ""), a.to, getattr(a.msg, "attempt", 0),
-                                      type(a.msg).__name__)
+                                     type(a.msg).__name__)
             elif isinstance(a, StartProgram):
                 if a.accelerator:  # when one of its slots is free (AcceleratorProbe.start)
-                    self.accel.start((a.program_id, a.attempt), a.accelerator, self._runner(a))
+                    d.accel.start((a.program_id, a.attempt), a.accelerator, self._runner(a))
                 else:
-                    self.pool.run((a.program_id, a.attempt), a.program, a.args, a.resume)
+                    d.pool.run((a.program_id, a.attempt), a.program, a.args, a.resume)
             elif isinstance(a, StopProgram):
-                self.pool.cancel((a.program_id, a.attempt))
-                self.accel.release((a.program_id, a.attempt))
+                d.pool.cancel((a.program_id, a.attempt))
+                d.accel.release((a.program_id, a.attempt))
             elif isinstance(a, Deliver):
                 if self.trace.on:  # first, so a caller holding the result finds it traced
                     self.trace.write("delivered", a.program_id, a.host, a.attempts, a.error_kind)
@@ -84,30 +137,34 @@ class Outbound(DriverState):
             elif isinstance(a, Progress):
                 self.clients.progressed(a.program_id, a.fraction, a.detail, a.host, a.attempt)
             elif isinstance(a, NameTaken):
-                if self.same_name.clash(a, self.incarnation):  # this node started later: it leaves
-                    self._q.put(("stop", threading.Event()))
+                if self.same_name.clash(a, d.incarnation):  # this node started later: it leaves
+                    self._stop()
             elif isinstance(a, Note):
-                if a.what in _CLIENT_STATES and a.program_id in self.clients.clients:
-                    state = _CLIENT_STATES[a.what]
-                    self.clients.update(a.program_id, "replaced" if state == "placed" and a.attempt > 1 else state,
-                                        a.robot, a.attempt)
-                if self.trace.on:
-                    self.trace.write(a.what, a.program_id, a.robot, a.attempt, a.detail)
-                if a.what in ("blacklisted", "unblacklisted", "failed", "anomaly"):
-                    log.info("node %s: %s %s %s %s", self.robot, a.what, a.robot, a.program_id, a.detail)
-                elif a.what == "misdeclared":
-                    self._warn_misdeclared(a)
-                if self.on_note is not None:
-                    self.on_note(a)
+                self._note(a)
         if prompt is not None:  # held a moment: the changes that follow it go with it
             self.reports.hold(prompt)
 
-    def _held_due(self, now: float) -> float:
+    def _note(self, a: Note) -> None:
+        """A note of the core: a client's update, a trace line, a log line, ``on_note``."""
+        if a.what in _CLIENT_STATES and a.program_id in self.clients.clients:
+            state = _CLIENT_STATES[a.what]
+            self.clients.update(a.program_id, "replaced" if state == "placed" and a.attempt > 1 else state,
+                                a.robot, a.attempt)
+        if self.trace.on:
+            self.trace.write(a.what, a.program_id, a.robot, a.attempt, a.detail)
+        if a.what in ("blacklisted", "unblacklisted", "failed", "anomaly"):
+            log.info("node %s: %s %s %s %s", self.robot, a.what, a.robot, a.program_id, a.detail)
+        elif a.what == "misdeclared":
+            self._warn_misdeclared(a)
+        if self.on_note is not None:
+            self.on_note(a)
+
+    def held_due(self, now: float) -> float:
         """The core's time at which something held is due: an outcome to look
         at again, a client's update, a report of the instant (inf: none)."""
         return min(self.clients.held_due(now), self.reports.due())
 
-    def _flush_held(self, now: float) -> None:
+    def flush_held(self, now: float) -> None:
         """Send what is held and due by the core's time ``now``."""
         self.clients.flush(now)
         self.reports.flush(now)
@@ -115,51 +172,58 @@ class Outbound(DriverState):
     def _runner(self, a: StartProgram) -> Callable[[Grant | None], None]:
         """How to start ``a`` in a worker once its accelerator slot is granted."""
         def run(grant: Grant | None) -> None:
-            self.pool.run((a.program_id, a.attempt), a.program, a.args, a.resume,
-                          None if grant is None else grant.as_wire())
+            self.d.pool.run((a.program_id, a.attempt), a.program, a.args, a.resume,
+                            None if grant is None else grant.as_wire())
         return run
 
     def _warn_misdeclared(self, note: Note) -> None:
         """A call took far more or less than its program declares: said once
         per program (every call is in the trace and the metric)."""
-        assert self.node is not None
-        ap = self.node.origin.programs.get(note.program_id)
+        assert self.d.node is not None
+        ap = self.d.node.origin.programs.get(note.program_id)
         program = ap.submit.program if ap is not None else note.program_id
-        if program in self._misdeclared_warned or len(self._misdeclared_warned) >= 1024:
+        warned = self.misdeclared_warned
+        if program in warned or len(warned) >= MISDECLARED_WARNED:
             return
-        self._misdeclared_warned.add(program)
+        warned.add(program)
         log.warning("node %s: %s on %s; placements learn only from runs of at least %g work units, so declare "
                     "what a call really does (@ramps.program(work=...) or team.options(work=...))",
                     self.robot, note.detail, note.robot, MIN_RUN_WORK)
 
-    def _publish(self, now: float) -> None:
+    def publish(self, now: float) -> None:
         """The periodic load report (``LoadReports.publish``), and the team's
-        revocation list when it is due again."""
+        revocation list when it is due again (``Revoked.republish``)."""
         self.reports.publish(now)
-        self._republish(now)
+        data = self.revoked.republish(now) if self.d.transport is not None else None
+        if data is not None:
+            self.outbox.put(revocation.revoked_key(self.team), data)
 
-    def _shutdown(self, done: threading.Event) -> None:
+    def shutdown(self, done: threading.Event) -> None:
+        """This node leaves: running programs are handed back to their origins
+        and, with no record to keep them, the programs this node is origin of
+        are cancelled; ``done`` is set then."""
+        d = self.d
         # before its liveliness goes: a client (ramps top) tells this from a crash (not when the name
         # is another node's: that node stays)
-        if self.transport is not None and not self.same_name.taken:
-            self.membership.say_leaving(self.transport)
-        now = self._clock()
-        node = self.node
+        if d.transport is not None and not self.same_name.taken:
+            self.membership.say_leaving(d.transport)
+        now = self.awake.read()
+        node = d.node
         assert node is not None
         out: list[Action] = []
         handed = node.executor.hand_back(now, out)
-        if self.store is None:  # nothing keeps them: tell their clients
+        if d.store is None:  # nothing keeps them: tell their clients
             for pid, ap in list(node.origin.programs.items()):
                 if ap.state not in ("done", "failed"):
                     out.extend(node.handle(Cancel(program_id=pid), now))
-        self._apply(node._loopback(out, now))
-        if self.store is not None and node.origin.active():
+        self.apply(node._loopback(out, now))
+        if d.store is not None and node.origin.active():
             log.info("node %s keeps %d program(s) in its record %s for its next start", self.robot,
-                     node.origin.active(), self.store.path)
+                     node.origin.active(), d.store.path)
         self.clients.flush_outcomes(leaving=True)
         log.info("node %s leaving team %s: handed back %d program(s)", self.robot, self.team, handed)
-        if self.intake.bad or self.overflow:  # what `ramps status` counted as dropped, both kinds
+        if self.intake.bad or d.overflow:  # what `ramps status` counted as dropped, both kinds
             log.warning("node %s dropped %d malformed message(s) and %d over its backlog while it ran", self.robot,
-                        self.intake.bad, self.overflow)
+                        self.intake.bad, d.overflow)
         self.clock.sleep(0.05)  # let Zenoh flush the hand-backs
         done.set()

@@ -23,7 +23,7 @@ import logging
 import math
 import queue
 from itertools import islice
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 import msgspec
 
@@ -70,14 +70,13 @@ class ReportsDriver(Protocol):
     overflow: int
     _q: queue.SimpleQueue[tuple[Any, ...]]
 
-    def _apply(self, actions: list[Action]) -> None: ...
-
 
 class LoadReports:
-    """The load reports of ``driver``'s node."""
+    """The load reports of ``driver``'s node, which ``apply`` the core's actions."""
 
-    def __init__(self, driver: ReportsDriver) -> None:
+    def __init__(self, driver: ReportsDriver, apply: Callable[[list[Action]], None]) -> None:
         self.d = driver
+        self._apply = apply
         #: the last periodic report, and the teammates in this robot's view then
         self.last: LoadReport | None = None
         self._sees: frozenset[str] = frozenset()
@@ -149,7 +148,7 @@ class LoadReports:
             self._battery = BatteryReader.for_settings(self.d.s)
         charge, power = self._battery.read(busy)
         assert self.d.node is not None
-        self.d._apply(self.d.node.handle(BatteryMeasured(charge=charge, power=power), now))
+        self._apply(self.d.node.handle(BatteryMeasured(charge=charge, power=power), now))
 
     def _publish_prompt(self, report: LoadReport) -> None:
         """A report of the instant from the core (its programs changed), to its

@@ -1,29 +1,29 @@
-"""The state a node's driver shares between its mixins, declared once.
+"""The state a node's driver shares with its input mixin, declared once.
 
 How this works: ``NodeRuntime`` (``ramps.runtime.node``) is its lifecycle
-and loop, two mixins, ``Inbound`` (``node_inbound``) and ``Outbound``
-(``node_outbound``), bases of it and of ``DriverState`` here, and the
-composed parts it holds, each with its own state (``ClientAnswers``,
-``LoadReports``, ``Outbox``, ``WireIntake``, ``AwakeClock``, ``RobotMeasure``,
-``Membership``, ``SameName``, ``Revoked``, ``NodeTrace``: the ``node_*``
-modules). ``DriverState`` holds no value and runs nothing: it declares,
-with their types, the attributes the mixins read and write
-(``NodeRuntime.__init__`` and ``start`` set them) and, for the type checker
-only, the methods one calls on another, so that mypy checks each against
-the others. ``node``, ``transport``, ``metrics`` and ``store`` are None
-before ``start`` (the last two also when not asked for): the mixins run on
-the driver thread, after ``start``, and narrow them. What the driver uses
-of its worker pool and load sampler is declared in ``node_seams``.
+and loop, a mixin, ``Inbound`` (``node_inbound``), base of it and of
+``DriverState`` here, and the composed parts it holds, each with its own
+state (``Outbound``, ``ClientAnswers``, ``LoadReports``, ``Outbox``,
+``WireIntake``, ``AwakeClock``, ``RobotMeasure``, ``Membership``,
+``SameName``, ``Revoked``, ``NodeTrace``: the ``node_*`` modules).
+``DriverState`` holds no value and runs nothing: it declares, with their
+types, the attributes of the driver (``NodeRuntime.__init__`` and
+``start`` set them) and, for the type checker only, the methods the mixin
+calls on it, so that mypy checks the mixin against the driver and the
+driver against the protocols its parts see it through. ``node``,
+``transport``, ``metrics`` and ``store`` are None before ``start`` (the
+last two also when not asked for): the mixin runs on the driver thread,
+after ``start``, and narrows them. What the driver uses of its worker pool
+and load sampler is declared in ``node_seams``.
 """
 
 from __future__ import annotations
 
 import queue
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
 
-    from ramps.core.events import Note
     from ramps.core.node import Node
     from ramps.runtime.accelerators import AcceleratorProbe
     from ramps.runtime.metrics import NodeMetrics
@@ -44,7 +44,7 @@ if TYPE_CHECKING:
     from ramps.runtime.transport import Clock, Transport
 
 class DriverState:
-    """The attributes and methods the parts of ``NodeRuntime`` share (declarations only)."""
+    """The attributes of ``NodeRuntime`` and what ``Inbound`` calls on it (declarations only)."""
 
     # ------------------------------------------------ set by __init__
     s: NodeSettings
@@ -52,7 +52,6 @@ class DriverState:
     robot: str
     team: str
     registry: Registry
-    on_note: Callable[[Note], None] | None
     #: the driver's queue: (kind, ...) items (``Inbound._handle``)
     _q: queue.SimpleQueue[tuple[Any, ...]]
     outbox: Outbox
@@ -82,18 +81,7 @@ class DriverState:
     pool: WorkerPoolLike
     sampler: SamplerLike
     accel: AcceleratorProbe
-    _misdeclared_warned: set[str]
 
     if TYPE_CHECKING:
-        # what one part calls on another
-        def _clock(self) -> float: ...  # NodeRuntime
-
+        # what Inbound calls on the driver
         def endpoints(self) -> list[str]: ...  # NodeRuntime
-
-        def _republish(self, now: float) -> None: ...  # Inbound
-
-        def _held_due(self, now: float) -> float: ...  # Outbound
-
-        def _flush_held(self, now: float) -> None: ...
-
-
