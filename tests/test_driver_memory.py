@@ -134,9 +134,9 @@ def test_a_full_backlog_drops_and_counts_and_the_node_stays_up(team, monkeypatch
     flood = team.bus.transport("flood")
     for _ in range(100):  # 100 KB of garbage before the driver runs again: 63 fit beside the submission
         flood.put(keys.inbox(team.team, "r1"), b"\x00" * 1024)
-    assert rt.overflow == 37 and rt._backlog_bytes > 63 * 1024
+    assert rt.intake.overflow == 37 and rt.intake.backlog > 63 * 1024
     team.run(3.0, until=lambda: app.done(first))
-    assert rt.bad_messages == 63 and rt._backlog_bytes == 0  # the rest was read and refused
+    assert rt.bad_messages == 63 and rt.intake.backlog == 0  # the rest was read and refused
     after = app.submit("echo", x=8)
     team.run(3.0, until=lambda: app.done(after))
     for rid, x in ((first, 7), (after, 8)):

@@ -388,11 +388,11 @@ def test_a_node_drops_and_counts_what_exceeds_its_backlog(monkeypatch) -> None:
     node = rn.NodeRuntime(load_settings(flags={"robot": "r1", "team": "t"}, environ={}))
     for _ in range(30):
         node._on_wire(b"x" * 100)
-    assert node._backlog_bytes == 1000 and node.overflow == 20
+    assert node.intake.backlog == 1000 and node.intake.overflow == 20
     node._handle(node._q.get_nowait(), 0.0)  # the driver takes one: room for one more
-    assert node._backlog_bytes == 900 and node.bad_messages == 1
+    assert node.intake.backlog == 900 and node.bad_messages == 1
     node._on_wire(b"y" * 100)
-    assert node.overflow == 20 and node._backlog_bytes == 1000
+    assert node.intake.overflow == 20 and node.intake.backlog == 1000
 
 
 @pytest.mark.parametrize("fraction", [-0.01, 1.01, math.nan, math.inf, -math.inf])

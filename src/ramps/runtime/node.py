@@ -138,11 +138,8 @@ class NodeRuntime(Inbound):
         self.outbox = Outbox(self.robot, lambda: self.transport)
         self._stopped = threading.Event()
         self._started = False
-        #: what it makes of the bytes it receives, and the drops it counts
+        #: its backlog of received bytes, what it makes of them, and the drops it counts
         self.intake = WireIntake(self.robot)
-        #: messages dropped because the driver's backlog was full, and its size
-        self.overflow = 0
-        self._backlog_bytes = 0
         self.heap = HeapTrimmer()  # gives the memory of a drained burst back (ramps.runtime.heap)
         self.trace = NodeTrace(self.robot, clock)
         self.transport = None
@@ -337,14 +334,11 @@ class NodeRuntime(Inbound):
     def _on_wire(self, data: bytes) -> None:
         """Transport callback: queue the bytes for the driver, unless the backlog
         already holds MAX_BACKLOG_BYTES (a flood, or a driver that cannot keep
-        up): then drop and count, so memory stays bounded. Small messages
-        (submits, heartbeats) pass any realistic burst."""
+        up): then drop and count (``WireIntake.admit``), so memory stays
+        bounded. Small messages (submits, heartbeats) pass any realistic burst."""
         self.heap.note(len(data))
-        if self._backlog_bytes + len(data) > MAX_BACKLOG_BYTES:
-            self.overflow += 1
-            return
-        self._backlog_bytes += len(data)
-        self._q.put(("wire", data, self.clock.monotonic()))
+        if self.intake.admit(len(data), MAX_BACKLOG_BYTES):
+            self._q.put(("wire", data, self.clock.monotonic()))
 
     # ================================================================ driver
     def _clock(self) -> float:
@@ -430,7 +424,7 @@ class NodeRuntime(Inbound):
             actions.extend(self._release_lost(now))
         if now >= next_pub:
             self.outbound.publish(now)
-            self.heap.maybe_trim(self._backlog_bytes)
+            self.heap.maybe_trim(self.intake.backlog)
             if self._lonely_at is not None and self.clock.monotonic() >= self._lonely_at:
                 self._lonely_at = None
                 self._lonely()

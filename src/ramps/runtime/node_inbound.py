@@ -148,7 +148,6 @@ class Inbound(DriverState):
         kind = item[0]
         node = self.node
         if kind == "wire":  # a message the wire refuses needs no core to be dropped and counted
-            self._backlog_bytes -= len(item[1])
             env = self.intake.decode(item[1], now)
             if env is None:
                 return []

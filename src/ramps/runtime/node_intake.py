@@ -1,11 +1,15 @@
 """What a node makes of the bytes it receives: a message, or a drop that is counted.
 
 How this works: ``WireIntake`` is a part of the node's driver
-(``ramps.runtime.node``). ``decode`` turns the bytes of a queued message
-into its envelope, or counts it dropped (``bad``, which ``ramps status``
-shows): a malformed message is logged one line a ``DROP_LOG_PERIOD``, with
-how many went unlogged since; a message of another major protocol version
-is refused and a message type of a newer minor skipped, each counted apart
+(``ramps.runtime.node``). The bytes a transport callback hands the driver
+are queued only if the driver's backlog has room for them (``admit``: a
+flood, or a driver that cannot keep up, is dropped and counted,
+``overflow``, so memory stays bounded). ``decode`` takes the bytes of a
+queued message out of the backlog and turns them into its envelope, or
+counts it dropped (``bad``; ``ramps status`` shows both counts): a
+malformed message is logged one line a ``DROP_LOG_PERIOD``, with how many
+went unlogged since; a message of another major protocol version is
+refused and a message type of a newer minor skipped, each counted apart
 too (``version_refused``, ``unknown_types``) and logged naming the sender
 and the version or type the first time (``VERSION_LOG_KEYS`` pairs at most:
 a hostile sender inventing names is only counted). Other remote bad input
@@ -41,10 +45,25 @@ class WireIntake:
         #: a flood of bad messages is logged one line per DROP_LOG_PERIOD
         self._logged_at = -DROP_LOG_PERIOD
         self._unlogged = 0
+        #: bytes queued for the driver and not decoded yet, and the messages
+        #: dropped because they did not fit
+        self.backlog = 0
+        self.overflow = 0
+
+    def admit(self, size: int, limit: int) -> bool:
+        """Whether a message of ``size`` bytes fits in a backlog of ``limit``
+        bytes (it is then in it); if not, it is dropped and counted."""
+        if self.backlog + size > limit:
+            self.overflow += 1
+            return False
+        self.backlog += size
+        return True
 
     def decode(self, data: bytes, now: float) -> Envelope | None:
         """The message in ``data`` at the core's time ``now`` (the wire
-        limit; client arguments are checked on submit), or None: dropped."""
+        limit; client arguments are checked on submit), or None: dropped.
+        Its bytes leave the backlog."""
+        self.backlog -= len(data)
         try:
             return decode(data)
         except VersionRefused as exc:

@@ -81,8 +81,6 @@ class OutboundDriver(Protocol):
     store: OriginStore | None
     metrics: NodeMetrics | None
     incarnation: int
-    #: messages dropped over the driver's backlog
-    overflow: int
 
 
 class Outbound:
@@ -222,8 +220,8 @@ class Outbound:
                      node.origin.active(), d.store.path)
         self.clients.flush_outcomes(leaving=True)
         log.info("node %s leaving team %s: handed back %d program(s)", self.robot, self.team, handed)
-        if self.intake.bad or d.overflow:  # what `ramps status` counted as dropped, both kinds
+        if self.intake.bad or self.intake.overflow:  # what `ramps status` counted as dropped, both kinds
             log.warning("node %s dropped %d malformed message(s) and %d over its backlog while it ran", self.robot,
-                        self.intake.bad, d.overflow)
+                        self.intake.bad, self.intake.overflow)
         self.clock.sleep(0.05)  # let Zenoh flush the hand-backs
         done.set()

@@ -67,7 +67,6 @@ class ReportsDriver(Protocol):
     trace: NodeTrace
     #: messages dropped as bad input and over the driver's backlog (``ramps status``)
     intake: WireIntake
-    overflow: int
     _q: queue.SimpleQueue[tuple[Any, ...]]
 
 
@@ -124,7 +123,7 @@ class LoadReports:
         if sees != self._sees:
             self._log_view_change(self._sees, sees)
             self._sees = sees
-        report = msgspec.structs.replace(report, bad_messages=d.intake.bad + d.overflow,  # `ramps status`
+        report = msgspec.structs.replace(report, bad_messages=d.intake.bad + d.intake.overflow,  # `ramps status`
                                          sees=len(sees), running=self._running_list(), **self._learned())
         self.last = report
         self._held = None  # this report says all a held one would

@@ -56,8 +56,6 @@ class DriverState:
     _q: queue.SimpleQueue[tuple[Any, ...]]
     outbox: Outbox
     intake: WireIntake
-    overflow: int
-    _backlog_bytes: int
     trace: NodeTrace
     transport: Transport | None
     node: Node | None
