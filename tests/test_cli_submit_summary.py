@@ -99,7 +99,7 @@ def test_brackets_in_results_and_errors_are_printed_as_they_are(monkeypatch):
     try:
         # the client lacks the program, so its node checks the arguments: a wrong type
         res = runner.invoke(app, ["submit", "bracketed", "--arg", 'grid="x"'], env={"COLUMNS": "400"})
-        assert res.exit_code == 1, res.output
+        assert res.exit_code == 2, res.output  # refused for its arguments, as when the client catches it
         assert "argument 'grid' must be list[str]" in res.output, res.output
         res = runner.invoke(app, ["submit", "bracketed", "--arg", "grid=[]"], env={"COLUMNS": "400"})
         assert res.exit_code == 1 and "grid[0] is missing, want list[str]" in res.output, res.output

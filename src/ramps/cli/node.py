@@ -233,10 +233,11 @@ def submit(
     last line on stderr says how the programs ended, on which robots they
     ran, and their origin (the node they were submitted to): "2 program(s)
     in 0.41 s, origin r1: 1 done on r2, 1 failed on r3". The exit status is
-    1 if any did not end done."""
+    2 if a program was refused for its name or arguments (by this command or
+    by the node), else 1 if any did not end done."""
     import time as _time
 
-    from ramps.errors import RampsError
+    from ramps.errors import BadArguments, ProgramNotFound, RampsError
 
     args = dict(_parse_arg(a) for a in arg or [])
     t = _connect_team(team, robot, connect, multicast, 5.0, secure=secure, credentials=credentials, mode=mode)
@@ -258,7 +259,8 @@ def submit(
                 value = f.result()
                 line = {"ok": True, "value": value}
             except (RampsError, TimeoutError) as exc:
-                code = 1
+                # refused for its arguments by the node: the caller's mistake, as when caught here (2)
+                code = max(code, 2 if isinstance(exc, (BadArguments, ProgramNotFound)) else 1)
                 line = {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
             line.update(state=f.state, host=f.host, attempts=f.attempts)
             if as_json:
