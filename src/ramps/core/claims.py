@@ -22,10 +22,10 @@ a burst that its policy plans (``Policy.plans``, ``RampsConfig.burst_claims``):
 Once placed, an origin sends the teammates after it that could claim
 where its burst of two programs or more went: the work it put on each pool
 (robot, accelerator kind). A plan counts a claim as work on its pools
-(``claimed``, ``Pool.known``) until the view shows it: on this robot, as the claimer's programs start here; on the
-claimer, once its reports reach the claim's ``accepted`` count; elsewhere,
-once a report comes a latency after the claim. An origin none of whose
-teammates submit never waits.
+(``claimed``, ``Pool.known``) until the view shows it: on this robot, as
+the claimer's programs start here; on the claimer, once its reports reach
+the claim's ``accepted`` count; elsewhere, once a report comes a latency
+after the claim. An origin none of whose teammates submit never waits.
 
 Rules: no clock (``now`` comes in), no I/O.
 """
