@@ -40,7 +40,7 @@ def test_a_host_traces_the_programs_it_runs_for_other_origins(traced):
     bad = client.options(work=20.0).submit("fail")
     t.run(2.0, complete=False, until=lambda: len(t.pools["r2"].jobs) == 2)
     (pid_ok, att), (pid_bad, _) = list(t.pools["r2"].jobs)
-    t.nodes["r2"]._checkpoint_saved((pid_ok, att), b"state", 0.4)  # as a worker reports it
+    t.nodes["r2"].inbound.checkpoint_saved((pid_ok, att), b"state", 0.4)  # as a worker reports it
     t.run(30.0, until=lambda: ok.done() and bad.done())
     assert ok.host == bad.host == "r2"
     host = {(r["what"], r["program_id"]): r for r in _lines(path, "r2")}

@@ -17,9 +17,9 @@ def test_a_node_that_hears_nobody_says_what_it_tried_and_runs_on(caplog):
     try:
         with caplog.at_level(logging.WARNING, logger="ramps.node"):
             team.run(LONELY_AFTER - 1.0)
-            assert team.nodes["r1"].lonely == ""  # not before its first seconds
+            assert team.nodes["r1"].inbound.lonely == ""  # not before its first seconds
             team.run(3.0)
-        rt = team.nodes["r1"]
+        rt = team.nodes["r1"].inbound  # what it heard, and the warning it gave
         assert "heard no teammate in team 'mem'" in rt.lonely
         assert "connecting to tcp/10.9.9.9:7447" in rt.lonely and "multicast discovery off" in rt.lonely
         assert "--connect names an endpoint a teammate's node listens on" in rt.lonely and "--no-multicast" in rt.lonely
@@ -39,6 +39,6 @@ def test_a_node_with_a_teammate_says_nothing():
     team = MemoryTeam({"r1": (2, 1.0), "r2": (2, 1.0)}, settings=ALONE)
     try:
         team.run(LONELY_AFTER + 5.0)
-        assert team.nodes["r1"].lonely == "" and team.nodes["r2"].lonely == ""
+        assert team.nodes["r1"].inbound.lonely == "" and team.nodes["r2"].inbound.lonely == ""
     finally:
         team.close()

@@ -1,5 +1,5 @@
 """The node driver's own clock and its view of teammates after a stall
-(``ramps.runtime.node.NodeRuntime._clock`` / ``_on_liveliness``), without
+(``ramps.runtime.node.NodeRuntime._clock`` / ``Inbound.on_liveliness``), without
 Zenoh or processes: an injected fake clock, an in-memory transport and the
 real core ``Node``. Whole teams of real drivers: tests/test_driver_memory.py.
 The end-to-end version (SIGSTOP of a real node) is tests/test_busy_node_e2e.py."""
@@ -58,18 +58,18 @@ def test_teammates_lost_right_after_a_stall_are_held_and_forgotten_if_back(drive
     rt.awake.sleep_until = fake.t
     fake.t += 4.0
     now = rt._clock()  # a 4 s stall
-    assert rt._on_liveliness("r2", False, now) == []  # held, not yet a loss
+    assert rt.inbound.on_liveliness("r2", False, now) == []  # held, not yet a loss
     assert not rt.node.view.is_lost("r2")
     wait(rt, fake, 0.2)
-    back = rt._on_liveliness("r2", True, rt._clock())  # back: both forgotten
+    back = rt.inbound.on_liveliness("r2", True, rt._clock())  # back: both forgotten
     assert [type(a) for a in back] == [PublishReport]  # and it hears this robot's load at once
     assert rt.held_lost.held == {}
     # r3 goes just after the stall and does not come back: lost when the grace ends
-    rt._on_liveliness("r3", False, rt._clock())
+    rt.inbound.on_liveliness("r3", False, rt._clock())
     wait(rt, fake, rn.STALL_GRACE / 2)
-    assert rt._release_lost(rt._clock()) == [] and "r3" in rt.held_lost.held
+    assert rt.inbound.release_lost(rt._clock()) == [] and "r3" in rt.held_lost.held
     wait(rt, fake, rn.STALL_GRACE)
-    rt._release_lost(rt._clock())
+    rt.inbound.release_lost(rt._clock())
     assert rt.held_lost.held == {}
     assert rt.node.view.is_lost("r3")
 
@@ -79,7 +79,7 @@ def test_far_from_a_stall_a_lost_teammate_is_lost_at_once(driver):
     rt._clock()
     fake.t += rn.STALL_GRACE + 10  # no stall: the driver allowed itself this wait
     rt.awake.sleep_until = fake.t
-    rt._on_liveliness("r2", False, rt._clock())
+    rt.inbound.on_liveliness("r2", False, rt._clock())
     assert rt.held_lost.held == {} and rt.node.view.is_lost("r2")
 
 
@@ -139,9 +139,9 @@ def test_a_stall_that_may_have_closed_links_is_told_to_the_core_once(driver):
     notes = [a.what for a in rt._stall_told(now)]
     assert notes == ["relinking"] and rt.awake.pending == 0.0
     assert rt.node.origin.relink.waiting("r2", now)
-    rt._on_liveliness("r2", False, now)  # held, see above
+    rt.inbound.on_liveliness("r2", False, now)  # held, see above
     wait(rt, fake, 0.2)
-    acts = rt._on_liveliness("r2", True, rt._clock())
+    acts = rt.inbound.on_liveliness("r2", True, rt._clock())
     assert [a.robot for a in acts if isinstance(a, Note) and a.what == "relinked"] == ["r2"]
     assert not rt.node.origin.relink.waiting("r2", rt._clock())
     assert rt.node.origin.relink.waiting("r3", rt._clock())

@@ -77,7 +77,7 @@ def test_a_long_queue_does_not_hold_back_the_load_report_nor_wait_for_the_origin
         handled.append(item)
         return []
 
-    monkeypatch.setattr(rt, "_handle", handle)
+    monkeypatch.setattr(rt.inbound, "handle", handle)
     monkeypatch.setattr(rt.outbound, "publish", lambda now: published.append(now))
     monkeypatch.setattr(rt.outbound, "apply", lambda actions: None)
     real_tick = rt.node.tick

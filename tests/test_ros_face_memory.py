@@ -138,7 +138,7 @@ def test_feedback_states_are_the_documented_ones_and_progress_comes_as_running(r
         mem.run(2.0, complete=False, until=lambda: any(p.jobs for p in mem.pools.values()))
         host = next(name for name, p in mem.pools.items() if p.jobs)
         [key] = list(mem.pools[host].jobs)
-        mem.nodes[host]._progress_reported(key, 0.5, "half way")  # as the worker reports it
+        mem.nodes[host].inbound.progress_reported(key, 0.5, "half way")  # as the worker reports it
         mem.run(0.5, complete=False)
         spin_until(lambda: any(f["progress"] == 0.5 for f in feedback), "progress feedback")
         mem.run(5.0)

@@ -389,7 +389,7 @@ def test_a_node_drops_and_counts_what_exceeds_its_backlog(monkeypatch) -> None:
     for _ in range(30):
         node._on_wire(b"x" * 100)
     assert node.intake.backlog == 1000 and node.intake.overflow == 20
-    node._handle(node._q.get_nowait(), 0.0)  # the driver takes one: room for one more
+    node.inbound.handle(node._q.get_nowait(), 0.0)  # the driver takes one: room for one more
     assert node.intake.backlog == 900 and node.bad_messages == 1
     node._on_wire(b"y" * 100)
     assert node.intake.overflow == 20 and node.intake.backlog == 1000

@@ -22,11 +22,12 @@ clients told, then the liveliness token, subscribers and transport close.
 The driver reaches the team only through ``ramps.runtime.transport`` (a
 Zenoh session in production, ``ramps.testing.memory`` in tests) and reads
 time only from its injected clock. This module is its lifecycle and loop.
-What it does with each input is ``node_inbound`` (a base of
-``NodeRuntime``; what it reads of the driver is declared, typed, in
-``node_state``). The rest are parts it holds, each with its own state: the
-core's actions applied (``node_outbound.Outbound``), its clients' requests
-and outcomes
+The rest are parts it holds, each with its own state and given the other
+parts it uses; one that reads the driver itself sees it through a protocol
+of its own (``InboundDriver``, ``OutboundDriver``, ``ClientsDriver``,
+``ReportsDriver``), which mypy checks ``NodeRuntime`` against. The parts:
+what it does with each input (``node_inbound.Inbound``), the core's actions
+applied (``node_outbound.Outbound``), its clients' requests and outcomes
 (``node_clients.ClientAnswers``), its load reports
 (``node_reports.LoadReports``), its publishing (``node_outbox.Outbox``),
 what it makes of the bytes it receives (``node_intake.WireIntake``), the
@@ -81,6 +82,7 @@ from ramps.runtime.node_seams import SamplerLike, WorkerPoolLike
 
 if TYPE_CHECKING:
     from ramps.runtime.credentials import Credentials
+    from ramps.runtime.metrics import NodeMetrics
     from ramps.runtime.revocation import RevocationList
 
 log = logging.getLogger("ramps.node")
@@ -104,7 +106,7 @@ def core_config(s: NodeSettings) -> RampsConfig:
         core = msgspec.structs.replace(core, tie_tolerance=core.measured_tie_tolerance)
     return core
 
-class NodeRuntime(Inbound):
+class NodeRuntime:
     """One robot's node. ``transport`` (default: a Zenoh session opened
     from ``settings`` at ``start()``), ``clock`` (default: the real one),
     ``worker_pool`` and ``load_sampler`` (factories with the signatures of
@@ -113,12 +115,15 @@ class NodeRuntime(Inbound):
     tests drive the real driver and core with ``start(threaded=False)`` and
     ``step()``."""
 
+    #: the core's actions applied (made in ``__init__`` after the parts it uses; ``LoadReports`` calls it)
+    outbound: Outbound
+
     def __init__(self, settings: NodeSettings, *, registry: Registry | None = None,
                  on_note: Callable[[Note], None] | None = None, transport: Transport | None = None,
                  clock: Clock = REAL_CLOCK, worker_pool: Callable[..., WorkerPoolLike] = WorkerPool,
                  load_sampler: Callable[..., SamplerLike] = LoadSampler, incarnation: int | None = None) -> None:
-        """Every attribute of the driver's state (``ramps.runtime.node_state``) and
-        its parts get their first value; nothing starts before ``start``."""
+        """The driver's state and its parts get their first value; nothing
+        starts before ``start``."""
         if not settings.robot:
             raise ValueError("a node needs a robot name")
         self.s = settings
@@ -131,7 +136,8 @@ class NodeRuntime(Inbound):
         self.robot = settings.robot
         self.team = settings.team
         self.registry = node_registry(registry or default_registry, settings.programs, settings.commands)
-        self._q = queue.SimpleQueue()
+        #: the driver's queue: (kind, ...) items (``Inbound.handle``)
+        self._q: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()
         #: its clients' requests, their outcomes and updates
         self.clients = ClientAnswers(self)
         #: its publishers, and the threads that send large messages
@@ -142,10 +148,10 @@ class NodeRuntime(Inbound):
         self.intake = WireIntake(self.robot)
         self.heap = HeapTrimmer()  # gives the memory of a drained burst back (ramps.runtime.heap)
         self.trace = NodeTrace(self.robot, clock)
-        self.transport = None
+        self.transport: Transport | None = None
         #: its subscriptions, publishers and tokens on the transport
         self.membership = Membership(self.team, self.robot)
-        self.node = None
+        self.node: Node | None = None
         #: the core's clock: the time this node was awake, its stalls taken out
         self.awake = AwakeClock(clock, lease_s=settings.lease_ms / 1000.0, robot=self.robot, trace=self.trace)
         #: the robot's cores, speed and quota, where its load is measured (``RobotMeasure.measure`` at start)
@@ -158,11 +164,14 @@ class NodeRuntime(Inbound):
         self.revoked = Revoked(self.team, self.robot)
         #: the other nodes under this robot's name, and why this one left for one (``name_taken``)
         self.same_name = SameName(self.team, self.robot, self.trace)
+        #: what it does with each input, and whether it heard any teammate (``lonely``)
+        self.inbound = Inbound(self, settings, put=self._q.put, intake=self.intake, revoked=self.revoked,
+                               held_lost=self.held_lost, trace=self.trace, clients=self.clients)
         #: Prometheus metrics (``--metrics``), fed from the driver thread (ramps.runtime.metrics)
-        self.metrics = None
+        self.metrics: NodeMetrics | None = None
         #: the durable record of the programs this node is origin of (``state_dir``;
         #: ramps.runtime.store), and how many it resumed at start
-        self.store = None
+        self.store: OriginStore | None = None
         self.restored = 0
         #: its periodic load reports and those of the instant
         self.reports = LoadReports(self, apply=lambda actions: self.outbound.apply(actions))
@@ -176,8 +185,6 @@ class NodeRuntime(Inbound):
         self.on_turn: Callable[[], None] | None = None
         #: when to look whether this node has heard any teammate (None: looked, or no need)
         self._lonely_at: float | None = None
-        #: the warning it gave, if it heard nobody ("" = none)
-        self.lonely = ""
 
     # ================================================================ lifecycle
     def start(self, *, threaded: bool = True) -> "NodeRuntime":
@@ -202,8 +209,9 @@ class NodeRuntime(Inbound):
         if s.state_dir not in ("", "off"):  # a foreign record: ConfigError, before anything starts
             self.store = OriginStore(s.state_dir, team=self.team, robot=self.robot, sync=s.state_sync)
             self.node.origin.changed = set()
-        self.pool = self._worker_pool(self.cores, self.registry.targets(), self._finished, nice=worker_increment(s.worker_nice),
-                               on_progress=self._progress_reported, on_checkpoint=self._checkpoint_saved)
+        self.pool = self._worker_pool(self.cores, self.registry.targets(), self.inbound.finished,
+                                      nice=worker_increment(s.worker_nice), on_progress=self.inbound.progress_reported,
+                                      on_checkpoint=self.inbound.checkpoint_saved)
         self.pool.start()
         # programs on an accelerator are not CPU programs (ramps.core.accelerators)
         self.sampler = self._load_sampler(lambda: self.pool.busy() + self.pool.queued() - self.accel.held(),
@@ -290,6 +298,21 @@ class NodeRuntime(Inbound):
         if not ev.wait(timeout):
             raise TimeoutError("the node's driver did not answer")
         return box[0]
+
+    @property
+    def bad_messages(self) -> int:
+        """Messages dropped as bad input (``WireIntake``; ``ramps status``)."""
+        return self.intake.bad
+
+    @property
+    def version_refused(self) -> int:
+        """Of them, those refused as another major protocol version."""
+        return self.intake.version_refused
+
+    @property
+    def unknown_types(self) -> int:
+        """Of them, those skipped as a message type of a newer minor."""
+        return self.intake.unknown_types
 
     @property
     def revocations(self) -> RevocationList | None:
@@ -402,7 +425,7 @@ class NodeRuntime(Inbound):
                     self._teardown()
                 return False
             try:
-                actions.extend(self._handle(item, now))
+                actions.extend(self.inbound.handle(item, now))
             except Exception:  # a bug must not take the node down; say so loudly
                 log.exception("node %s: error handling %s", self.robot, item[0])
             if len(actions) >= 256:
@@ -421,13 +444,13 @@ class NodeRuntime(Inbound):
         if self.awake.pending:
             actions.extend(self._stall_told(now))
         if self.held_lost.held:
-            actions.extend(self._release_lost(now))
+            actions.extend(self.inbound.release_lost(now))
         if now >= next_pub:
             self.outbound.publish(now)
             self.heap.maybe_trim(self.intake.backlog)
             if self._lonely_at is not None and self.clock.monotonic() >= self._lonely_at:
                 self._lonely_at = None
-                self._lonely()
+                self.inbound.say_if_lonely()
             period = self.s.publish_period
             self._next_pub = now + period if now - next_pub > period else next_pub + period
         deadline = node.next_deadline()

@@ -1,24 +1,30 @@
 """What reaches a node's driver: teammates' messages, clients' requests, liveliness, revocations.
 
-How this works: ``NodeRuntime`` (``ramps.runtime.node``) takes each queued
-item on its driver thread and hands it to ``_handle`` here: bytes from the
-wire are decoded (a bad message is counted and dropped: ``WireIntake``,
-``ramps.runtime.node_intake``), a client's submission goes to
-``ramps.runtime.node_clients``, a teammate's message, a program's end or
-progress (queued by the worker pool's callbacks here) to the core. A
-teammate's liveliness becomes ``PeerAlive``/``PeerLost`` for the core,
-except that just after this node stalled a loss is held for
-``STALL_GRACE`` (``HeldLosses``: it may be only the teammate's lease on
-this frozen node that ran out). On a secured team, a newer revocation list
-signed by the team CA (``Revoked``) shuts the robots it names out (or makes
-this robot leave).
+How this works: ``Inbound`` is a part of the node's driver
+(``ramps.runtime.node``), given at construction the parts it hands inputs
+to; of the driver it reads only what ``InboundDriver`` names, what the
+driver has once started (the core, its accelerators, metrics and
+transport). The worker pool's callbacks (``finished``, ``progress_reported``,
+``checkpoint_saved``, on the pool's threads) only queue an item for the
+driver, which takes each queued item on its own thread and hands it to
+``handle``: bytes from the wire are decoded (a bad message is counted and
+dropped: ``WireIntake``, ``ramps.runtime.node_intake``), a client's
+submission goes to ``ramps.runtime.node_clients``, a teammate's message, a
+program's end or progress to the core. A teammate's liveliness becomes
+``PeerAlive``/``PeerLost`` for the core, except that just after this node
+stalled a loss is held for ``STALL_GRACE`` (``HeldLosses``: it may be only
+the teammate's lease on this frozen node that ran out). On a secured team,
+a newer revocation list signed by the team CA (``Revoked``) shuts the
+robots it names out (or makes this robot leave). A node that has heard no
+teammate ``LONELY_AFTER`` seconds after it started says so (``lonely``).
 """
 
 from __future__ import annotations
 
 import logging
 import threading
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Protocol
 
 import msgspec
 
@@ -41,10 +47,18 @@ from ramps.core.messages import (
 )
 from ramps.core.relink import RELINK_TIMEOUT
 from ramps.runtime.node_seams import Key
-from ramps.runtime.node_state import DriverState
 
 if TYPE_CHECKING:
-    pass
+    from ramps.core.node import Node
+    from ramps.runtime.accelerators import AcceleratorProbe
+    from ramps.runtime.metrics import NodeMetrics
+    from ramps.runtime.node_awake import HeldLosses
+    from ramps.runtime.node_clients import ClientAnswers
+    from ramps.runtime.node_intake import WireIntake
+    from ramps.runtime.node_revoked import Revoked
+    from ramps.runtime.node_trace import NodeTrace
+    from ramps.runtime.settings import NodeSettings
+    from ramps.runtime.transport import Transport
 
 log = logging.getLogger("ramps.node")
 #: seconds after a stall during which a teammate's lost liveliness is held,
@@ -52,48 +66,57 @@ log = logging.getLogger("ramps.node")
 #: does not count a teammate's silence for as long: ramps.core.relink)
 STALL_GRACE = RELINK_TIMEOUT
 #: a node told to --connect somewhere, or with multicast off, that has heard
-#: no teammate this many seconds after it started says so, once (``_lonely``)
+#: no teammate this many seconds after it started says so, once (``Inbound.say_if_lonely``)
 LONELY_AFTER = 8.0
 
 
-class Inbound(DriverState):
-    """The driver's inputs (mixed into ``NodeRuntime``)."""
+class InboundDriver(Protocol):
+    """What ``Inbound`` reads of its driver: what the driver has once started
+    (None before ``start``, or once it let go of it)."""
 
-    @property
-    def bad_messages(self) -> int:
-        """Messages dropped as bad input (``WireIntake``; ``ramps status``)."""
-        return self.intake.bad
+    node: Node | None
+    transport: Transport | None
+    accel: AcceleratorProbe
+    metrics: NodeMetrics | None
 
-    @property
-    def version_refused(self) -> int:
-        """Of them, those refused as another major protocol version."""
-        return self.intake.version_refused
+    def endpoints(self) -> list[str]: ...
 
-    @property
-    def unknown_types(self) -> int:
-        """Of them, those skipped as a message type of a newer minor."""
-        return self.intake.unknown_types
+
+class Inbound:
+    """The inputs of ``driver``'s node, of settings ``s``, which queues its
+    items with ``put``: each to the part or the core it is for."""
+
+    def __init__(self, driver: InboundDriver, s: NodeSettings, *, put: Callable[[tuple[Any, ...]], None],
+                 intake: WireIntake, revoked: Revoked, held_lost: HeldLosses, trace: NodeTrace,
+                 clients: ClientAnswers) -> None:
+        self.d = driver
+        self.s, self.robot, self.team = s, s.robot, s.team
+        self._put = put
+        self.intake, self.revoked, self.held_lost = intake, revoked, held_lost
+        self.trace, self.clients = trace, clients
+        #: the warning it gave, if it heard nobody ("" = none)
+        self.lonely = ""
 
     # the worker pool's callbacks (on its threads): each only queues an item for the driver
-    def _finished(self, key: Key, ok: bool, value: bytes, error: str, retryable: bool, cpu_s: float | None = None,
-                  died: bool = False) -> None:
-        self._q.put(("finished", ProgramFinished(program_id=key[0], attempt=key[1], ok=ok, value=value, error=error,
-                                                 result_size=len(value), retryable=retryable, cpu_s=cpu_s,
-                                                 worker_died=died)))
+    def finished(self, key: Key, ok: bool, value: bytes, error: str, retryable: bool, cpu_s: float | None = None,
+                 died: bool = False) -> None:
+        self._put(("finished", ProgramFinished(program_id=key[0], attempt=key[1], ok=ok, value=value, error=error,
+                                               result_size=len(value), retryable=retryable, cpu_s=cpu_s,
+                                               worker_died=died)))
 
-    def _checkpoint_saved(self, key: Key, state: bytes, fraction: float | None) -> None:
-        self._q.put(("progress", CheckpointSaved(program_id=key[0], attempt=key[1], state=state,
-                                                 fraction=fraction if isinstance(fraction, float) else None)))
+    def checkpoint_saved(self, key: Key, state: bytes, fraction: float | None) -> None:
+        self._put(("progress", CheckpointSaved(program_id=key[0], attempt=key[1], state=state,
+                                               fraction=fraction if isinstance(fraction, float) else None)))
 
-    def _progress_reported(self, key: Key, fraction: float, detail: str) -> None:
-        self._q.put(("progress", ProgressReported(program_id=key[0], attempt=key[1], fraction=fraction,
-                                                  detail=detail)))
+    def progress_reported(self, key: Key, fraction: float, detail: str) -> None:
+        self._put(("progress", ProgressReported(program_id=key[0], attempt=key[1], fraction=fraction,
+                                                detail=detail)))
 
-    def _on_liveliness(self, robot: str, alive: bool, now: float) -> list[Action]:
+    def on_liveliness(self, robot: str, alive: bool, now: float) -> list[Action]:
         """A teammate's liveliness token came or went. Just after this node
         stalled, a loss is held for STALL_GRACE and forgotten if the robot
         comes back meanwhile (``HeldLosses``); a robot that does not is lost
-        then (``_release_lost``)."""
+        then (``release_lost``)."""
         if robot in self.revoked.robots:
             return []
         if not alive and not self.held_lost.lost(robot, now):
@@ -106,8 +129,8 @@ class Inbound(DriverState):
         """A teammate's liveliness, to the core: its origin (the teammate as a
         host) and its executor (the teammate as an origin: one gone for good
         has its programs here stopped, see ``Executor.on_origin_lost``)."""
-        assert self.node is not None
-        return self.node.handle(PeerAlive(robot=robot) if alive else PeerLost(robot=robot), now)
+        assert self.d.node is not None
+        return self.d.node.handle(PeerAlive(robot=robot) if alive else PeerLost(robot=robot), now)
 
     def _on_revocations(self, data: bytes, now: float) -> list[Action]:
         """A revocation list from the team: adopt it if it is newer and signed
@@ -131,22 +154,24 @@ class Inbound(DriverState):
                 continue
             log.warning("node %s: robot %s is revoked by the team (list %d): shut out", self.robot, robot, rl.seq)
             self.held_lost.forget(robot)
-            assert self.node is not None
-            self.node.executor.stop_origin(robot, now, out)
-            out.extend(self.node.handle(PeerLost(robot=robot), now))
+            assert self.d.node is not None
+            self.d.node.executor.stop_origin(robot, now, out)
+            out.extend(self.d.node.handle(PeerLost(robot=robot), now))
         if self.revoked.me:
             log.error("node %s: this robot is revoked by team %s (list %d): handing programs back and leaving",
                       self.robot, self.team, rl.seq)
-            self._q.put(("stop", threading.Event()))
+            self._put(("stop", threading.Event()))
         return out
 
-    def _release_lost(self, now: float) -> list[Action]:
+    def release_lost(self, now: float) -> list[Action]:
         """The teammates whose held loss falls due by ``now``, lost for the core."""
         return [a for robot in self.held_lost.due(now) for a in self._peer_event(robot, False, now)]
 
-    def _handle(self, item: tuple[Any, ...], now: float) -> list[Action]:
+    def handle(self, item: tuple[Any, ...], now: float) -> list[Action]:
+        """A queued ``item`` (its kind first), taken by the driver at the core's
+        time ``now``: what the core is to do about it."""
         kind = item[0]
-        node = self.node
+        node = self.d.node
         if kind == "wire":  # a message the wire refuses needs no core to be dropped and counted
             env = self.intake.decode(item[1], now)
             if env is None:
@@ -173,9 +198,9 @@ class Inbound(DriverState):
             return node.handle(Received(sender=env.sender, msg=msg), now)
         assert node is not None
         if kind == "finished":
-            if self.metrics is not None:
-                self.metrics.on_finished(item[1])
-            held = self.accel.release((item[1].program_id, item[1].attempt))  # the next on its slot starts
+            if self.d.metrics is not None:
+                self.d.metrics.on_finished(item[1])
+            held = self.d.accel.release((item[1].program_id, item[1].attempt))  # the next on its slot starts
             return node.handle(item[1] if held is None else msgspec.structs.replace(item[1], slot_s=held), now)
         if kind == "speed":  # the measurement's moment on the grid, its own figure, the node's
             if self.trace.on:
@@ -190,7 +215,7 @@ class Inbound(DriverState):
                 return []
             if self.trace.wire:
                 self.trace.write("peer_alive" if alive else "peer_lost", "", robot, 0, "liveliness")
-            return self._on_liveliness(robot, alive, now)
+            return self.on_liveliness(robot, alive, now)
         if kind == "call":
             item[1]()
             return []
@@ -198,22 +223,22 @@ class Inbound(DriverState):
             return self._on_revocations(item[1], now)
         raise ValueError(f"unknown queue item {kind!r}")
 
-    def _lonely(self) -> None:
+    def say_if_lonely(self) -> None:
         """LONELY_AFTER seconds after start: if no teammate was ever heard
         (no load report, no liveliness), log one warning saying what this
         node tried and what to check. It runs on: a lone robot is legal."""
-        assert self.node is not None
-        if any(r != self.robot for r in self.node.view.robots()):
+        assert self.d.node is not None
+        if any(r != self.robot for r in self.d.node.view.robots()):
             return
         s = self.s
         tried = []
         if s.connect:
             tried.append(f"connecting to {', '.join(s.connect)}")
         if s.mode != "client":
-            tried.append(f"listening on {', '.join(self.endpoints() or s.listen_endpoints())}")
+            tried.append(f"listening on {', '.join(self.d.endpoints() or s.listen_endpoints())}")
         tried.append("multicast discovery " + ("on" if s.multicast else "off"))
         try:
-            sessions = len(self.transport.peers()) if self.transport is not None else 0
+            sessions = len(self.d.transport.peers()) if self.d.transport is not None else 0
         except Exception:
             sessions = 0
         if sessions:
