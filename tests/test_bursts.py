@@ -64,7 +64,9 @@ def test_the_same_burst_in_a_fake_team_is_planned_at_the_end_of_the_batch() -> N
     node = team.nodes["o"]
     node.origin.bursts = True
     for pid, work in (("p1", 1.0), ("p2", 1.0), ("p3", 2.0)):
-        assert team.handle("o", Submit(program_id=pid, program="plan", work=work)) == []  # held: nothing yet
+        out = team.handle("o", Submit(program_id=pid, program="plan", work=work))
+        # held: nothing placed yet (the first says at once that an application submits here)
+        assert [type(a).__name__ for a in out] == (["PublishReport"] if pid == "p1" else [])
     assert node.next_deadline() == team.now  # due at once: a driver that only ticks places them too
     team.apply("o", node.tick(team.now))
     team.deliver()

@@ -98,3 +98,22 @@ def test_three_origins_place_in_turn_each_after_the_claims_before_it() -> None:
     assert at["a"] == sc.warmup < at["b"] < at["c"] < sc.warmup + 3 * latency
     short = {p.origin: p.host for p in res.programs if p.program_id in ("a#1", "b#3", "c#5")}
     assert short == {"a": "g", "b": "b", "c": "c"}  # the slot once; the others, seeing it taken, on cores
+
+
+def test_a_node_becomes_a_submitter_with_its_first_submit_and_says_so_at_once() -> None:
+    """On a real robot nobody tells the core that an application submits
+    there: its first program does, and the report of the instant that
+    follows tells the teammates, who then wait for its claims."""
+    import random
+
+    from ramps.core.events import PublishReport, Received, Submit
+    from ramps.core.node import Node
+
+    a = Node("a", cores=2, speed=1.0, config=RampsConfig(), rng=random.Random(1))
+    b = Node("b", cores=2, speed=1.0, config=RampsConfig(), rng=random.Random(2))
+    assert not a.submits and not a.current_report(with_class=True).submits
+    out = a.handle(Submit(program_id="p1", program="burn", work=1.0), 1.0) + a.flush(1.0)
+    [report] = [x.report for x in out if isinstance(x, PublishReport)]
+    assert a.submits and report.submits
+    b.handle(Received(sender="a", msg=decode(encode("a", report)).msg), 1.01)
+    assert "a" in b.claims.submitters

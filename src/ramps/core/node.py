@@ -162,7 +162,7 @@ class Node:
         self.executor = Executor(robot, config=self.config, registry=registry, incarnation=incarnation,
                                  cores=cores, speed=speed, program_weight=program_weight,
                                  core_fraction=core_fraction, accelerators=accelerators)
-        #: an application submits here (told in reports of the instant); the bursts' claims
+        #: an application submits here (from its first Submit; told in reports of the instant); the bursts' claims
         self.submits, self.claims = submits, Claims(self.executor)
         #: what the driver last measured of each accelerator kind: (memory
         #: total, memory free, utilisation or None), for the load reports
@@ -288,6 +288,8 @@ class Node:
         if isinstance(event, Received):
             self._receive(event.sender, event.msg, now, out)
         elif isinstance(event, Submit):
+            if not self.submits:  # an application submits here: teammates hear it now (ramps.core.claims)
+                self.submits, self._published = True, (-1, -1)
             self.origin.submit(event, now, out)
         elif isinstance(event, ProgramFinished):
             self.executor.on_finished(event, now, out)
@@ -346,8 +348,7 @@ class Node:
             out.append(Note(what="battery_ok", robot=self.robot, detail=f"charge {charge}: takes teammates' programs again"))
 
     def _go_by_speed(self, now: float, out: list[Action], why: str) -> None:
-        """Go by this robot's own figure, or its class's (``SpeedClass.rate``),
-        if that moved."""
+        """Go by this robot's own figure, or its class's (``SpeedClass.rate``), if that moved."""
         assert self.own_speed is not None
         own, fraction = self.own_speed.value, self.core_fraction
         rate, robots = self.speed_class.rate(own / fraction, self.own_speed.se)
