@@ -183,8 +183,6 @@ class NodeRuntime:
                                  stop=lambda: self._q.put(("stop", threading.Event())))
         #: called on the driver thread after every round of its loop (systemd's watchdog, ramps.runtime.service)
         self.on_turn: Callable[[], None] | None = None
-        #: when to look whether this node has heard any teammate (None: looked, or no need)
-        self._lonely_at: float | None = None
 
     # ================================================================ lifecycle
     def start(self, *, threaded: bool = True) -> "NodeRuntime":
@@ -231,7 +229,7 @@ class NodeRuntime:
         self._threaded = threaded
         self._next_pub = self.awake.start()
         if s.connect or not s.multicast:  # else a lone robot on a LAN with multicast is no surprise
-            self._lonely_at = self.clock.monotonic() + LONELY_AFTER
+            self.inbound.lonely_at = self.clock.monotonic() + LONELY_AFTER
         if self.store is not None:
             self.outbound.apply(self.clients.restore(self.store, self._clock()))
         if threaded:
@@ -448,9 +446,7 @@ class NodeRuntime:
         if now >= next_pub:
             self.outbound.publish(now)
             self.heap.maybe_trim(self.intake.backlog)
-            if self._lonely_at is not None and self.clock.monotonic() >= self._lonely_at:
-                self._lonely_at = None
-                self.inbound.say_if_lonely()
+            self.inbound.look_lonely(self.clock.monotonic())
             period = self.s.publish_period
             self._next_pub = now + period if now - next_pub > period else next_pub + period
         deadline = node.next_deadline()

@@ -66,7 +66,7 @@ log = logging.getLogger("ramps.node")
 #: does not count a teammate's silence for as long: ramps.core.relink)
 STALL_GRACE = RELINK_TIMEOUT
 #: a node told to --connect somewhere, or with multicast off, that has heard
-#: no teammate this many seconds after it started says so, once (``Inbound.say_if_lonely``)
+#: no teammate this many seconds after it started says so, once (``Inbound.look_lonely``)
 LONELY_AFTER = 8.0
 
 
@@ -94,7 +94,9 @@ class Inbound:
         self._put = put
         self.intake, self.revoked, self.held_lost = intake, revoked, held_lost
         self.trace, self.clients = trace, clients
-        #: the warning it gave, if it heard nobody ("" = none)
+        #: when to look whether this node has heard any teammate, on the clock's
+        #: monotonic time (None: looked, or no need), and the warning it gave ("" = none)
+        self.lonely_at: float | None = None
         self.lonely = ""
 
     # the worker pool's callbacks (on its threads): each only queues an item for the driver
@@ -223,10 +225,14 @@ class Inbound:
             return self._on_revocations(item[1], now)
         raise ValueError(f"unknown queue item {kind!r}")
 
-    def say_if_lonely(self) -> None:
-        """LONELY_AFTER seconds after start: if no teammate was ever heard
+    def look_lonely(self, t: float) -> None:
+        """At the clock's monotonic time ``t``, once past ``lonely_at``
+        (LONELY_AFTER seconds after start): if no teammate was ever heard
         (no load report, no liveliness), log one warning saying what this
         node tried and what to check. It runs on: a lone robot is legal."""
+        if self.lonely_at is None or t < self.lonely_at:
+            return
+        self.lonely_at = None
         assert self.d.node is not None
         if any(r != self.robot for r in self.d.node.view.robots()):
             return
