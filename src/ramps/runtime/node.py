@@ -174,7 +174,9 @@ class NodeRuntime:
         self.store: OriginStore | None = None
         self.restored = 0
         #: its periodic load reports and those of the instant
-        self.reports = LoadReports(self, apply=lambda actions: self.outbound.apply(actions))
+        self.reports = LoadReports(self, settings, apply=lambda actions: self.outbound.apply(actions), put=self._q.put,
+                                   awake=self.awake, measured=self.measured, membership=self.membership,
+                                   trace=self.trace, intake=self.intake)
         #: the core's actions applied to its parts and to the world
         self.outbound = Outbound(self, robot=self.robot, team=self.team, clock=clock, awake=self.awake,
                                  outbox=self.outbox, trace=self.trace, clients=self.clients, reports=self.reports,

@@ -1,7 +1,9 @@
 """A node's load reports: the periodic one, and those of the instant.
 
 How this works: ``LoadReports`` is a part of the node's driver
-(``ramps.runtime.node``); it sees the driver through ``ReportsDriver``.
+(``ramps.runtime.node``), given the parts it reads and publishes through;
+of the driver it reads only what ``ReportsDriver`` names, what the driver
+has once started (the core, its pool, sampler, accelerators and metrics).
 Every report period the driver calls ``publish``: it starts a
 re-measurement of the robot's speed when one is due (``RobotMeasure``),
 reads the sampler, the robot's battery (``ramps.runtime.battery``, handed
@@ -21,7 +23,6 @@ from __future__ import annotations
 
 import logging
 import math
-import queue
 from itertools import islice
 from typing import TYPE_CHECKING, Any, Callable, Protocol
 
@@ -52,30 +53,29 @@ PROMPT_HOLD = 0.005
 
 
 class ReportsDriver(Protocol):
-    """What a node's load reports (``LoadReports``) use of its driver."""
+    """What a node's load reports (``LoadReports``) read of its driver: what
+    the driver has once started."""
 
-    s: NodeSettings
-    robot: str
     node: Node | None
-    awake: AwakeClock
-    measured: RobotMeasure
     pool: WorkerPoolLike
     sampler: SamplerLike
     accel: AcceleratorProbe
     metrics: NodeMetrics | None
-    membership: Membership
-    trace: NodeTrace
-    #: messages dropped as bad input and over the driver's backlog (``ramps status``)
-    intake: WireIntake
-    _q: queue.SimpleQueue[tuple[Any, ...]]
 
 
 class LoadReports:
-    """The load reports of ``driver``'s node, which ``apply`` the core's actions."""
+    """The load reports of ``driver``'s node, of settings ``s``, which
+    ``apply`` the core's actions and queue the driver's items with ``put``."""
 
-    def __init__(self, driver: ReportsDriver, apply: Callable[[list[Action]], None]) -> None:
+    def __init__(self, driver: ReportsDriver, s: NodeSettings, *, apply: Callable[[list[Action]], None],
+                 put: Callable[[tuple[Any, ...]], None], awake: AwakeClock, measured: RobotMeasure,
+                 membership: Membership, trace: NodeTrace, intake: WireIntake) -> None:
         self.d = driver
-        self._apply = apply
+        self.s, self.robot = s, s.robot
+        self._apply, self._put = apply, put
+        self.awake, self.measured, self.membership, self.trace = awake, measured, membership, trace
+        #: messages dropped as bad input and over the driver's backlog (``ramps status``)
+        self.intake = intake
         #: the last periodic report, and the teammates in this robot's view then
         self.last: LoadReport | None = None
         self._sees: frozenset[str] = frozenset()
@@ -89,7 +89,7 @@ class LoadReports:
         """A report of the instant from the core: published ``PROMPT_HOLD`` after
         the first not yet published, the newest then."""
         if self._held is None:
-            self._due = self.d.awake.now() + PROMPT_HOLD
+            self._due = self.awake.now() + PROMPT_HOLD
         self._held = report
 
     def due(self) -> float:
@@ -105,25 +105,25 @@ class LoadReports:
     def publish(self, now: float) -> None:
         """The periodic load report, at the core's time ``now``."""
         d = self.d
-        d.measured.remeasure_due(lambda: not d.pool.busy() and not d.pool.queued(), d._q.put)
+        self.measured.remeasure_due(lambda: not d.pool.busy() and not d.pool.queued(), self._put)
         node = d.node
         assert node is not None
         busy, runnable, ramps_avg = d.sampler.averages()
         per_core, load1, mem_free = d.sampler.extras()
         node.executor.background = max(0.0, runnable - ramps_avg)
-        busy = d.measured.busy(busy)
-        node_cpu = d.measured.read_node_cpu()
+        busy = self.measured.busy(busy)
+        node_cpu = self.measured.read_node_cpu()
         self._read_battery(now, busy)
         if d.accel.declared:
             node.accelerator_measured = d.accel.measure()
-        report = node.make_report(cpu_busy=busy, runnable=runnable, ramps_avg=ramps_avg, window=d.s.window,
+        report = node.make_report(cpu_busy=busy, runnable=runnable, ramps_avg=ramps_avg, window=self.s.window,
                                   mem_free=mem_free, cpu_per_core=per_core, load_avg=load1,
                                   node_cpu=round(node_cpu, 4))
-        sees = frozenset(node.view.candidates(now)) - {d.robot}
+        sees = frozenset(node.view.candidates(now)) - {self.robot}
         if sees != self._sees:
             self._log_view_change(self._sees, sees)
             self._sees = sees
-        report = msgspec.structs.replace(report, bad_messages=d.intake.bad + d.intake.overflow,  # `ramps status`
+        report = msgspec.structs.replace(report, bad_messages=self.intake.bad + self.intake.overflow,  # `ramps status`
                                          sees=len(sees), running=self._running_list(), **self._learned())
         self.last = report
         self._held = None  # this report says all a held one would
@@ -134,17 +134,17 @@ class LoadReports:
                                 blacklisted=len(st.blacklisted), dropped=report.bad_messages,
                                 reports_received=st.reports_received)
         try:
-            d.membership.load_pub.put(encode(d.robot, report))
-            if d.trace.wire:
-                d.trace.write("tx", "", "*", 0, "LoadReport")
+            self.membership.load_pub.put(encode(self.robot, report))
+            if self.trace.wire:
+                self.trace.write("tx", "", "*", 0, "LoadReport")
         except Exception as exc:
-            log.warning("node %s could not publish its load: %s", d.robot, exc)
+            log.warning("node %s could not publish its load: %s", self.robot, exc)
 
     def _read_battery(self, now: float, busy: float) -> None:
         """Hand the core this robot's battery (``ramps.core.battery``): below
         its reserve it hands back its teammates' programs, in this report period."""
         if self._battery is None:
-            self._battery = BatteryReader.for_settings(self.d.s)
+            self._battery = BatteryReader.for_settings(self.s)
         charge, power = self._battery.read(busy)
         assert self.d.node is not None
         self._apply(self.d.node.handle(BatteryMeasured(charge=charge, power=power), now))
@@ -157,9 +157,9 @@ class LoadReports:
         the one applications hear: a client busy submitting hears no report
         per program start and end."""
         try:
-            self.d.membership.prompt_pub.put(encode(self.d.robot, report))
+            self.membership.prompt_pub.put(encode(self.robot, report))
         except Exception as exc:
-            log.warning("node %s could not publish its load: %s", self.d.robot, exc)
+            log.warning("node %s could not publish its load: %s", self.robot, exc)
 
     def _learned(self) -> dict[str, list[Any]]:
         """What this node measured of its links and learned of its programs'
@@ -172,7 +172,7 @@ class LoadReports:
         measured = node.links.measured()
         factors = node.host_speeds.factor if node.host_speeds is not None else {}
         # teammates only: an origin also compares the runs on its own robot
-        links = [(r, measured.get(r)) for r in sorted((set(measured) | set(factors)) - {self.d.robot})[:MAX_LISTED]]
+        links = [(r, measured.get(r)) for r in sorted((set(measured) | set(factors)) - {self.robot})[:MAX_LISTED]]
         work = sorted(node.origin.learned_work().items())[:MAX_LISTED]
         return dict(links=[LinkSeen(r, ok(e.latency) if e else None, ok(e.bandwidth) if e else None,
                                     ok(factors.get(r))) for r, e in links],
@@ -193,4 +193,4 @@ class LoadReports:
 
         parts = [f"+{names(after - before)}" if after - before else "",
                  f"-{names(before - after)}" if before - after else ""]
-        log.info("node %s sees %d teammate(s): %s", self.d.robot, len(after), " ".join(p for p in parts if p))
+        log.info("node %s sees %d teammate(s): %s", self.robot, len(after), " ".join(p for p in parts if p))
