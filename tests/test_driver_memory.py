@@ -65,7 +65,8 @@ def test_the_team_forms_over_the_memory_transport(team):
 
 
 def test_bad_submissions_get_a_clear_error_and_lose_nothing(team):
-    team.nodes["r1"].s = msgspec.structs.replace(team.nodes["r1"].s, max_args_bytes=200)
+    clients = team.nodes["r1"].clients  # what checks r1's submissions, its limit on arguments lowered
+    clients.s = msgspec.structs.replace(clients.s, max_args_bytes=200)
     app = App(team, "r1")
     good = app.submit("echo", x=1)
     unknown = app.submit("no_such_program", x=1)

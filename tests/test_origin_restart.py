@@ -49,7 +49,7 @@ def test_an_origin_killed_and_restarted_delivers_every_program_once(tmp_path, do
         else:
             assert all(team.pools[r].jobs for r in set(where.values()) - {"r1"})
         rt = team.add("r1", cores=1, speed=1.0, seed=7)  # the supervisor starts it again: a new incarnation
-        assert rt.restored == 6 and rt.incarnation != 1
+        assert rt.clients.restored == 6 and rt.incarnation != 1
         team.run(60.0, until=lambda: all(f.done() for f in futs))
         assert [f.result(0) for f in futs] == [{"x": i} for i in range(6)]
         runs = {pid: sum(ran(team, r).count(pid) for r in ("r1", "r2", "r3")) for pid in where}

@@ -138,8 +138,6 @@ class NodeRuntime:
         self.registry = node_registry(registry or default_registry, settings.programs, settings.commands)
         #: the driver's queue: (kind, ...) items (``Inbound.handle``)
         self._q: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()
-        #: its clients' requests, their outcomes and updates
-        self.clients = ClientAnswers(self)
         #: its publishers, and the threads that send large messages
         self.outbox = Outbox(self.robot, lambda: self.transport)
         self._stopped = threading.Event()
@@ -160,6 +158,9 @@ class NodeRuntime:
         self.rounds_cut = 0
         #: teammates whose liveliness went just after a stall, held a moment
         self.held_lost = HeldLosses(self.awake, STALL_GRACE)
+        #: its clients' requests, their outcomes and updates
+        self.clients = ClientAnswers(self, settings, clock=clock, awake=self.awake, registry=self.registry,
+                                     outbox=self.outbox)
         #: secured team: the newest revocation list, the robots it names (``revocations``, ``revoked_self``)
         self.revoked = Revoked(self.team, self.robot)
         #: the other nodes under this robot's name, and why this one left for one (``name_taken``)
@@ -170,9 +171,8 @@ class NodeRuntime:
         #: Prometheus metrics (``--metrics``), fed from the driver thread (ramps.runtime.metrics)
         self.metrics: NodeMetrics | None = None
         #: the durable record of the programs this node is origin of (``state_dir``;
-        #: ramps.runtime.store), and how many it resumed at start
+        #: ramps.runtime.store; how many it resumed at start: ``clients.restored``)
         self.store: OriginStore | None = None
-        self.restored = 0
         #: its periodic load reports and those of the instant
         self.reports = LoadReports(self, settings, apply=lambda actions: self.outbound.apply(actions), put=self._q.put,
                                    awake=self.awake, measured=self.measured, membership=self.membership,

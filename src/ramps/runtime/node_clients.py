@@ -1,8 +1,9 @@
 """A node's side of its clients: submissions checked, outcomes sent once, answers again.
 
 How this works: ``ClientAnswers`` is a part of the node's driver
-(``ramps.runtime.node``), with the state it keeps of clients' requests; it
-sees the driver through ``ClientsDriver``. A client
+(``ramps.runtime.node``), with the state it keeps of clients' requests,
+given the parts it answers through; of the driver it reads only the core
+and the node's incarnation (``ClientsDriver``). A client
 (``ramps.connect()``) sends ``SubmitProgram`` to its robot's node;
 ``submit`` checks the program's name, arguments
 (against its signature and annotated types, ``ramps.runtime.argtypes``),
@@ -81,26 +82,25 @@ RequestKey = tuple[str, int]
 
 
 class ClientsDriver(Protocol):
-    """What a node's answers to its clients (``node_clients.ClientAnswers``) use of its driver."""
+    """What a node's answers to its clients (``node_clients.ClientAnswers``)
+    read of its driver: what the driver has once started."""
 
-    s: NodeSettings
-    clock: Clock
-    awake: AwakeClock
-    robot: str
-    team: str
-    registry: Registry
     node: Node | None
     incarnation: int
-    #: programs resumed from the durable record at start
-    restored: int
-    outbox: Outbox
 
 
 class ClientAnswers:
-    """The answers of ``driver``'s node to its clients, and what it keeps of them."""
+    """The answers of ``driver``'s node, of settings ``s``, to its clients,
+    and what it keeps of them: it checks submissions against ``registry``
+    and answers through ``outbox``."""
 
-    def __init__(self, driver: ClientsDriver) -> None:
+    def __init__(self, driver: ClientsDriver, s: NodeSettings, *, clock: Clock, awake: AwakeClock,
+                 registry: Registry, outbox: Outbox) -> None:
         self.d = driver
+        self.s, self.robot, self.team = s, s.robot, s.team
+        self.clock, self.awake, self.registry, self.outbox = clock, awake, registry, outbox
+        #: programs resumed from the durable record at start
+        self.restored = 0
         #: client requests: program id -> request, and request -> program id, while they run
         self.clients: dict[str, RequestKey] = {}
         self.requests: dict[RequestKey, str] = {}
@@ -128,7 +128,7 @@ class ClientAnswers:
         d = self.d
         assert d.node is not None
         found = store.load()
-        prefix = f"{d.robot}#{d.incarnation % 100000}-"
+        prefix = f"{self.robot}#{d.incarnation % 100000}-"
         aps = []
         for pid, (client, rid, rec) in found.programs.items():
             self.requests[(client, rid)] = pid
@@ -143,9 +143,9 @@ class ClientAnswers:
         out: list[Action] = []
         d.node.origin.restore(aps, now, out)  # as recorded: nothing to write back
         if aps or found.skipped:
-            log.warning("node %s resumed %d program(s) from its record %s%s", d.robot, len(aps), store.path,
+            log.warning("node %s resumed %d program(s) from its record %s%s", self.robot, len(aps), store.path,
                         f" ({found.skipped} unreadable, skipped)" if found.skipped else "")
-        d.restored = len(aps)
+        self.restored = len(aps)
         return out
 
     def persist(self, store: OriginStore, actions: list[Action]) -> None:
@@ -185,7 +185,7 @@ class ClientAnswers:
                  host: str = "", attempts: int = 0, moves: int = 0, resumed_from: float | None = None,
                  missed_deadline: bool = False) -> bytes:
         """A request's outcome, encoded as its client receives it."""
-        return encode(self.d.robot, ProgramOutcome(
+        return encode(self.robot, ProgramOutcome(
             request_id=request_id, ok=ok, value=value, error=error, error_kind=kind, host=host, attempts=attempts,
             moves=moves, resumed_from=resumed_from, missed_deadline=missed_deadline))
 
@@ -198,21 +198,21 @@ class ClientAnswers:
             # their link to this node lapsed): one program per request; answer where it stands
             return self._answer_again(rkey)
         self._seq += 1
-        pid = f"{d.robot}#{d.incarnation % 100000}-{self._seq}"
+        pid = f"{self.robot}#{d.incarnation % 100000}-{self._seq}"
         self.requests[rkey] = pid
         self.clients[pid] = rkey
-        if len(m.args) > d.s.max_args_bytes:  # before anything is decoded
+        if len(m.args) > self.s.max_args_bytes:  # before anything is decoded
             return self.tell(pid, ok=False, kind="bad_arguments",
-                             error=f"arguments are {len(m.args)} bytes; the limit is {d.s.max_args_bytes}")
+                             error=f"arguments are {len(m.args)} bytes; the limit is {self.s.max_args_bytes}")
         try:
-            spec = d.registry.get(m.program)
+            spec = self.registry.get(m.program)
             kwargs = decode_args(m.args)
             spec.check_args(kwargs)
             work = m.work or spec.declared_work(kwargs)
             accelerator = m.accelerator or spec.accelerator
             accelerator_work = (m.accelerator_work or spec.declared_accelerator_work(kwargs)) if accelerator else 0.0
         except ProgramNotFound as exc:
-            return self.tell(pid, ok=False, error=str(exc), kind="refused", host=d.robot)
+            return self.tell(pid, ok=False, error=str(exc), kind="refused", host=self.robot)
         except Exception as exc:  # signature mismatch, undecodable arguments
             return self.tell(pid, ok=False, kind="bad_arguments", error=f"bad arguments for program {m.program!r}: {exc}")
         if m.policy and m.policy not in POLICIES:
@@ -243,7 +243,7 @@ class ClientAnswers:
         this node is shutting down ends as ``shutdown``."""
         assert self.d.node is not None
         if self.d.node.executor.closing and a.error_kind == "cancelled":
-            return msgspec.structs.replace(a, error_kind="shutdown", error=f"origin {self.d.robot} shut down")
+            return msgspec.structs.replace(a, error_kind="shutdown", error=f"origin {self.robot} shut down")
         return a
 
     def tell(self, pid: str, *, ok: bool, value: bytes = b"", error: str = "", kind: str = "",
@@ -273,7 +273,7 @@ class ClientAnswers:
         if len(self.answered) > ANSWERED_KEPT:
             old = self.answered.pop(next(iter(self.answered)))
             self.kept_bytes -= len(old) if old is not None else 0
-        self.send_outcome(keys.client(self.d.team, client), data)
+        self.send_outcome(keys.client(self.team, client), data)
         return []
 
     def _answer_again(self, rkey: tuple[str, int]) -> list[Action]:
@@ -293,12 +293,12 @@ class ClientAnswers:
                                     ap.host or "", ap.attempt)
             return []
         data = self.answered.get(rkey)
-        robot = self.d.robot
+        robot = self.robot
         if data is None:
             data = encode(robot, ProgramOutcome(
                 request_id=rkey[1], ok=False, error_kind="", host=robot, attempts=0,
                 error=f"node {robot} answered this request long ago and no longer keeps its outcome"))
-        self.send_outcome(keys.client(self.d.team, rkey[0]), data)
+        self.send_outcome(keys.client(self.team, rkey[0]), data)
         return []
 
     def send_outcome(self, key: str, data: bytes) -> None:
@@ -307,11 +307,11 @@ class ClientAnswers:
         client's link to it is being rebuilt: an outcome published then was
         lost, and the client waited for ever), it is held until one does, for
         OUTCOME_HOLD at most, then sent regardless."""
-        until, block = self.d.clock.monotonic() + OUTCOME_HOLD, True
-        if any(k == key for k, _, _, _ in self.held_outcomes) or not self.d.outbox.reachable(key, block):
+        until, block = self.clock.monotonic() + OUTCOME_HOLD, True
+        if any(k == key for k, _, _, _ in self.held_outcomes) or not self.outbox.reachable(key, block):
             self.held_outcomes.append((key, data, until, block))
             return
-        self.d.outbox.put(key, data, block=block)
+        self.outbox.put(key, data, block=block)
 
     def held_due(self, now: float) -> float:
         """The core's time at which something held is due: an outcome to look
@@ -333,14 +333,14 @@ class ClientAnswers:
         reachable or its time is up; every one when this node is ``leaving``
         (the last chance to send them)."""
         held, self.held_outcomes = self.held_outcomes, []
-        now = self.d.clock.monotonic()
+        now = self.clock.monotonic()
         waiting: set[str] = set()
         for key, data, until, block in held:
-            if not leaving and (key in waiting or (now < until and not self.d.outbox.reachable(key, block))):
+            if not leaving and (key in waiting or (now < until and not self.outbox.reachable(key, block))):
                 waiting.add(key)
                 self.held_outcomes.append((key, data, until, block))
             else:
-                self.d.outbox.put(key, data, block=block)
+                self.outbox.put(key, data, block=block)
 
     def progressed(self, pid: str, fraction: float, detail: str, host: str, attempt: int) -> None:
         """Program ``pid`` reported its progress: its client is told (``update``)."""
@@ -359,7 +359,7 @@ class ClientAnswers:
         if held is not None:
             held[1:] = [state, host, attempt]
         elif pid in self.clients:
-            self.held_updates[pid] = [self.d.awake.now() + UPDATE_HOLD, state, host, attempt]
+            self.held_updates[pid] = [self.awake.now() + UPDATE_HOLD, state, host, attempt]
 
     def _flush_updates(self, now: float) -> None:
         """Send the held updates that are due by the core's time ``now``
@@ -376,16 +376,15 @@ class ClientAnswers:
         """Tell the program's client where it stands now (advisory; see ProgramUpdate)."""
         self.held_updates.pop(pid, None)
         target = self.clients.get(pid)
-        d = self.d
-        if target is None or not d.outbox.connected():
+        if target is None or not self.outbox.connected():
             return
         fraction, detail = self.progress.get(pid, (None, ""))
-        data = encode(d.robot, ProgramUpdate(request_id=target[1], state=state, host=host, attempt=attempt,
+        data = encode(self.robot, ProgramUpdate(request_id=target[1], state=state, host=host, attempt=attempt,
                                                 fraction=fraction, detail=detail))
         try:  # advisory: dropped rather than let a stalled client stall this driver (outcomes block)
-            d.outbox.publisher(keys.client(d.team, target[0]), False, self._update_pubs).put(data)
+            self.outbox.publisher(keys.client(self.team, target[0]), False, self._update_pubs).put(data)
         except Exception as exc:
-            log.debug("node %s could not send a program update: %s", d.robot, exc)
+            log.debug("node %s could not send a program update: %s", self.robot, exc)
 
 
 def close_record(store: OriginStore) -> None:
