@@ -433,8 +433,8 @@ def test_loaded_robot_gets_fewer_programs_cgroups(tmp_path):
         for i in range(3):
             t.spawn([sys.executable, "-c", "while True: pass"], robot="r4", name=f"busy{i}")
 
-        def loaded():
-            st = {r.robot: r for r in team.status().robots}
+        def loaded():  # every robot reported (a robot alive but not heard from yet has a row of defaults)
+            st = {r.robot: r for r in team.status().robots if r.report_age is not None}
             return all(n in st for n in ("r1", "r2", "r3", "r4")) and st["r4"].runnable >= 2.0 and st
         st = wait_for(loaded, 30, "r4 to report its background load", poll=0.2)
         assert all(st[n].cores == 1 for n in st), st
