@@ -144,3 +144,13 @@ def test_a_new_own_figure_is_told_to_the_class_at_once():
     published = [a for a in n.handle(SpeedMeasured(speed=0.040), 3.0) + n.flush(3.0)
                  if type(a).__name__ == "PublishReport"]
     assert [a.report.cpu_rate for a in published] == [pytest.approx(0.040 / FRACTION)]
+
+
+def test_a_node_that_hears_its_own_report_does_not_count_itself_twice():
+    """A node subscribed to every robot's reports hears its own too: its
+    class's median is of its teammates and itself, once."""
+    a, b = _node("a", 0.030), _node("b", 0.036)
+    a.handle(Received(sender="a", msg=_report(a)), 1.0)
+    assert not a.speed_class.rates
+    _exchange([a, b])
+    assert a.speed_class.rates.keys() == {"b"} and a.speed == b.speed == pytest.approx(0.033)

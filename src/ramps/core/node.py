@@ -172,7 +172,7 @@ class Node:
         #: show (policies that share load only; ``ramps.core.speed``)
         self.own_speed = SpeedEstimate(speed, self.config) if self.policy.shares_load else None
         #: robots of this robot's hardware class and their own figures (a speed it measures itself only)
-        self.speed_class = SpeedClass(speed_class if self.own_speed is not None else "")
+        self.speed_class = SpeedClass(speed_class if self.own_speed is not None else "", robot)
         self.core_fraction = core_fraction
         self.host_speeds = HostSpeeds(self.config) if self.policy.shares_load else None
         if self.host_speeds is not None:

@@ -152,8 +152,10 @@ class SpeedClass:
     pooling, so figures never feed on each other); ``rate`` gives the figure
     this robot goes by."""
 
-    def __init__(self, name: str = "") -> None:
+    def __init__(self, name: str = "", robot: str = "") -> None:
         self.name = name
+        #: this robot: its own reports, which a node may hear too, are not a teammate's
+        self.robot = robot
         #: teammate -> its own work units per CPU second, for those of this class
         self.rates: dict[str, float] = {}
 
@@ -161,7 +163,7 @@ class SpeedClass:
         """A teammate's report said its class and own figure; True if the
         class's figures changed. A report that names no class (a periodic
         one, or an older node's) says nothing of it."""
-        if name is None and rate is None:
+        if (name is None and rate is None) or robot == self.robot:
             return False
         if not self.name or name != self.name or rate is None or not (math.isfinite(rate) and rate > 0):
             return self.forget(robot)
