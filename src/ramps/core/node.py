@@ -350,9 +350,9 @@ class Node:
     def _go_by_speed(self, now: float, out: list[Action], why: str) -> None:
         """Go by this robot's own figure, or its class's (``SpeedClass.rate``), if that moved."""
         assert self.own_speed is not None
-        own, fraction = self.own_speed.value, self.core_fraction
-        rate, robots = self.speed_class.rate(own / fraction, self.own_speed.se)
-        speed = round(rate * fraction, 6)
+        own = self.own_speed.value
+        rate, robots = self.speed_class.rate(self._cpu_rate() or 0.0, self.own_speed.se)
+        speed = round(rate * self.core_fraction, 6)
         if not speed_moved(speed, self.speed):
             return
         pooled = f" (its own {own:.4g}, the median of {robots} robots of its class)" if robots > 1 else ""

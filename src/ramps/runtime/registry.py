@@ -22,6 +22,7 @@ anything is sent, so a bad call fails at the caller.
 
 from __future__ import annotations
 
+import bisect
 import importlib
 import inspect
 import math
@@ -163,19 +164,20 @@ def _where(exc: BaseException) -> str:
     return f" (at {frames[-1].filename}:{frames[-1].lineno})" if frames else ""
 
 
-#: route_plan's work by picks: the median over seeds 0-4 on the default 20x12 grid with a tote of 4,
-#: measured (ramps.programs.route's table; 2026-11-27, this project's 2-core VM, 0.57 units a CPU
-#: second), in work units. NP-hard: one seed may take 10x another of the same size
+#: route_plan's work by picks, in work units, on the default 20x12 grid with a tote of 4: the
+#: median over seeds 0-4, 6 to 14 picks measured on this project's 2-core VM (2026-11-27, 0.57
+#: units a CPU second), 16 and 18 scaled from ramps.programs.route's table. NP-hard: one seed may
+#: take 10x another of the same size
 ROUTE_WORK = ((6, 0.012), (8, 0.024), (10, 0.04), (12, 0.15), (14, 0.8), (16, 10.0), (18, 50.0))
+_ROUTE_SIZES = [p for p, _ in ROUTE_WORK]
 
 
 def route_plan_work(picks: int = 8, time_limit: float = 60.0, workers: int = 1, **_: Any) -> float:
     """The work a route_plan call declares: ``ROUTE_WORK`` interpolated on a
     log scale between the sizes measured (3x a pick beyond them), at most
     what its ``time_limit`` lets its workers compute (at 0.5 units a CPU second)."""
-    sizes = [p for p, _ in ROUTE_WORK]
     picks = max(1, int(picks))
-    i = min(max(1, next((k for k, p in enumerate(sizes) if p >= picks), len(sizes) - 1)), len(sizes) - 1)
+    i = min(max(1, bisect.bisect_left(_ROUTE_SIZES, picks)), len(ROUTE_WORK) - 1)  # the segment it is in, or the last
     (p0, w0), (p1, w1) = ROUTE_WORK[i - 1], ROUTE_WORK[i]
     slope = math.log(w1 / w0) / (p1 - p0) if picks <= p1 else math.log(3.0)
     work = w1 * math.exp(slope * (picks - p1))
