@@ -23,7 +23,7 @@ from ramps.testbed.accelerators import (
     simulate_case,
 )
 from ramps.testbed.experiments import read_trace
-from ramps.testbed.robots import _check_config
+from ramps.testbed.robots import check_config, node_config_file
 
 SIM = dict(robots=4, cores=2, accelerated=["r4"], accelerator="cuda:1:20", origins=2, gpu=3, cpu=3, units=1.2,
            accel_units=24.0)
@@ -61,16 +61,12 @@ def test_the_report_shows_each_repeat_beside_the_simulator() -> None:
 
 
 def test_a_robot_gets_settings_of_its_own_lists_included(tmp_path: Path) -> None:
-    from types import SimpleNamespace
-
-    from ramps.testbed.robots import Robots
-
-    assert _check_config({"accelerators": ["cuda:1:20:emulated"]}) == {"accelerators": ["cuda:1:20:emulated"]}
+    assert check_config({"accelerators": ["cuda:1:20:emulated"]}) == {"accelerators": ["cuda:1:20:emulated"]}
     with pytest.raises(ValueError, match="must be a number"):
-        _check_config({"core": {"relocate": [True]}})  # lists are for node settings only
-    tb = SimpleNamespace(log_dir=tmp_path, config={"accelerators": ["none"], "core": {"relocate": False}},
-                         robot_config={"r4": {"accelerators": ["cuda:1:20:emulated"]}})
-    r1, r4 = (Robots._config_file(tb, robot).read_text() for robot in ("r1", "r4"))  # type: ignore[arg-type]
+        check_config({"core": {"relocate": [True]}})  # lists are for node settings only
+    config = {"accelerators": ["none"], "core": {"relocate": False}}
+    robot_config = {"r4": {"accelerators": ["cuda:1:20:emulated"]}}
+    r1, r4 = (node_config_file(tmp_path, robot, config, robot_config).read_text() for robot in ("r1", "r4"))
     assert 'accelerators = ["none"]' in r1 and "relocate = false" in r1
     assert 'accelerators = ["cuda:1:20:emulated"]' in r4 and "relocate = false" in r4 and "none" not in r4
 

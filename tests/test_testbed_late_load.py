@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from ramps.testbed.bed import _check_config
+from ramps.testbed.robots import check_config
 from ramps.testbed.late_load import RelocationCase, RelocationReport, format_report, simulate_variant
 
 
@@ -35,9 +35,9 @@ def test_the_report_shows_each_variant_beside_the_simulator():
 
 
 def test_testbed_node_settings_are_checked_before_any_node_starts():
-    assert _check_config({"worker_nice": 0, "core": {"relocate": False}}) == {"worker_nice": 0,
+    assert check_config({"worker_nice": 0, "core": {"relocate": False}}) == {"worker_nice": 0,
                                                                              "core": {"relocate": False}}
     with pytest.raises(ValueError, match="unknown node settings worker_nic, core.relocat"):
-        _check_config({"worker_nic": 0, "core": {"relocat": False}})
+        check_config({"worker_nic": 0, "core": {"relocat": False}})
     with pytest.raises(ValueError, match="must be a number, a string or a boolean"):
-        _check_config({"core": {"relocate": [1]}})
+        check_config({"core": {"relocate": [1]}})

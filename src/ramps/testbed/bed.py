@@ -20,14 +20,14 @@ endpoint redials by itself: docs/lab/2026-11-23-failures.md, zenoh#2806)
 instead of depending on the scouting period. ``discovery="multicast"`` or
 ``"connect"`` picks just one of the two.
 
-The testbed is five modules, by concern: this one builds a testbed and
-takes it down (its lifecycle), waits for its team and reports its status;
-``ramps.testbed.robots`` starts the robots' processes and writes the state
-file; ``ramps.testbed.faults`` breaks and mends robots (crash, cut, lossy,
-freeze, load); ``Testbed`` inherits the methods of both.
-``ramps.testbed.cleanup`` clears a host of testbeds, including those of
-crashed runs (``down_all``, ``leftovers``); ``ramps.testbed.procs`` holds
-the pid and cgroup helpers they share.
+This module builds a testbed and takes it down, tells its nodes what to
+run, writes its state file, waits for its team and reports its status.
+A ``Testbed`` holds its parts: ``procs`` (``ramps.testbed.robots``: the
+robots' processes), ``faults`` (``ramps.testbed.faults``: crash, cut,
+lossy, freeze, load, restart, offered as its own methods) and taking it
+down at exit (``ramps.testbed.exits``); ``ramps.testbed.sessions`` opens
+Zenoh sessions on its team, ``ramps.testbed.cleanup`` clears a host of
+testbeds (``down_all``, ``leftovers``).
 
 State: every testbed writes ``/run/ramps/testbed-<tb>.json`` (robots, IPs,
 namespaces, cgroups, pids with their start times, faults), so ``ramps
@@ -48,29 +48,28 @@ workers) never take the same one.
 
 from __future__ import annotations
 
-import atexit
 import json
 import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
-from types import FrameType
 from typing import TYPE_CHECKING, Any
 
 from ramps.errors import NoTeam
 from ramps.runtime.accelerators import remove_slot_folders
 from ramps.runtime.localteam import RobotCgroup, cgroup_mode, partial_views
 from ramps.testbed import net
+from ramps.testbed.exits import DownOnExit
 from ramps.testbed.faults import Faults
-from ramps.testbed.procs import RobotRecord, TestbedError, _alive, _cgroup, robot_record
-from ramps.testbed.robots import PORT, STATE_DIR, Robots, _check_config
+from ramps.testbed.procs import RobotRecord, TestbedError, _cgroup, robot_record
+from ramps.testbed.robots import PORT, STATE_DIR, RobotProcesses, check_config, check_robots, node_config_file
+from ramps.testbed.sessions import open_watcher, root_config, team_client
 
 if TYPE_CHECKING:
     import zenoh
@@ -81,16 +80,12 @@ FAULTS = ("crashed", "cut", "frozen", "lossy")
 
 __all__ = ["FAULTS", "PORT", "STATE_DIR", "DidNotJoin", "Testbed", "watch_team"]
 
-#: a signal's handler as ``signal.getsignal`` returns it
-_Handler = Callable[[int, FrameType | None], Any] | int | signal.Handlers | None
-
 
 class DidNotJoin(NoTeam):
     """The nodes run but did not all join the team in time (``Testbed.wait_alive``)."""
 
 
-# ====================================================================== the testbed
-class Testbed(Robots, Faults):
+class Testbed:
     """Emulated robots on this host; see the module docstring.
 
     >>> with Testbed(3, lease_ms=1000) as tb:
@@ -112,15 +107,7 @@ class Testbed(Robots, Faults):
         if mode is None:
             raise PermissionError("the testbed needs root and writable cpu cgroups (v1 /sys/fs/cgroup/cpu or v2)")
         self.mode = mode
-        names = [f"r{i}" for i in range(1, robots + 1)] if isinstance(robots, int) else list(robots)
-        if not names:
-            raise ValueError("a testbed needs at least one robot")
-        if discovery not in ("both", "multicast", "connect"):
-            raise ValueError("discovery must be both, multicast or connect")
-        net.check_names("t250", names)
-        for r in loaded or {}:
-            if r not in names:
-                raise ValueError(f"loaded robot {r!r} is not one of {', '.join(names)}")
+        names = check_robots(robots, discovery, loaded or {}, robot_config or {})
         host_cores = len(os.sched_getaffinity(0))
         self.quota = float(quota) if quota is not None else round(max(0.05, host_cores / len(names)), 3)
         if not self.quota > 0:
@@ -134,12 +121,9 @@ class Testbed(Robots, Faults):
         self.programs = list(programs or [])
         #: every node's config file, as a dict: node settings, and RampsConfig fields under "core",
         #: e.g. {"worker_nice": 0, "core": {"relocate": False}}
-        self.config = _check_config(config or {})
+        self.config = check_config(config or {})
         #: settings of some robots' nodes over ``config``, e.g. {"r4": {"accelerators": ["cuda:1:20:emulated"]}}
-        self.robot_config = {r: _check_config(c) for r, c in (robot_config or {}).items()}
-        for r in self.robot_config:
-            if r not in names:
-                raise ValueError(f"robot_config names {r!r}, not one of {', '.join(names)}")
+        self.robot_config = {r: check_config(c) for r, c in (robot_config or {}).items()}
         self.discovery = discovery
         #: per-program CPU caps (ramps.testbed.caps; cgroup v1 only for now)
         self.caps = caps and self.mode == "v1"
@@ -148,10 +132,16 @@ class Testbed(Robots, Faults):
         self.loaded = dict(loaded or {})
         self._popen: dict[int, subprocess.Popen[bytes]] = {}
         self._lock = threading.RLock()
+        self.robots: dict[str, RobotRecord] = {}
         self._not_made()
         self._attached = False
-        self._old_handlers: dict[int, _Handler] = {}
-        self._atexit = False
+        self._parts()
+
+    def _parts(self) -> None:
+        """The robots' processes, their faults and taking it down at exit, given what they use of it."""
+        self.procs = RobotProcesses(self.robots, self.mode, self.python, self._popen)
+        self.faults = Faults(self, self.procs, self._lock)
+        self._on_exit = DownOnExit(self.down)
 
     # ------------------------------------------------------------ attach (another process)
     @classmethod
@@ -184,7 +174,7 @@ class Testbed(Robots, Faults):
         self.state_dir = d
         self._popen, self._lock = {}, threading.RLock()
         self._created, self._down, self._attached = True, False, True
-        self._old_handlers, self._atexit = {}, False
+        self._parts()
         return self
 
     # ------------------------------------------------------------ names
@@ -204,11 +194,116 @@ class Testbed(Robots, Faults):
     def namespace(self, robot: str) -> str:
         return self._robot(robot)["ns"]
 
-
     def _robot(self, robot: str) -> RobotRecord:
-        if robot not in self.robots:
-            raise TestbedError(f"unknown robot {robot!r}; this testbed has {', '.join(self.names)}")
-        return self.robots[robot]
+        return self.procs.record(robot)
+
+    # ------------------------------------------------------------ the nodes and the state file
+    @property
+    def state_file(self) -> Path:
+        """``<state dir>/testbed-<tb>.json``: what ``Testbed.attach`` reads."""
+        return self.state_dir / f"testbed-{self.tb}.json"
+
+    @property
+    def records_dir(self) -> Path:
+        """Where the robots' nodes keep their durable records (``ramps.runtime.store``)."""
+        return self.state_dir / f"records-{self.tb}"
+
+    def _save(self) -> None:
+        """Write the state file whole (a temporary file, renamed over it): a reader never sees half of it."""
+        st = dict(tb=self.tb, x=self.x, team=self.team, quota=self.quota, cores=self.cores, speed=self.speed,
+                  policy=self.policy, lease_ms=self.lease_ms, programs=self.programs, discovery=self.discovery,
+                  python=self.python, mode=self.mode, loaded=self.loaded, caps=self.caps, caps_pid=self.caps_pid,
+                  config=self.config, robot_config=self.robot_config,
+                  log_dir=str(self.log_dir) if self.log_dir else None, created_by=os.getpid(),
+                  robots=[self.robots[r] for r in self.names if r in self.robots])
+        tmp = self.state_file.with_suffix(".tmp")
+        tmp.write_text(json.dumps(st, indent=1))
+        tmp.replace(self.state_file)
+
+    def _node_cmd(self, robot: str) -> list[str]:
+        """The robot's node: ``tcp/<robot ip>:7447``; unless ``discovery="multicast"`` every robot
+        but the first dials the first (the seed); unless ``"connect"`` they also scout by multicast."""
+        rb = self.robots[robot]
+        cmd = [self.python, "-m", "ramps.cli", "node", "--robot", robot, "--team", self.team,
+               "--listen", f"tcp/{rb['ip']}:{PORT}"]
+        if self.discovery in ("both", "connect") and robot != self.names[0]:
+            cmd += ["--connect", f"tcp/{self.robots[self.names[0]]['ip']}:{PORT}"]
+        cmd += ["--multicast" if self.discovery in ("both", "multicast") else "--no-multicast"]
+        cmd += ["--no-battery-sysfs"]  # the host's battery is no robot's (a battery_file in config still counts)
+        return cmd + self._node_options(robot)
+
+    def _node_options(self, robot: str) -> list[str]:
+        """What every robot's node is told whatever its network: cores, speed,
+        policy, lease, programs, config file, trace and durable record."""
+        cmd: list[str] = []
+        for flag, value in (("--cores", self.cores), ("--speed", self.speed), ("--policy", self.policy),
+                            ("--lease-ms", self.lease_ms)):
+            if value is not None:
+                cmd += [flag, str(value)]
+        for p in self.programs:
+            cmd += ["--program", p]
+        if (self.config or self.robot_config.get(robot)) and self.log_dir:
+            cmd += ["--config", str(node_config_file(self.log_dir, robot, self.config, self.robot_config))]
+        if self.log_dir:  # every decision, for experiments and post-mortems: <log_dir>/<robot>.trace.jsonl
+            cmd += ["--trace", str(self.log_dir / f"{robot}.trace.jsonl")]
+        cmd += ["--state-dir", str(self.records_dir)]  # each robot's durable record, removed with the testbed
+        return cmd
+
+    def _start_node(self, robot: str) -> None:
+        rb = self.robots[robot]
+        log = self.log_dir / f"{robot}.log" if self.log_dir else None
+        rb["pid"], rb["start"] = self.procs.spawn(robot, self._node_cmd(robot), log)
+
+    def _spawn(self, robot: str, argv: list[str], log: Path | None) -> tuple[int, int | None]:
+        return self.procs.spawn(robot, argv, log)  # another program beside the robot's node
+
+    def log_tail(self, robot: str, lines: int = 15) -> str:
+        if self.log_dir is None:
+            return "(no log)"
+        try:
+            return "\n".join((self.log_dir / f"{robot}.log").read_text(errors="replace").splitlines()[-lines:])
+        except OSError:
+            return "(no log)"
+
+    # ------------------------------------------------------------ faults (ramps.testbed.faults)
+    def process_state(self, robot: str) -> str:
+        """'running', 'stopped' or 'dead' of the robot's node."""
+        return self.procs.state(robot)
+
+    def crash(self, robot: str) -> None:
+        """SIGKILL the robot's node, workers and load (a power cut)."""
+        self.faults.crash(robot)
+
+    def cut(self, robot: str) -> None:
+        """Take the robot's network link down; its processes keep running."""
+        self.faults.cut(robot)
+
+    def lossy(self, robot: str, loss: float) -> None:
+        """Drop each of the robot's packets, in and out, with probability ``loss``."""
+        self.faults.lossy(robot, loss)
+
+    def freeze(self, robot: str) -> None:
+        """SIGSTOP every process of the robot."""
+        self.faults.freeze(robot)
+
+    def recover(self, robot: str, *, wait: bool = True, timeout: float = 30.0) -> list[str]:
+        """Undo every fault of the robot; the faults undone (``Faults.recover``)."""
+        return self.faults.recover(robot, wait=wait, timeout=timeout)
+
+    def add_load(self, robot: str, n: int = 1) -> None:
+        """Start ``n`` busy processes inside the robot."""
+        self.faults.add_load(robot, n)
+
+    def remove_load(self, robot: str) -> None:
+        self.faults.remove_load(robot)
+
+    def restart(self, robot: str, *, timeout: float = 30.0) -> float:
+        """Restart the robot's node as its supervisor does; seconds until it is back (``Faults.restart``)."""
+        return self.faults.restart(robot, timeout=timeout)
+
+    def _live(self) -> None:
+        if not self._created or self._down:
+            raise TestbedError("this testbed is not up")
 
     # ------------------------------------------------------------ up
     def up(self, timeout: float = 60.0, tries: int = 2) -> "Testbed":
@@ -235,14 +330,14 @@ class Testbed(Robots, Faults):
         """What a testbed not made yet holds (at construction, and before ``up`` tries again)."""
         self.tb: str | None = None
         self.x = 0
-        self.robots: dict[str, RobotRecord] = {}
+        self.robots.clear()  # cleared, not replaced: the parts hold this dict
         self.log_dir: Path | None = None
         self.caps_pid: list[int | None] = [None, None]  # the capper: pid, start time
         self._created = False
         self._down = False
 
     def _up_once(self, timeout: float) -> "Testbed":
-        self._install_handlers()
+        self._on_exit.install()
         try:
             with self._lock:
                 self._created = True
@@ -273,10 +368,13 @@ class Testbed(Robots, Faults):
                     self._save()
                 for r in self.names:
                     self._start_node(r)
-                    self._start_load(r, self.robots[r]["load"])
+                    self.procs.start_load(r, self.robots[r]["load"])
                 self._save()
-                if self.caps:
-                    self._start_caps()
+                if self.caps:  # one process for the testbed (ramps.testbed.caps); it ends with the state file
+                    log = self.log_dir / "caps.log" if self.log_dir else None
+                    self.caps_pid = self.procs.spawn_root([self.python, "-m", "ramps.testbed.caps",
+                                                           str(self.state_file)], log)
+                    self._save()
             self.wait_alive(self.names, timeout)
         except BaseException:
             self.down()
@@ -284,10 +382,9 @@ class Testbed(Robots, Faults):
         return self
 
     def wait_alive(self, robots: list[str] | None = None, timeout: float = 60.0) -> float:
-        """Wait until ``robots`` (default all) are alive in the team and publish
-        their load, seen from the root namespace, and every robot that does
-        sees all the others; return the seconds it took.
-        Raises NoTeam with the tail of their logs."""
+        """Wait until ``robots`` (default all) are alive in the team and publish their load, seen
+        from the root namespace, and each sees all the others; the seconds it took. NoTeam (their
+        logs' tails) when a node exits, DidNotJoin when they do not all join within ``timeout``."""
         robots = list(robots or self.names)
         t0 = time.monotonic()
         deadline = t0 + timeout
@@ -318,31 +415,13 @@ class Testbed(Robots, Faults):
         """A ``ramps.runtime.client.Team`` in the root namespace, connected to
         every robot over the bridge, whose programs start on ``robot``
         (``options``: more of ``Team``'s, e.g. ``origin_grace``)."""
-        from ramps.runtime.client import Team
-        from ramps.runtime.settings import load_settings
-
         self._robot(robot)
-        flags: dict[str, object] = {"team": self.team, "connect": self.endpoints(), "multicast": False, "listen": [],
-                 "shared_memory": False}
-        if lease_ms is not None:
-            flags["lease_ms"] = lease_ms
-        s = load_settings(flags=flags, default_robot=False, environ={})
-        return Team(s, robot=robot, timeout=timeout, **options)
+        return team_client(self.team, robot, {"connect": self.endpoints()}, timeout=timeout, lease_ms=lease_ms,
+                           **options)
 
     def zenoh_config(self) -> zenoh.Config:
         """A plain Zenoh peer config for the root namespace (connects to every robot)."""
-        import zenoh
-
-        from ramps.runtime.zenoh_configs import zenoh_runtime_defaults
-
-        zenoh_runtime_defaults()  # a lost robot must not make the observer deaf either
-        c = zenoh.Config()
-        c.insert_json5("mode", '"peer"')
-        c.insert_json5("listen/endpoints", "[]")
-        c.insert_json5("connect/endpoints", json.dumps(self.endpoints()))
-        c.insert_json5("scouting/multicast/enabled", "false")
-        c.insert_json5("transport/shared_memory/enabled", "false")  # as the robots (_spawn)
-        return c
+        return root_config("peer", self.endpoints())
 
     # ------------------------------------------------------------ looking
     def status(self, *, team_view: bool = False, timeout: float = 2.0) -> dict[str, Any]:
@@ -351,15 +430,7 @@ class Testbed(Robots, Faults):
         if self.tb is None:
             raise TestbedError("the testbed is not up")
         have_ns = set(net.namespaces())
-        robots = []
-        for r in self.names:
-            rb = self.robots[r]
-            ns_ok = rb["ns"] in have_ns
-            loads = sum(1 for p, s in rb["load_pids"] if _alive(p, s) != "dead")
-            robots.append(dict(robot=r, ip=rb["ip"], namespace=rb["ns"] if ns_ok else None,
-                               link=net.link_state(rb["ns"]) if ns_ok else "missing",
-                               process=self.process_state(r), pid=rb["pid"], load=rb["load"],
-                               load_running=loads, faults=list(rb["faults"])))
+        robots = [self.procs.status(r, have_ns) for r in self.names]
         out: dict[str, Any] = dict(tb=self.tb, team=self.team, subnet=f"{net.SUBNET_BASE}.{self.x}.0/24",
                                    bridge=net.bridge_name(self.tb), quota=self.quota, cgroups=self.mode,
                                    robots=robots, connect=self.endpoints())
@@ -381,26 +452,22 @@ class Testbed(Robots, Faults):
         with self._lock:
             if self._down or not self._created:
                 self._down = True
-                self._restore_handlers()
+                self._on_exit.release()
                 return
             self._down = True
             try:
-                self._stop_caps()  # before the robots: it would make cgroups as they go
+                self.procs.stop(*self.caps_pid)  # before the robots: it would make cgroups as they go
+                self.caps_pid = [None, None]
                 for r in self.names:
                     if r in self.robots:
-                        self._kill(r)
+                        self.procs.kill(r)
                 for r in self.names:
                     rb = self.robots.get(r)
                     if rb and rb["cgroup"]:
                         _cgroup(rb["cgroup"], self.mode).remove()
                 if self.tb:
                     net.remove(self.tb, self.names)
-                for p in list(self._popen.values()):
-                    try:
-                        p.wait(2)
-                    except subprocess.TimeoutExpired:
-                        pass
-                self._popen.clear()
+                self.procs.wait_all()
                 if self.log_dir:
                     shutil.rmtree(self.log_dir, ignore_errors=True)
                 remove_slot_folders(self.team)  # emulated accelerators' (their nodes were killed)
@@ -413,47 +480,12 @@ class Testbed(Robots, Faults):
                     except OSError:
                         pass
             finally:
-                self._restore_handlers()
+                self._on_exit.release()
 
     def detach(self) -> None:
         """Leave the testbed running after this process exits (``ramps testbed up``)."""
-        self._restore_handlers()
-        if self._atexit:
-            atexit.unregister(self.down)
-            self._atexit = False
+        self._on_exit.release()
         self._popen.clear()  # not ours to reap any more
-
-    def _install_handlers(self) -> None:
-        if not self._atexit:
-            atexit.register(self.down)
-            self._atexit = True
-        if threading.current_thread() is not threading.main_thread():
-            return
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            prev = signal.getsignal(sig)
-            self._old_handlers[sig] = prev
-
-            def handler(signum: int, frame: FrameType | None, prev: _Handler = prev) -> Any:
-                self.down()
-                if callable(prev):
-                    return prev(signum, frame)
-                if signum == signal.SIGINT:
-                    raise KeyboardInterrupt
-                raise SystemExit(128 + signum)
-
-            signal.signal(sig, handler)
-
-    def _restore_handlers(self) -> None:
-        if self._old_handlers and threading.current_thread() is threading.main_thread():
-            for sig, prev in self._old_handlers.items():
-                try:
-                    signal.signal(sig, prev if prev is not None else signal.SIG_DFL)
-                except (ValueError, TypeError):
-                    pass
-            self._old_handlers = {}
-        if self._atexit and self._down:
-            atexit.unregister(self.down)
-            self._atexit = False
 
     def __enter__(self) -> "Testbed":
         return self.up()
@@ -462,22 +494,7 @@ class Testbed(Robots, Faults):
         self.down()
 
 
-def watch_team(testbed: "Testbed", *, redial: bool = False) -> "TeamWatcher":
-    """A plain Zenoh session in the root namespace that watches the team:
-    liveliness and the latest load report of each robot
-    (``ramps.runtime.watch.TeamWatcher``).
-
-    ``redial``: an endpoint that does not answer yet is dialled again every
-    0.1-0.5 s, not Zenoh's 1 s backing off to 4 s: for a watcher opened
-    while the nodes still start (``Testbed.wait_alive``), which with the
-    default saw robots up to 4 s after they had joined.
-
-    Used instead of a ``Team`` client for readiness and status because it
-    is closed by its ``with`` block whatever interrupts it (a Ctrl-C in the
-    middle of ``Team()`` would leave a session whose thread blocks exit)."""
-    from ramps.runtime.watch import TeamWatcher
-
-    config = testbed.zenoh_config()
-    if redial:
-        config.insert_json5("connect/retry", "{period_init_ms: 100, period_max_ms: 500, period_increase_factor: 2}")
-    return TeamWatcher.open(config, testbed.team)
+def watch_team(testbed: Testbed, *, redial: bool = False) -> TeamWatcher:
+    """A ``TeamWatcher`` of the testbed's team in the root namespace, on its
+    ``zenoh_config`` (``ramps.testbed.sessions.open_watcher``: ``redial``)."""
+    return open_watcher(testbed.zenoh_config(), testbed.team, redial=redial)

@@ -1,29 +1,28 @@
-"""A testbed's robots as processes, and the state file that records them.
+"""A testbed's robots as processes, and what every robot's node is told.
 
-How this works: ``Robots`` is the part of ``Testbed`` that starts
-processes inside a robot (``ramps.testbed.bed`` builds the network and
-cgroups and takes everything down; ``ramps.testbed.faults`` breaks robots).
+How this works: ``RobotProcesses`` is the part of ``Testbed`` that starts
+processes inside a robot, finds them, signals and reaps them; it is given
+the testbed's robot records (``RobotRecord``, shared: it writes no pid into
+them itself), the cgroup mode, the Python to run and the table of processes
+this process started. ``ramps.testbed.bed`` builds the network and cgroups
+and takes everything down; ``ramps.testbed.faults`` breaks robots.
 
-* Each robot's node is ``python -m ramps.cli node`` listening on
-  ``tcp/<robot ip>:7447``; unless ``discovery="multicast"`` every robot but
-  the first dials the first one (the seed), and unless
-  ``discovery="connect"`` they also scout by multicast inside the bridge.
-  Every node gets the same options (cores, speed, policy, lease, programs,
-  the testbed's config as a config file), a decision trace in the log
-  directory and a durable record under ``records-<tb>`` in the state
-  directory.
 * A process enters its robot's cgroup with ``RobotCgroup.wrap`` (a shell
   joins the cgroup, then execs) and the namespace with ``nsenter --net``
   rather than ``ip netns exec``: the latter remounts ``/sys`` in a new
   mount namespace, which would hide ``/sys/fs/cgroup`` from the node. It
   runs in its own session with a clean environment and no Zenoh shared
   memory, and is recorded as (pid, start time).
+* A robot's processes are the members of its cgroup and its recorded pids;
+  ``kill`` repeats SIGKILL until the cgroup is empty (a worker may be
+  forking).
 * Background load is busy processes in the same namespace and cgroup (the
   paper's ``stress``); the per-program CPU caps are one process for the
   whole testbed (``ramps.testbed.caps``), in the root namespace.
-* The state file ``<state dir>/testbed-<tb>.json`` holds the testbed's
-  settings and every ``RobotRecord``; it is written whole to a temporary
-  file and renamed, so a reader never sees half of it.
+* Each robot's node is ``python -m ramps.cli node`` (``Testbed._node_cmd``);
+  ``node_config_file`` writes the testbed's node settings, and a robot's
+  own over them, as the node's config file; ``check_config`` refuses an
+  unknown setting before any node starts.
 """
 
 from __future__ import annotations
@@ -35,181 +34,178 @@ import subprocess
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from ramps.testbed import net
-from ramps.testbed.procs import RobotRecord, _alive, _cgroup, _cgroup_pids, _clean_env, _proc_stat
+from ramps.testbed.procs import (RobotRecord, TestbedError, _alive, _cgroup, _cgroup_pids, _clean_env, _proc_stat,
+                                 _signal_all)
 
 STATE_DIR = Path(os.environ.get("RAMPS_TESTBED_STATE", "/run/ramps"))
 PORT = 7447
 
 
-class Robots:
-    """The process and state-file methods of ``Testbed`` (a mixin: ``self`` is a Testbed)."""
+class RobotProcesses:
+    """The processes of a testbed's robots: started inside a robot, found, signalled, reaped."""
 
-    if TYPE_CHECKING:  # what the mixin uses of ``Testbed`` (ramps.testbed.bed)
-        tb: str | None
-        x: int
-        names: list[str]
-        robots: dict[str, RobotRecord]
-        mode: str
-        quota: float
-        cores: int | None
-        speed: float | None
-        policy: str | None
-        lease_ms: int | None
-        programs: list[str]
-        config: dict[str, Any]
-        robot_config: dict[str, dict[str, Any]]
-        discovery: str
-        python: str
-        state_dir: Path
-        loaded: dict[str, int]
-        caps: bool
-        caps_pid: list[int | None]
-        log_dir: Path | None
-        _popen: dict[int, subprocess.Popen[bytes]]
+    def __init__(self, robots: dict[str, RobotRecord], mode: str, python: str,
+                 popen: dict[int, subprocess.Popen[bytes]]) -> None:
+        #: the testbed's robots, by name (the testbed's own dict: filled when it comes up)
+        self.robots = robots
+        self.mode = mode
+        self.python = python
+        #: what this process started, by pid, to reap
+        self.popen = popen
 
-        @property
-        def team(self) -> str: ...
+    def record(self, robot: str) -> RobotRecord:
+        """The robot's record; TestbedError for a robot this testbed does not have."""
+        if robot not in self.robots:
+            raise TestbedError(f"unknown robot {robot!r}; this testbed has {', '.join(self.robots)}")
+        return self.robots[robot]
 
-    # ------------------------------------------------------------ the state file
-    @property
-    def state_file(self) -> Path:
-        """``<state dir>/testbed-<tb>.json``: what ``Testbed.attach`` reads."""
-        return self.state_dir / f"testbed-{self.tb}.json"
-
-    def _save(self) -> None:
-        """Write the state file whole (a temporary file, renamed over it)."""
-        st = dict(tb=self.tb, x=self.x, team=self.team, quota=self.quota, cores=self.cores, speed=self.speed,
-                  policy=self.policy, lease_ms=self.lease_ms, programs=self.programs, discovery=self.discovery,
-                  python=self.python, mode=self.mode, loaded=self.loaded, caps=self.caps, caps_pid=self.caps_pid, config=self.config,
-                  robot_config=self.robot_config,
-                  log_dir=str(self.log_dir) if self.log_dir else None, created_by=os.getpid(),
-                  robots=[self.robots[r] for r in self.names if r in self.robots])
-        tmp = self.state_file.with_suffix(".tmp")
-        tmp.write_text(json.dumps(st, indent=1))
-        tmp.replace(self.state_file)
-
-    # ------------------------------------------------------------ a robot's processes
-    def _node_cmd(self, robot: str) -> list[str]:
-        rb = self.robots[robot]
-        cmd = [self.python, "-m", "ramps.cli", "node", "--robot", robot, "--team", self.team,
-               "--listen", f"tcp/{rb['ip']}:{PORT}"]
-        if self.discovery in ("both", "connect") and robot != self.names[0]:
-            cmd += ["--connect", f"tcp/{self.robots[self.names[0]]['ip']}:{PORT}"]
-        cmd += ["--multicast" if self.discovery in ("both", "multicast") else "--no-multicast"]
-        cmd += ["--no-battery-sysfs"]  # the host's battery is no robot's (a battery_file in config still counts)
-        return cmd + self._node_options(robot)
-
-    def _node_options(self, robot: str) -> list[str]:
-        """What every robot's node is told whatever its network: cores, speed,
-        policy, lease, programs, config file, trace and durable record."""
-        cmd: list[str] = []
-        for flag, value in (("--cores", self.cores), ("--speed", self.speed), ("--policy", self.policy),
-                            ("--lease-ms", self.lease_ms)):
-            if value is not None:
-                cmd += [flag, str(value)]
-        for p in self.programs:
-            cmd += ["--program", p]
-        if (self.config or self.robot_config.get(robot)) and self.log_dir:
-            cmd += ["--config", str(self._config_file(robot))]
-        if self.log_dir:  # every decision, for experiments and post-mortems: <log_dir>/<robot>.trace.jsonl
-            cmd += ["--trace", str(self.log_dir / f"{robot}.trace.jsonl")]
-        cmd += ["--state-dir", str(self.records_dir)]  # each robot's durable record, removed with the testbed
-        return cmd
-
-    @property
-    def records_dir(self) -> Path:
-        """Where the robots' nodes keep their durable records (``ramps.runtime.store``)."""
-        return self.state_dir / f"records-{self.tb}"
-
-    def _config_file(self, robot: str) -> Path:
-        """``config`` as every node's config file, in the log directory; a robot
-        with settings of its own (``robot_config``) gets its own file."""
-        assert self.log_dir is not None
-        own = self.robot_config.get(robot, {})
-        path = self.log_dir / (f"node-config-{robot}.toml" if own else "node-config.toml")
-        if not path.exists():
-            config = {**self.config, **own, "core": {**self.config.get("core", {}), **own.get("core", {})}}
-            top = [f"{k} = {json.dumps(v)}" for k, v in sorted(config.items()) if k != "core"]
-            core = [f"{k} = {json.dumps(v)}" for k, v in sorted(config["core"].items())]
-            path.write_text("\n".join(top + (["[core]"] + core if core else [])) + "\n")
-        return path
-
-    def _spawn(self, robot: str, argv: list[str], log: Path | None) -> tuple[int, int | None]:
+    def spawn(self, robot: str, argv: list[str], log: Path | None) -> tuple[int, int | None]:
+        """Start ``argv`` inside the robot's namespace and cgroup; its (pid, start time)."""
         rb = self.robots[robot]
         cg = _cgroup(rb["cgroup"], self.mode)
         full = cg.wrap(["nsenter", f"--net={net.NETNS_DIR / rb['ns']}", *argv])
         # no Zenoh shared memory between robots that share this host: it carried their
         # large messages around the emulated network (NodeSettings.shared_memory)
         env = dict(_clean_env(), RAMPS_ROBOT=robot, RAMPS_SHARED_MEMORY="0")
+        pid, start = self._popen(full, log, env)
+        deadline = time.monotonic() + 2.0  # joined the cgroup (the shell's first step) before we return
+        p = self.popen[pid]
+        while pid not in _cgroup_pids(rb["cgroup"][:1]) and p.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.002)
+        return pid, start
+
+    def spawn_root(self, argv: list[str], log: Path | None) -> list[int | None]:
+        """Start ``argv`` in the root namespace (the caps process); [pid, start time]."""
+        return list(self._popen(argv, log, _clean_env()))
+
+    def _popen(self, argv: list[str], log: Path | None, env: dict[str, str]) -> tuple[int, int | None]:
         out = open(log, "ab") if log else None
         try:
-            p = subprocess.Popen(full, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL if out is None else out,
+            p = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL if out is None else out,
                                  stderr=subprocess.STDOUT, env=env, start_new_session=True, close_fds=True)
         finally:
             if out is not None:
                 out.close()
-        self._popen[p.pid] = p
+        self.popen[p.pid] = p
         st = _proc_stat(p.pid)
-        deadline = time.monotonic() + 2.0  # joined the cgroup (the shell's first step) before we return
-        while p.pid not in _cgroup_pids(rb["cgroup"][:1]) and p.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.002)
         return p.pid, st[1] if st else None
 
-    def _start_node(self, robot: str) -> None:
-        rb = self.robots[robot]
-        log = self.log_dir / f"{robot}.log" if self.log_dir else None
-        rb["pid"], rb["start"] = self._spawn(robot, self._node_cmd(robot), log)
-
-    def _start_caps(self) -> None:
-        """The per-program CPU caps of every robot: one process for the testbed
-        (ramps.testbed.caps), in the root namespace; it ends with the state file."""
-        log = open(self.log_dir / "caps.log", "ab") if self.log_dir else None
-        try:
-            p = subprocess.Popen([self.python, "-m", "ramps.testbed.caps", str(self.state_file)],
-                                 stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL if log is None else log,
-                                 stderr=subprocess.STDOUT, env=_clean_env(), start_new_session=True, close_fds=True)
-        finally:
-            if log is not None:
-                log.close()
-        self._popen[p.pid] = p
-        st = _proc_stat(p.pid)
-        self.caps_pid = [p.pid, st[1] if st else None]
-        self._save()
-
-    def _stop_caps(self) -> None:
-        pid, start = self.caps_pid
+    def stop(self, pid: int | None, start: int | None) -> None:
+        """SIGKILL one recorded process (the caps process) and reap it."""
         if pid and _alive(pid, start) != "dead":
             try:
                 os.kill(pid, signal.SIGKILL)
             except ProcessLookupError:
                 pass
-            p = self._popen.pop(pid, None)
+            p = self.popen.pop(pid, None)
             if p is not None:
                 p.wait(2)
-        self.caps_pid = [None, None]
 
-    def _start_load(self, robot: str, n: int) -> None:
+    def start_load(self, robot: str, n: int) -> None:
+        """``n`` busy processes in the robot (the paper's ``stress``), recorded in its ``load_pids``."""
         rb = self.robots[robot]
         for _ in range(n):
-            rb["load_pids"].append(self._spawn_load(robot))
+            rb["load_pids"].append(self.spawn(robot, [self.python, "-c", "while True: pass"], None))
 
-    def _spawn_load(self, robot: str) -> tuple[int, int | None]:
-        """One busy process in ``robot`` (the paper's ``stress``)."""
-        return self._spawn(robot, [self.python, "-c", "while True: pass"], None)
+    def state(self, robot: str) -> str:
+        """'running', 'stopped' or 'dead' of the robot's node."""
+        rb = self.record(robot)
+        pid = rb["pid"]
+        if pid is None:
+            return "dead"
+        p = self.popen.get(pid)
+        if p is not None and p.poll() is not None:
+            return "dead"
+        return _alive(pid, rb["start"])
 
-    def log_tail(self, robot: str, lines: int = 15) -> str:
-        if self.log_dir is None:
-            return "(no log)"
-        try:
-            return "\n".join((self.log_dir / f"{robot}.log").read_text(errors="replace").splitlines()[-lines:])
-        except OSError:
-            return "(no log)"
+    def pids(self, robot: str) -> list[int]:
+        """Every live process of the robot: its cgroup's members and its recorded pids."""
+        rb = self.robots[robot]
+        pids = set(_cgroup_pids(rb["cgroup"]))
+        for pid, start in [(rb["pid"], rb["start"]), *rb["load_pids"]]:
+            if pid is not None and _alive(pid, start) != "dead":
+                pids.add(pid)
+        return sorted(pids)
+
+    def kill(self, robot: str) -> None:
+        """SIGKILL every process of the robot, until its cgroup is empty."""
+        rb = self.robots[robot]
+        if rb["pid"] and _alive(rb["pid"], rb["start"]) != "dead":
+            try:
+                os.killpg(rb["pid"], signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
+        for _ in range(50):  # a worker may be forking: repeat until the cgroup is empty
+            pids = self.pids(robot)
+            if not pids:
+                break
+            _signal_all(pids, signal.SIGKILL)
+            _signal_all(pids, signal.SIGCONT)  # a stopped process dies only once continued on some kernels
+            time.sleep(0.02)
+        self.reap()
+
+    def status(self, robot: str, have_ns: set[str]) -> dict[str, Any]:
+        """The robot as ``Testbed.status`` shows it (``have_ns``: the host's network namespaces)."""
+        rb = self.robots[robot]
+        ns_ok = rb["ns"] in have_ns
+        loads = sum(1 for p, s in rb["load_pids"] if _alive(p, s) != "dead")
+        return dict(robot=robot, ip=rb["ip"], namespace=rb["ns"] if ns_ok else None,
+                    link=net.link_state(rb["ns"]) if ns_ok else "missing", process=self.state(robot),
+                    pid=rb["pid"], load=rb["load"], load_running=loads, faults=list(rb["faults"]))
+
+    def wait_all(self) -> None:
+        """Wait up to 2 s for each process this one started (all killed), and forget them."""
+        for p in list(self.popen.values()):
+            try:
+                p.wait(2)
+            except subprocess.TimeoutExpired:
+                pass
+        self.popen.clear()
+
+    def reap(self) -> None:
+        """Wait for the processes this one started that have exited."""
+        for pid, p in list(self.popen.items()):
+            if p.poll() is not None:
+                del self.popen[pid]
 
 
-def _check_config(config: Mapping[str, Any]) -> dict[str, Any]:
+def check_robots(robots: int | list[str], discovery: str, loaded: Mapping[str, int],
+                 robot_config: Mapping[str, object]) -> list[str]:
+    """A testbed's robot names (``robots``: how many, or the names); ValueError for no robot,
+    an unknown discovery, or a robot that ``loaded`` or ``robot_config`` names but the testbed lacks."""
+    names = [f"r{i}" for i in range(1, robots + 1)] if isinstance(robots, int) else list(robots)
+    if not names:
+        raise ValueError("a testbed needs at least one robot")
+    if discovery not in ("both", "multicast", "connect"):
+        raise ValueError("discovery must be both, multicast or connect")
+    net.check_names("t250", names)
+    for r in loaded:
+        if r not in names:
+            raise ValueError(f"loaded robot {r!r} is not one of {', '.join(names)}")
+    for r in robot_config:
+        if r not in names:
+            raise ValueError(f"robot_config names {r!r}, not one of {', '.join(names)}")
+    return names
+
+
+def node_config_file(log_dir: Path, robot: str, config: Mapping[str, Any],
+                     robot_config: Mapping[str, Mapping[str, Any]]) -> Path:
+    """``config`` as a node's config file in ``log_dir``; a robot with settings of
+    its own (``robot_config``) gets its own file, those settings over ``config``."""
+    own = robot_config.get(robot, {})
+    path = log_dir / (f"node-config-{robot}.toml" if own else "node-config.toml")
+    if not path.exists():
+        merged = {**config, **own, "core": {**config.get("core", {}), **own.get("core", {})}}
+        top = [f"{k} = {json.dumps(v)}" for k, v in sorted(merged.items()) if k != "core"]
+        core = [f"{k} = {json.dumps(v)}" for k, v in sorted(merged["core"].items())]
+        path.write_text("\n".join(top + (["[core]"] + core if core else [])) + "\n")
+    return path
+
+
+def check_config(config: Mapping[str, Any]) -> dict[str, Any]:
     """Node settings for a testbed's robots: known names, scalar values (node settings: or lists
     of them, e.g. ``accelerators``); a typo is an error here, not a node that will not start."""
     from ramps.core.config import RampsConfig

@@ -44,18 +44,20 @@ Rules: root only; everything is removed on exit (the two testbeds' own
 
 from __future__ import annotations
 
-import json
 import subprocess
 import time
 from collections import Counter
 from collections.abc import Callable
-from typing import Any
-
+from typing import TYPE_CHECKING, Any
 
 from ramps.testbed import net
 from ramps.testbed.bed import PORT, Testbed, watch_team
 from ramps.testbed.procs import TestbedError
+from ramps.testbed.sessions import root_config, team_client
 from ramps.testbed.sites_report import Batch, Outage, PlacementRun, SitesReport, fmt
+
+if TYPE_CHECKING:
+    import zenoh
 
 #: the router's slot among a site's "robots" (its namespace, cgroup and process)
 ROUTER = "rt"
@@ -125,7 +127,7 @@ class SiteTestbed(Testbed):
         would); return the seconds until it listens."""
         t0 = time.monotonic()
         with self._lock:
-            self._kill(ROUTER)  # whatever is left of the old one
+            self.procs.kill(ROUTER)  # whatever is left of the old one
             rb = self._robot(ROUTER)
             rb["faults"] = [f for f in rb["faults"] if f != "crashed"]
             self._start_node(ROUTER)  # returns once it listens
@@ -137,40 +139,24 @@ class SiteTestbed(Testbed):
         want = [r for r in (robots or self.names) if r != ROUTER]
         return super().wait_alive(want, timeout) if want else 0.0
 
-    def zenoh_config(self):
+    def zenoh_config(self) -> zenoh.Config:
         """An observer in the root namespace: a client of this site's router."""
-        import zenoh
+        return root_config("client", [self.router_endpoint()])
 
-        from ramps.runtime.zenoh_configs import zenoh_runtime_defaults
-
-        zenoh_runtime_defaults()
-        c = zenoh.Config()
-        c.insert_json5("mode", '"client"')
-        c.insert_json5("connect/endpoints", json.dumps([self.router_endpoint()]))
-        c.insert_json5("scouting/multicast/enabled", "false")
-        c.insert_json5("transport/shared_memory/enabled", "false")
-        return c
-
-    def client(self, robot: str = "r1", *, timeout: float = 10.0, lease_ms: int | None = None, **options: Any):
+    def client(self, robot: str = "r1", *, timeout: float = 10.0, lease_ms: int | None = None,
+               **options: Any) -> Any:
         """A ``Team`` in the root namespace whose programs start on ``robot``: a
         peer linked to that robot only (peer mode: the application beside its
         node, which keeps working while the router is away), or a client of the
         site's router (client mode)."""
-        from ramps.runtime.client import Team
-        from ramps.runtime.settings import load_settings
-
         self._robot(robot)
-        flags: dict[str, Any] = {"team": self.team, "multicast": False, "shared_memory": False}
         if self.node_mode == "peer":
             # gossip off: the root namespace reaches both bridges, and this client must not
             # link to robots of the other site by itself (only the routers join the sites)
-            flags.update(connect=[self.endpoint(robot)], listen=[], zenoh={"scouting/gossip/enabled": False})
+            flags: dict[str, Any] = dict(connect=[self.endpoint(robot)], zenoh={"scouting/gossip/enabled": False})
         else:
-            flags.update(mode="client", connect=[self.router_endpoint()], listen=[])
-        if lease_ms is not None:
-            flags["lease_ms"] = lease_ms
-        s = load_settings(flags=flags, default_robot=False, environ={})
-        return Team(s, robot=robot, timeout=timeout, **options)
+            flags = dict(mode="client", connect=[self.router_endpoint()])
+        return team_client(self.team, robot, flags, timeout=timeout, lease_ms=lease_ms, **options)
 
 
 class Sites:

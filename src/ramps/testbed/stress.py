@@ -93,7 +93,7 @@ def crash_node(tb, robot: str, settle: float = 1.0) -> list[int]:
     while left and time.monotonic() < deadline:
         time.sleep(0.05)
         left = orphans(tb, robot)
-    tb._reap()
+    tb.procs.reap()
     return left
 
 
