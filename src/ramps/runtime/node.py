@@ -27,7 +27,8 @@ parts it uses; one that reads the driver itself sees it through a protocol
 of its own (``InboundDriver``, ``OutboundDriver``, ``ClientsDriver``,
 ``ReportsDriver``), which mypy checks ``NodeRuntime`` against. The parts:
 what it does with each input (``node_inbound.Inbound``), the core's actions
-applied (``node_outbound.Outbound``), its clients' requests and outcomes
+applied (``node_outbound.Outbound``, given the parts that stand on their
+own as one ``node_parts.NodeParts``), its clients' requests and outcomes
 (``node_clients.ClientAnswers``), its load reports
 (``node_reports.LoadReports``), its publishing (``node_outbox.Outbox``),
 what it makes of the bytes it receives (``node_intake.WireIntake``), the
@@ -70,6 +71,7 @@ from ramps.runtime.node_clients import OUTCOME_HOLD, ClientAnswers, close_record
 from ramps.runtime.node_inbound import LONELY_AFTER, STALL_GRACE, Inbound
 from ramps.runtime.node_intake import DROP_LOG_PERIOD, WireIntake
 from ramps.runtime.node_outbound import Outbound
+from ramps.runtime.node_parts import NodeParts
 from ramps.runtime.node_awake import AwakeClock, HeldLosses
 from ramps.runtime.node_outbox import Outbox
 from ramps.runtime.node_name import SameName
@@ -178,10 +180,10 @@ class NodeRuntime:
                                    awake=self.awake, measured=self.measured, membership=self.membership,
                                    trace=self.trace, intake=self.intake)
         #: the core's actions applied to its parts and to the world
-        self.outbound = Outbound(self, robot=self.robot, team=self.team, clock=clock, awake=self.awake,
-                                 outbox=self.outbox, trace=self.trace, clients=self.clients, reports=self.reports,
-                                 membership=self.membership, same_name=self.same_name, revoked=self.revoked,
-                                 intake=self.intake, on_note=on_note,
+        parts = NodeParts(robot=self.robot, team=self.team, clock=clock, awake=self.awake, outbox=self.outbox,
+                          trace=self.trace, intake=self.intake, membership=self.membership, revoked=self.revoked,
+                          same_name=self.same_name)
+        self.outbound = Outbound(self, parts, clients=self.clients, reports=self.reports, on_note=on_note,
                                  stop=lambda: self._q.put(("stop", threading.Event())))
         #: called on the driver thread after every round of its loop (systemd's watchdog, ramps.runtime.service)
         self.on_turn: Callable[[], None] | None = None

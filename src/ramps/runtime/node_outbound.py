@@ -2,7 +2,8 @@
 
 How this works: ``Outbound`` is a part of the node's driver
 (``ramps.runtime.node``), given at construction the parts it sends
-through; of the driver it reads only what ``OutboundDriver`` names, what
+through (``NodeParts``, and the clients' and load reports' parts); of the
+driver it reads only what ``OutboundDriver`` names, what
 the driver has once started (the core, its worker pool and accelerators,
 its record and metrics, its transport). ``apply`` turns each action of the
 core into its effect: ``Send`` is published to the teammate's inbox
@@ -49,18 +50,12 @@ if TYPE_CHECKING:
     from ramps.core.node import Node
     from ramps.runtime.accelerators import AcceleratorProbe, Grant
     from ramps.runtime.metrics import NodeMetrics
-    from ramps.runtime.node_awake import AwakeClock
     from ramps.runtime.node_clients import ClientAnswers
-    from ramps.runtime.node_intake import WireIntake
-    from ramps.runtime.node_name import SameName
-    from ramps.runtime.node_outbox import Outbox
+    from ramps.runtime.node_parts import NodeParts
     from ramps.runtime.node_reports import LoadReports
-    from ramps.runtime.node_revoked import Revoked
     from ramps.runtime.node_seams import WorkerPoolLike
-    from ramps.runtime.node_team import Membership
-    from ramps.runtime.node_trace import NodeTrace
     from ramps.runtime.store import OriginStore
-    from ramps.runtime.transport import Clock, Transport
+    from ramps.runtime.transport import Transport
 
 log = logging.getLogger("ramps.node")
 #: core notes a client hears about (ProgramUpdate.state), as placed/running/host_failed
@@ -84,17 +79,16 @@ class OutboundDriver(Protocol):
 
 
 class Outbound:
-    """The outputs of ``driver``'s node, robot ``robot`` of team ``team``:
+    """The outputs of ``driver``'s node, robot ``parts.robot`` of team ``parts.team``:
     the core's actions applied to its parts and to the world."""
 
-    def __init__(self, driver: OutboundDriver, *, robot: str, team: str, clock: Clock, awake: AwakeClock,
-                 outbox: Outbox, trace: NodeTrace, clients: ClientAnswers, reports: LoadReports,
-                 membership: Membership, same_name: SameName, revoked: Revoked, intake: WireIntake,
+    def __init__(self, driver: OutboundDriver, parts: NodeParts, *, clients: ClientAnswers, reports: LoadReports,
                  on_note: Callable[[Note], None] | None, stop: Callable[[], None]) -> None:
         self.d = driver
-        self.robot, self.team, self.clock, self.awake = robot, team, clock, awake
-        self.outbox, self.trace, self.clients, self.reports = outbox, trace, clients, reports
-        self.membership, self.same_name, self.revoked, self.intake = membership, same_name, revoked, intake
+        self.robot, self.team, self.clock, self.awake = parts.robot, parts.team, parts.clock, parts.awake
+        self.outbox, self.trace, self.intake = parts.outbox, parts.trace, parts.intake
+        self.membership, self.same_name, self.revoked = parts.membership, parts.same_name, parts.revoked
+        self.clients, self.reports = clients, reports
         self.on_note = on_note
         #: asks the driver to stop (this node leaves: another under its name started first)
         self._stop = stop
