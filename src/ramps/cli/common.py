@@ -181,7 +181,7 @@ class RampsTyper(typer.Typer):
 def command_group(help: str, **settings: Any) -> typer.Typer:
     """A ``ramps`` command group whose help is click's plain layout, not rich's
     panels: rich's option table shrinks the option-name column to fit the
-    terminal, so at 80 columns a long name was cut (``--diagnostics-pe…``),
+    terminal, so at 80 columns it cuts a long name (``--diagnostics-pe…``),
     while click's puts such a name on a line of its own and wraps the help
     below it. Help strings are plain text: no rich markup, no ``\\[`` escapes.
     Its commands name their values (``RampsCommand``)."""

@@ -5,20 +5,20 @@ congestion control, so that a frozen or cut-off teammate never stalls the
 node's single driver thread; the core survives lost messages. That is right
 for small messages and wrong for large ones. Zenoh queues two batches of 64 KB
 per link and drops a message whose fragments wait more than 50 ms for room,
-so a program's parameters (up to 1 MB) were lost whenever the link could not
-take them at once: on a 1 MB/s link every time, and on a fast link whenever
-the sending node was short of CPU for a moment. Measured on the testbed: the
-origin's offer timed out on a slowed teammate and then on a full-speed one,
-and the program ran on the busy origin, 8 times longer.
+so with DROP a program's parameters (up to 1 MB) are lost whenever the link
+cannot take them at once: on a 1 MB/s link every time, and on a fast link
+whenever the sending node is short of CPU for a moment. On the testbed that
+made the origin's offer time out on a slowed teammate and then on a
+full-speed one, and the program run on the busy origin, 8 times longer.
 
 So a message larger than ``LARGE`` goes to a sender thread of its own
 destination, which publishes it with BLOCK congestion control (it waits for
 room, and Zenoh closes a link that takes none for 5 s). Messages to the same
 teammate that follow it while it is on its way queue behind it and keep
 their order; messages to other teammates, and every small message to a
-teammate with nothing queued, are published at once by the driver as
-before. A destination holds at most ``MAX_QUEUED`` bytes: beyond that a
-message is dropped (as DROP would have), and logged.
+teammate with nothing queued, are published at once by the driver with
+DROP. A destination holds at most ``MAX_QUEUED`` bytes: beyond that a
+message is dropped (as DROP would drop it), and logged.
 """
 
 from __future__ import annotations

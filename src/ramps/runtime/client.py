@@ -142,8 +142,8 @@ class Team:
         """Import the programs this client knows (the built-ins and those
         registered with ``@ramps.program`` in this process) and read their
         signatures now, so that even the first call of each is checked in
-        well under a millisecond. One that does not import here is left to
-        fail, as before, when it is submitted."""
+        well under a millisecond. One that does not import here fails when it
+        is submitted."""
         for name in sorted(self.registry.names()):
             try:
                 fn = self.registry.get(name).function()

@@ -125,7 +125,7 @@ class Testbed:
         #: settings of some robots' nodes over ``config``, e.g. {"r4": {"accelerators": ["cuda:1:20:emulated"]}}
         self.robot_config = {r: check_config(c) for r, c in (robot_config or {}).items()}
         self.discovery = discovery
-        #: per-program CPU caps (ramps.testbed.caps; cgroup v1 only for now)
+        #: per-program CPU caps (ramps.testbed.caps; cgroup v1 only)
         self.caps = caps and self.mode == "v1"
         self.python = python or sys.executable
         self.state_dir = Path(state_dir or STATE_DIR)

@@ -46,10 +46,10 @@ parent got 0.02-1.00). The node's load sampler, walking one cgroup instead of
 sixteen, costs less too.
 
 The capper rereads the state file every period (robots restart after a crash
-with new workers), and exits when the file is gone (``down``). cgroup v2 is
-not handled yet: there a process may not stay in a cgroup whose children have
+with new workers), and exits when the file is gone (``down``). Caps are
+cgroup v1 only: on v2 a process may not stay in a cgroup whose children have
 controllers, so the node would need a leaf of its own; robots on v2 run
-without per-program caps, as before.
+without per-program caps.
 """
 
 from __future__ import annotations

@@ -104,8 +104,8 @@ def hearing_after_mass_loss(robots: int = 8, lose: int = 5, window: float = 9.0,
     are cut off (``how="cut"``: link down) or crashed at once. For ``window``
     seconds after, every survivor's trace of received messages (the nodes run
     with RAMPS_TRACE_WIRE) gives, per pair of survivors, the longest gap in
-    hearing one another; Zenoh closing many links at once (SO_LINGER on a
-    receive thread) used to make survivors deaf for up to 10 s. Returns the
+    hearing one another (Zenoh closing many links at once, SO_LINGER on a
+    receive thread, can make survivors deaf for up to 10 s). Returns the
     gaps and the survivors' peer_lost events."""
     import json as _json
 
