@@ -59,7 +59,7 @@ class RobotProcesses:
     def record(self, robot: str) -> RobotRecord:
         """The robot's record; TestbedError for a robot this testbed does not have."""
         if robot not in self.robots:
-            raise TestbedError(f"unknown robot {robot!r}; this testbed has {', '.join(self.robots)}")
+            raise TestbedError(f"unknown robot {robot!r}; this testbed has {', '.join(self.robots) or 'none up'}")
         return self.robots[robot]
 
     def spawn(self, robot: str, argv: list[str], log: Path | None) -> tuple[int, int | None]:
