@@ -25,6 +25,8 @@ experiments in the simulator live in ``ramps.experiments``; these are ours:
   and the CPU of one ``/metrics`` render (``ramps bench metrics``);
 * ``progbench``: what executables, progress and the ROS face cost
   (``python -m ramps.bench.progbench``);
+* ``teamsize``: what each robot of a team of N real nodes costs, a burst
+  and a fifth of the robots killed (``ramps bench team-size``);
 * ``workerstart``: how soon programs beyond one per core start
   (``python -m ramps.bench.workerstart``).
 """

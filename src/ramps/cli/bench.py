@@ -295,3 +295,47 @@ def bench_flood_cmd(
     if res["programs_ok"] != res["programs"] or not all(res["alive"].values()):
         raise typer.Exit(1)
 
+
+
+@bench_app.command("team-size")
+def bench_team_size_cmd(
+    nodes: list[int] = typer.Option([10, 25], "--nodes", "-n", min=4, max=200,
+                                    help="team sizes to measure, one after another (repeatable)"),
+    idle: float = typer.Option(20.0, "--idle", min=2.0, metavar="SECONDS", help="seconds over which an idle node's cost is measured"),
+    units: float = typer.Option(0.05, "--units", min=0.001, max=5.0, help="work units of each burst program"),
+    form_timeout: float = typer.Option(120.0, "--form-timeout", min=5.0, metavar="SECONDS",
+                                       help="seconds the team may take to form (every node seeing all others)"),
+    as_json: bool = typer.Option(False, "--json", help="print the figures as JSON"),
+    out_file: Path = typer.Option(Path("bench-results/team-size.json"), "--out", "-o", help="where to save the JSON"),
+) -> None:
+    """What each robot of a team of N real nodes on loopback costs: time to form, idle CPU, memory, threads and
+    traffic per node, a burst of 2N programs from 3 origins, a fifth of the robots killed at once.
+
+    With root the team runs in a network namespace of its own, so the traffic counted is the team's alone.
+    The nodes share this machine's cores (no cgroups): where programs run says little here; that programs come
+    back once, and how soon survivors hear each other, does. Minutes per size (a 50-node team starts 50 Python
+    processes)."""
+    from ramps.bench.teamsize import run_isolated
+
+    err.print(f"team sizes {', '.join(map(str, nodes))}: each formed, idle {idle:g} s, a burst, a fifth killed ...")
+    res = run_isolated(list(nodes), idle=idle, units=units, form_timeout=form_timeout)
+
+    def show(r, console) -> None:
+        console.print(f"{'nodes':>5} {'formed s':>8} {'CPU %/node':>10} {'all %':>6} {'PSS MiB':>7} {'threads':>7} "
+                      f"{'lo B/s/node':>11} {'burst':>12} {'once':>5} {'killed':>6} {'heard s':>7} {'lost':>4}",
+                      highlight=False)
+        for run in r["runs"]:
+            i, b, k = run.get("idle", {}), run.get("burst", {}), run.get("kill", {})
+            burst = f"{b.get('delivered', '-')}/{b.get('programs', '-')} {b.get('makespan_s') or '-'}s" if b else "-"
+            once = "-" if not b else "yes" if b.get("runs_counted") == b.get("delivered") else str(b.get("runs_counted"))
+            console.print(f"{run['nodes']:>5} {run['formed_s'] if run['formed_s'] is not None else 'no':>8} "
+                          f"{i.get('with_workers_cpu_pct', {}).get('median', '-'):>10} "
+                          f"{i.get('all_nodes_cpu_pct', '-'):>6} {i.get('pss_mib', {}).get('median', '-'):>7} "
+                          f"{i.get('threads', {}).get('median', '-'):>7} {i.get('lo_bytes_per_node_s', '-'):>11} "
+                          f"{burst:>12} {once:>5} {k.get('killed', '-'):>6} "
+                          f"{k.get('heard_s_after_kill') if k.get('heard_s_after_kill') is not None else '-':>7} "
+                          f"{(k.get('programs', 0) - k.get('delivered', 0)) if k else '-':>4}", highlight=False)
+        console.print(f"({'own network namespace' if r['isolated'] else 'the host loopback: traffic of others counted too'}; "
+                      "CPU: node, fork server and workers, % of one core; PSS: proportional memory)", highlight=False)
+
+    emit([res], show, as_json=as_json, out_file=out_file)

@@ -1,0 +1,270 @@
+"""``ramps bench team-size``: what a team of N real nodes costs each robot.
+
+How this works: for each N, N real ``ramps node`` processes on loopback
+(``LocalTeam``: one core each, every node connecting to the first), with root
+inside a network namespace of their own, so the loopback counters count this
+team's traffic and nothing else on the host. Per N, in order:
+
+* **formed**: seconds from the first node's start until every node reports
+  that it sees all the others (``LocalTeam.start``), or None when that did
+  not happen within ``form_timeout``;
+* **idle**: with no client connected, over ``idle`` seconds, each node's CPU
+  (the node process alone, and with its fork server and workers) as % of
+  one core, its proportional memory (PSS: shared pages split among the
+  processes that map them), threads, and the loopback bytes and packets per
+  node per second (every message crosses loopback once);
+* **burst**: ``2 N`` ``burn`` programs of ``units`` each from three
+  origins (r1, r2, r3) at once: how many came back once, how many failed,
+  how many runs the robots counted (more than the programs: one ran twice),
+  the makespan, and the programs per robot;
+* **kill**: a fifth of the robots other than the origins SIGKILLed at once
+  ``kill_at`` seconds into a second burst (``during_burst`` False: that
+  burst had ended by then, and they were killed after it): seconds until every survivor's report says it
+  sees exactly the survivors and is at most ``HEARD_AGE`` seconds old, and
+  whether every program of that burst still came back.
+
+The figures are printed and saved as JSON; nothing here asserts a target
+(issue 26's acceptance asks for 100 nodes formed in under 60 s, under 0.5%
+of a core and 60 MB each when idle).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import statistics
+import subprocess
+import sys
+import time
+import uuid
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import psutil
+
+#: a survivor "hears" the team when its newest report is at most this old (seconds)
+HEARD_AGE = 3.0
+#: the origins of the bursts
+ORIGINS = ("r1", "r2", "r3")
+
+
+def lo_counters() -> tuple[int, int]:
+    """(bytes, packets) received on loopback in this network namespace."""
+    for line in Path("/proc/net/dev").read_text().splitlines():
+        name, _, rest = line.partition(":")
+        if name.strip() == "lo":
+            f = rest.split()
+            return int(f[0]), int(f[1])
+    return 0, 0
+
+
+def _tree(pid: int) -> list[psutil.Process]:
+    """The process ``pid`` and all its descendants still alive."""
+    try:
+        p = psutil.Process(pid)
+        return [p, *p.children(recursive=True)]
+    except psutil.NoSuchProcess:
+        return []
+
+
+def _cpu(procs: list[psutil.Process]) -> float:
+    total = 0.0
+    for p in procs:
+        try:
+            t = p.cpu_times()
+            total += t.user + t.system
+        except psutil.NoSuchProcess:
+            pass
+    return total
+
+
+def _pss_mib(procs: list[psutil.Process]) -> float:
+    total = 0
+    for p in procs:
+        try:
+            total += p.memory_full_info().pss
+        except (psutil.NoSuchProcess, psutil.AccessDenied):
+            pass
+    return total / 2**20
+
+
+def _median_max(values: list[float], digits: int = 2) -> dict[str, float]:
+    return {"median": round(statistics.median(values), digits), "max": round(max(values), digits)} if values else {}
+
+
+def measure_idle(team: Any, seconds: float) -> dict[str, Any]:
+    """What each node of ``team`` costs over ``seconds`` with nothing to run."""
+    pids = {n: team.nodes[n].pid for n in team.alive()}
+    trees = {n: _tree(pid) for n, pid in pids.items()}
+    node0 = {n: _cpu(t[:1]) for n, t in trees.items()}
+    all0 = {n: _cpu(t) for n, t in trees.items()}
+    b0, p0, t0 = *lo_counters(), time.monotonic()
+    time.sleep(seconds)
+    b1, p1, t1 = *lo_counters(), time.monotonic()
+    span = t1 - t0
+    trees = {n: _tree(pid) for n, pid in pids.items()}
+    node_pct = [100 * (_cpu(trees[n][:1]) - node0[n]) / span for n in pids]
+    all_pct = [100 * (_cpu(trees[n]) - all0[n]) / span for n in pids]
+    n = len(pids)
+    threads = []
+    for t in trees.values():
+        try:
+            threads.append(float(t[0].num_threads()))
+        except (psutil.NoSuchProcess, IndexError):
+            pass
+    return {"seconds": round(span, 1), "node_cpu_pct": _median_max(node_pct),
+            "with_workers_cpu_pct": _median_max(all_pct), "all_nodes_cpu_pct": round(sum(all_pct), 1),
+            "pss_mib": _median_max([_pss_mib(t) for t in trees.values()], 1),
+            "node_pss_mib": _median_max([_pss_mib(t[:1]) for t in trees.values()], 1),
+            "threads": _median_max(threads, 0),
+            "lo_bytes_per_node_s": round((b1 - b0) / n / span), "lo_packets_per_node_s": round((p1 - p0) / n / span)}
+
+
+def _finished(client: Any) -> int:
+    """Runs the robots' executors finished, summed over their newest periodic reports."""
+    return sum(r.finished_total or 0 for r in client.status().robots)
+
+
+def run_burst(clients: dict[str, Any], programs: int, units: float, timeout: float,
+              during: Any = None) -> dict[str, Any]:
+    """``programs`` burn programs split over ``clients`` (origin -> Team), all at once."""
+    names = list(clients)
+    t0 = time.monotonic()
+    futs = [clients[names[i % len(names)]].submit("burn", units=units) for i in range(programs)]
+    done: Counter[str] = Counter()
+    errors: Counter[str] = Counter()
+    failed = 0
+    pending = set(range(len(futs)))
+    while pending and time.monotonic() - t0 < timeout:
+        if during is not None:
+            during(time.monotonic() - t0)
+        for i in list(pending):
+            f = futs[i]
+            if f.done():
+                pending.discard(i)
+                if f.exception() is None:
+                    done[f.host] += 1
+                else:
+                    failed += 1
+                    errors[type(f.exception()).__name__] += 1
+        time.sleep(0.02)
+    span = time.monotonic() - t0
+    return {"programs": programs, "delivered": sum(done.values()), "failed": failed, "errors": dict(errors),
+            "unfinished": len(pending), "makespan_s": round(span, 2) if not pending else None,
+            "robots_used": len(done), "robots_by_programs": dict(sorted(Counter(done.values()).items())),
+            "per_robot": dict(sorted(done.items()))}
+
+
+def hears(client: Any, survivors: set[str]) -> bool:
+    """Every survivor's newest report says it sees exactly the other survivors, and is fresh."""
+    rows = {r.robot: r for r in client.status().robots}
+    return all(s in rows and rows[s].alive and rows[s].sees == len(survivors) - 1
+               and rows[s].report_age is not None and rows[s].report_age <= HEARD_AGE for s in survivors)
+
+
+def wait_heard(client: Any, survivors: set[str], timeout: float) -> float | None:
+    """Seconds until ``hears``; None: not within ``timeout``."""
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        if hears(client, survivors):
+            return round(time.monotonic() - t0, 2)
+        time.sleep(0.1)
+    return None
+
+
+def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeout: float = 120.0,
+                 burst_timeout: float = 120.0, kill_at: float = 0.5, seed: int = 1, log: Any = print) -> dict[str, Any]:
+    """Every figure of the module docstring for a team of ``n`` nodes."""
+    from ramps.errors import NoTeam
+    from ramps.testing import LocalTeam
+
+    res: dict[str, Any] = {"nodes": n, "loadavg_before": round(os.getloadavg()[0], 2)}
+    team = LocalTeam(n, cores=1, visible_timeout=form_timeout, team=f"size-{uuid.uuid4().hex[:6]}")
+    try:
+        t0 = time.monotonic()
+        try:
+            team.start()
+            res["formed_s"] = round(time.monotonic() - t0, 2)
+        except NoTeam as e:
+            res["formed_s"] = None
+            res["not_formed"] = str(e).splitlines()[0][:300]
+            log(f"  {n} nodes: not formed within {form_timeout:g} s")
+            return res
+        log(f"  {n} nodes: formed in {res['formed_s']} s; idle for {idle:g} s ...")
+        time.sleep(2.0)
+        res["idle"] = measure_idle(team, idle)
+        log(f"  {n} nodes idle: {res['idle']['with_workers_cpu_pct']['median']}% of a core, "
+            f"PSS {res['idle']['pss_mib']['median']} MiB each")
+        clients = {o: team.client(o) for o in ORIGINS[:min(3, n)]}
+        first = clients[ORIGINS[0]]
+        before = _finished(first)
+        res["burst"] = run_burst(clients, 2 * n, units, burst_timeout)
+        time.sleep(2.5)  # the robots' next periodic reports count the runs
+        res["burst"]["runs_counted"] = _finished(first) - before
+        log(f"  {n} nodes burst: {res['burst']}")
+        victims = random.Random(seed).sample([r for r in team.names if r not in ORIGINS], max(1, n // 5)) \
+            if n > len(ORIGINS) + 1 else []
+        survivors = set(team.names) - set(victims)
+        killed: list[float] = []
+        heard: list[float] = []
+        looked = [0.0]
+
+        def kill(elapsed: float) -> None:
+            if victims and not killed and elapsed >= kill_at:
+                for v in victims:
+                    team.kill_node(v)
+                killed.append(time.monotonic())
+            elif killed and not heard and time.monotonic() - looked[0] >= 0.2:
+                looked[0] = time.monotonic()
+                if hears(first, survivors):
+                    heard.append(looked[0])
+
+        res["kill"] = run_burst(clients, 2 * n, units, burst_timeout, during=kill)
+        res["kill"]["killed"] = len(victims)
+        res["kill"]["during_burst"] = bool(killed)
+        if victims and not killed:  # the burst ended first: the kill still tells how soon survivors hear
+            kill(kill_at)
+        if killed and not heard and wait_heard(first, survivors, 30.0) is not None:
+            heard.append(time.monotonic())
+        if killed:
+            res["kill"]["heard_s_after_kill"] = round(heard[0] - killed[0], 2) if heard else None
+        log(f"  {n} nodes, {len(victims)} killed: {res['kill']}")
+    finally:
+        team.close()
+        res["loadavg_after"] = round(os.getloadavg()[0], 2)
+    return res
+
+
+def bench_team_size(sizes: list[int], *, isolated: bool = False, **kw: Any) -> dict[str, Any]:
+    """``measure_size`` for each of ``sizes``, in this network namespace
+    (``isolated``: one of its own, which only this team uses)."""
+    from ramps.bench.simulator import machine
+
+    return {"machine": machine(), "isolated": isolated, "runs": [measure_size(n, **kw) for n in sizes]}
+
+
+def run_isolated(sizes: list[int], **kw: Any) -> dict[str, Any]:
+    """``bench_team_size`` in a network namespace of its own where this is root
+    (removed after), else here (the loopback counters then count the host's too)."""
+    if os.geteuid() != 0:
+        return bench_team_size(sizes, **kw)
+    ns = f"ramps-size-{os.getpid()}"
+    subprocess.run(["ip", "netns", "add", ns], check=True)
+    try:
+        subprocess.run(["ip", "netns", "exec", ns, "ip", "link", "set", "lo", "up"], check=True)
+        arg = json.dumps({"sizes": sizes, "isolated": True, **kw})
+        proc = subprocess.run(["ip", "netns", "exec", ns, sys.executable, "-m", "ramps.bench.teamsize", arg],
+                              stdout=subprocess.PIPE, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"the measurement in namespace {ns} exited with {proc.returncode}")
+        return json.loads(proc.stdout.strip().splitlines()[-1])
+    finally:
+        subprocess.run(["ip", "netns", "del", ns], check=False)
+
+
+if __name__ == "__main__":  # the measurement inside the namespace: progress on stderr, JSON last on stdout
+    args = json.loads(sys.argv[1])
+    result = bench_team_size(args.pop("sizes"), log=lambda s: print(s, file=sys.stderr, flush=True), **args)
+    print(json.dumps(result))
