@@ -31,8 +31,8 @@ from __future__ import annotations
 import math
 import os
 import signal
-import time
 import threading
+import time
 from typing import Protocol
 
 from ramps.testbed import net
