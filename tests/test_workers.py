@@ -209,3 +209,51 @@ def test_fork_server_and_workers_die_with_their_pool_process(tmp_path):
         except ProcessLookupError:
             pass
         owner.wait(5)
+
+
+def test_the_pool_waits_for_starved_programs_and_grows_for_a_long_one(monkeypatch):
+    """Two programs on a one-core robot, the running one runnable but given
+    no CPU (a host busy with other work, as ``/proc`` says): the second waits
+    for the first rather than splitting that CPU with it. Once the running
+    one gets its CPU (a long program), the pool grows and the second runs."""
+    import ramps.runtime.workers as workers
+
+    cpu = {"s": 5.0}
+    monkeypatch.setattr(workers, "cpu_and_state", lambda pid: (cpu["s"], "R"))
+    pool, done = make_pool(1)
+    try:
+        pool.run(("long", 1), "sleepy", args(seconds=60))
+        pool.run(("short", 1), "sleepy", args(seconds=0.05))
+        time.sleep(10 * workers.GROW_AFTER)
+        assert pool.forked == 1 and pool.queued() == 1 and not done  # starved: no new worker
+        cpu["s"] += 10 * workers.STARVED_CPU  # the running program gets its CPU
+        assert wait_until(lambda: ("short", 1) in done, 30), done
+        assert pool.forked == 2 and done[("short", 1)][0]
+    finally:
+        pool.stop()
+
+
+def test_the_pool_grows_as_before_where_the_busy_worker_sleeps_or_cannot_be_seen(monkeypatch):
+    """A running program that sleeps (I/O, an executable's child: not
+    runnable) or whose process cannot be read (not Linux) does not hold the
+    queue back: a new worker comes after GROW_AFTER."""
+    import ramps.runtime.workers as workers
+
+    for seen in ((5.0, "S"), None):
+        monkeypatch.setattr(workers, "cpu_and_state", lambda pid, seen=seen: seen)
+        pool, done = make_pool(1)
+        try:
+            pool.run(("long", 1), "sleepy", args(seconds=60))
+            pool.run(("short", 1), "sleepy", args(seconds=0.05))
+            assert wait_until(lambda: ("short", 1) in done, 30), (seen, done)
+            assert pool.forked == 2
+        finally:
+            pool.stop()
+
+
+def test_cpu_and_state_reads_a_live_process_and_none_for_a_gone_one():
+    from ramps.runtime.workers import cpu_and_state
+
+    seen = cpu_and_state(os.getpid())
+    assert seen is not None and seen[0] > 0 and seen[1] == "R"  # this process, running this line
+    assert cpu_and_state(2**22 + 12345) is None  # beyond any pid

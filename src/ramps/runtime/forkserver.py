@@ -48,19 +48,23 @@ first, stops them.
 
 Protocol on the socket (SOCK_SEQPACKET, one message each way per fork):
 pool -> server ``b"fork"`` with fds [job_read, result_write]; server -> pool
-the child's pid as 8 ASCII digits. Anything else ends the server.
+the child's pid as 8 ASCII digits. Anything else ends the server. ``Forked``
+is the pool's handle of one worker forked so.
 """
 
 from __future__ import annotations
 
 import ctypes
 import importlib
+import io
 import os
 import select
 import selectors
 import signal
 import socket
+import subprocess
 import sys
+import time
 from collections.abc import Callable
 from typing import BinaryIO
 
@@ -256,6 +260,68 @@ def _pidfds() -> bool:
         return True
     except (AttributeError, OSError):
         return False
+
+
+class Forked:
+    """The pool's handle of a worker this server forked: not the pool's
+    child, so it is watched and signalled through a pidfd (no pid reuse
+    race). ``stdin`` carries its jobs, ``stdout`` its replies."""
+
+    def __init__(self, pid: int, stdin: io.FileIO, stdout: io.FileIO) -> None:
+        self.pid = pid
+        self.stdin = stdin
+        self.stdout = stdout
+        self.returncode: int | None = None
+        try:
+            self._pidfd: int | None = os.pidfd_open(pid)
+        except (AttributeError, OSError):  # gone already, or no pidfds (old kernel)
+            self._pidfd = None
+
+    def poll(self) -> int | None:
+        if self.returncode is None:
+            if self._pidfd is not None:
+                if select.select([self._pidfd], [], [], 0)[0]:
+                    self._ended()
+            else:
+                try:
+                    os.kill(self.pid, 0)
+                except ProcessLookupError:
+                    self._ended()
+        return self.returncode
+
+    def _ended(self) -> None:
+        self.returncode = -signal.SIGKILL if self._killed else 1  # the server reaps it: the status is not ours
+        if self._pidfd is not None:
+            os.close(self._pidfd)
+            self._pidfd = None
+
+    _killed = False
+
+    def kill(self) -> None:
+        if self.poll() is not None:
+            return
+        self._killed = True
+        try:
+            if self._pidfd is not None:
+                signal.pidfd_send_signal(self._pidfd, signal.SIGKILL)
+            else:
+                os.kill(self.pid, signal.SIGKILL)
+        except (ProcessLookupError, OSError):
+            pass
+
+    def wait(self, timeout: float | None = None) -> int:
+        started = time.monotonic()
+        while (code := self.poll()) is None:
+            left: float | None = None
+            if timeout is not None:
+                left = timeout - (time.monotonic() - started)
+                if left <= 0:
+                    raise subprocess.TimeoutExpired(f"worker {self.pid}", timeout)
+            if self._pidfd is not None:
+                select.select([self._pidfd], [], [], left)
+            else:
+                time.sleep(0.01 if left is None else min(0.01, left))
+        return code
 
 
 def serve(sock: socket.socket, parent: int, run: Callable[[BinaryIO, BinaryIO], None]) -> None:

@@ -20,8 +20,16 @@ program (nor started) for ``GROW_AFTER``, every program that has waited that
 long gets a new worker at once, up to ``max_size`` (default 8 per core, so
 a flood of programs cannot exhaust memory); beyond that programs wait in a
 FIFO queue. A burst of tiny programs, which keeps the workers finishing, is
-served by the workers there are. A worker beyond ``size`` exits after
-``RETIRE_AFTER`` idle.
+served by the workers there are. Nor does the pool grow while the programs
+it runs are starved: every busy worker runnable (Linux's ``/proc``) yet
+none given ``STARVED_CPU`` of CPU since the pool first looked at it while
+programs waited. Those are short programs on a host busy with other work
+(the robot's own software), not long ones: a new worker would only split
+the same CPU among more programs, which then all end late together, and
+take more of it from the robot's software; the queue waits for them, as it
+does for tiny ones. A long program (one that gets its CPU), one that sleeps
+(I/O, an executable's child) or one this system cannot see lets the pool
+grow as above. A worker beyond ``size`` exits after ``RETIRE_AFTER`` idle.
 
 One monitor thread watches every worker's output. A result is handed to
 ``on_finished``; a worker that dies under a program (killed, out of memory,
@@ -38,11 +46,8 @@ and reports nothing: the core already knows.
 
 from __future__ import annotations
 
-import io
 import os
-import select
 import selectors
-import signal
 import socket
 import subprocess
 import sys
@@ -53,6 +58,7 @@ from typing import Any, Callable, NamedTuple
 
 import msgspec
 
+from ramps.runtime.forkserver import Forked
 from ramps.runtime.frames import frame
 
 Key = tuple[str, int]
@@ -66,6 +72,9 @@ Checkpoint = Callable[[Key, bytes, "float | None"], None]
 
 #: seconds a program waits, with no worker finishing or starting meanwhile, before the pool starts another
 GROW_AFTER = 0.1
+#: CPU seconds a busy worker uses, once the pool has looked at it while programs waited, for it to
+#: count as running a long program rather than a starved short one (the pool grows only then)
+STARVED_CPU = GROW_AFTER / 2
 #: seconds an extra worker (beyond one per core) stays idle before it exits
 RETIRE_AFTER = 2.0
 #: seconds the fork server may take to fork a worker (it imports the programs first)
@@ -77,6 +86,20 @@ _OWN_FRAMES = ("/ramps/runtime/worker.py\"", "/ramps/runtime/forkserver.py\"", "
 
 _enc = msgspec.msgpack.Encoder()
 _dec = msgspec.msgpack.Decoder()
+_TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+
+
+def cpu_and_state(pid: int) -> tuple[float, str] | None:
+    """Process ``pid``'s CPU seconds (user and system, all its threads) and
+    its main thread's state ("R" runnable, "S" sleeping, ...), from
+    ``/proc/PID/stat``; None where that cannot be read (gone, not Linux)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            data = f.read()
+        fields = data[data.rindex(b")") + 2:].split()
+        return (int(fields[11]) + int(fields[12])) / _TICKS, fields[0].decode()
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 class _Job(NamedTuple):
@@ -92,72 +115,10 @@ class _Job(NamedTuple):
     accelerator: dict[str, Any] | None = None
 
 
-class _Forked:
-    """A worker forked by the fork server (``ramps.runtime.forkserver``): not
-    this process's child, so it is watched and signalled through a pidfd
-    (no pid reuse race). ``stdin`` carries its jobs, ``stdout`` its replies."""
-
-    def __init__(self, pid: int, stdin: io.FileIO, stdout: io.FileIO) -> None:
-        self.pid = pid
-        self.stdin = stdin
-        self.stdout = stdout
-        self.returncode: int | None = None
-        try:
-            self._pidfd: int | None = os.pidfd_open(pid)
-        except (AttributeError, OSError):  # gone already, or no pidfds (old kernel)
-            self._pidfd = None
-
-    def poll(self) -> int | None:
-        if self.returncode is None:
-            if self._pidfd is not None:
-                if select.select([self._pidfd], [], [], 0)[0]:
-                    self._ended()
-            else:
-                try:
-                    os.kill(self.pid, 0)
-                except ProcessLookupError:
-                    self._ended()
-        return self.returncode
-
-    def _ended(self) -> None:
-        self.returncode = -signal.SIGKILL if self._killed else 1  # the server reaps it: the status is not ours
-        if self._pidfd is not None:
-            os.close(self._pidfd)
-            self._pidfd = None
-
-    _killed = False
-
-    def kill(self) -> None:
-        if self.poll() is not None:
-            return
-        self._killed = True
-        try:
-            if self._pidfd is not None:
-                signal.pidfd_send_signal(self._pidfd, signal.SIGKILL)
-            else:
-                os.kill(self.pid, signal.SIGKILL)
-        except (ProcessLookupError, OSError):
-            pass
-
-    def wait(self, timeout: float | None = None) -> int:
-        started = time.monotonic()
-        while (code := self.poll()) is None:
-            left: float | None = None
-            if timeout is not None:
-                left = timeout - (time.monotonic() - started)
-                if left <= 0:
-                    raise subprocess.TimeoutExpired(f"worker {self.pid}", timeout)
-            if self._pidfd is not None:
-                select.select([self._pidfd], [], [], left)
-            else:
-                time.sleep(0.01 if left is None else min(0.01, left))
-        return code
-
-
 class _Worker:
-    __slots__ = ("proc", "fd", "buf", "job", "cancelled", "retiring", "idle_since", "ended")
+    __slots__ = ("proc", "fd", "buf", "job", "cancelled", "retiring", "idle_since", "ended", "cpu_mark")
 
-    def __init__(self, proc: _Forked) -> None:
+    def __init__(self, proc: Forked) -> None:
         self.proc = proc
         self.fd = proc.stdout.fileno()
         self.buf = bytearray()
@@ -167,6 +128,8 @@ class _Worker:
         self.idle_since = time.monotonic()
         #: how it ended, from the fork server: {"died": "exit code 3", "stderr": "..."}
         self.ended: dict[str, object] | None = None
+        #: its CPU seconds when the pool first looked at it running its program while others waited
+        self.cpu_mark: float | None = None
 
 
 def death_text(ended: dict[str, object] | None) -> str:
@@ -250,7 +213,7 @@ class WorkerPool:
                 pass
             self._server = None
 
-    def _fork(self) -> _Forked:
+    def _fork(self) -> Forked:
         """A new worker from the fork server (restarted once if it is gone)."""
         for attempt in (1, 2):
             sock = self._server_sock
@@ -275,7 +238,7 @@ class WorkerPool:
                 os.close(job_r)
                 os.close(res_w)
             self.forked += 1
-            return _Forked(int(reply), os.fdopen(job_w, "wb", buffering=0), os.fdopen(res_r, "rb", buffering=0))
+            return Forked(int(reply), os.fdopen(job_w, "wb", buffering=0), os.fdopen(res_r, "rb", buffering=0))
         raise AssertionError("unreachable")
 
     def _add_worker(self) -> None:
@@ -370,7 +333,7 @@ class WorkerPool:
         while self._queue:
             if not idle:
                 if (len(self._workers) >= self.max_size or now - self._queue[0].queued_at < GROW_AFTER
-                        or now - self._last_progress < GROW_AFTER):
+                        or now - self._last_progress < GROW_AFTER or self._starved_locked()):
                     return
                 try:
                     self._add_worker()
@@ -379,7 +342,7 @@ class WorkerPool:
                 idle.append(self._workers[-1])
             w = idle.pop(0)
             job = self._queue.popleft()
-            w.job, w.cancelled = job.key, False
+            w.job, w.cancelled, w.cpu_mark = job.key, False, None
             message: list[Any] = [job.program, job.args]
             if job.resume is not None or job.accelerator is not None:
                 message.append(job.resume)
@@ -389,6 +352,34 @@ class WorkerPool:
                 w.proc.stdin.write(frame(_enc.encode(message)))
             except (BrokenPipeError, OSError):
                 pass  # the monitor sees the dead worker and reports the job
+
+    def _starved_locked(self) -> bool:
+        """Whether every busy worker is runnable yet none has had
+        ``STARVED_CPU`` since the pool first looked at it (marking those it
+        looks at for the first time): short programs held back by a busy
+        host, which a new worker would not speed up (the module's docstring)."""
+        starved = True
+        for w in self._workers:
+            if w.job is None:
+                continue
+            seen = cpu_and_state(w.proc.pid)
+            if seen is None:
+                return False  # cannot tell: grow as on any system
+            cpu, state = seen
+            if w.cpu_mark is None:
+                w.cpu_mark = cpu
+            if state != "R" or cpu - w.cpu_mark >= STARVED_CPU:
+                starved = False
+        return starved
+
+    def _mark_busy_locked(self) -> None:
+        """Note the CPU of the busy workers not looked at yet, while programs
+        wait: the mark ``_starved_locked`` counts from."""
+        for w in self._workers:
+            if w.job is not None and w.cpu_mark is None:
+                seen = cpu_and_state(w.proc.pid)
+                if seen is not None:
+                    w.cpu_mark = seen[0]
 
     def _retire_idle_locked(self) -> float | None:
         """Workers beyond ``size`` idle for RETIRE_AFTER exit (end of input).
@@ -416,6 +407,8 @@ class WorkerPool:
         while True:
             with self._lock:  # a waiting program may need a new worker, an idle extra one may go
                 wait = GROW_AFTER / 2 if self._queue and len(self._workers) < self.max_size else None
+                if wait is not None:
+                    self._mark_busy_locked()
                 retire = self._retire_idle_locked()
                 if retire is not None:
                     wait = retire + 0.01 if wait is None else min(wait, retire + 0.01)
