@@ -44,7 +44,9 @@ and they share the cores (processor sharing: 3c). So the ratio of the
 medians is at least ``1 + (m - 1) * c / seq``: about 2x for six calls on two
 cores, 3x shared, and 1x needs a core per call (one core per robot, each
 robot running two). Other processes on the host (its load average, taken at
-each phase) lower the cores left.
+each phase) lower the cores left: ``cores_used`` is the CPU the workers got
+over a phase's wall time (on a loaded host, six calls at once may get no
+more of it than one call alone).
 
 Memory: the resident (RSS), proportional (PSS: shared pages divided among
 their users) and unique (USS) memory of each node's fork server and its idle
@@ -256,7 +258,8 @@ def _phase(team: LocalTeam, run: Any) -> dict:
     s = sorted(lat)
     prog_cpu = [c["program_cpu_s"] for c in calls if c["program_cpu_s"] is not None]
     used = sum(cpu - before.get(pid, 0.0) for pid, cpu in after.items())
-    return {"ms": [x * 1e3 for x in lat], "p50_ms": statistics.median(s) * 1e3, "max_ms": s[-1] * 1e3,
+    wall = max(c["result"] for c in calls) - min(c["submit"] for c in calls)
+    return {"cores_used": used / wall if wall > 0 else 0.0, "ms": [x * 1e3 for x in lat], "p50_ms": statistics.median(s) * 1e3, "max_ms": s[-1] * 1e3,
             "min_ms": s[0] * 1e3, "hosts": [c["host"] for c in calls], "calls": calls,
             "program_cpu_ms": [x * 1e3 for x in prog_cpu],
             "program_cpu_p50_ms": statistics.median(prog_cpu) * 1e3 if prog_cpu else None,
@@ -306,7 +309,8 @@ def describe_round(i: int, r: dict) -> str:
             f"cores: at least "
             f"{b['ratio_floor']:.1f}x ({b['median_slot']:g} calls' CPU before the median ends), "
             f"{b['shared_ratio_floor']:.1f}x if all share the cores; 1x needs {b['cores_for_1x']} cores; "
-            f"load average {min(r['loadavg_1m']):.1f}-{max(r['loadavg_1m']):.1f}. CPU per call "
+            f"load average {min(r['loadavg_1m']):.1f}-{max(r['loadavg_1m']):.1f}; the workers had "
+            f"{cold['cores_used']:.2f} cores in the cold burst, {seq['cores_used']:.2f} one after another. CPU per call "
             f"(workers) cold {cold['worker_cpu_per_call_ms']:.0f} ms, one after another "
             f"{seq['worker_cpu_per_call_ms']:.0f} ms; workers forked in the cold burst {cold['workers_forked']}")
     for label, phase in (("cold at once", cold), ("one after another", seq)):
