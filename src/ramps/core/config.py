@@ -54,6 +54,11 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: as the robot after them was (docs/lab/2026-11-27-sim-scale.md).
     #: 0: all, always
     placement_sample: int = 64
+    #: in a team of more robots than ``placement_sample``, where more
+    #: robots submit programs than this, a robot's load reports go to this
+    #: many of them (``ramps.core.fanout``), not to all: each origin hears,
+    #: and places on, about robots x this / origins of the team. 0: to all
+    report_fanout: int = 16
     #: a host busier than the origin expected still takes a program that
     #: computes there within its time budget plus this relative margin
     #: (ramps negotiation)

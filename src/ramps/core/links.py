@@ -1,8 +1,8 @@
 """T_comm measured per teammate: latency and bandwidth of each link.
 
 How this works: every ``probe_period`` seconds a node that places programs
-sends each teammate it could place on a small ``LinkProbe`` carrying its own
-clock; the teammate answers at once with a ``LinkProbeReply`` echoing it, so
+sends each teammate it could place on (at most ``placement_sample`` of them
+in turn, ``Links.probes``) a small ``LinkProbe`` carrying its own clock; the teammate answers at once with a ``LinkProbeReply`` echoing it, so
 the round trip needs no shared clock. Every ``PADDED_EVERY``-th probe to a
 robot carries ``PADDED_BYTES`` of padding (the first probe to a robot is a
 plain one, the second padded): the extra time it takes over a plain one's
@@ -35,6 +35,7 @@ from collections import deque
 import msgspec
 
 from ramps.core.cost import NetworkEstimate
+from ramps.core.events import Send
 from ramps.core.messages import LinkProbe, LinkProbeReply
 
 #: padding of a bandwidth probe, and how often a link gets one
@@ -78,6 +79,21 @@ class Links:
     def __init__(self, default: NetworkEstimate) -> None:
         self.default = default
         self._links: dict[str, _Link] = {}
+        #: where the next round of probes starts in a list of too many candidates (``probes``)
+        self._turn = 0
+
+    def probes(self, candidates: list[str], me: str, now: float, most: int) -> list[Send]:
+        """The probes of one ``probe_period``: one to each candidate but
+        ``me``; where there are more than ``most`` (``placement_sample``, 0:
+        no limit), to ``most`` of them, the next ones in turn, so a probe's
+        traffic stays bounded in a large team and every link is still
+        measured every few periods."""
+        others = [robot for robot in candidates if robot != me]
+        if 0 < most < len(others):
+            start = self._turn % len(others)
+            self._turn = start + most
+            others = (others + others)[start:start + most]
+        return [Send(to=robot, msg=self.probe(robot, now)) for robot in others]
 
     def probe(self, robot: str, now: float) -> LinkProbe:
         link = self._links.get(robot)

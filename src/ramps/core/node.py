@@ -222,9 +222,7 @@ class Node:
         self.origin.tick(now, more)
         out.extend(self._loopback(more, now))
         if self._probe_due is not None and now >= self._probe_due:
-            for robot in self.view.candidates(now):
-                if robot != self.robot:
-                    out.append(Send(to=robot, msg=self.links.probe(robot, now)))
+            out.extend(self.links.probes(self.view.candidates(now), self.robot, now, self.config.placement_sample))
             self._probe_due = now + self.config.probe_period
         return self._prompt_report(out, now)
 

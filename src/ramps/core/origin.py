@@ -203,8 +203,14 @@ class Origin(Learning):
         self._route(msg.program_id, msg.attempt, msg.host, E.RESULT, now, out, msg)
 
     def on_heartbeat(self, msg: Heartbeat, now: float, out: list[Action]) -> None:
+        host, programs = msg.host, self.programs
         for ref in msg.programs:
-            self._route(ref.program_id, ref.attempt, msg.host, E.HEARTBEAT, now, out, None)
+            ap = programs.get(ref.program_id)
+            if (ap is not None and ap.state is S.RUNNING and ref.attempt == ap.attempt and host == ap.host
+                    and ap.live.get(ref.attempt) == host):
+                ap.last_heard = now  # the table's RUNNING + heartbeat, the most common message of all, inline
+                continue
+            self._route(ref.program_id, ref.attempt, host, E.HEARTBEAT, now, out, None)
 
     def on_progress(self, msg: ProgramProgress, now: float, out: list[Action]) -> None:
         """A host says how far a program is: passed on if the copy is still

@@ -33,6 +33,7 @@ anomaly and drops it; for local misuse it raises.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from enum import StrEnum
 from collections.abc import Callable, Mapping
@@ -113,6 +114,12 @@ class Outcome:
     when: str = ""
 
 
+@functools.cache
+def _allowed(transition: "Transition", state: ProgramState) -> frozenset[ProgramState]:
+    """``Transition.allowed``, worked out once per transition and state (the table is fixed)."""
+    return frozenset(state if o.state is None else o.state for o in transition.outcomes)
+
+
 @dataclass(frozen=True, slots=True)
 class Transition:
     """What an event does in one state: run ``handler``, end in one of ``outcomes``."""
@@ -123,7 +130,7 @@ class Transition:
 
     def allowed(self, state: ProgramState) -> frozenset[ProgramState]:
         """The states the program may be in after the handler ran from ``state``."""
-        return frozenset(state if o.state is None else o.state for o in self.outcomes)
+        return _allowed(self, state)
 
 
 S = ProgramState
@@ -198,7 +205,7 @@ class AutonomousProgram:
         "last_heard", "rejections", "excluded", "submitted_at", "failures", "written_off",
         "made", "moves", "moving_from", "accepted_at", "done", "done_at", "work", "checkpoint",
         "checkpoint_fraction", "resumed_from", "move_wanted_since", "ran_on", "placed_at", "stall_base",
-        "deaths", "accelerator",
+        "deaths", "accelerator", "settled",
     )
 
     def __init__(self, submit: Submit, now: float) -> None:
@@ -255,6 +262,9 @@ class AutonomousProgram:
         self.deaths: list[tuple[int, str, str]] = []
         #: the kind of accelerator the current attempt runs on ("" = a CPU)
         self.accelerator = ""
+        #: the attempt that relocation found can no longer move (in a large
+        #: view it is not looked at again, ``ramps.core.relocation``); -1: none
+        self.settled = -1
 
     @property
     def placed_host(self) -> str:
@@ -268,7 +278,7 @@ class AutonomousProgram:
         """The transition ``event`` takes from the current state, or a
         ``ProtocolError`` naming the program, the state and the event."""
         try:
-            return TRANSITIONS[self.state][Event(event)]
+            return TRANSITIONS[self.state][event if type(event) is Event else Event(event)]
         except (ValueError, KeyError):
             raise ProtocolError(self.program_id, self.state, event) from None
 

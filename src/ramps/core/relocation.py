@@ -43,6 +43,15 @@ zero). On top of the thresholds:
   ``relocate_max_spread`` apart per declared unit). The gain must then last
   ``relocate_persist`` again once the doubt is gone.
 
+Fleets: in a view of more robots than ``placement_sample`` a check looks
+only at the running programs that can still move: a program whose
+``done_bound`` passed ``relocate_max_done`` (no checkpoint) is marked
+``settled`` for its attempt and passed over from then on, programs within
+``relocate_settle`` of their acceptance need no scan of the view, and once
+none is left the checks stop until the next acceptance. A check then costs
+the programs placed in the last half a program's run, not all of them.
+Smaller teams check every running program every period, as before.
+
 Rules: functions of the origin they decide for, which they see as a
 ``RelocatingOrigin`` (what ``ramps.core.origin.Origin`` offers them: its
 view, programs and figures, the policy of each program, and ``relocate``, the
@@ -108,8 +117,11 @@ class RelocatingOrigin(Protocol):
 def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) -> bool:
     """Re-evaluate eq. (1) for ``origin``'s running programs (see the module
     docstring). Returns whether any program may still move later."""
-    rows = {row[0]: row for row in origin.view.scan(now, frozenset())}
     cfg = origin.config
+    programs = to_check(origin, now)
+    if isinstance(programs, bool):
+        return programs
+    rows = {row[0]: row for row in origin.view.scan(now, frozenset())}
     keep = False
     see_factors(origin, now)
     stalled = now - origin.woke_at < cfg.relocate_calm  # this robot's view and clock were behind
@@ -120,9 +132,9 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
     best_rate = max((speed * program_share(cores, ramps + 1.0, background, weight)
                      for _, cores, speed, ramps, background, weight in rows.values()), default=0.0)
     if best_rate <= 0.0:
-        return any(ap.state is S.RUNNING or ap.state is S.MOVING for ap in origin.programs.values())
+        return any(ap.state is S.RUNNING or ap.state is S.MOVING for ap in programs)
     priced: list[tuple[float, AutonomousProgram]] = []
-    for ap in origin.programs.values():
+    for ap in programs:
         if ap.state is not S.RUNNING and ap.state is not S.MOVING:
             continue
         if not origin.policy_for(ap.submit).relocates or ap.submit.local_only or ap.moves >= cfg.relocate_max_moves:
@@ -144,6 +156,7 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
             continue  # no report of its host since it started there
         if ap.checkpoint is None and done_bound(origin, ap, now, speed) > cfg.relocate_max_done * ap.work:
             ap.move_wanted_since = None
+            ap.settled = ap.attempt  # passed over from now on in a large view
             continue  # a restart would lose what it did, and it may have done over half its work
         doubt = "stalled" if stalled else uncertain(origin, ap, now)
         if doubt is not None:
@@ -177,6 +190,22 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
             moved_off.add(ap.host or "")
             origin.relocate(ap, placement, now, out)
     return keep
+
+def to_check(origin: RelocatingOrigin, now: float) -> list[AutonomousProgram] | bool:
+    """The programs a check looks at: all of them, or in a fleet (a view of
+    more than ``placement_sample`` robots) the running ones not ``settled``;
+    a bool where a fleet's check has nothing to do: whether to check again."""
+    cfg = origin.config
+    if not 0 < cfg.placement_sample < len(origin.view.robots()):
+        return list(origin.programs.values())
+    programs = [ap for ap in origin.programs.values()
+                if (ap.state is S.RUNNING or ap.state is S.MOVING) and ap.settled != ap.attempt]
+    if not programs:
+        return False  # the next acceptance starts the checks again
+    if all(ap.state is S.RUNNING and now - ap.accepted_at < cfg.relocate_settle for ap in programs):
+        return True  # none may move yet: no need to read the view
+    return programs
+
 
 def price_move(origin: RelocatingOrigin, ap: AutonomousProgram, t_here: float, now: float) -> Placement | None:
     """Where ``ap`` would finish sooner by the relocation thresholds, or None."""

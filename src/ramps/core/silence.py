@@ -13,12 +13,18 @@ hosts' links are not back: their timeouts wait for the link, and once it is
 back (``relinked``) count from that moment. ``held_off`` sets a due timeout
 again for later when any of this says it is too early.
 
+Fleets: an origin with programs on more than ``placement_sample`` hosts sets
+those heartbeat timeouts again on a grid of ``heartbeat_period`` (up to one
+period later), so its thousands of programs' timers fall due together, one
+wake for many, instead of one wake each.
+
 Rules: functions of the origin they act for, which they see as a
 ``SilentOrigin``; no clock (``now`` comes in), no I/O.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Protocol
 
 from ramps.core.config import RampsConfig
@@ -73,6 +79,8 @@ def held_off(origin: SilentOrigin, ap: AutonomousProgram, kind: Event, now: floa
         # robot's latest stall, whichever is later
         due = max(ap.last_heard, heard_from) + config.heartbeat_timeout
         if due > now:  # heard from the host since the timer was set, or this robot stalled
+            if 0 < config.placement_sample < len(origin.by_host):  # a fleet: see the module docstring
+                due = math.ceil(due / config.heartbeat_period) * config.heartbeat_period
             timers.set(ap, due, kind)
             return True
     return False

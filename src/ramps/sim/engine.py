@@ -38,13 +38,14 @@ from ramps.core.durable import decode_record, encode_record, program_of, record_
 from ramps.core.cost import NetworkEstimate, nice_weight, program_cores
 from ramps.core.events import (Action, CheckpointSaved, Deliver, Note, PeerAlive, PeerLost, ProgramFinished,
                                PublishReport, Received, Send, StartProgram, StopProgram, Submit)
+from ramps.core.fanout import report_targets
 from ramps.core.messages import LoadReport, Message
 from ramps.core.node import Node
 from ramps.core.program import FINAL
 from ramps.core.speed import REMEASURE_PERIOD, SpeedMeasured
 from ramps.sim.battery import Batteries
 from ramps.sim.cpu import CPU, next_completion, set_frozen, take_finished
-from ramps.sim.results import ProgramRecord, SimResult, TraceEntry
+from ramps.sim.results import ProgramRecord, SimResult, TraceEntry, tally
 from ramps.sim.scenario import FaultSpec, ProgramSpec, RobotSpec, Scenario
 from ramps.sim.wire import wire_size
 
@@ -96,7 +97,8 @@ class Simulator:
         self.robots: dict[str, _Robot] = {r.name: _Robot(r) for r in self.sc.team()}
         self.names = list(self.robots)
         self.net = self.sc.network
-        self._link_free: dict[tuple[str, str], float] = {}
+        #: (sender, receiver) -> [when the link is free, its latency, its bandwidth]
+        self._links: dict[tuple[str, str], list[float]] = {}
         self.records: dict[str, ProgramRecord] = {}
         self._true_work: dict[str, float] = {}
         self._true_accel: dict[str, float] = {}
@@ -104,6 +106,9 @@ class Simulator:
         #: programs that checkpoint: seconds between checkpoints, bytes of each
         self._checkpoint: dict[str, tuple[float, int]] = {}
         self.subscribers = sorted({p.origin for p in self.sc.programs})
+        #: the origins each robot's load reports go to (all of them but in a fleet: ``ramps.core.fanout``)
+        self._report_to = {name: sorted(report_targets(name, self.subscribers, len(self.robots), self.sc.config)
+                                        or self.subscribers) for name in self.robots}
         self._pending = self.events = self.sent = self.dropped = 0
         self._trace_on = trace
         self.trace: list[TraceEntry] = []
@@ -288,7 +293,7 @@ class Simulator:
         src, epoch, report = arg
         if epoch != src.epoch:
             return
-        for name in self.subscribers:
+        for name in self._report_to[src.spec.name]:
             if name == src.spec.name:
                 continue
             dst = self.robots[name]
@@ -306,17 +311,16 @@ class Simulator:
         if self.net.loss and self.rng.random() < self.net.loss:
             self.dropped += 1
             return
-        link = (src.spec.name, to)
-        start = max(self.now, self._link_free.get(link, 0.0))
-        latency, bandwidth = self.net.latency, self.net.bandwidth
-        for end in (src.spec, dst.spec):  # a robot's own worse link counts
-            if end.latency is not None:
-                latency = max(latency, end.latency)
-            if end.bandwidth is not None:
-                bandwidth = min(bandwidth, end.bandwidth)
-        tx = wire_size(msg) / bandwidth
-        self._link_free[link] = start + tx
-        self._at(start + tx + latency, self._arrive, (src, src.epoch, dst, dst.epoch, msg))
+        link = self._links.get((src.spec.name, to))
+        if link is None:
+            latency, bandwidth = self.net.latency, self.net.bandwidth
+            for end in (src.spec, dst.spec):  # a robot's own worse link counts
+                latency = latency if end.latency is None else max(latency, end.latency)
+                bandwidth = bandwidth if end.bandwidth is None else min(bandwidth, end.bandwidth)
+            link = self._links[(src.spec.name, to)] = [0.0, latency, bandwidth]
+        start = link[0] if link[0] > self.now else self.now
+        link[0] = start + wire_size(msg) / link[2]
+        self._at(link[0] + link[1], self._arrive, (src, src.epoch, dst, dst.epoch, msg))
 
     def _arrive(self, arg: tuple[_Robot, int, _Robot, int, Message]) -> None:
         src, se, dst, de, msg = arg
@@ -459,25 +463,7 @@ class Simulator:
         self.snapshots[f"{label:g}"] = counts
 
     def _result(self, wall: float) -> SimResult:
-        dist = {n: 0 for n in self.names}
-        completed = failed = lost = dup = 0
-        deadlines = misses = 0
-        for rec in self.records.values():
-            if rec.deadline is not None:
-                deadlines += 1
-                rec.missed_deadline = not (rec.ok and rec.delivered_at is not None
-                                           and rec.delivered_at <= rec.deadline + 1e-9)
-                misses += rec.missed_deadline
-            if rec.deliveries:
-                dup += rec.deliveries - 1
-                if rec.ok:
-                    completed += 1
-                    if rec.host is not None:  # set with ok, at the delivery
-                        dist[rec.host] = dist.get(rec.host, 0) + 1
-                else:
-                    failed += 1
-            elif not rec.error:
-                lost += 1
+        dist, completed, failed, lost, dup, deadlines, misses = tally(self.records.values(), self.names)
         stats = [r.node.statistics() for r in self.robots.values()]
         energy, charge = self.batteries.finish({n: r.cpu for n, r in self.robots.items() if r.alive}, self.now)
         first = self._first_submit if self._first_submit < math.inf else 0.0

@@ -4,6 +4,8 @@ Plain data."""
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import msgspec
 
 from ramps.core.node import NodeStatistics
@@ -69,3 +71,29 @@ class SimResult(msgspec.Struct, kw_only=True):
     #: with a battery (``ramps.sim.battery``)
     energy: dict[str, float] = {}
     charge: dict[str, float] = {}
+
+
+def tally(records: Iterable[ProgramRecord], robots: list[str]) -> tuple[dict[str, int], int, int, int, int, int, int]:
+    """What the records of a run add up to: completed programs per robot,
+    completed, failed, lost, duplicated deliveries, programs with a
+    deadline, deadlines missed (each record's ``missed_deadline`` set)."""
+    dist = {n: 0 for n in robots}
+    completed = failed = lost = dup = 0
+    deadlines = misses = 0
+    for rec in records:
+        if rec.deadline is not None:
+            deadlines += 1
+            rec.missed_deadline = not (rec.ok and rec.delivered_at is not None
+                                       and rec.delivered_at <= rec.deadline + 1e-9)
+            misses += rec.missed_deadline
+        if rec.deliveries:
+            dup += rec.deliveries - 1
+            if rec.ok:
+                completed += 1
+                if rec.host is not None:  # set with ok, at the delivery
+                    dist[rec.host] = dist.get(rec.host, 0) + 1
+            else:
+                failed += 1
+        elif not rec.error:
+            lost += 1
+    return dist, completed, failed, lost, dup, deadlines, misses
