@@ -97,16 +97,25 @@ def _median_max(values: list[float], digits: int = 2) -> dict[str, float]:
 def measure_idle(team: Any, seconds: float) -> dict[str, Any]:
     """What each node of ``team`` costs over ``seconds`` with nothing to run."""
     pids = {n: team.nodes[n].pid for n in team.alive()}
-    trees = {n: _tree(pid) for n, pid in pids.items()}
-    node0 = {n: _cpu(t[:1]) for n, t in trees.items()}
-    all0 = {n: _cpu(t) for n, t in trees.items()}
+
+    def read() -> dict[str, tuple[float, float, float]]:
+        """Each node's (CPU of the node process, of its whole tree, when read): on a
+        busy host reading 50 trees takes seconds, so each node gets its own interval."""
+        got = {}
+        for name, pid in pids.items():
+            tree = _tree(pid)
+            got[name] = (_cpu(tree[:1]), _cpu(tree), time.monotonic())
+        return got
+
+    before = read()
     b0, p0, t0 = *lo_counters(), time.monotonic()
     time.sleep(seconds)
     b1, p1, t1 = *lo_counters(), time.monotonic()
     span = t1 - t0
+    after = read()
+    node_pct = [100 * (after[n][0] - before[n][0]) / (after[n][2] - before[n][2]) for n in pids]
+    all_pct = [100 * (after[n][1] - before[n][1]) / (after[n][2] - before[n][2]) for n in pids]
     trees = {n: _tree(pid) for n, pid in pids.items()}
-    node_pct = [100 * (_cpu(trees[n][:1]) - node0[n]) / span for n in pids]
-    all_pct = [100 * (_cpu(trees[n]) - all0[n]) / span for n in pids]
     n = len(pids)
     threads = []
     for t in trees.values():
