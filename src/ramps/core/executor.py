@@ -110,6 +110,8 @@ class Executor:
         self.registry = registry
         self.incarnation = incarnation
         self.running: dict[Key, _Job] = {}
+        #: the heartbeat to each origin of the programs running here (None: to be made again at the next tick)
+        self._beats: dict[str, Heartbeat] | None = None
         self._outbox: dict[Key, tuple[str, ProgramResult, float, float]] = {}
         self._next_tick: float | None = None
         #: origins whose liveliness went, and when (see on_origin_lost)
@@ -165,12 +167,14 @@ class Executor:
 
     def _started(self, key: Key, job: _Job) -> None:
         self.running[key] = job
+        self._beats = None
         if job.accelerator:
             self.on_accelerators[job.accelerator] += 1
             self._on_any += 1
 
     def _ended(self, key: Key) -> _Job | None:
         job = self.running.pop(key, None)
+        self._beats = None
         if job is not None and job.accelerator:
             self.on_accelerators[job.accelerator] -= 1
             self._on_any -= 1
@@ -440,11 +444,13 @@ class Executor:
             return
         if self._origins_lost:
             self._drop_gone_origins(now, out)
-        by_origin: dict[str, list[ProgramRef]] = {}
-        for (pid, attempt), job in self.running.items():
-            by_origin.setdefault(job.origin, []).append(ProgramRef(pid, attempt))
-        for origin, refs in by_origin.items():
-            out.append(Send(to=origin, msg=Heartbeat(host=self.me, incarnation=self.incarnation, programs=refs)))
+        if self._beats is None:  # the programs running here changed since the last heartbeats
+            by_origin: dict[str, list[ProgramRef]] = {}
+            for (pid, attempt), job in self.running.items():
+                by_origin.setdefault(job.origin, []).append(ProgramRef(pid, attempt))
+            self._beats = {origin: Heartbeat(host=self.me, incarnation=self.incarnation, programs=refs)
+                           for origin, refs in by_origin.items()}
+        out.extend(Send(to=origin, msg=beat) for origin, beat in self._beats.items())
         self._send_progress(now, out)
         for key, (origin, result, resend_at, expires) in list(self._outbox.items()):
             if now >= expires:
