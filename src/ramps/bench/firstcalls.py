@@ -42,8 +42,9 @@ host_cores)`` over the calls (two at a time on 2 cores: c, c, 2c, 2c, 3c, 3c,
 so ``m`` = 2), or at ``calls / host_cores * c`` when every call runs at once
 and they share the cores (processor sharing: 3c). So the ratio of the
 medians is at least ``1 + (m - 1) * c / seq``: about 2x for six calls on two
-cores, 3x shared, and 1x needs a core per call (one core per robot, each
-robot running two). Other processes on the host (its load average, taken at
+cores, 3x shared (a little less: what ramps adds to a call counts on both
+sides; a host with a core per robot, three, allows 1.5x and 2x), and 1x
+needs a core per call. Other processes on the host (its load average, taken at
 each phase) lower the cores left: ``cores_used`` is the CPU the workers got
 over a phase's wall time (on a loaded host, six calls at once may get no
 more of it than one call alone).
