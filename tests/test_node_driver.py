@@ -195,3 +195,35 @@ def encode_args(**kw) -> bytes:
     import msgspec
 
     return msgspec.msgpack.encode(kw)
+
+
+def test_periodic_reports_list_a_few_links_in_turn_and_a_client_keeps_them_all(driver):
+    """A report's size does not grow with the team: each lists
+    ``LINKS_PER_REPORT`` teammates' links, the next ones in the next report,
+    and a client's status shows the newest of every one."""
+    import msgspec
+
+    from ramps.core.messages import encode
+    from ramps.runtime.futures import TeamReports
+    from ramps.runtime.node_reports import LINKS_PER_REPORT
+
+    rt, fake = driver
+    mates = [f"m{i:02d}" for i in range(2 * LINKS_PER_REPORT + 3)]
+    for i, m in enumerate(mates):
+        rt.node.host_speeds.factor[m] = 1.0 + i / 100
+    reports = TeamReports()
+    listed: list[list[str]] = []
+    for k in range(3):
+        links = rt.reports._learned()["links"]
+        listed.append([link.robot for link in links])
+        rep = msgspec.structs.replace(report("r1"), seq=k + 1, links=links)
+        reports.keep("r1", encode("r1", rep), fake.t)
+        reports.status("t", {"r1", *mates}, set(), fake.t)
+    assert all(len(names) == LINKS_PER_REPORT for names in listed)
+    assert set(listed[0]) | set(listed[1]) | set(listed[2]) == set(mates)  # every teammate within three reports
+    row = next(r for r in reports.status("t", {"r1", *mates}, set(), fake.t).robots if r.robot == "r1")
+    assert [link.robot for link in row.links] == mates
+    assert row.links[5].speed_factor == pytest.approx(1.05)
+    gone = next(r for r in reports.status("t", {"r1", *mates[1:]}, set(), fake.t).robots if r.robot == "r1")
+    # m00 left the team (and was never reported)
+    assert [link.robot for link in gone.links] == mates[1:]

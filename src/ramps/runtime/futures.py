@@ -123,13 +123,17 @@ class TeamReports:
     of the instant go to nodes only): as it came, read only as far as the
     robot it is about (``report_about``); ``status`` decodes the newest of
     each robot, so a client that never asks decodes none. A newest report
-    that turns out malformed leaves the one decoded before. Not thread-safe:
+    that turns out malformed leaves the one decoded before. A report lists a
+    few of its robot's links in turn: the row lists the newest of each. Not thread-safe:
     the Team's lock guards it."""
 
     def __init__(self) -> None:
         #: each robot's newest report as it came, not decoded yet, and when it came
         self.raw: dict[str, tuple[bytes, float]] = {}
         self.decoded: dict[str, tuple[LoadReport, float]] = {}
+        #: each robot's links as its reports listed them, the newest of each
+        #: teammate (a report lists a few in turn), and the incarnation they are of
+        self.links: dict[str, tuple[int, dict[str, LinkSeen]]] = {}
 
     def keep(self, robot: str, data: bytes, at: float) -> None:
         """A report about ``robot`` came at ``at`` (``report_about(data)``)."""
@@ -145,6 +149,11 @@ class TeamReports:
                 continue
             if isinstance(env.msg, LoadReport) and env.msg.robot == robot:
                 self.decoded[robot] = (env.msg, at)
+                inc, seen = self.links.get(robot, (env.msg.incarnation, {}))
+                if inc != env.msg.incarnation:  # restarted: what it measured before is gone
+                    seen = {}
+                seen.update((link.robot, link) for link in env.msg.links)
+                self.links[robot] = (env.msg.incarnation, seen)
         rows = []
         for name in sorted(alive | set(self.decoded)):
             got = self.decoded.get(name)
@@ -156,12 +165,17 @@ class TeamReports:
                             finished_total=rep.finished_total, blacklisted=list(rep.blacklisted),
                             cpu_per_core=list(rep.cpu_per_core), load_avg=rep.load_avg,
                             mem_free=rep.mem_free, bad_messages=rep.bad_messages, report_age=now - at,
-                            sees=rep.sees, running=list(rep.running), links=list(rep.links),
+                            sees=rep.sees, running=list(rep.running), links=self._links(name, alive),
                             learned=list(rep.learned), moves=rep.moves, moves_aborted=rep.moves_aborted,
                             node_cpu=rep.node_cpu, accelerators=list(rep.accelerators), battery=rep.battery,
                             low_battery=rep.low_battery, power=rep.power)
             rows.append(RobotStatus(**base))
         return TeamStatus(team=team, robots=rows)
+
+    def _links(self, robot: str, alive: set[str]) -> list[LinkSeen]:
+        """``robot``'s newest link to each teammate still alive or reported, by name."""
+        _, seen = self.links.get(robot, (0, {}))
+        return [seen[r] for r in sorted(seen) if r in alive or r in self.decoded]
 
 
 class ProgramFuture(Future):

@@ -11,6 +11,9 @@ to the core: below its reserve it hands back its teammates' programs) and
 the accelerators, has the core make the report, adds what only a person
 reads (what runs here, the links and learned work, ``ramps status``'s
 counters) and publishes it on ``keys.load``, the report applications hear.
+The links go ``LINKS_PER_REPORT`` teammates a report, in turn, so a
+report's size does not grow with the team; a client keeps the newest of
+each (``ramps.runtime.futures.TeamReports``).
 A report of the instant (``PublishReport``: the programs running here
 changed) goes to the teammates' nodes only (``keys.load_now``), held
 ``PROMPT_HOLD`` so the changes that follow it go with it, the newest only:
@@ -63,6 +66,10 @@ class ReportsDriver(Protocol):
     metrics: NodeMetrics | None
 
 
+#: teammates whose measured links one periodic report lists (the next ones in the next report)
+LINKS_PER_REPORT = 8
+
+
 class LoadReports:
     """The load reports of ``driver``'s node, of settings ``s``, which
     ``apply`` the core's actions and queue the driver's items with ``put``."""
@@ -84,6 +91,8 @@ class LoadReports:
         self._due = 0.0
         #: reads this robot's battery before each periodic report (made at the first)
         self._battery: BatteryReader | None = None
+        #: where the next report's links start in the sorted teammates measured
+        self._links_turn = 0
 
     def hold(self, report: LoadReport) -> None:
         """A report of the instant from the core: published ``PROMPT_HOLD`` after
@@ -172,7 +181,12 @@ class LoadReports:
         measured = node.links.measured()
         factors = node.host_speeds.factor if node.host_speeds is not None else {}
         # teammates only: an origin also compares the runs on its own robot
-        links = [(r, measured.get(r)) for r in sorted((set(measured) | set(factors)) - {self.robot})[:MAX_LISTED]]
+        known = sorted((set(measured) | set(factors)) - {self.robot})
+        if len(known) > LINKS_PER_REPORT:  # the next few in turn
+            start = self._links_turn % len(known)
+            self._links_turn = start + LINKS_PER_REPORT
+            known = (known[start:] + known[:start])[:LINKS_PER_REPORT]
+        links = [(r, measured.get(r)) for r in known]
         work = sorted(node.origin.learned_work().items())[:MAX_LISTED]
         return dict(links=[LinkSeen(r, ok(e.latency) if e else None, ok(e.bandwidth) if e else None,
                                     ok(factors.get(r))) for r, e in links],
