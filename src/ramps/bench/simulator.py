@@ -44,12 +44,28 @@ def bench_large(robots: int = 1000, programs: int = 10_000, origins: int = 10, p
     started = time.perf_counter()
     res = simulate(sc, policy=policy)
     wall = time.perf_counter() - started
-    return {
+    return {**bounds(sc, res.makespan),
         "robots": robots, "programs": programs, "origins": origins, "policy": policy,
         "wall_seconds": wall, "completed": res.completed, "lost": res.lost, "duplicated": res.duplicated,
         "makespan_virtual_s": res.makespan, "events": res.events, "events_per_s": res.events / wall if wall else 0,
         "rejections": sum(s.rejections for s in res.statistics),
     }
+
+
+def bounds(sc: Scenario, makespan: float) -> dict:
+    """Lower bounds of the optimum's makespan for a ``large_team`` scenario,
+    and the makespan over each: the capacity bound (all work over all
+    cores) and the release bound (the last program submitted, run alone on
+    a core from then). With many origins the release bound is the larger:
+    origin i starts at second i, so the 100th submits its last program at
+    109 s, which needs 53 s more wherever it runs."""
+    team = sc.team()
+    capacity = sum(p.count * p.work for p in sc.programs) / sum(r.cores * r.speed for r in team)
+    fastest = max(r.speed for r in team)
+    release = max(p.at + (p.count - 1) * p.spacing + p.work / fastest for p in sc.programs) - min(
+        p.at for p in sc.programs)
+    return {"capacity_bound": capacity, "release_bound": release, "makespan_over_capacity": makespan / capacity,
+            "makespan_over_bound": makespan / max(capacity, release)}
 
 
 def machine() -> dict:
