@@ -76,3 +76,38 @@ def test_replies_to_probes_never_sent_or_answered_twice_change_nothing() -> None
     links.on_reply("r2", LinkProbeReply(sent_at=probe.sent_at, size=len(probe.padding)), now + 0.0001)
     assert links.measured()["r2"].replies == replies and "r9" not in links.measured()
     assert links.estimate("r2").latency == pytest.approx(before.latency)
+
+
+def test_an_idle_robot_measures_each_link_once_then_rarely_and_a_submitter_every_period() -> None:
+    """A robot no application submits to probes a teammate until it has its
+    latency and bandwidth, then every IDLE_REFRESH periods; from its first
+    Submit, every period again."""
+    from corehelpers import report
+
+    from ramps.core.config import RampsConfig
+    from ramps.core.events import Received, Submit
+    from ramps.core.links import IDLE_REFRESH
+    from ramps.core.messages import LinkProbe
+    from ramps.core.node import Node
+
+    period = 5.0
+    node = Node("r1", cores=2, speed=1.0, config=RampsConfig(probe_period=period), rng=random.Random(0))
+    probes: list[float] = []
+    t = 0.0
+    while t <= 100.0:
+        node.handle(Received(sender="r2", msg=report("r2", seq=int(t) + 1)), t)
+        for a in node.tick(t):
+            if isinstance(getattr(a, "msg", None), LinkProbe):
+                probes.append(t)  # answered at once over a fast link
+                node.handle(Received(sender="r2", msg=LinkProbeReply(sent_at=a.msg.sent_at,
+                                                                     size=len(a.msg.padding))), t + 0.001)
+        t += period
+    assert probes[:2] == [0.0, 5.0]  # a plain probe, then a padded one: measured
+    assert [b - a for a, b in zip(probes[1:], probes[2:])] == [IDLE_REFRESH * period] * (len(probes) - 2)
+    node.handle(Submit(program_id="p1", program="noop", work=0.001), t)
+    later = []
+    for _ in range(4):
+        node.handle(Received(sender="r2", msg=report("r2", seq=int(t) + 1)), t)
+        later += [t for a in node.tick(t) if isinstance(getattr(a, "msg", None), LinkProbe)]
+        t += period
+    assert later == [t - 4 * period + k * period for k in range(4)]  # every period once an application submits

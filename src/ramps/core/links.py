@@ -2,12 +2,17 @@
 
 How this works: every ``probe_period`` seconds a node that places programs
 sends each teammate it could place on (at most ``placement_sample`` of them
-in turn, ``Links.probes``) a small ``LinkProbe`` carrying its own clock; the teammate answers at once with a ``LinkProbeReply`` echoing it, so
+in turn, ``Links.probes``) a small ``LinkProbe`` carrying its own clock;
+the teammate answers at once with a ``LinkProbeReply`` echoing it, so
 the round trip needs no shared clock. Every ``PADDED_EVERY``-th probe to a
 robot carries ``PADDED_BYTES`` of padding (the first probe to a robot is a
 plain one, the second padded): the extra time it takes over a plain one's
 gives the bandwidth. A link not measured yet costs the configured
-``NetworkEstimate``.
+``NetworkEstimate``. A robot no application submits to measures each link
+once (a plain probe and a padded one) and then only every
+``IDLE_REFRESH`` probe periods: its links are ready when an application
+starts submitting there (it probes every period from then on), without
+every idle robot of a large team probing every teammate every period.
 
 The figures are the *least* round trips among the latest few: the latency
 is half the least of the last ``PLAIN_WINDOW`` plain round trips, the
@@ -30,6 +35,7 @@ and result also cross.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import msgspec
@@ -38,6 +44,8 @@ from ramps.core.cost import NetworkEstimate
 from ramps.core.events import Send
 from ramps.core.messages import LinkProbe, LinkProbeReply
 
+#: probe periods between probes of a link already measured, from a robot no application submits to
+IDLE_REFRESH = 6
 #: padding of a bandwidth probe, and how often a link gets one
 PADDED_BYTES = 16 * 1024
 PADDED_EVERY = 3
@@ -56,10 +64,12 @@ class LinkEstimate(msgspec.Struct, kw_only=True):
 
 
 class _Link:
-    __slots__ = ("probes", "replies", "plain", "padded", "size", "waiting", "latency", "bandwidth")
+    __slots__ = ("probes", "replies", "plain", "padded", "size", "waiting", "latency", "bandwidth", "sent")
 
     def __init__(self) -> None:
         self.probes = self.replies = self.size = 0
+        #: when the latest probe went
+        self.sent = -math.inf
         #: probes sent and not answered yet: send time -> padding (the latest few)
         self.waiting: dict[float, int] = {}
         self.plain: deque[float] = deque(maxlen=PLAIN_WINDOW)
@@ -82,18 +92,24 @@ class Links:
         #: where the next round of probes starts in a list of too many candidates (``probes``)
         self._turn = 0
 
-    def probes(self, candidates: list[str], me: str, now: float, most: int) -> list[Send]:
+    def probes(self, candidates: list[str], me: str, now: float, most: int, refresh: float = 0.0) -> list[Send]:
         """The probes of one ``probe_period``: one to each candidate but
         ``me``; where there are more than ``most`` (``placement_sample``, 0:
         no limit), to ``most`` of them, the next ones in turn, so a probe's
         traffic stays bounded in a large team and every link is still
-        measured every few periods."""
-        others = [robot for robot in candidates if robot != me]
+        measured every few periods. ``refresh`` > 0: not to a link measured
+        (latency and bandwidth) and probed within the last ``refresh`` seconds."""
+        others = [robot for robot in candidates if robot != me and not self._fresh(robot, now, refresh)]
         if 0 < most < len(others):
             start = self._turn % len(others)
             self._turn = start + most
             others = (others + others)[start:start + most]
         return [Send(to=robot, msg=self.probe(robot, now)) for robot in others]
+
+    def _fresh(self, robot: str, now: float, refresh: float) -> bool:
+        link = self._links.get(robot)
+        return (refresh > 0.0 and link is not None and link.bandwidth is not None and link.latency is not None
+                and now - link.sent < refresh)
 
     def probe(self, robot: str, now: float) -> LinkProbe:
         link = self._links.get(robot)
@@ -101,6 +117,7 @@ class Links:
             link = self._links[robot] = _Link()
         padded = link.probes % PADDED_EVERY == 1  # the first probe measures latency
         link.probes += 1
+        link.sent = now
         link.waiting[now] = PADDED_BYTES if padded else 0
         while len(link.waiting) > 2 * PADDED_EVERY:  # unanswered for long: lost
             del link.waiting[next(iter(link.waiting))]

@@ -64,7 +64,7 @@ from ramps.core.events import (
 )
 from ramps.core.executor import Executor
 from ramps.core.identity import SameName
-from ramps.core.links import Links
+from ramps.core.links import IDLE_REFRESH, Links
 from ramps.core.loadview import LoadView, report_problem
 from ramps.core.messages import (
     AcceleratorSeen,
@@ -222,7 +222,9 @@ class Node:
         self.origin.tick(now, more)
         out.extend(self._loopback(more, now))
         if self._probe_due is not None and now >= self._probe_due:
-            out.extend(self.links.probes(self.view.candidates(now), self.robot, now, self.config.placement_sample))
+            refresh = 0.0 if self.submits else IDLE_REFRESH * self.config.probe_period
+            out.extend(self.links.probes(self.view.candidates(now), self.robot, now, self.config.placement_sample,
+                                         refresh))
             self._probe_due = now + self.config.probe_period
         return self._prompt_report(out, now)
 
