@@ -47,10 +47,11 @@ def test_stages_come_from_the_origin_and_host_traces_in_submission_order(tmp_pat
                                          (10.013, "accepted", "r1#5-10"), (10.062, "delivered", "r1#5-10")])
     _trace(tmp_path / "r2.trace", "r2", [(10.012, "started", "r1#5-10"), (10.060, "finished", "r1#5-10")])
     traced = read_traces([tmp_path / "r1.trace", tmp_path / "r2.trace", tmp_path / "gone.trace"])
-    calls = [{"submit": 9.998, "result": 10.031}, {"submit": 9.999, "result": 10.065}]
+    calls = [{"submit": 9.998, "sent": 9.9985, "result": 10.031}, {"submit": 9.999, "sent": 9.9995, "result": 10.065}]
     first, second = stages(calls, traced)
     assert first["program_id"] == "r1#5-9" and second["program_id"] == "r1#5-10"
     assert first["submit_to_placed_ms"] == pytest.approx(2.0) and first["started_to_finished_ms"] == pytest.approx(29)
+    assert first["submit_call_ms"] == pytest.approx(0.5)
     assert second["placed_to_started_ms"] == pytest.approx(2.0)
     assert second["started_to_finished_ms"] == pytest.approx(48.0)
     assert second["finished_to_result_ms"] == pytest.approx(5.0)

@@ -21,7 +21,8 @@ cores.
 
 Where a call's time goes (``stages``, from the nodes' traces; ``t`` there is
 the host's monotonic clock, the same as this process's): submit to placed
-(the client's message, the origin's placement), placed to started (the offer
+(the client's ``submit``, itself ``submit_call_ms``: the argument check and
+the message; the origin's placement), placed to started (the offer
 to the host, which hands it to its executor), started to finished (waiting
 for a worker and running: this is where calls share the cores) and finished
 to the result in the client (the result's way back). The CPU of a call: the
@@ -88,24 +89,26 @@ class _TracedTeam(LocalTeam):
         return super().node_argv(name, port, cores, policy) + ["--trace", str(self.log_dir / f"{name}.trace")]
 
 
-def _call(fut: Any, t0: float, t1: float) -> dict:
+def _call(fut: Any, t0: float, sent: float, t1: float) -> dict:
     value = fut.result(timeout=1)  # a failed call fails the benchmark
     cpu = value.get("cpu_seconds") if isinstance(value, dict) else None
-    return {"submit": t0, "result": t1, "host": fut.host,
+    return {"submit": t0, "sent": sent, "result": t1, "host": fut.host,
             "program_cpu_s": cpu if isinstance(cpu, (int, float)) else None}
 
 
 def _at_once(client: Any, program: str, calls: int, kwargs: dict) -> list[dict]:
-    """Submit ``calls`` programs together; each one's submit and result times (monotonic)."""
-    stamps: list[tuple[float, float]] = [(0.0, 0.0)] * calls
+    """Submit ``calls`` programs together; each one's submit, sent (``submit``
+    returned) and result times (monotonic)."""
+    stamps: list[tuple[float, float, float]] = [(0.0, 0.0, 0.0)] * calls
     done = threading.Semaphore(0)
     futs = []
     for i in range(calls):
         t0 = time.monotonic()
         fut = client.submit(program, seed=i, **kwargs)
+        sent = time.monotonic()
 
-        def finished(f: Any, i: int = i, t0: float = t0) -> None:
-            stamps[i] = (t0, time.monotonic())
+        def finished(f: Any, i: int = i, t0: float = t0, sent: float = sent) -> None:
+            stamps[i] = (t0, sent, time.monotonic())
             done.release()
 
         fut.add_done_callback(finished)
@@ -120,8 +123,9 @@ def _one_after_another(client: Any, program: str, calls: int, kwargs: dict) -> l
     for i in range(calls):
         t0 = time.monotonic()
         fut = client.submit(program, seed=i, **kwargs)
+        sent = time.monotonic()
         fut.result(timeout=300)
-        out.append(_call(fut, t0, time.monotonic()))
+        out.append(_call(fut, t0, sent, time.monotonic()))
     return out
 
 
@@ -221,6 +225,7 @@ def stages(calls: list[dict], traced: dict[str, dict[str, float]]) -> list[dict]
         if started is None or finished is None:
             return None
         out.append({"program_id": pid, "submit_to_placed_ms": (k["placed"] - call["submit"]) * 1e3,
+                    "submit_call_ms": (call.get("sent", call["submit"]) - call["submit"]) * 1e3,
                     "placed_to_started_ms": (started - k["placed"]) * 1e3,
                     "started_to_finished_ms": (finished - started) * 1e3,
                     "finished_to_result_ms": (call["result"] - finished) * 1e3})
@@ -317,7 +322,8 @@ def describe_round(i: int, r: dict) -> str:
     for label, phase in (("cold at once", cold), ("one after another", seq)):
         p = phase["stages_p50_ms"]
         if p:
-            text += (f"; {label} p50: submit to placed {p['submit_to_placed_ms']:.1f} ms, to started "
+            text += (f"; {label} p50: submit to placed {p['submit_to_placed_ms']:.1f} ms (in the client's "
+                     f"submit {p['submit_call_ms']:.1f}), to started "
                      f"{p['placed_to_started_ms']:.1f}, to finished {p['started_to_finished_ms']:.1f}, to the "
                      f"result {p['finished_to_result_ms']:.1f}")
     return text

@@ -47,6 +47,7 @@ and reports nothing: the core already knows.
 from __future__ import annotations
 
 import os
+import select
 import selectors
 import socket
 import subprocess
@@ -360,8 +361,8 @@ class WorkerPool:
         host, which a new worker would not speed up (the module's docstring)."""
         starved = True
         for w in self._workers:
-            if w.job is None:
-                continue
+            if w.job is None or select.select([w.fd], [], [], 0)[0]:
+                continue  # idle, or its reply (or progress) not read yet: it waits for this pool, not for CPU
             seen = cpu_and_state(w.proc.pid)
             if seen is None:
                 return False  # cannot tell: grow as on any system
