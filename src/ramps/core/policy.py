@@ -40,7 +40,7 @@ scheduler.
   the others out when it may not run on a CPU.
   With ``RampsConfig.energy_weight`` above 0, hosts are chosen by time and
   energy per unit of work, weighed (``battery.rank_by_energy``), and
-  priced (time, budget) by time as before. A burst (programs an origin
+  priced (time, budget) by time alone. A burst (programs an origin
   gets at one instant) is planned as a whole (``plans``, ``pools``;
   ``ramps.core.burst``): ``choose`` then takes the host of the plan
   (``PlacementRequest.prefer``), with a budget of at least the plan's end.

@@ -14,7 +14,7 @@ every teammate is *relinking* until it is heard again:
   back they count from that moment (``ramps.core.silence``);
 - no new offer goes to a teammate that relinks while another is back
   (placement excludes it); while every teammate relinks, the policy chooses
-  among all of them, as before, rather than pile everything on this robot;
+  among all of them as usual, rather than pile everything on this robot;
 - a teammate is back when the transport says so (``PeerAlive``), or when a
   message from it arrives at least ``settle`` seconds after the wake (the
   messages it sent before its link closed are read right after the wake and

@@ -50,7 +50,7 @@ only at the running programs that can still move: a program whose
 ``relocate_settle`` of their acceptance need no scan of the view, and once
 none is left the checks stop until the next acceptance. A check then costs
 the programs placed in the last half a program's run, not all of them.
-Smaller teams check every running program every period, as before.
+Smaller teams check every running program every period.
 
 Rules: functions of the origin they decide for, which they see as a
 ``RelocatingOrigin`` (what ``ramps.core.origin.Origin`` offers them: its

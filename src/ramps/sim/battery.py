@@ -9,7 +9,7 @@ node does (``ramps.runtime.battery``), and hands the core
 ``BatteryMeasured`` with the robot's ``power`` (watts per busy core), so a
 robot that drops below its reserve hands back its teammates' programs
 within one report period. Robots with neither battery nor power get no
-such event: a scenario without them runs as before.
+such event: a scenario without them has no battery events.
 
 Energy: every robot's busy core-seconds times its ``power`` (1 W where the
 scenario gives none, so the figure is then its busy core-seconds), counted
