@@ -11,7 +11,7 @@ import msgspec
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate
 from ramps.core.events import Send
-from ramps.core.fanout import report_targets
+from ramps.core.fanout import report_order, report_targets
 from ramps.core.links import Links
 from ramps.core.messages import LinkProbe
 from ramps.sim.engine import Simulator
@@ -43,18 +43,27 @@ def test_in_a_fleet_each_robot_reports_to_the_same_few_origins_and_each_origin_h
     assert all(0.75 * share < n < 1.25 * share for n in heard.values()), heard
 
 
+def test_a_robots_home_origins_hear_every_report_and_the_others_hear_it_in_turn() -> None:
+    cfg = msgspec.structs.replace(CFG, report_fanout=4)
+    origins = [f"w{i}" for i in range(1, 21)]
+    turns = [report_targets("w77", origins, 1000, cfg, turn) for turn in range(9)]
+    assert all(t is not None and len(t) == 4 for t in turns)
+    home = set(turns[0][:2])  # type: ignore[index]
+    assert all(set(t[:2]) == home for t in turns)  # type: ignore[index]
+    heard = {o for t in turns for o in t}  # type: ignore[union-attr]
+    assert heard == set(origins)  # 2 home + 18 others, 2 a turn: all within nine turns
+
+
 def test_an_origin_that_leaves_moves_only_the_robots_that_reported_to_it() -> None:
     cfg = msgspec.structs.replace(CFG, report_fanout=4)
     origins = [f"w{i}" for i in range(1, 21)]
-    robots = [f"w{i}" for i in range(1, 501)]
-    before = {r: report_targets(r, origins, 500, cfg) for r in robots}
-    after = {r: report_targets(r, origins[1:], 500, cfg) for r in robots}
-    for r in robots:
-        assert before[r] is not None and after[r] is not None
-        if "w1" not in before[r]:
-            assert after[r] == before[r]
-        else:
-            assert set(before[r]) - {"w1"} <= set(after[r])
+    for r in (f"w{i}" for i in range(1, 501)):
+        before, after = report_order(r, origins, 500, cfg), report_order(r, origins[1:], 500, cfg)
+        assert before is not None and after is not None
+        assert after == [o for o in before if o != "w1"]  # every other origin keeps its place
+        first, then = report_targets(r, origins, 500, cfg) or [], report_targets(r, origins[1:], 500, cfg) or []
+        if "w1" not in first:
+            assert then == first
 
 
 def test_probes_go_to_every_candidate_in_a_small_team_and_in_turn_in_a_large_one() -> None:
@@ -80,18 +89,15 @@ def fleet(robots: int, origins: int, fanout: int) -> Scenario:
                               for i in range(origins)])
 
 
-def test_a_fleet_origin_hears_and_places_on_its_share_and_every_program_completes() -> None:
-    sim = Simulator(fleet(100, 12, 3))
+def test_a_fleet_origin_hears_its_home_robots_and_every_program_completes() -> None:
+    sim = Simulator(fleet(100, 12, 4))
     res = sim.run()
     assert res.completed == 72 and res.lost == 0 and res.duplicated == 0
     for i in range(1, 13):
         me = f"w{i}"
-        reporters = {r for r in sim.names if r == me or me in (report_targets(r, sim.subscribers, 100, sim.sc.config)
-                                                              or sim.subscribers)}
-        heard = set(sim.robots[me].node.view.robots())
-        assert heard <= reporters and len(reporters) < 100
-    hosts = {p.host for p in res.programs}
-    assert len(hosts) > 12  # placed across the team, not only on the origins
+        home = {r for r in sim.names if me in (report_targets(r, sim.subscribers, 100, sim.sc.config) or [])[:2]}
+        assert home and home <= set(sim.robots[me].node.view.robots())
+    assert len({p.host for p in res.programs}) > 12  # placed across the team, not only on the origins
 
 
 def test_the_same_fleet_and_seed_give_the_same_run() -> None:
