@@ -74,8 +74,9 @@ Checkpoint = Callable[[Key, bytes, "float | None"], None]
 #: seconds a program waits, with no worker finishing or starting meanwhile, before the pool starts another
 GROW_AFTER = 0.1
 #: CPU seconds a busy worker uses, once the pool has looked at it while programs waited, for it to
-#: count as running a long program rather than a starved short one (the pool grows only then)
-STARVED_CPU = GROW_AFTER / 2
+#: count as running a long program rather than a starved short one (the pool grows only then): a
+#: program that ends within GROW_AFTER of CPU is a tiny one, however long a busy host makes it take
+STARVED_CPU = GROW_AFTER
 #: seconds an extra worker (beyond one per core) stays idle before it exits
 RETIRE_AFTER = 2.0
 #: seconds the fork server may take to fork a worker (it imports the programs first)
