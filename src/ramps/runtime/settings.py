@@ -239,12 +239,16 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     #: 2-4 a minute (``python -m ramps.testbed.detect --flap``); 1000 ms suits
     #: wired teams. At least 100
     lease_ms: int = 2000
-    #: Zenoh's shared memory for large messages (over 3 KB) between processes
-    #: of one host: a robot's node and its local clients. Robots on separate
-    #: hosts never share it. Turn it off when several robots are emulated on
-    #: one host (the testbed does), else their large messages bypass the
-    #: emulated network
-    shared_memory: bool = True
+    #: Zenoh's shared memory for messages over 64 KB between processes of one
+    #: host: a robot's node and its local clients (both need it on; robots on
+    #: separate hosts never share it). On, each process that sends such a
+    #: message keeps a 16 MiB pool resident, mapped by each that receives
+    #: from it. It saved 7-10 ms of about 30 on a 1 MB argument from a local
+    #: client, nothing measurable at 100 KB or 4 MB
+    #: (docs/lab/2026-11-27-footprint.md). Leave it off where robots are
+    #: emulated on one host (the testbed), else their large messages bypass
+    #: the emulated network
+    shared_memory: bool = False
     #: what the load publisher measures: ``host``, ``cgroup``, or ``auto``
     #: (``cgroup`` when the node runs in a cpu cgroup with a quota)
     load_scope: str = "auto"

@@ -71,8 +71,8 @@ def _links_security_overrides(c: zenoh.Config, s: NodeSettings, credentials: Cre
                               exit_on_failure: bool, caller: str) -> None:
     """What a robot's and a router's configurations share: how often an
     endpoint that does not answer is dialled again, the team's lease
-    and keep-alives, shared memory off when asked (two routers on one host,
-    the testbed, would pass large messages around their link), on a secured
+    and keep-alives, shared memory (``s.shared_memory``: off unless asked, and
+    then only for messages of ``SHM_THRESHOLD`` or more), on a secured
     team its TLS and access control (``credentials``: the checked bundle;
     ``exit_on_failure``: ``zenoh.open`` fails within 3 s unless it links to
     every connect endpoint), and last ``s.zenoh``: what the operator wrote
@@ -85,8 +85,10 @@ def _links_security_overrides(c: zenoh.Config, s: NodeSettings, credentials: Cre
     c.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
     c.insert_json5("transport/link/tx/lease", str(s.lease_ms))
     c.insert_json5("transport/link/tx/keep_alive", "4")
-    if not s.shared_memory:
-        c.insert_json5("transport/shared_memory/enabled", "false")
+    c.insert_json5("transport/shared_memory/enabled", "true" if s.shared_memory else "false")
+    if s.shared_memory:
+        c.insert_json5("transport/shared_memory/transport_optimization/message_size_threshold",
+                       str(SHM_THRESHOLD))
     if s.secure:
         from ramps.runtime.security import secure_zenoh_json
 
@@ -99,6 +101,13 @@ def _links_security_overrides(c: zenoh.Config, s: NodeSettings, credentials: Cre
             c.insert_json5("connect/timeout_ms", str(CONNECT_TIMEOUT_MS))
     for key, value in flatten_zenoh(s.zenoh).items():
         c.insert_json5(key, json.dumps(value))
+
+
+#: with ``shared_memory`` on, the smallest message that goes through it (Zenoh's
+#: default: 3 KB). Below it shared memory saves nothing measurable (100 KB
+#: arguments: the same latency either way), and nodes on one host probing each
+#: other (16 KB) would each fill their 16 MiB pool and map every teammate's
+SHM_THRESHOLD = 64 * 1024
 
 
 #: where a router listens unless told (Zenoh's usual router port)
@@ -143,8 +152,11 @@ def router_config(s: NodeSettings, *, credentials: Credentials | None = None,
 #: threads a robot's one or two links to the lost peer took both, and the
 #: robot heard nobody for 10 s from about 1.6 s after the loss: on the testbed
 #: every teammate did, and wrote healthy robots off for missing heartbeats.
-#: 16 receive threads keep receiving while up to 8 such links close at once
-#: (4 robots lost together); idle threads cost next to nothing.
+#: Zenoh 1.10.2 still does: with 4 receive threads, 4 robots of 7 cut off at
+#: once left the other 3 deaf to each other for 7-8 s, and healthy ones were
+#: written off; with 16 the longest gap was 1.1 s. Idle, 4 threads instead of
+#: 16 changed neither a node's CPU nor its memory measurably
+#: (docs/lab/2026-11-27-footprint.md).
 ZENOH_RUNTIME_DEFAULT = "(rx: (worker_threads: 16))"
 
 
