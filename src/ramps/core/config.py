@@ -55,10 +55,11 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: 0: all, always
     placement_sample: int = 64
     #: in a team of more robots than ``placement_sample``, where more
-    #: robots submit programs than this, each load report of a robot goes
-    #: to this many of them (``ramps.core.fanout``), not to all: half its
-    #: home origins, every time, half the others in turn. 0: to all
-    report_fanout: int = 16
+    #: robots submit programs than this, a robot's load reports go to this
+    #: many of them (``ramps.core.fanout``), not to all: traffic bounded
+    #: per robot, at a cost to placement where the team is nearly full
+    #: (docs/lab/2026-11-27-sim-scale-2.md). 0: to all
+    report_fanout: int = 0
     #: a host busier than the origin expected still takes a program that
     #: computes there within its time budget plus this relative margin
     #: (ramps negotiation)

@@ -6,20 +6,23 @@ robot. A team of ``robots`` robots and ``origins`` origins that all hear
 all carries robots x origins reports each period; at fleet size that is
 most of the team's traffic and of each origin's work. So where the team has
 more robots than ``placement_sample`` and more origins than
-``report_fanout``, each report of a robot goes to ``report_fanout`` origins
-only, from the robot's order of the origins by rendezvous hashing of
-(origin, robot) (``report_order``): every robot computes it from names
-alone, no message says it, and a robot joining or an origin leaving moves
-only the pairs that involve it. Half of them are the first of that order,
-the robot's home origins, which hear every report of it and so place on it
-with fresh figures; the other half turns over the rest of the order, the
-next ones at each periodic report (``turn_of``), so every origin hears
-every robot now and then and sees where the team has room. Home origins
-alone (a static split) left the origins that submitted last with only
-their share of the team, full by then, while robots elsewhere waited:
-300 robots, 30 origins, makespan 1.19x the capacity bound against 1.11x
-with every report to every origin; with the turning half 1.10x
-(docs/lab/2026-11-27-sim-scale-2.md).
+``report_fanout`` (0, the default: off), each robot reports to
+``report_fanout`` origins only, the first of its order of the origins by
+rendezvous hashing of (origin, robot) (``report_order``): every robot
+computes it from names alone, no message says it, an origin hears about
+robots x fanout / origins robots (its view, which is all it places on), and
+a robot joining or an origin leaving moves only the pairs that involve it.
+
+What it costs placement (docs/lab/2026-11-27-sim-scale-2.md): where
+origins submit one after another and the team's capacity is tight, the
+origins that submit last have only their share of the team, full by then,
+while robots elsewhere wait with room: 3,000 robots, 30 origins, 16 each,
+makespan 1.24x the capacity bound; 300 robots, 30 origins, 8 each, 1.19x
+against 1.11x with every report to every origin. Turning half the targets
+over the other origins at each report balanced 300 robots (1.10x) but not
+3,000 (1.26x, 21 times the rejections) and made each origin's view the
+whole team again. So it is off unless a team sets it: traffic bounded per
+robot against placement's quality.
 
 Rules: pure functions of names and settings; no clock, no I/O.
 """
@@ -49,20 +52,8 @@ def report_order(robot: str, origins: Collection[str], team: int, config: RampsC
     return sorted(others, key=lambda o: (-score(o, robot), o))
 
 
-def report_targets(robot: str, origins: Collection[str], team: int, config: RampsConfig,
-                   turn: int = 0) -> list[str] | None:
-    """The origins that hear ``robot``'s ``turn``-th periodic load report
-    (and its reports of the instant until the next), ``report_fanout`` of
-    ``report_order`` (``turn_of``); None: all of them."""
+def report_targets(robot: str, origins: Collection[str], team: int, config: RampsConfig) -> list[str] | None:
+    """The origins that hear ``robot``'s load reports: the first
+    ``report_fanout`` of ``report_order``; None: all of them."""
     order = report_order(robot, origins, team, config)
-    return None if order is None else turn_of(order, config.report_fanout, turn)
-
-
-def turn_of(order: list[str], fanout: int, turn: int) -> list[str]:
-    """The first half of ``fanout`` of ``order`` (the robot's home origins,
-    every turn), then the ``turn``-th window of the other half over the rest
-    of ``order``, round and round."""
-    home = fanout // 2
-    rest = order[home:]
-    start = turn * (fanout - home) % len(rest)
-    return order[:home] + (rest + rest)[start:start + fanout - home]
+    return None if order is None else order[:config.report_fanout]

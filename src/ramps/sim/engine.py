@@ -38,7 +38,7 @@ from ramps.core.durable import decode_record, encode_record, program_of, record_
 from ramps.core.cost import NetworkEstimate, nice_weight, program_cores
 from ramps.core.events import (Action, CheckpointSaved, Deliver, Note, PeerAlive, PeerLost, ProgramFinished,
                                PublishReport, Received, Send, StartProgram, StopProgram, Submit)
-from ramps.core.fanout import report_order, turn_of
+from ramps.core.fanout import report_targets
 from ramps.core.messages import LoadReport, Message
 from ramps.core.node import Node
 from ramps.core.program import FINAL
@@ -52,7 +52,7 @@ from ramps.sim.wire import wire_size
 
 class _Robot:
     __slots__ = ("spec", "node", "cpu", "accel", "alive", "net_up", "frozen", "incarnation", "epoch",
-                 "wake_at", "wake_token", "done_token", "pub_phase", "remeasure_at", "record", "turn")
+                 "wake_at", "wake_token", "done_token", "pub_phase", "remeasure_at", "record")
     #: the robot's node and CPU, made by each boot (``Simulator._setup`` boots
     #: every robot before the first event). A crashed robot keeps its last
     #: ones until it recovers, unused: everything that reaches them checks
@@ -75,8 +75,6 @@ class _Robot:
         self.remeasure_at = 0.0
         #: its durable record as its node last wrote it (``RobotSpec.record``)
         self.record: list[bytes] = []
-        #: periodic load reports published (which origins hear them in a fleet: ``ramps.core.fanout``)
-        self.turn = 0
 
     @property
     def reachable(self) -> bool:
@@ -109,8 +107,8 @@ class Simulator:
         self._checkpoint: dict[str, tuple[float, int]] = {}
         self.subscribers = sorted({p.origin for p in self.sc.programs})
         #: the origins each robot's load reports go to (all of them but in a fleet: ``ramps.core.fanout``)
-        self._report_order = {name: report_order(name, self.subscribers, len(self.robots), self.sc.config)
-                              for name in self.robots}
+        self._report_to = {name: report_targets(name, self.subscribers, len(self.robots), self.sc.config)
+                           or self.subscribers for name in self.robots}
         self._pending = self.events = self.sent = self.dropped = 0
         self._trace_on = trace
         self.trace: list[TraceEntry] = []
@@ -282,24 +280,21 @@ class Simulator:
                                     mem_free=r.spec.memory, node_cpu=r.spec.node_cpu)
         if r.spec.name in self.subscribers:
             self._handle(r, Received(sender=r.spec.name, msg=report))
-        r.turn += 1
         self._broadcast(r, report)
 
     def _broadcast(self, r: _Robot, report: LoadReport) -> None:
         """A load report on its way to every robot that places programs (in
-        a fleet, to this turn's few of them: ``ramps.core.fanout``)."""
+        a fleet with ``report_fanout``, to a few of them: ``ramps.core.fanout``)."""
         if not r.net_up:
             return
         delay = self.net.latency + wire_size(report) / self.net.bandwidth
-        order = self._report_order[r.spec.name]
-        to = self.subscribers if order is None else turn_of(order, self.sc.config.report_fanout, r.turn)
-        self._at(self.now + delay, self._deliver_report, (r, r.epoch, report, to))
+        self._at(self.now + delay, self._deliver_report, (r, r.epoch, report))
 
-    def _deliver_report(self, arg: tuple[_Robot, int, LoadReport, list[str]]) -> None:
-        src, epoch, report, to = arg
+    def _deliver_report(self, arg: tuple[_Robot, int, LoadReport]) -> None:
+        src, epoch, report = arg
         if epoch != src.epoch:
             return
-        for name in to:
+        for name in self._report_to[src.spec.name]:
             if name == src.spec.name:
                 continue
             dst = self.robots[name]
