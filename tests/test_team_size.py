@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import pytest
 
-from ramps.bench.teamsize import hears, lo_counters, measure_size
+from ramps.bench.teamsize import hears, late, lo_counters, measure_size
 from ramps.runtime.futures import RobotStatus, TeamStatus
 
 
@@ -38,6 +38,14 @@ def test_survivors_are_heard_only_when_each_sees_exactly_the_others_freshly():
     assert not hears(_Client([_row("r1", 2), _row("r2", 2), _row("r3", 2, alive=False)]), survivors)
 
 
+def test_a_late_survivor_is_named_with_why():
+    survivors = {"r1", "r2", "r3"}
+    client = _Client([_row("r1", 2), _row("r2", 3), _row("r3", 2, age=4.0)])
+    assert late(client, survivors) == {"r2": "sees 3 of 2", "r3": "report 4.0 s old"}
+    assert late(_Client([_row("r1", 2), _row("r2", 2)]), survivors) == {"r3": "not seen alive"}
+    assert late(_Client([_row("r1", 2), _row("r2", 2), _row("r3", 2)]), survivors) == {}
+
+
 def test_loopback_counters_read_this_namespace():
     rx_bytes, rx_packets = lo_counters()
     assert rx_bytes >= 0 and rx_packets >= 0
@@ -48,7 +56,8 @@ def test_a_real_team_measured_end_to_end():
     res = measure_size(5, idle=1.0, units=0.2, kill_at=0.3, form_timeout=60.0, burst_timeout=60.0, log=lambda s: None)
     assert res["formed_s"] is not None and res["formed_s"] > 0
     idle = res["idle"]
-    assert idle["pss_mib"]["median"] > 0 and idle["threads"]["median"] > 0
+    assert idle["pss_mib"]["median"] >= idle["node_and_fork_server_pss_mib"]["median"] \
+        > idle["node_pss_mib"]["median"] > 0 and idle["threads"]["median"] > 0
     assert idle["node_cpu_pct"]["median"] >= 0 and idle["lo_bytes_per_node_s"] > 0
     burst = res["burst"]
     assert burst["delivered"] == burst["programs"] == 10 and burst["failed"] == 0
