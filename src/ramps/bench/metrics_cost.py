@@ -18,22 +18,15 @@ import urllib.request
 
 import psutil
 
+from ramps.bench.teamsize import cpu_seconds, process_tree
 from ramps.runtime.localteam import free_port
 from ramps.runtime.metrics import NodeMetrics
 from ramps.testing import LocalTeam
 
 
 def _cpu(pid: int) -> float:
-    p = psutil.Process(pid)
-    procs = [p] + p.children(recursive=True)
-    total = 0.0
-    for q in procs:
-        try:
-            t = q.cpu_times()
-            total += t.user + t.system
-        except psutil.Error:
-            pass
-    return total
+    """CPU seconds of process ``pid`` and its descendants."""
+    return cpu_seconds(process_tree(pid))
 
 
 def busy_metrics() -> NodeMetrics:

@@ -62,7 +62,7 @@ def lo_counters() -> tuple[int, int]:
     return 0, 0
 
 
-def _tree(pid: int) -> list[psutil.Process]:
+def process_tree(pid: int) -> list[psutil.Process]:
     """The process ``pid`` and all its descendants still alive."""
     try:
         p = psutil.Process(pid)
@@ -71,13 +71,14 @@ def _tree(pid: int) -> list[psutil.Process]:
         return []
 
 
-def _cpu(procs: list[psutil.Process]) -> float:
+def cpu_seconds(procs: list[psutil.Process]) -> float:
+    """User and system CPU seconds of ``procs``, those gone since left out."""
     total = 0.0
     for p in procs:
         try:
             t = p.cpu_times()
             total += t.user + t.system
-        except psutil.NoSuchProcess:
+        except psutil.Error:
             pass
     return total
 
@@ -116,8 +117,8 @@ def measure_idle(team: Any, seconds: float) -> dict[str, Any]:
         busy host reading 50 trees takes seconds, so each node gets its own interval."""
         got = {}
         for name, pid in pids.items():
-            tree = _tree(pid)
-            got[name] = (_cpu(tree[:1]), _cpu(tree), time.monotonic())
+            tree = process_tree(pid)
+            got[name] = (cpu_seconds(tree[:1]), cpu_seconds(tree), time.monotonic())
         return got
 
     before = read()
@@ -128,7 +129,7 @@ def measure_idle(team: Any, seconds: float) -> dict[str, Any]:
     after = read()
     node_pct = [100 * (after[n][0] - before[n][0]) / (after[n][2] - before[n][2]) for n in pids]
     all_pct = [100 * (after[n][1] - before[n][1]) / (after[n][2] - before[n][2]) for n in pids]
-    trees = {n: _tree(pid) for n, pid in pids.items()}
+    trees = {n: process_tree(pid) for n, pid in pids.items()}
     n = len(pids)
     threads = []
     for t in trees.values():
