@@ -198,9 +198,7 @@ def late(client: Any, survivors: set[str]) -> dict[str, str]:
 
 def hears(client: Any, survivors: set[str]) -> bool:
     """Every survivor's newest report says it sees exactly the other survivors, and is fresh."""
-    rows = {r.robot: r for r in client.status().robots}
-    return all(s in rows and rows[s].alive and rows[s].sees == len(survivors) - 1
-               and rows[s].report_age is not None and rows[s].report_age <= HEARD_AGE for s in survivors)
+    return not late(client, survivors)
 
 
 def wait_heard(client: Any, survivors: set[str], timeout: float) -> float | None:

@@ -56,6 +56,14 @@ PADDED_WINDOW = 3
 MIN_TRANSFER = 1e-4
 
 
+def in_turn(items: list[str], turn: int, most: int) -> tuple[list[str], int]:
+    """``most`` of ``items`` from position ``turn`` on (wrapping round), and
+    where the next ones start: a list too long to take whole, taken a part
+    at a time so that every item comes round."""
+    start = turn % len(items)
+    return (items[start:] + items[:start])[:most], start + most
+
+
 class LinkEstimate(msgspec.Struct, kw_only=True):
     latency: float | None = None
     bandwidth: float | None = None
@@ -101,9 +109,7 @@ class Links:
         (latency and bandwidth) and probed within the last ``refresh`` seconds."""
         others = [robot for robot in candidates if robot != me and not self._fresh(robot, now, refresh)]
         if 0 < most < len(others):
-            start = self._turn % len(others)
-            self._turn = start + most
-            others = (others + others)[start:start + most]
+            others, self._turn = in_turn(others, self._turn, most)
         return [Send(to=robot, msg=self.probe(robot, now)) for robot in others]
 
     def _fresh(self, robot: str, now: float, refresh: float) -> bool:

@@ -33,6 +33,7 @@ import msgspec
 
 from ramps.core.battery import BatteryMeasured
 from ramps.core.events import Action
+from ramps.core.links import in_turn
 from ramps.core.messages import MAX_LISTED, LearnedWork, LinkSeen, LoadReport, RunningProgram, encode
 from ramps.runtime.battery import BatteryReader
 
@@ -183,9 +184,7 @@ class LoadReports:
         # teammates only: an origin also compares the runs on its own robot
         known = sorted((set(measured) | set(factors)) - {self.robot})
         if len(known) > LINKS_PER_REPORT:  # the next few in turn
-            start = self._links_turn % len(known)
-            self._links_turn = start + LINKS_PER_REPORT
-            known = (known[start:] + known[:start])[:LINKS_PER_REPORT]
+            known, self._links_turn = in_turn(known, self._links_turn, LINKS_PER_REPORT)
         links = [(r, measured.get(r)) for r in known]
         work = sorted(node.origin.learned_work().items())[:MAX_LISTED]
         return dict(links=[LinkSeen(r, ok(e.latency) if e else None, ok(e.bandwidth) if e else None,
