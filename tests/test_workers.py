@@ -219,7 +219,7 @@ def test_the_pool_waits_for_starved_programs_and_grows_for_a_long_one(monkeypatc
     import ramps.runtime.workers as workers
 
     cpu = {"s": 5.0}
-    monkeypatch.setattr(workers, "cpu_and_state", lambda pid: (cpu["s"], "R"))
+    monkeypatch.setattr(workers, "proc_cpu", lambda pid: (cpu["s"], "R"))
     pool, done = make_pool(1)
     try:
         pool.run(("long", 1), "sleepy", args(seconds=60))
@@ -240,7 +240,7 @@ def test_the_pool_grows_as_before_where_the_busy_worker_sleeps_or_cannot_be_seen
     import ramps.runtime.workers as workers
 
     for seen in ((5.0, "S"), None):
-        monkeypatch.setattr(workers, "cpu_and_state", lambda pid, seen=seen: seen)
+        monkeypatch.setattr(workers, "proc_cpu", lambda pid, seen=seen: seen)
         pool, done = make_pool(1)
         try:
             pool.run(("long", 1), "sleepy", args(seconds=60))
@@ -251,9 +251,9 @@ def test_the_pool_grows_as_before_where_the_busy_worker_sleeps_or_cannot_be_seen
             pool.stop()
 
 
-def test_cpu_and_state_reads_a_live_process_and_none_for_a_gone_one():
-    from ramps.runtime.workers import cpu_and_state
+def test_proc_cpu_reads_a_live_process_and_none_for_a_gone_one():
+    from ramps.runtime.measure import proc_cpu
 
-    seen = cpu_and_state(os.getpid())
+    seen = proc_cpu(os.getpid())
     assert seen is not None and seen[0] > 0 and seen[1] == "R"  # this process, running this line
-    assert cpu_and_state(2**22 + 12345) is None  # beyond any pid
+    assert proc_cpu(2**22 + 12345) is None  # beyond any pid

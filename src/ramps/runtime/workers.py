@@ -61,6 +61,7 @@ import msgspec
 
 from ramps.runtime.forkserver import Forked
 from ramps.runtime.frames import frame
+from ramps.runtime.measure import proc_cpu
 
 Key = tuple[str, int]
 #: on_finished(key, ok, value_bytes, error_text, retryable, cpu_seconds or None,
@@ -88,20 +89,6 @@ _OWN_FRAMES = ("/ramps/runtime/worker.py\"", "/ramps/runtime/forkserver.py\"", "
 
 _enc = msgspec.msgpack.Encoder()
 _dec = msgspec.msgpack.Decoder()
-_TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
-
-
-def cpu_and_state(pid: int) -> tuple[float, str] | None:
-    """Process ``pid``'s CPU seconds (user and system, all its threads) and
-    its main thread's state ("R" runnable, "S" sleeping, ...), from
-    ``/proc/PID/stat``; None where that cannot be read (gone, not Linux)."""
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as f:
-            data = f.read()
-        fields = data[data.rindex(b")") + 2:].split()
-        return (int(fields[11]) + int(fields[12])) / _TICKS, fields[0].decode()
-    except (OSError, ValueError, IndexError):
-        return None
 
 
 class _Job(NamedTuple):
@@ -364,7 +351,7 @@ class WorkerPool:
         for w in self._workers:
             if w.job is None or select.select([w.fd], [], [], 0)[0]:
                 continue  # idle, or its reply (or progress) not read yet: it waits for this pool, not for CPU
-            seen = cpu_and_state(w.proc.pid)
+            seen = proc_cpu(w.proc.pid)
             if seen is None:
                 return False  # cannot tell: grow as on any system
             cpu, state = seen
@@ -379,7 +366,7 @@ class WorkerPool:
         wait: the mark ``_starved_locked`` counts from."""
         for w in self._workers:
             if w.job is not None and w.cpu_mark is None:
-                seen = cpu_and_state(w.proc.pid)
+                seen = proc_cpu(w.proc.pid)
                 if seen is not None:
                     w.cpu_mark = seen[0]
 
