@@ -129,9 +129,10 @@ def test_the_running_node_stays_and_the_newcomer_leaves_whatever_it_drew(first_d
         assert not first.wait(0) and first.name_taken == ""
         said = [r.getMessage() for r in caplog.records]
         assert any(t.endswith("this node started later and leaves the team") for t in said)
-        assert any("another node of team mem joined under this robot's name listening on memory/r2-clone, started at " in t
-                   and "(5.0 s after this one, by the two machines' clocks): it leaves the team and this node stays"
-                   in t for t in said)
+        told = [t for t in said if "another node of team mem joined under this robot's name listening on "
+                "memory/r2-clone, started at " in t and "(5.0 s after this one, by the two machines' clocks): it "
+                "leaves the team and this node stays" in t]
+        assert len(told) == 1, said  # by its token or its reports, whichever came first, once
         team.run(5.0, until=lambda: all(f.done() for f in futs))
         assert [f.result(0) for f in futs] == [{"x": i} for i in range(3)]
         later = client.submit("echo", x=9)  # r2, the node that stayed, serves the next call
@@ -142,6 +143,30 @@ def test_the_running_node_stays_and_the_newcomer_leaves_whatever_it_drew(first_d
         if client is not None:
             client.close()
         team.close()
+
+
+def test_the_running_node_says_a_later_node_leaves_from_its_token_alone(caplog):
+    """The later node may hear the running one's reports and leave before the
+    running one has heard two of its own: its ``where`` token then tells the
+    running node, once, and tokens of earlier nodes (a previous process) tell
+    it nothing."""
+    from ramps.runtime.node_name import SameName
+    from ramps.runtime.node_trace import NodeTrace
+    from ramps.testing.memory import FakeClock
+
+    caplog.set_level(logging.ERROR, logger="ramps.node")
+    mine, later, earlier = (new_incarnation(T0 + dt, 7) for dt in (0.0, 2.5, -60.0))
+    names = SameName("mem", "r2", NodeTrace("r2", FakeClock()))
+    names.incarnation = mine
+    names.on_where(keys.where("mem", "r2", mine, ["tcp/10.0.0.2:7447"]), True)  # its own
+    names.on_where(keys.where("mem", "r2", earlier, ["tcp/10.0.0.2:7447"]), True)
+    assert caplog.records == []
+    names.on_where(keys.where("mem", "r2", later, ["tcp/10.0.0.9:7447"]), True)
+    said = [r.getMessage() for r in caplog.records]
+    assert len(said) == 1 and "joined under this robot's name listening on tcp/10.0.0.9:7447" in said[0], said
+    assert "(2.5 s after this one, by the two machines' clocks): it leaves the team and this node stays" in said[0]
+    assert names.clash(NameTaken(other=later, leave=False), mine) is False  # its reports came after all
+    assert len(caplog.records) == 1 and names.taken == ""
 
 
 def test_a_node_draws_its_incarnation_from_its_start_time():

@@ -55,6 +55,12 @@ def new_incarnation(started: float, draw: int) -> int:
     return (max(0, int(started * 1000)) << DRAW_BITS) | (draw & DRAW_MASK)
 
 
+def leaves(mine: int, other: int) -> bool:
+    """Of two nodes under one robot name, whether the one of incarnation
+    ``mine`` is the one that leaves: the one started later."""
+    return mine > other
+
+
 def started_at(incarnation: int) -> float | None:
     """When the node of ``incarnation`` started (Unix seconds, by its clock),
     or None if the incarnation holds no start time."""
@@ -91,4 +97,4 @@ class SameName:
         if told or report.seq == seq or now - first_at < SAME_NAME_SPAN:
             return None
         self._seen[other] = (seq, first_at, True)
-        return NameTaken(other=other, leave=self.incarnation > other)
+        return NameTaken(other=other, leave=leaves(self.incarnation, other))

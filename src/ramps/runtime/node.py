@@ -201,6 +201,7 @@ class NodeRuntime:
         self.cores, self.speed, self.load_scope = m.cores, m.speed, m.scope
         # its start time and random bits: a node started later has a larger one (ramps.core.identity)
         self.incarnation = self._incarnation or new_incarnation(self.clock.time(), int.from_bytes(os.urandom(4), "big"))
+        self.same_name.incarnation = self.incarnation
         return_freed_memory()
         self.accel = AcceleratorProbe(self.robot, resolve_accelerators(s.accelerators), team=self.team)
         self.node = Node(self.robot, cores=self.cores, speed=self.speed, policy=s.policy, config=core_config(s),

@@ -8,15 +8,22 @@ under this name (``NameTaken``, ``ramps.core.identity``: the one that
 started later leaves) ``clash`` can say where the other listens and when
 each started, by their incarnations. The node that leaves keeps why
 (``taken``) for the CLI's last line.
+
+A node that started later may hear this one's reports, and leave, before
+this one has heard two of its own (the core's proof of a live node), so the
+node that stays also says so when the later node's ``where`` token comes:
+a token under this robot's name of a larger incarnation than its own is a
+node started while this one runs. Each other node is told of once.
 """
 
 from __future__ import annotations
 
 import logging
+import threading
 import time
 
 from ramps.core.events import NameTaken
-from ramps.core.identity import started_at
+from ramps.core.identity import leaves, started_at
 from ramps.runtime import keys
 from ramps.runtime.node_trace import NodeTrace
 
@@ -48,30 +55,54 @@ class SameName:
         self.endpoints_of: dict[int, list[str]] = {}
         #: why this node left, another under its name having started first ("" = it did not)
         self.taken = ""
+        #: this node's incarnation (set as it starts; 0: not yet)
+        self.incarnation = 0
+        #: the other nodes' incarnations already told of (the transport's and the driver's threads)
+        self._told: set[int] = set()
+        self._lock = threading.Lock()
 
     def on_where(self, key: str, declared: bool) -> None:
         """A ``where`` token of a node under this robot's name came or went (a transport callback)."""
         found = keys.where_of(key)
-        if found is not None:
-            if declared:
-                self.endpoints_of[found[1]] = found[2]
-            else:
-                self.endpoints_of.pop(found[1], None)
+        if found is None:
+            return
+        _robot, other, endpoints = found
+        if not declared:
+            self.endpoints_of.pop(other, None)
+            return
+        self.endpoints_of[other] = endpoints
+        if self.incarnation and other != self.incarnation and leaves(other, self.incarnation):
+            self._stays(other)  # a node started while this one runs: it is to leave
+
+    def _first(self, other: int) -> bool:
+        """Whether ``other`` is told of for the first time (and now is)."""
+        with self._lock:
+            new = other not in self._told
+            self._told.add(other)
+            return new
+
+    def _stays(self, other: int) -> None:
+        """Say once that the node of incarnation ``other`` leaves and this one stays."""
+        if not self._first(other):
+            return
+        where = self.endpoints_of.get(other)
+        at = f" listening on {', '.join(where)}" if where else ""
+        log.error("node %s: another node of team %s joined under this robot's name%s, started %s: it leaves "
+                  "the team and this node stays; %s", self.robot, self.team, at,
+                  _started(started_at(other), started_at(self.incarnation), "after"), FIX)
 
     def clash(self, a: NameTaken, incarnation: int) -> bool:
         """Another node runs under this robot's name (this one is of
         ``incarnation``): whether this one leaves. Both say why."""
-        mine, theirs = started_at(incarnation), started_at(a.other)
+        self.incarnation = self.incarnation or incarnation
         self.trace.write("name_taken", "", self.robot, 0,
                          f"{'this node leaves' if a.leave else 'the other leaves'}: incarnation {a.other:x}")
+        if not a.leave:
+            self._stays(a.other)
+            return False
         where = self.endpoints_of.get(a.other)
         at = f" listening on {', '.join(where)}" if where else ""
-        if a.leave:
-            self.taken = (f"robot name {self.robot!r} is taken in team {self.team!r} by another node{at}, "
-                          f"started {_started(theirs, mine, 'before')}; {FIX}")
-            log.error("node %s: %s; this node started later and leaves the team", self.robot, self.taken)
-        else:
-            log.error("node %s: another node of team %s joined under this robot's name%s, started %s: it leaves "
-                      "the team and this node stays; %s", self.robot, self.team, at, _started(theirs, mine, "after"),
-                      FIX)
-        return a.leave
+        self.taken = (f"robot name {self.robot!r} is taken in team {self.team!r} by another node{at}, "
+                      f"started {_started(started_at(a.other), started_at(incarnation), 'before')}; {FIX}")
+        log.error("node %s: %s; this node started later and leaves the team", self.robot, self.taken)
+        return True
