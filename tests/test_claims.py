@@ -101,8 +101,8 @@ def test_three_origins_place_in_turn_each_after_the_claims_before_it() -> None:
 
 
 def test_a_node_becomes_a_submitter_with_its_first_submit_and_says_so_at_once() -> None:
-    """On a real robot nobody tells the core that an application submits
-    there: its first program does, and the report of the instant that
+    """Where no application said it connected, a robot's first program
+    tells its core that it submits, and the report of the instant that
     follows tells the teammates, who then wait for its claims."""
     import random
 
@@ -117,3 +117,38 @@ def test_a_node_becomes_a_submitter_with_its_first_submit_and_says_so_at_once() 
     assert a.submits and report.submits
     b.handle(Received(sender="a", msg=decode(encode("a", report)).msg), 1.01)
     assert "a" in b.claims.submitters
+
+
+def test_an_application_connecting_makes_its_robot_an_origin_before_its_first_program() -> None:
+    """Real clients on the memory bus: two applications connect to r1 and r2
+    and submit nothing yet; every teammate's core already counts them as
+    origins (their first bursts will claim), and a client that only watches
+    (``ramps status``, ``ramps top``) makes no robot one. It is undone by
+    nothing: an origin stays one."""
+    from ramps.testing.memory import MemoryTeam
+
+    team = MemoryTeam({"r1": (2, 1.0), "r2": (2, 1.0), "r3": (2, 1.0)})
+    clients = []
+    try:
+        team.run(3.0)
+        assert [team.nodes[r].node.claims.submitters for r in ("r1", "r2", "r3")] == [set(), set(), set()]
+        from ramps.runtime.client import Team
+        from ramps.runtime.settings import load_settings
+
+        s = load_settings(flags={"team": team.team}, environ={}, default_robot=False)
+        clients.append(Team(s, robot="r3", timeout=1.0, transport=team.bus.transport("top"), clock=team.clock,
+                            submits=False))
+        clients += [team.connect("r1", "app1"), team.connect("r2", "app2")]
+        team.run(1.0)
+        assert [team.nodes[r].node.submits for r in ("r1", "r2", "r3")] == [True, True, False]
+        assert [team.nodes[r].node.claims.submitters for r in ("r1", "r2", "r3")] == [{"r1", "r2"}] * 3
+        clients.pop(1).close()
+        team.run(1.0)
+        assert team.nodes["r1"].node.submits
+        fut = clients[-1].submit("echo", x=1)
+        team.run(3.0, until=fut.done)
+        assert fut.result(0) == {"x": 1}
+    finally:
+        for c in clients:
+            c.close()
+        team.close()

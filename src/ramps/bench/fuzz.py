@@ -55,6 +55,7 @@ from ramps.core import messages as m
 from ramps.core.battery import BatteryMeasured
 from ramps.core.deadlines import ON_MISS
 from ramps.core.events import (
+    ApplicationHere,
     Cancel,
     Deliver,
     NameTaken,
@@ -270,9 +271,9 @@ class CoreHarness:
             pid = rng.choice(sorted(node.origin.programs))
             self._apply(node.handle(Cancel(program_id=pid), self.now))
         elif k < 79:
-            robot = rng.choice(PEERS)
-            self._apply(node.handle(PeerLost(robot=robot) if rng.random() < 0.5 else PeerAlive(robot=robot),
-                                    self.now))
+            robot, r = rng.choice(PEERS), rng.random()  # teammates come and go; an application connects
+            self._apply(node.handle(PeerLost(robot=robot) if r < 0.45 else PeerAlive(robot=robot) if r < 0.9
+                                    else ApplicationHere(), self.now))
         elif k < 80:  # this robot's battery, any reading (ramps.core.battery)
             self._apply(node.handle(BatteryMeasured(charge=rng.choice([None, 0.05, 0.22, 0.9, *FLOATS]),
                                                     power=rng.choice([None, 6.0, *FLOATS])), self.now))

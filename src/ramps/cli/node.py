@@ -197,7 +197,7 @@ def _parse_arg(text: str) -> tuple[str, object]:
 
 
 def _connect_team(team, robot, connect, multicast, timeout, config_file=None, secure=None, credentials=None,
-                  mode=None):
+                  mode=None, submits=True):
     from ramps.errors import RampsError
     from ramps.runtime.client import Team
 
@@ -205,7 +205,7 @@ def _connect_team(team, robot, connect, multicast, timeout, config_file=None, se
                   default_robot=False, secure=secure or None, credentials=str(credentials) if credentials else None,
                   mode=mode)
     try:
-        return Team(s, robot=robot, timeout=timeout)
+        return Team(s, robot=robot, timeout=timeout, submits=submits)
     except RampsError as exc:
         fail(str(exc))
 
@@ -337,7 +337,8 @@ def status(
 
     from rich.table import Table
 
-    t = _connect_team(team, None, connect, multicast, 5.0, secure=secure, credentials=credentials, mode=mode)
+    t = _connect_team(team, None, connect, multicast, 5.0, secure=secure, credentials=credentials, mode=mode,
+                      submits=False)
     try:
         st = _heard_all(t, wait)
     finally:

@@ -141,7 +141,7 @@ def top(
         s = load_settings(flags={"team": team, "connect": connect or None, "multicast": multicast,
                                  "secure": secure or None, "credentials": str(credentials) if credentials else None},
                           default_robot=False)
-        t = Team(s, robot=None, timeout=5.0)
+        t = Team(s, robot=None, timeout=5.0, submits=False)
     except (ConfigError, RampsError) as exc:
         _fail(str(exc))
     model = TopModel(t.team)

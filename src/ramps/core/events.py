@@ -124,6 +124,11 @@ class PeerAlive(_Rec, frozen=True, kw_only=True):
     robot: str
 
 
+class ApplicationHere(_Rec, frozen=True, kw_only=True):
+    """An application connected to this robot's node to submit programs:
+    this robot is an origin from now on, before its first ``Submit``."""
+
+
 class Received(_Rec, frozen=True, kw_only=True):
     """A wire message from a teammate."""
 
@@ -132,7 +137,7 @@ class Received(_Rec, frozen=True, kw_only=True):
 
 
 Event = (Submit | Cancel | ProgramFinished | ProgressReported | CheckpointSaved | PeerLost | PeerAlive | Received
-         | Stalled | SpeedMeasured | BatteryMeasured)
+         | Stalled | SpeedMeasured | BatteryMeasured | ApplicationHere)
 
 
 # ---------------------------------------------------------------- actions out
@@ -228,7 +233,8 @@ class NameTaken(_Rec, frozen=True, kw_only=True):
 Action = Send | StartProgram | StopProgram | Deliver | Progress | PublishReport | Note | NameTaken
 
 __all__ = [
-    "Submit", "Cancel", "ProgramFinished", "ProgressReported", "CheckpointSaved", "PeerLost", "PeerAlive", "Received", "Event",
+    "Submit", "Cancel", "ProgramFinished", "ProgressReported", "CheckpointSaved", "PeerLost", "PeerAlive", "Received",
+    "ApplicationHere", "Event",
     "Send", "StartProgram", "StopProgram", "Deliver", "Progress", "PublishReport", "Note", "NameTaken", "Action",
     "ProgramResult",
 ]

@@ -26,7 +26,9 @@ bookings) done by the host, which is the one robot that knows them all.
 
 Bursts (``bursts``): programs submitted in one batch of the driver's events
 wait for its end (``flush``, or the next ``tick``) and for the claims of the
-teammates' bursts before it (``ramps.core.claims``), then go together (``ramps.core.burst``).
+teammates' bursts before it (``ramps.core.claims``: teammates learn that an
+application submits here from ``ApplicationHere`` or the first ``Submit``),
+then go together (``ramps.core.burst``).
 
 A load report under this robot's own name from another incarnation is no
 teammate's: ``ramps.core.identity`` tells whether a second node runs under
@@ -40,7 +42,6 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
-import msgspec
 
 from ramps.core.accelerators import Accelerator
 from ramps.core.battery import BatteryMeasured, Reserve, sane_power
@@ -49,6 +50,7 @@ from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate
 from ramps.core.events import (
     Action,
+    ApplicationHere,
     Cancel,
     CheckpointSaved,
     Event,
@@ -87,29 +89,7 @@ from ramps.core.policy import Policy, make_policy
 from ramps.core.program import FINAL
 from ramps.core.relink import Stalled
 from ramps.core.speed import HostSpeeds, SpeedClass, SpeedEstimate, SpeedMeasured, speed_moved
-
-
-class NodeStatistics(msgspec.Struct, frozen=True, kw_only=True):
-    robot: str
-    placements: int
-    delivered: int
-    discarded: int
-    anomalies: int
-    host_failures: int
-    rejections: int
-    refused: int
-    accepted_total: int
-    finished_total: int
-    running: int
-    active_programs: int
-    blacklisted: list[str]
-    reports_received: int
-    #: program name -> work learned from completed runs (see Origin.work_estimate)
-    learned_work: dict[str, float] = {}
-    #: relocations after placement started, and those abandoned (the new
-    #: host refused or failed; the old copy ran on)
-    moves: int = 0
-    moves_aborted: int = 0
+from ramps.core.statistics import NodeStatistics
 
 
 class Node:
@@ -287,10 +267,11 @@ class Node:
     def _dispatch(self, event: Event, now: float, out: list[Action]) -> None:
         if isinstance(event, Received):
             self._receive(event.sender, event.msg, now, out)
-        elif isinstance(event, Submit):
+        elif isinstance(event, (Submit, ApplicationHere)):
             if not self.submits:  # an application submits here: teammates hear it now (ramps.core.claims)
                 self.submits, self._published = True, (-1, -1)
-            self.origin.submit(event, now, out)
+            if isinstance(event, Submit):
+                self.origin.submit(event, now, out)
         elif isinstance(event, ProgramFinished):
             self.executor.on_finished(event, now, out)
         elif isinstance(event, ProgressReported):

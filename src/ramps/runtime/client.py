@@ -85,6 +85,12 @@ class Team:
     ``pending()`` counts programs not finished; ``close()`` (or ``with``)
     leaves, failing what is still pending with ``ProgramLost``.
 
+    ``submits`` (default True): this client is an application that submits
+    programs, so it declares a token (``keys.app``) that tells its robot's
+    node so at once, and the node's teammates hear that it is an origin
+    before its first program (several origins' bursts then claim robots,
+    ``ramps.core.claims``); ``ramps status`` and ``ramps top`` only watch.
+
     For tests and embedding: ``transport`` (default: a Zenoh session opened
     from ``settings``; closed with the Team) and ``clock`` (default: the real
     one) are its seams to the world, as ``NodeRuntime``'s:
@@ -92,7 +98,7 @@ class Team:
 
     def __init__(self, settings: NodeSettings, *, robot: str | None, timeout: float,
                  registry: Registry | None = None, transport: Transport | None = None,
-                 clock: Clock = REAL_CLOCK, origin_grace: float = ORIGIN_GONE_GRACE) -> None:
+                 clock: Clock = REAL_CLOCK, origin_grace: float = ORIGIN_GONE_GRACE, submits: bool = True) -> None:
         if not origin_grace >= 0:
             raise ValueError(f"origin_grace must be >= 0 seconds, got {origin_grace!r}")
         self.clock = clock
@@ -136,6 +142,8 @@ class Team:
         self._timer_thread.start()
         self.robot = self._find_robot(robot, timeout)
         self._pub = t.publisher(keys.inbox(self.team, self.robot), block=True)
+        if submits:
+            self._subs.append(t.declare_token(keys.app(self.team, self.robot, self.client_id)))
         self._prepare_checks()
 
     def _prepare_checks(self) -> None:

@@ -11,6 +11,9 @@ never hear each other:
     ramps/<team>/alive/<robot>     liveliness token of a robot's node
     ramps/<team>/leaving/<robot>   liveliness token a node declares as it stops
                                    (it hands its programs back): not a crash
+    ramps/<team>/app/<robot>/<client>
+                                   liveliness token of an application connected
+                                   to a robot's node to submit programs there
     ramps/<team>/where/<robot>/<incarnation>/<endpoints>
                                    liveliness token naming where a node listens
                                    (endpoints joined by ","), so a node that
@@ -56,6 +59,12 @@ def alive(team: str, robot: str = "*") -> str:
 
 def leaving(team: str, robot: str = "*") -> str:
     return f"ramps/{team}/leaving/{robot}"
+
+
+def app(team: str, robot: str, client_id: str = "*") -> str:
+    """The token of an application (``client_id``) that submits through
+    ``robot``'s node; with the default, the expression matching every one's."""
+    return f"ramps/{team}/app/{robot}/{client_id}"
 
 
 def where(team: str, robot: str = "*", incarnation: int | None = None, endpoints: list[str] | None = None) -> str:

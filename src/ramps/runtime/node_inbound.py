@@ -30,6 +30,7 @@ import msgspec
 
 from ramps.core.events import (
     Action,
+    ApplicationHere,
     Cancel,
     CheckpointSaved,
     PeerAlive,
@@ -218,6 +219,8 @@ class Inbound:
             if self.trace.wire:
                 self.trace.write("peer_alive" if alive else "peer_lost", "", robot, 0, "liveliness")
             return self.on_liveliness(robot, alive, now)
+        if kind == "app":  # an application connected to submit here (its token came)
+            return node.handle(ApplicationHere(), now) if item[1] else []
         if kind == "call":
             item[1]()
             return []

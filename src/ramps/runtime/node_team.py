@@ -6,8 +6,9 @@ admit them) or warns, once per process, that the team is not secured.
 ``Membership`` is a part of the node's driver
 (``ramps.runtime.node``). Once the driver has opened its transport, ``join``
 subscribes to this robot's inbox and the team's load reports (periodic and
-of the instant), to the team's liveliness tokens and, on a secured team, to
-its revocation lists; declares the publishers of this robot's load reports,
+of the instant), to the team's liveliness tokens, to the tokens of the
+applications that submit through this node (``keys.app``: it is an origin
+before their first program) and, on a secured team, to its revocation lists; declares the publishers of this robot's load reports,
 its liveliness token and its ``where`` token (where it listens, by
 incarnation: ``keys.where``, read by a node that meets it under its own
 name). Every callback only queues an item for the driver. ``say_leaving``
@@ -72,6 +73,8 @@ class Membership:
         self.load_pub = t.publisher(keys.load(team, robot))
         self.prompt_pub = t.publisher(keys.load_now(team, robot))
         self._tokens.append(t.declare_token(keys.alive(team, robot)))
+        self._subs.append(t.subscribe_liveliness(keys.app(team, robot), lambda key, here: put(("app", here)),
+                                                 history=True))
         self._subs.append(t.subscribe_liveliness(keys.where(team, robot), on_where, history=True))
         self._tokens.append(t.declare_token(keys.where(team, robot, incarnation, t.locators())))
 

@@ -8,7 +8,7 @@ from collections.abc import Iterable
 
 import msgspec
 
-from ramps.core.node import NodeStatistics
+from ramps.core.statistics import NodeStatistics
 
 
 class ProgramRecord(msgspec.Struct, kw_only=True):
