@@ -13,6 +13,7 @@ from ramps.testbed.sweeps import (
     TestbedSweepReport,
     format_report,
     run_testbed_sweep,
+    shared_makespan,
     sim_scenario,
     simulate_config,
 )
@@ -35,6 +36,20 @@ def test_two_origins_on_three_idle_robots_even_out_in_the_simulator():
     makespan, dists = simulate_config(3, 6, 0, 2, cores=4, speed=0.05, work=0.3, seeds=2)
     assert dists == [[4, 4, 4], [4, 4, 4]]
     assert makespan == pytest.approx(0.3 / 0.05, rel=0.1)
+
+
+def test_distributions_of_programs_on_cores_of_their_own_are_as_good():
+    """15 programs from 3 origins on 5 idle robots of 4 cores: 3-3-3-3-3 and
+    3-3-3-4-2 both run each on a core of its own, 5-3-3-2-2 shares one
+    robot's cores; a robot with 8 busy processes gives nice-10 programs a
+    sliver of its cores."""
+    kw = dict(cores=4, speed=0.05, work=0.3)
+    idle = [0] * 5
+    assert shared_makespan([3, 3, 3, 3, 3], idle, **kw) == shared_makespan([3, 3, 3, 4, 2], idle, **kw) == pytest.approx(6.0)
+    assert shared_makespan([5, 3, 3, 2, 2], idle, **kw) == pytest.approx(6.0 * 5 / 4)
+    loaded = shared_makespan([4, 4, 4, 3, 0], [0, 0, 0, 0, 8], **kw)
+    assert loaded == pytest.approx(6.0) and shared_makespan([4, 4, 4, 2, 1], [0, 0, 0, 0, 8], **kw) > 5 * loaded
+    assert shared_makespan([], [], **kw) == 0.0
 
 
 def test_loaded_robots_get_nothing_while_idle_cores_remain():

@@ -14,6 +14,14 @@ node's report period, the workers' niceness against the busy load), and
 prints both makespans and distributions side by side. The simulator's
 fidelity for that configuration is ``ratio`` = testbed / simulator.
 
+Two distributions can be equally good: 15 programs on five robots of four
+cores end together whether they go 3-3-3-3-3 or 3-3-3-4-2, each on a core
+of its own. So each case also gives the makespan the model assigns each
+distribution (``shared_makespan``: identical programs started together, each
+robot's shared with its busy processes by weighted processor sharing), and
+says whether the testbed's is the simulator's (``same``) or as good by that
+model (``as_good``, within ``AS_GOOD``).
+
 The testbed's makespan also carries the host's noise: on this shared 2-core
 VM a work unit's CPU cost moves by 10-40% from minute to minute, and other
 processes take CPU from the robots. So each configuration also reads the CPU
@@ -42,6 +50,7 @@ from pathlib import Path
 import msgspec
 
 from ramps.core.config import RampsConfig
+from ramps.core.cost import nice_weight, program_share
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import ProgramSpec, PublisherSpec, RobotSpec, Scenario
 from ramps.testbed.speeds import reported_speeds, spread
@@ -66,6 +75,8 @@ FULL_CONFIGS: list[tuple[str, int, int, int, int]] = DEFAULT_CONFIGS + [
     ("multi-origin", 4, 6, 1, 2),
 ]
 SPACING = 0.05
+#: a distribution whose model makespan is within this of the simulator's is as good
+AS_GOOD = 0.01
 
 
 class SweepCase(msgspec.Struct, kw_only=True):
@@ -94,6 +105,12 @@ class SweepCase(msgspec.Struct, kw_only=True):
     #: also scaled by it (capped at 1): what is left when the host's starvation is taken out
     cpu_obtained: float = 1.0
     starved_ratio: float = 0.0
+    #: the model's makespan of the testbed's distribution and of the simulator's first
+    #: (``shared_makespan``); whether the testbed's is one of the simulator's, or as good
+    model_testbed: float = 0.0
+    model_sim: float = 0.0
+    same: bool = False
+    as_good: bool = False
 
 
 class TestbedSweepReport(msgspec.Struct, kw_only=True):
@@ -124,6 +141,15 @@ def sim_scenario(robots: int, programs: int, loaded: int, origins: int, *, cores
                          spacing=SPACING, jitter=0.0) for o in range(1, origins + 1)]
     return Scenario(name=f"testbed-{robots}r-{origins}x{programs}p-{loaded}l", seed=seed, robots=team,
                     programs=progs, publisher=PublisherSpec(period=period, window=1.0), config=RampsConfig())
+
+
+def shared_makespan(dist: Sequence[int], busy: Sequence[int], *, cores: int, speed: float, work: float,
+                   worker_nice: int = 10) -> float:
+    """Seconds until the last of ``dist[i]`` identical programs of ``work`` units
+    ends on robot i, all started at once, sharing its ``cores`` (of ``speed``)
+    with ``busy[i]`` processes at nice 0 by weighted processor sharing."""
+    weight = nice_weight(worker_nice)
+    return max((work / (speed * program_share(cores, n, b, weight)) for n, b in zip(dist, busy) if n), default=0.0)
 
 
 def simulate_config(robots: int, programs: int, loaded: int, origins: int, *, cores: int, speed: float,
@@ -266,13 +292,18 @@ def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None =
                     unit = b.spent / max(done * work, 1e-9) if done else calibration
                     corrected = sim * unit / calibration
                     obtained = min(1.0, b.obtained)  # more than its due is not a correction
+                    loads = [busy.get(r, 0) for r in tb.names]
+                    model_tb, model_sim = (shared_makespan(d, loads, cores=cores, speed=speed, work=work)
+                                           for d in (dist, sim_dists[0]))
                     case = SweepCase(experiment=exp, robots=n, programs=k, loaded=loaded, origins=origins,
                                      makespan=round(span, 2), distribution=dist, sim_makespan=round(sim, 2),
                                      sim_distributions=sim_dists, ratio=round(span / sim, 3),
                                      unit_cpu=round(unit, 3), calibration=round(calibration, 3),
                                      corrected_ratio=round(span / corrected, 3), completed=done, failed=failed,
                                      host_load=round(os.getloadavg()[0], 2), cpu_obtained=round(b.obtained, 3),
-                                     starved_ratio=round(span / (corrected / obtained), 3))
+                                     starved_ratio=round(span / (corrected / obtained), 3),
+                                     model_testbed=round(model_tb, 2), model_sim=round(model_sim, 2),
+                                     same=dist in sim_dists, as_good=model_tb <= model_sim * (1 + AS_GOOD))
                     log(f"  {exp:12s} {n} robots, {origins} x {k} programs, {loaded} loaded: testbed {span:.1f} s "
                         f"{dist}, simulator {sim:.1f} s {sim_dists[0]}: ratio {case.ratio:.2f}, corrected "
                         f"{case.corrected_ratio:.2f} (a unit cost {unit:.2f} CPU s, calibration {calibration:.2f}), "
@@ -312,10 +343,13 @@ def format_report(rep: TestbedSweepReport) -> str:
                      f"{c.makespan:9.1f} {c.sim_makespan:11.1f} {c.ratio:6.2f} {c.corrected_ratio:9.2f} "
                      f"{c.cpu_obtained:7.0%} {c.starved_ratio:7.2f}  "
                      f"{'-'.join(map(str, c.distribution))} / {'-'.join(map(str, c.sim_distributions[0]))}"
+                     f" {'same' if c.same else 'as good' if c.as_good else 'worse'}"
                      + (f"  ({c.failed} failed)" if c.failed else ""))
     lines.append(f"mean |ratio - 1|: {rep.mean_abs_ratio_error:.1%}, corrected for the host's speed "
                  f"{rep.mean_abs_corrected_error:.1%}, and for the CPU the host gave the robots "
                  f"{rep.mean_abs_starved_error:.1%}; {rep.wall_seconds:.0f} s")
     lines.append("CPU got: the least share of its due CPU a robot running programs obtained from the host; "
-                 "starved: the ratio with the simulator scaled by the host's speed and by that share")
+                 "starved: the ratio with the simulator scaled by the host's speed and by that share; same: the "
+                 "testbed's distribution is one of the simulator's seeds', as good: the model ends it as soon "
+                 f"(within {AS_GOOD:.0%}: programs on cores of their own), worse: later")
     return "\n".join(lines)
