@@ -111,6 +111,8 @@ class SweepCase(msgspec.Struct, kw_only=True):
     model_sim: float = 0.0
     same: bool = False
     as_good: bool = False
+    #: robot -> the speed in its latest report just before the burst: what placement went by
+    speeds: dict[str, float] = {}
 
 
 class TestbedSweepReport(msgspec.Struct, kw_only=True):
@@ -287,6 +289,7 @@ def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None =
                     sim, sim_dists = simulate_config(n, k, loaded, origins, cores=cores, speed=speed, work=work,
                                                      seeds=seeds)
                     busy = {f"r{i}": stress for i in range(n - loaded + 1, n + 1)}
+                    speeds = reported_speeds(obs, n)
                     b = _run_on_testbed(tb, clients, k, origins, work, timeout, cores=cores, busy=busy)
                     span, dist, done, failed = b.makespan, b.distribution, b.completed, b.failed
                     unit = b.spent / max(done * work, 1e-9) if done else calibration
@@ -303,12 +306,14 @@ def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None =
                                      host_load=round(os.getloadavg()[0], 2), cpu_obtained=round(b.obtained, 3),
                                      starved_ratio=round(span / (corrected / obtained), 3),
                                      model_testbed=round(model_tb, 2), model_sim=round(model_sim, 2),
-                                     same=dist in sim_dists, as_good=model_tb <= model_sim * (1 + AS_GOOD))
+                                     same=dist in sim_dists, as_good=model_tb <= model_sim * (1 + AS_GOOD),
+                                     speeds=speeds)
                     log(f"  {exp:12s} {n} robots, {origins} x {k} programs, {loaded} loaded: testbed {span:.1f} s "
                         f"{dist}, simulator {sim:.1f} s {sim_dists[0]}: ratio {case.ratio:.2f}, corrected "
                         f"{case.corrected_ratio:.2f} (a unit cost {unit:.2f} CPU s, calibration {calibration:.2f}), "
                         f"{case.starved_ratio:.2f} with the CPU the host gave (the least fed robot got "
-                        f"{b.obtained:.0%} of its due); host load {case.host_load}")
+                        f"{b.obtained:.0%} of its due); host load {case.host_load}; speeds before it "
+                        f"{min(speeds.values()):.4f}-{max(speeds.values()):.4f} (spread {spread(speeds):.3f})")
                     out.append(case)
                     for i in range(n - loaded + 1, n + 1):
                         tb.remove_load(f"r{i}")
