@@ -23,7 +23,11 @@ team's traffic and nothing else on the host. Per N, in order:
   burst had ended by then, and they were killed after it): seconds until every survivor's report says it
   sees exactly the survivors and is at most ``HEARD_AGE`` seconds old
   (where that takes longer than the burst, which survivors it waited for
-  and why), and whether every program of that burst still came back.
+  and why), and whether every program of that burst still came back;
+* **idle after**: the survivors idle again for ``idle_after`` seconds, the
+  clients closed, r1-r3 having placed programs (origins hear every
+  teammate's periodic reports and probe their links; the others hear none
+  of them): the same figures as **idle**.
 
 The figures are printed and saved as JSON; nothing here asserts a target
 (issue 26's acceptance asks for 100 nodes formed in under 60 s, under 0.5%
@@ -212,7 +216,8 @@ def wait_heard(client: Any, survivors: set[str], timeout: float) -> float | None
 
 
 def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeout: float = 120.0,
-                 burst_timeout: float = 120.0, kill_at: float = 0.5, seed: int = 1, log: Any = print) -> dict[str, Any]:
+                 burst_timeout: float = 120.0, kill_at: float = 0.5, seed: int = 1, idle_after: float = 10.0,
+                 log: Any = print) -> dict[str, Any]:
     """Every figure of the module docstring for a team of ``n`` nodes."""
     from ramps.errors import NoTeam
     from ramps.testing import LocalTeam
@@ -272,6 +277,13 @@ def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeou
         if killed:
             res["kill"]["heard_s_after_kill"] = round(heard[0] - killed[0], 2) if heard else None
         log(f"  {n} nodes, {len(victims)} killed: {res['kill']}")
+        if idle_after > 0:
+            for c in clients.values():
+                c.close()
+            time.sleep(2.0)
+            res["idle_after"] = measure_idle(team, idle_after)
+            log(f"  {n} nodes idle after the bursts: {res['idle_after']['with_workers_cpu_pct']['median']}% of a "
+                f"core, {res['idle_after']['lo_bytes_per_node_s']} B/s of loopback per node")
     finally:
         team.close()
         res["loadavg_after"] = round(os.getloadavg()[0], 2)
