@@ -20,7 +20,8 @@ scheduler.
   software, see ``cost.program_share``), eq. (1) with T_comm for remote hosts only;
   costs within ``tie_tolerance`` are equal, and the tie goes to the least
   utilised robot, then to the one with less busy software of its own, then
-  to the local one. The host checks the origin's
+  to the local one; the local robot, where a whole core is free for the
+  program, ties with the best when within ``HOME_MARGIN`` of it. The host checks the origin's
   estimate when the request arrives (``expected_runnable``) and turns the
   program away if it is busier than the origin thought, which fixes the
   greedy "location thrashing" of several origins deciding on the same data.
@@ -73,6 +74,13 @@ SHORT_LIST_FOR = 1.0
 #: this much earlier than its deadline (a fraction of its expected time):
 #: room for programs that come later to the same host
 DEADLINE_MARGIN = 0.5
+#: this robot, where a whole core is free for the program, ties with the
+#: best host when it ends the program within this fraction of that host's
+#: time (the ties are then broken as any: least utilised, less busy
+#: software, this robot): a teammate a little faster gains the program
+#: little, and its core is what the other origins' next programs draw on,
+#: which no origin sees coming (docs/lab/2026-11-27-battery-gap.md)
+HOME_MARGIN = 0.05
 
 
 class PlacementRequest(msgspec.Struct, frozen=True, kw_only=True):
@@ -320,6 +328,9 @@ class RampsPolicy(Policy):
         if req.deadline is not None and t_best <= req.deadline:
             limit = min(limit, req.deadline)  # of equal costs, only those in time
         tied = [row for row in rows if row[0] <= limit]
+        home = _home(req, rows, me, t_best, config)
+        if home is not None and home not in tied:
+            tied.append(home)  # a whole core free at home, within HOME_MARGIN: a tie too
         if req.deadline is not None:
             # best fit: of the hosts that meet the deadline with a margin, the
             # slowest, which leaves the faster ones to tighter programs
@@ -343,6 +354,20 @@ class RampsPolicy(Policy):
             budget = max(budget or 0.0, req.plan_end - pick[9])  # the plan's end: the burst ends no later there
         return Placement(host=pick[2], expected_runnable=pick[3], expected_time=pick[0], time_budget=budget,
                          late=req.deadline is not None and pick[0] > req.deadline)
+
+
+def _home(req: PlacementRequest, rows: list[list[Any]], me: str, t_best: float,
+          config: RampsConfig) -> list[Any] | None:
+    """This robot's row when it has a whole core (or slot) free for the
+    program and ends it within ``HOME_MARGIN`` of ``t_best``; else None.
+    Not for a program with a deadline (best fit decides) nor when hosts are
+    ranked by energy (``rows`` then hold ranks, not times)."""
+    if req.deadline is not None or config.energy_weight > 0:
+        return None
+    home = next((row for row in rows if row[2] == me), None)
+    if home is None or home[3] + 1.0 > home[6] + 1e-9:
+        return None
+    return home if home[0] <= t_best * (1.0 + HOME_MARGIN) + 1e-9 else None
 
 
 class RoundRobinPolicy(Policy):
