@@ -4,6 +4,7 @@ minutes, and is run by ``ramps testbed experiment sweep``."""
 
 from __future__ import annotations
 
+import msgspec
 import pytest
 
 from ramps.testbed.sweeps import (
@@ -50,6 +51,23 @@ def test_distributions_of_programs_on_cores_of_their_own_are_as_good():
     loaded = shared_makespan([4, 4, 4, 3, 0], [0, 0, 0, 0, 8], **kw)
     assert loaded == pytest.approx(6.0) and shared_makespan([4, 4, 4, 2, 1], [0, 0, 0, 0, 8], **kw) > 5 * loaded
     assert shared_makespan([], [], **kw) == 0.0
+
+
+def test_a_case_puts_the_testbed_beside_the_simulator():
+    """What a burst on the testbed becomes in the report: the ratios, and the
+    distribution as good as the simulator's though not one of its seeds'."""
+    from ramps.testbed.sweeps import _Burst, _case
+
+    b = _Burst(makespan=13.2, distribution=[3, 3, 3, 3, 3], completed=15, failed=0, spent=15 * 0.3 * 2.2,
+               obtained=0.95)
+    c = _case(("multi-origin", 5, 5, 0, 3), b, 12.0, [[3, 3, 3, 4, 2], [3, 3, 3, 2, 4]], {"r1": 0.05, "r2": 0.05},
+              busy={}, names=["r1", "r2", "r3", "r4", "r5"], cores=4, speed=0.05, work=0.3, calibration=2.0)
+    assert (c.ratio, c.unit_cpu, c.corrected_ratio, c.starved_ratio) == (1.1, 2.2, 1.0, 0.95)
+    assert not c.same and c.as_good and c.model_testbed == c.model_sim == 6.0
+    worse = _case(("loaded", 5, 15, 1, 1), msgspec.structs.replace(b, distribution=[4, 4, 4, 2, 1]), 12.0,
+                  [[4, 4, 4, 3, 0]], {}, busy={"r5": 8}, names=["r1", "r2", "r3", "r4", "r5"], cores=4,
+                  speed=0.05, work=0.3, calibration=2.0)
+    assert not worse.same and not worse.as_good and worse.model_testbed > 5 * worse.model_sim
 
 
 def test_loaded_robots_get_nothing_while_idle_cores_remain():

@@ -238,6 +238,29 @@ def _run_on_testbed(tb, clients: dict, programs: int, origins: int, work: float,
                   failed=len(futures) - len(ok), spent=spent, obtained=min(shares, default=1.0))
 
 
+def _case(config: tuple[str, int, int, int, int], b: _Burst, sim: float, sim_dists: list[list[int]],
+          speeds: dict[str, float], *, busy: dict[str, int], names: Sequence[str], cores: int, speed: float,
+          work: float, calibration: float) -> SweepCase:
+    """A configuration's burst ``b`` on the testbed beside the simulator's
+    median makespan ``sim`` and distributions ``sim_dists``."""
+    exp, n, k, loaded, origins = config
+    span, dist, done = b.makespan, b.distribution, b.completed
+    unit = b.spent / max(done * work, 1e-9) if done else calibration
+    corrected = sim * unit / calibration
+    obtained = min(1.0, b.obtained)  # more than its due is not a correction
+    loads = [busy.get(r, 0) for r in names]
+    model_tb, model_sim = (shared_makespan(d, loads, cores=cores, speed=speed, work=work) for d in (dist, sim_dists[0]))
+    return SweepCase(experiment=exp, robots=n, programs=k, loaded=loaded, origins=origins,
+                     makespan=round(span, 2), distribution=dist, sim_makespan=round(sim, 2),
+                     sim_distributions=sim_dists, ratio=round(span / sim, 3),
+                     unit_cpu=round(unit, 3), calibration=round(calibration, 3),
+                     corrected_ratio=round(span / corrected, 3), completed=done, failed=b.failed,
+                     host_load=round(os.getloadavg()[0], 2), cpu_obtained=round(b.obtained, 3),
+                     starved_ratio=round(span / (corrected / obtained), 3),
+                     model_testbed=round(model_tb, 2), model_sim=round(model_sim, 2),
+                     same=dist in sim_dists, as_good=model_tb <= model_sim * (1 + AS_GOOD), speeds=speeds)
+
+
 def _wait_idle(obs, timeout: float = 30.0) -> None:
     """Until no robot reports a program running (the previous configuration's stragglers)."""
     deadline = time.monotonic() + timeout
@@ -291,23 +314,9 @@ def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None =
                     busy = {f"r{i}": stress for i in range(n - loaded + 1, n + 1)}
                     speeds = reported_speeds(obs, n)
                     b = _run_on_testbed(tb, clients, k, origins, work, timeout, cores=cores, busy=busy)
-                    span, dist, done, failed = b.makespan, b.distribution, b.completed, b.failed
-                    unit = b.spent / max(done * work, 1e-9) if done else calibration
-                    corrected = sim * unit / calibration
-                    obtained = min(1.0, b.obtained)  # more than its due is not a correction
-                    loads = [busy.get(r, 0) for r in tb.names]
-                    model_tb, model_sim = (shared_makespan(d, loads, cores=cores, speed=speed, work=work)
-                                           for d in (dist, sim_dists[0]))
-                    case = SweepCase(experiment=exp, robots=n, programs=k, loaded=loaded, origins=origins,
-                                     makespan=round(span, 2), distribution=dist, sim_makespan=round(sim, 2),
-                                     sim_distributions=sim_dists, ratio=round(span / sim, 3),
-                                     unit_cpu=round(unit, 3), calibration=round(calibration, 3),
-                                     corrected_ratio=round(span / corrected, 3), completed=done, failed=failed,
-                                     host_load=round(os.getloadavg()[0], 2), cpu_obtained=round(b.obtained, 3),
-                                     starved_ratio=round(span / (corrected / obtained), 3),
-                                     model_testbed=round(model_tb, 2), model_sim=round(model_sim, 2),
-                                     same=dist in sim_dists, as_good=model_tb <= model_sim * (1 + AS_GOOD),
-                                     speeds=speeds)
+                    case = _case((exp, n, k, loaded, origins), b, sim, sim_dists, speeds, busy=busy, names=tb.names,
+                                 cores=cores, speed=speed, work=work, calibration=calibration)
+                    span, dist, unit = case.makespan, case.distribution, case.unit_cpu
                     log(f"  {exp:12s} {n} robots, {origins} x {k} programs, {loaded} loaded: testbed {span:.1f} s "
                         f"{dist}, simulator {sim:.1f} s {sim_dists[0]}: ratio {case.ratio:.2f}, corrected "
                         f"{case.corrected_ratio:.2f} (a unit cost {unit:.2f} CPU s, calibration {calibration:.2f}), "
