@@ -165,7 +165,7 @@ def test_the_running_node_says_a_later_node_leaves_from_its_token_alone(caplog):
     said = [r.getMessage() for r in caplog.records]
     assert len(said) == 1 and "joined under this robot's name listening on tcp/10.0.0.9:7447" in said[0], said
     assert "(2.5 s after this one, by the two machines' clocks): it leaves the team and this node stays" in said[0]
-    assert names.clash(NameTaken(other=later, leave=False), mine) is False  # its reports came after all
+    assert names.clash(NameTaken(other=later, leave=False)) is False  # its reports came after all
     assert len(caplog.records) == 1 and names.taken == ""
 
 

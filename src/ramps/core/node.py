@@ -42,7 +42,6 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
-
 from ramps.core.accelerators import Accelerator
 from ramps.core.battery import BatteryMeasured, Reserve, sane_power
 from ramps.core.claims import Claims

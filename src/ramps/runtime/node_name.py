@@ -71,7 +71,7 @@ class SameName:
             self.endpoints_of.pop(other, None)
             return
         self.endpoints_of[other] = endpoints
-        if self.incarnation and other != self.incarnation and leaves(other, self.incarnation):
+        if self.incarnation and leaves(other, self.incarnation):
             self._stays(other)  # a node started while this one runs: it is to leave
 
     def _first(self, other: int) -> bool:
@@ -81,28 +81,29 @@ class SameName:
             self._told.add(other)
             return new
 
+    def _at(self, other: int) -> str:
+        """Where the node of incarnation ``other`` listens, as its token says,
+        for a log line (" listening on tcp/...", or "" when not known)."""
+        where = self.endpoints_of.get(other)
+        return f" listening on {', '.join(where)}" if where else ""
+
     def _stays(self, other: int) -> None:
         """Say once that the node of incarnation ``other`` leaves and this one stays."""
         if not self._first(other):
             return
-        where = self.endpoints_of.get(other)
-        at = f" listening on {', '.join(where)}" if where else ""
         log.error("node %s: another node of team %s joined under this robot's name%s, started %s: it leaves "
-                  "the team and this node stays; %s", self.robot, self.team, at,
+                  "the team and this node stays; %s", self.robot, self.team, self._at(other),
                   _started(started_at(other), started_at(self.incarnation), "after"), FIX)
 
-    def clash(self, a: NameTaken, incarnation: int) -> bool:
-        """Another node runs under this robot's name (this one is of
-        ``incarnation``): whether this one leaves. Both say why."""
-        self.incarnation = self.incarnation or incarnation
+    def clash(self, a: NameTaken) -> bool:
+        """Another node runs under this robot's name: whether this one (of
+        ``incarnation``, set as it started) leaves. Both say why."""
         self.trace.write("name_taken", "", self.robot, 0,
                          f"{'this node leaves' if a.leave else 'the other leaves'}: incarnation {a.other:x}")
         if not a.leave:
             self._stays(a.other)
             return False
-        where = self.endpoints_of.get(a.other)
-        at = f" listening on {', '.join(where)}" if where else ""
-        self.taken = (f"robot name {self.robot!r} is taken in team {self.team!r} by another node{at}, "
-                      f"started {_started(started_at(a.other), started_at(incarnation), 'before')}; {FIX}")
+        self.taken = (f"robot name {self.robot!r} is taken in team {self.team!r} by another node{self._at(a.other)}, "
+                      f"started {_started(started_at(a.other), started_at(self.incarnation), 'before')}; {FIX}")
         log.error("node %s: %s; this node started later and leaves the team", self.robot, self.taken)
         return True

@@ -129,7 +129,7 @@ class Outbound:
             elif isinstance(a, Progress):
                 self.clients.progressed(a.program_id, a.fraction, a.detail, a.host, a.attempt)
             elif isinstance(a, NameTaken):
-                if self.same_name.clash(a, d.incarnation):  # this node started later: it leaves
+                if self.same_name.clash(a):  # this node started later: it leaves
                     self._stop()
             elif isinstance(a, Note):
                 self._note(a)
