@@ -49,6 +49,7 @@ LAYERS: tuple[tuple[str, ...], ...] = (
     ("ramps.experiments",),
     ("ramps.observe",),
     ("ramps.bench", "ramps.testbed"),
+    ("ramps.lab",),
     ("ramps.cli",),
 )
 

@@ -1,10 +1,11 @@
-"""The slow-link experiment's program and report (ramps.testbed.slowlink);
+"""The slow-link experiment's program (ramps.testbed.slowlink) and report (ramps.lab.slowlink);
 the experiment itself needs root and a testbed: ``ramps testbed experiment slow-link``."""
 
 from __future__ import annotations
 
+from ramps.lab.slowlink import LinkSample, SlowLinkReport, SlowLinkRun, format_report
 from ramps.runtime.registry import default_registry, encode_args
-from ramps.testbed.slowlink import LinkSample, SlowLinkReport, SlowLinkRun, crunch, format_report
+from ramps.testbed.slowlink import crunch
 
 
 def test_crunch_is_a_registered_program_taking_a_megabyte_of_parameters():

@@ -1,6 +1,6 @@
 """``ramps testbed experiment sites``: two sites behind two routers on the testbed.
 
-The work is ``ramps.testbed.sites``; this module parses and prints (rules in
+The work is ``ramps.lab.sites``; this module parses and prints (rules in
 ``ramps.cli.common``).
 """
 
@@ -37,7 +37,7 @@ def testbed_experiment_sites(
     while r1 and the first robot of site B submit, and started again: both sites keep running
     their programs while apart, none is lost, and the team heals. Root; about 5 minutes."""
     from ramps.errors import RampsError
-    from ramps.testbed.sites import run_sites
+    from ramps.lab.sites import run_sites
     from ramps.testbed.sites_report import format_report
 
     if mode not in ("peer", "client"):

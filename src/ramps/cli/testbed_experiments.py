@@ -143,7 +143,7 @@ def testbed_experiment_slow_link(
     prints r1's measured link to each teammate (what `ramps status` shows), how its estimate of r3's
     bandwidth converges, and where the programs ran. About 4 minutes (5 MB programs over a 1 MB/s link)."""
     from ramps.errors import RampsError
-    from ramps.testbed.slowlink import format_report, run_slow_link
+    from ramps.lab.slowlink import format_report, run_slow_link
 
     try:
         rep = run_slow_link(told_speed=told_speed, rate=rate * 1e6, payload=payload, units=units, programs=programs,
