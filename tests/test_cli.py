@@ -131,7 +131,7 @@ def test_testbed_experiment_saves_finished_experiments_as_it_goes_and_on_ctrl_c(
     simulator's plan runner stands in for the testbed's (same plans, same
     FaultRun records); the second experiment is interrupted."""
     import ramps.experiments.faults as faults
-    import ramps.testbed.experiments as tbx
+    import ramps.lab.experiments as tbx
 
     calls = []
 
@@ -162,7 +162,7 @@ def test_testbed_campaign_ctrl_c_reports_the_runs_that_finished(tmp_path, monkey
     import random
 
     import ramps.experiments.campaign as sim_campaign
-    import ramps.testbed.campaign as tbx
+    import ramps.lab.campaign as tbx
 
     def sim_run(run_seed, *, policy="ramps", robots=4, duration=20.0, **_testbed_options):
         if run_seed % 1_000_000 == 2:

@@ -182,7 +182,7 @@ def test_the_campaign_explains_a_resumed_attempt_written_off_only_when_the_crash
     origin never saw it accepted (the offer went down with it) or its host
     had a fault meanwhile; one accepted on a host without fault is not."""
     from ramps.sim.engine import TraceEntry
-    from ramps.testbed.campaign import _unexplained
+    from ramps.lab.campaign import _unexplained
 
     def trace(accepted: bool) -> list[TraceEntry]:
         t = [TraceEntry(10.0, "r1", "placed", "p", "r4", 1, "")]

@@ -335,7 +335,7 @@ def test_a_host_counts_a_programs_work_from_the_cpu_seconds_it_used():
 def test_the_speeds_experiment_reads_each_re_measurement_from_a_trace(tmp_path):
     import json
 
-    from ramps.testbed.speeds import measurements
+    from ramps.lab.speeds import measurements
 
     lines = [{"t": 1.0, "what": "placed", "detail": "expected 2.00 s"},
              {"t": 2.0, "what": "speed_measured", "detail": "0.04123 at 1800000003.0, node figure 0.04101"}]
@@ -344,7 +344,7 @@ def test_the_speeds_experiment_reads_each_re_measurement_from_a_trace(tmp_path):
 
 
 def test_the_speeds_experiment_tells_each_robots_own_figure_beside_the_pooled_one():
-    from ramps.testbed.speeds import SpeedsReport, SpeedStart, own_figures
+    from ramps.lab.speeds import SpeedsReport, SpeedStart, own_figures
 
     boot = {"r1": 0.040, "r2": 0.044}
     measured = {"r1": [[100.0, 0.041, 0.041], [103.0, 0.039, 0.040]], "r2": [[103.0, 0.045, 0.0445]]}

@@ -1,4 +1,4 @@
-"""Emulated accelerators on the testbed (ramps.testbed.accelerators): its simulator side, its
+"""Emulated accelerators on the testbed (ramps.lab.accelerators): its simulator side, its
 report and the per-robot node settings run without root; the end-to-end run needs root and
 cgroups (skipped otherwise): GPU-class calls land on the accelerator robot's accelerator, the
 CPU calls spread over the cores, nothing is lost. No durations are asserted."""
@@ -12,7 +12,7 @@ import msgspec
 import pytest
 from test_testbed import REASON, others_leftovers
 
-from ramps.testbed.accelerators import (
+from ramps.lab.accelerators import (
     AccelReport,
     AccelRepeat,
     Call,
@@ -22,7 +22,7 @@ from ramps.testbed.accelerators import (
     run_testbed_accelerators,
     simulate_case,
 )
-from ramps.testbed.experiments import read_trace
+from ramps.lab.experiments import read_trace
 from ramps.testbed.robots import check_config, node_config_file
 
 SIM = dict(robots=4, cores=2, accelerated=["r4"], accelerator="cuda:1:20", origins=2, gpu=3, cpu=3, units=1.2,

@@ -1,4 +1,4 @@
-"""The battery experiment on real processes (``ramps.testbed.battery``): its
+"""The battery experiment on real processes (``ramps.lab.battery``): its
 figures from the nodes' traces and its report; the experiment itself needs
 root and a testbed: ``ramps testbed experiment battery``."""
 
@@ -11,7 +11,7 @@ from types import SimpleNamespace
 from typer.testing import CliRunner
 
 from ramps.cli import app
-from ramps.testbed.battery import BatteryShed, _shed_times, format_report
+from ramps.lab.battery import BatteryShed, _shed_times, format_report
 
 
 def _trace(path: Path, *entries: tuple[float, str, str, str, str, int]) -> None:

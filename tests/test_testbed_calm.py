@@ -32,7 +32,7 @@ def run_saturated(config: dict | None = None) -> tuple[list, dict[str, int], set
     by submission index, the indices that checkpoint, and the wall time."""
     from ramps.programs.burn import burn
     from ramps.testbed import Testbed
-    from ramps.testbed.experiments import identical_speed, read_trace
+    from ramps.lab.experiments import identical_speed, read_trace
 
     started = time.monotonic()
     speed = identical_speed(1, CORES, QUOTA)

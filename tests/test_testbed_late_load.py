@@ -1,4 +1,4 @@
-"""The relocation experiment on real processes (ramps.testbed.late_load): its simulator
+"""The relocation experiment on real processes (ramps.lab.late_load): its simulator
 side, its report and the testbed's node settings; the experiment itself needs root and a
 testbed: ``ramps testbed experiment relocation``."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from ramps.testbed.robots import check_config
-from ramps.testbed.late_load import RelocationCase, RelocationReport, format_report, simulate_variant
+from ramps.lab.late_load import RelocationCase, RelocationReport, format_report, simulate_variant
 
 
 def test_the_simulator_side_moves_the_programs_off_the_busy_robot_and_off_it_does_not():

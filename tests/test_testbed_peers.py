@@ -1,4 +1,4 @@
-"""``ramps testbed experiment peers`` (ramps.testbed.peers and its parts): ramps beside round
+"""``ramps testbed experiment peers`` (ramps.lab.peers and its parts): ramps beside round
 robin, Ray and Dask on the same emulated robots. The pure parts (scenarios, the
 ideal, distributions, the crash's victim, the report) run anywhere; one small
 real run of ramps and round robin needs root and cgroups (skipped otherwise).
@@ -18,9 +18,9 @@ from test_testbed import REASON, others_leftovers
 
 from ramps.cli import app
 from ramps.experiments.metrics import Machine, model_makespan
-from ramps.testbed.peers import ENGINES, run_peers
-from ramps.testbed.peers_engines import ClusterEngine, _running
-from ramps.testbed.peers_scenarios import (
+from ramps.lab.peers import ENGINES, run_peers
+from ramps.lab.peers_engines import ClusterEngine, _running
+from ramps.lab.peers_scenarios import (
     SCENARIOS, SPACING, EngineRun, PeersReport, ScenarioResult, Setup, distribution, format_report, ideal, medians, releases,
     victim,
 )
@@ -167,7 +167,7 @@ def test_dasks_orphaned_semaphores_are_removed_not_older_ones(tmp_path):
     import os
     import time
 
-    from ramps.testbed.peers_engines import _orphan_semaphores
+    from ramps.lab.peers_engines import _orphan_semaphores
 
     old, new, other = tmp_path / "sem.mp-old", tmp_path / "sem.mp-new", tmp_path / "zenoh.shm"
     for p in (old, new, other):
@@ -178,7 +178,7 @@ def test_dasks_orphaned_semaphores_are_removed_not_older_ones(tmp_path):
 
 
 def test_a_burst_whose_time_ran_out_has_no_makespan_and_says_how_many_were_not_done():
-    from ramps.testbed.peers_engines import _Burst
+    from ramps.lab.peers_engines import _Burst
 
     sc = SCENARIOS["busy-1"].with_programs(5)
     burst = _Burst(sc)
@@ -204,7 +204,7 @@ def test_the_busy_robots_own_cpu_is_read_from_their_load_processes():
     from types import SimpleNamespace
 
     from ramps.runtime.measure import proc_cpu
-    from ramps.testbed.peers_engines import _Burst, own_cpu
+    from ramps.lab.peers_engines import _Burst, own_cpu
 
     me = os.getpid()
     tb = SimpleNamespace(robots={"r4": {"load_pids": [[me, 0]]}, "r5": {"load_pids": [[me, 0], [2 ** 22 + 7, 0]]}})
@@ -219,8 +219,8 @@ def test_the_busy_robots_own_cpu_is_read_from_their_load_processes():
 
 
 def test_rounds_run_every_engine_in_turns_each_round_starting_with_the_next(monkeypatch):
-    import ramps.testbed.experiments as experiments
-    import ramps.testbed.peers as peers
+    import ramps.lab.experiments as experiments
+    import ramps.lab.peers as peers
 
     order: list[tuple[str, int]] = []
 

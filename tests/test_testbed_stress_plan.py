@@ -1,4 +1,4 @@
-"""The stressed campaign's plans (``ramps.testbed.campaign.stress_plan``):
+"""The stressed campaign's plans (``ramps.lab.campaign.stress_plan``):
 seeded, every fault of a robot undone before the run ends, an origin only
 ever stalled briefly or crashed and recovered soon (pure, no testbed needed);
 and the application's answer to an origin crash (``_wait_resubmitting``)."""
@@ -10,7 +10,7 @@ from collections import Counter
 
 import pytest
 
-from ramps.testbed.campaign import campaign_plan, stress_plan
+from ramps.lab.campaign import campaign_plan, stress_plan
 
 NAMES = ["r1", "r2", "r3", "r4"]
 
@@ -81,7 +81,7 @@ class FakeTeam:
 
 
 def test_the_application_submits_again_what_its_crashed_origin_lost():
-    from ramps.testbed.campaign import RESUBMITS, _wait_resubmitting
+    from ramps.lab.campaign import RESUBMITS, _wait_resubmitting
 
     team = FakeTeam(lose=3)
     futures = [(0.1 * i, team.submit("burn", 0.1 * i), 0) for i in range(3)]  # all three lost
@@ -94,11 +94,11 @@ def test_the_application_submits_again_what_its_crashed_origin_lost():
 
 
 def test_replacement_per_program_reads_the_kept_origin_trace(tmp_path):
-    """``python -m ramps.testbed.experiments``: from R5's crash (the origin
+    """``python -m ramps.lab.campaign``: from R5's crash (the origin
     wrote it off 0.1 s after) to each displaced program's next acceptance."""
     import json
 
-    from ramps.testbed.campaign import replacement_per_program
+    from ramps.lab.campaign import replacement_per_program
 
     d = tmp_path / "simultaneous_crash_R5-0"
     d.mkdir()

@@ -1,5 +1,5 @@
 """The testbed sweeps' simulator side and configuration checks
-(ramps.testbed.sweeps): pure, milliseconds; the testbed side needs root and
+(ramps.lab.sweeps): pure, milliseconds; the testbed side needs root and
 minutes, and is run by ``ramps testbed experiment sweep``."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from __future__ import annotations
 import msgspec
 import pytest
 
-from ramps.testbed.sweeps import (
+from ramps.lab.sweeps import (
     DEFAULT_CONFIGS,
     FULL_CONFIGS,
     SweepCase,
@@ -56,7 +56,7 @@ def test_distributions_of_programs_on_cores_of_their_own_are_as_good():
 def test_a_case_puts_the_testbed_beside_the_simulator():
     """What a burst on the testbed becomes in the report: the ratios, and the
     distribution as good as the simulator's though not one of its seeds'."""
-    from ramps.testbed.sweeps import _Burst, _case
+    from ramps.lab.sweeps import _Burst, _case
 
     b = _Burst(makespan=13.2, distribution=[3, 3, 3, 3, 3], completed=15, failed=0, spent=15 * 0.3 * 2.2,
                obtained=0.95)
@@ -100,7 +100,7 @@ def test_the_report_prints_both_worlds_side_by_side():
 
 
 def test_a_process_keeps_the_kind_it_was_first_given_while_its_cpu_is_updated():
-    from ramps.testbed.fidelity import merge_cpu
+    from ramps.lab.fidelity import merge_cpu
 
     seen = {10: ("worker", 1.0), 11: ("node", 0.5)}
     # an exiting worker (a zombie) has an empty command line and reads as "other"

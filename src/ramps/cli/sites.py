@@ -38,7 +38,7 @@ def testbed_experiment_sites(
     their programs while apart, none is lost, and the team heals. Root; about 5 minutes."""
     from ramps.errors import RampsError
     from ramps.lab.sites import run_sites
-    from ramps.testbed.sites_report import format_report
+    from ramps.lab.sites_report import format_report
 
     if mode not in ("peer", "client"):
         fail(f"unknown mode {mode!r}; choose peer or client")

@@ -7,8 +7,9 @@
     ramps testbed experiment peers   # ramps beside round robin, Ray and Dask
     ramps testbed down
 
-The work is done by ``ramps.testbed``; this module parses and prints (rules
-in ``ramps.cli.common``). The ``experiment`` subcommands are in
+The work is done by ``ramps.testbed`` (the emulated team) and ``ramps.lab``
+(``fidelity``, ``campaign``); this module parses and prints (rules in
+``ramps.cli.common``). The ``experiment`` subcommands are in
 ``ramps.cli.testbed_experiments``.
 """
 
@@ -208,7 +209,7 @@ def testbed_fidelity(
     processes, completion times and the robot's CPU against the model, and the CPU the robot
     spent outside its programs (node, fork server) (about 5 minutes for the 8 default cases, less with --case)."""
     from ramps.errors import RampsError
-    from ramps.testbed.fidelity import run_fidelity
+    from ramps.lab.fidelity import run_fidelity
 
     cases: list[tuple[int, int]] = []
     for c in case or []:
@@ -273,7 +274,7 @@ def testbed_campaign(
     pressure, and the checks that no program was restarted without cause and nothing was left running."""
     from ramps.errors import RampsError
     from ramps.experiments.report import print_campaign
-    from ramps.testbed.campaign import run_campaign
+    from ramps.lab.campaign import run_campaign
 
     check_policy(policy)
     check_discovery(discovery)

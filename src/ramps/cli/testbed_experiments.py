@@ -7,7 +7,7 @@
     ramps testbed experiment accelerators  # GPU-class calls on emulated accelerators
 
 Each command starts its own testbed, runs, and removes it; the work is done
-by ``ramps.testbed``, this module parses and prints (rules in
+by ``ramps.lab``, this module parses and prints (rules in
 ``ramps.cli.common``). ``ramps.cli.testbed`` mounts ``experiment_app`` as
 ``ramps testbed experiment``.
 """
@@ -60,7 +60,7 @@ def testbed_experiment_faults(
     from ramps.errors import RampsError
     from ramps.experiments.faults import KINDS, plans, run_fault_experiment
     from ramps.experiments.report import print_fault_report
-    from ramps.testbed.experiments import run_plan
+    from ramps.lab.experiments import run_plan
 
     check_policy(policy)
     modes, kinds = fault_plans(mode, kind, KINDS)
@@ -110,7 +110,7 @@ def testbed_experiment_sweep(
     share of its due CPU a robot obtained from the host). The nodes measure their own speeds, as
     on robots (--told-speed hands them one, an ablation). About 2-4 minutes."""
     from ramps.errors import RampsError
-    from ramps.testbed.sweeps import DEFAULT_CONFIGS, EXPERIMENTS, FULL_CONFIGS, format_report, run_testbed_sweep
+    from ramps.lab.sweeps import DEFAULT_CONFIGS, EXPERIMENTS, FULL_CONFIGS, format_report, run_testbed_sweep
 
     if experiment not in EXPERIMENTS + ("all",):
         fail(f"unknown experiment {experiment!r}; choose {', '.join(EXPERIMENTS)} or all")
@@ -176,7 +176,7 @@ def testbed_experiment_relocation(
     a fresh testbed, and prints every makespan beside the simulator's and the hindsight optimum.
     About 4 minutes with the defaults."""
     from ramps.errors import RampsError
-    from ramps.testbed.late_load import VARIANTS, format_report, run_testbed_relocation
+    from ramps.lab.late_load import VARIANTS, format_report, run_testbed_relocation
 
     if load_at >= seconds:
         fail(f"--load-at ({load_at:g}) must come before the programs end (--seconds {seconds:g})")
@@ -212,7 +212,7 @@ def testbed_experiment_battery(
     (from the write to its decision, and to the last accepted elsewhere; it reads the file before each
     1 s load report) and checks every program's one result. About a minute."""
     from ramps.errors import RampsError
-    from ramps.testbed.battery import format_report, run_testbed_battery
+    from ramps.lab.battery import format_report, run_testbed_battery
 
     if drop_at >= seconds:
         fail(f"--drop-at ({drop_at:g}) must come before the programs end (--seconds {seconds:g})")
@@ -250,7 +250,7 @@ def testbed_experiment_accelerators(
     an accelerator or a CPU, per robot) and the makespan beside the simulator's for the same robots,
     speeds and calls. About 40 s a repeat."""
     from ramps.errors import RampsError
-    from ramps.testbed.accelerators import format_report, run_testbed_accelerators
+    from ramps.lab.accelerators import format_report, run_testbed_accelerators
 
     try:
         rep = run_testbed_accelerators(robots=robots, accelerated=accelerated, slots=slots, slot_speed=slot_speed,
@@ -280,7 +280,7 @@ def testbed_experiment_speeds(
     node's boot speed and the speeds they report 2, 10 and 20 s later, with the spread (fastest over
     slowest) of each start. About 35 s per start."""
     from ramps.errors import RampsError
-    from ramps.testbed.speeds import run_speeds
+    from ramps.lab.speeds import run_speeds
 
     try:
         rep = run_speeds(starts=starts, robots=robots, cores=cores, quota=quota, loaded=loaded,
@@ -306,7 +306,7 @@ def testbed_experiment_origin_restart(
     DOWN s later as a supervisor would, and count what its waiting client receives: every program
     once, with how many its hosts kept running through the crash and how many ran again."""
     from ramps.errors import RampsError
-    from ramps.testbed.restart import run_origin_restart
+    from ramps.lab.restart import run_origin_restart
 
     runs = []
     try:
@@ -346,7 +346,7 @@ def testbed_experiment_rolling_restart(
     continuously; count lost and duplicated programs and print the delivery rate before, during
     and after the roll."""
     from ramps.errors import RampsError
-    from ramps.testbed.restart import run_rolling_restart
+    from ramps.lab.restart import run_rolling_restart
 
     if origins > robots:
         fail(f"--origins ({origins}) cannot exceed --robots ({robots})")
@@ -391,8 +391,8 @@ def testbed_experiment_peers(
     nice-10 programs land beside a busy robot's load (round robin; Ray and Dask at --peer-nice 10),
     so 1.5-2.5 hours for all 24 runs."""
     from ramps.errors import RampsError
-    from ramps.testbed.peers import DEFAULT_ENGINES, ENGINES, run_peers
-    from ramps.testbed.peers_scenarios import SCENARIOS, Setup, format_report
+    from ramps.lab.peers import DEFAULT_ENGINES, ENGINES, run_peers
+    from ramps.lab.peers_scenarios import SCENARIOS, Setup, format_report
 
     for name, known, what in ((scenario, SCENARIOS, "scenario"), (engine, ENGINES, "engine")):
         bad = [n for n in name or [] if n not in known]

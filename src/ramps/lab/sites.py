@@ -15,7 +15,7 @@ robots, each site behind its own router, the routers' link slowed to
    programs while apart; every program is delivered, none lost or doubled;
    the time until the team is whole again is measured.
 
-The report's records and its text are in ``ramps.testbed.sites_report``.
+The report's records and its text are in ``ramps.lab.sites_report``.
 
 Rules: root only; everything is removed on exit (the two testbeds' own
 ``down()``; the link between the routers dies with their namespaces).
@@ -28,9 +28,9 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
+from ramps.lab.sites_report import Batch, Outage, PlacementRun, SitesReport, fmt
 from ramps.testbed.bed import Testbed, watch_team
 from ramps.testbed.sites import ROUTER, TARGET, Sites, SiteTestbed
-from ramps.testbed.sites_report import Batch, Outage, PlacementRun, SitesReport, fmt
 
 
 def _links(obs, of: str, robots: list[str]) -> dict[str, list[float | None]]:

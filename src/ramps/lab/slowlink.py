@@ -82,7 +82,7 @@ def run_once(*, shaped: bool, slow: str = "r3", rate: float = 1e6, payload: int 
              told_speed: bool = False) -> SlowLinkRun:
     from ramps.testbed import Testbed
     from ramps.testbed.bed import watch_team
-    from ramps.testbed.experiments import SETTLE, identical_speed
+    from ramps.lab.experiments import SETTLE, identical_speed
 
     log = log or (lambda _m: None)
     speed = identical_speed(1, 4, quota)

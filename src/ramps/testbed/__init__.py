@@ -1,11 +1,15 @@
-"""Emulated robots on one Linux host: namespaces, cgroups, fault injection.
+"""The emulated team: robots on one Linux host, made, driven and broken.
 
-How this works: ``Testbed(5)`` makes five robots, each a network namespace
-on a shared bridge (``ramps.testbed.net``) and a cpu cgroup, running a real
-``ramps node``; ``crash``/``cut``/``freeze``/``recover`` inject the faults
-of the paper (``ramps.testbed.bed``); ``ramps.testbed.detect`` measures how
-fast the team notices them. ``ramps testbed ...`` drives the same from the
-shell.
+This package is the emulated team only; the experiments run on it are
+``ramps.lab``. How this works: ``Testbed(5)`` makes five robots, each a
+network namespace on a shared bridge (``ramps.testbed.net``) and a cpu
+cgroup whose programs are capped at their share (``ramps.testbed.caps``),
+running a real ``ramps node``; ``crash``/``cut``/``freeze``/``recover``/
+``lossy`` inject the faults of the paper (``ramps.testbed.bed``,
+``ramps.testbed.faults``), ``ramps.testbed.stress`` a busy or half-dead
+robot's, ``ramps.testbed.slowlink`` a slow link; ``ramps.testbed.sites`` is
+two sites behind two routers. ``ramps testbed up|status|crash|...|down``
+drives the same from the shell.
 
     from ramps.testbed import Testbed
     with Testbed(3, lease_ms=1000) as tb:

@@ -1,5 +1,7 @@
 """A randomized fault campaign on the testbed (``ramps testbed campaign``).
 
+The real-process twin of ``ramps.experiments.campaign`` (``ramps sim campaign``).
+
 How this works: ``run_campaign`` runs seeded ``run_campaign_once`` runs:
 random crash / cut / freeze / recover faults of non-origin robots
 (``campaign_plan``) during a workload of ``burn`` programs, then the
@@ -25,7 +27,7 @@ counted as ``resubmitted``. Either way each program must complete once for
 the application (checked: nothing left running after the run).
 
 The testbed set-up, trace reading and fault injection are shared with the
-paper's failure experiments (``ramps.testbed.experiments``).
+paper's failure experiments (``ramps.lab.experiments``).
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from ramps.errors import NoTeam, ProgramLost
 from ramps.experiments.campaign import CampaignReport
 from ramps.sim.engine import TraceEntry
 from ramps.testbed import stress as stresses
-from ramps.testbed.experiments import (NAMES, _inject, _keep, _log_dir, delivered_counts, hosts_at,
+from ramps.lab.experiments import (NAMES, _inject, _keep, _log_dir, delivered_counts, hosts_at,
                                        identical_speed, read_trace)
 
 if TYPE_CHECKING:
@@ -426,11 +428,11 @@ def replacement_per_program(report: dict, logs: Path) -> dict[str, list[float]]:
     return out
 
 
-if __name__ == "__main__":  # python -m ramps.testbed.experiments REPORT.json LOGS
+if __name__ == "__main__":  # python -m ramps.lab.campaign REPORT.json LOGS
     import statistics
 
     if len(sys.argv) != 3:
-        sys.exit("usage: python -m ramps.testbed.experiments REPORT.json LOGS  (of ramps testbed experiment "
+        sys.exit("usage: python -m ramps.lab.campaign REPORT.json LOGS  (of ramps testbed experiment "
                  "faults --out REPORT.json --keep-logs LOGS): per displaced program, failure to running again")
     for mode, values in replacement_per_program(json.loads(Path(sys.argv[1]).read_text()), Path(sys.argv[2])).items():
         values.sort()

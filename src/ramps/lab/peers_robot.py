@@ -1,7 +1,7 @@
 """Inside a robot of the peers experiment: Ray's or Dask's node, a driver, and their program.
 
-How this works: ``ramps.testbed.peers_engines.PeerBed`` starts ``python -m
-ramps.testbed.peers_robot node ENGINE ...`` as each robot's node (``_node``:
+How this works: ``ramps.lab.peers_engines.PeerBed`` starts ``python -m
+ramps.lab.peers_robot node ENGINE ...`` as each robot's node (``_node``:
 a Ray head or node, or a Dask scheduler and workers, in the robot's
 namespace and cgroup, at nice 0 as ``ramps node``), and ``... drive ...``
 inside each origin (``_drive``: connect, wait for every worker, say
@@ -25,7 +25,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from ramps.testbed.peers_scenarios import SPACING, WORKER_NICE
+from ramps.lab.peers_scenarios import SPACING, WORKER_NICE
 
 RAY_PORT, DASK_PORT = 6379, 8786
 
@@ -165,7 +165,7 @@ def main(argv: list[str] | None = None) -> None:
     if args[:1] == ["drive"] and len(args) == 9:
         _drive(args[1], args[2], args[3], int(args[4]), float(args[5]), int(args[6]), args[7], int(args[8]))
         os._exit(0)  # a client's threads must not hold the robot's process up
-    print("usage: python -m ramps.testbed.peers_robot node|drive ...  (started by ramps testbed experiment peers)",
+    print("usage: python -m ramps.lab.peers_robot node|drive ...  (started by ramps testbed experiment peers)",
           file=sys.stderr)
     raise SystemExit(2)
 

@@ -19,7 +19,7 @@ the same robots and accelerators, the speed measured here before the start
 as the robots' true one and each node's reported speed as what it believes,
 the same calls at the same moments, the nodes' report period; median of
 ``seeds`` seeds), and ratio = testbed / simulator. ``corrected_ratio``
-takes the host's drift out as ``ramps.testbed.late_load`` does: the CPU
+takes the host's drift out as ``ramps.lab.late_load`` does: the CPU
 calls' median time on the testbed over the simulator's, the simulator run
 again with robots that much slower.
 """
@@ -173,7 +173,7 @@ def run_testbed_accelerators(*, robots: int = 4, cores: int = 2, quota: float = 
                              timeout: float = 300.0, keep_logs: Path | None = None,
                              log: Callable[[str], None] | None = None) -> AccelReport:
     """``repeats`` runs of the experiment (module docstring), each on a fresh testbed."""
-    from ramps.testbed.experiments import identical_speed
+    from ramps.lab.experiments import identical_speed
 
     log = log or (lambda _m: None)
     if not (1 <= accelerated < robots and 1 <= origins <= robots - accelerated and gpu + cpu >= 1
@@ -210,8 +210,8 @@ def _one_repeat(k: int, *, speed: float, quota: float, sim_kw: dict[str, Any], s
     """One fresh testbed: the burst, then the simulator with the speeds its nodes reported."""
     from ramps.testbed import Testbed
     from ramps.testbed.bed import watch_team
-    from ramps.testbed.experiments import _keep
-    from ramps.testbed.speeds import reported_speeds
+    from ramps.lab.experiments import _keep
+    from ramps.lab.speeds import reported_speeds
 
     robots, accel = sim_kw["robots"], sim_kw["accelerated"]
     names = [f"r{i}" for i in range(1, robots + 1)]

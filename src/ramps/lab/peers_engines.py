@@ -1,17 +1,17 @@
 """The engines of the peers experiment: ramps, round robin, Ray and Dask on a testbed each.
 
-How this works: an ``Engine`` runs a scenario (``ramps.testbed.peers_scenarios``)
+How this works: an ``Engine`` runs a scenario (``ramps.lab.peers_scenarios``)
 on a fresh testbed of its own and says what happened (``EngineRun``, through
 ``_Burst``: when the burst started, where each program completed and when):
 
 * ``RampsEngine``: ``ramps node`` on every robot with its default settings
   (no ``--speed``: the nodes measure themselves, the user's path), or one of
   its policies (``round_robin``); programs go through a ``Team`` client per
-  origin, as in ``ramps.testbed.sweeps``.
+  origin, as in ``ramps.lab.sweeps``.
 * ``ClusterEngine``: Ray or Dask on ``PeerBed``, a ``Testbed`` whose robots
-  run that engine's node (``python -m ramps.testbed.peers_robot node ...``)
+  run that engine's node (``python -m ramps.lab.peers_robot node ...``)
   instead of ``ramps node``, and one driver per origin inside its robot
-  (``ramps.testbed.peers_robot``); the host reads where programs ran from
+  (``ramps.lab.peers_robot``); the host reads where programs ran from
   the marks they leave on disk (``_running``) and their results from the
   drivers' files.
 
@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from ramps.testbed.bed import Testbed
-from ramps.testbed.peers_scenarios import BUSY, SPACING, EngineRun, PeerScenario, Setup, distribution, victim
+from ramps.lab.peers_scenarios import BUSY, SPACING, EngineRun, PeerScenario, Setup, distribution, victim
 from ramps.testbed.procs import TestbedError
 
 EXTRA = "pip install -e '.[peers]'  (or: pip install 'ramps-robotics[peers]')"
@@ -114,7 +114,7 @@ def _load(tb: Testbed, sc: PeerScenario) -> None:
     """The busy robots' load, once the engine is up (with the load there first, Ray was not up
     after 300 s and a raylet aborted: busy-1, 2026-11-26), then ``SETTLE`` s: the
     load adopted and capped, every robot's load report at every origin."""
-    from ramps.testbed.experiments import SETTLE
+    from ramps.lab.experiments import SETTLE
 
     for r in sc.loaded:
         tb.add_load(r, BUSY)
@@ -192,7 +192,7 @@ class RampsEngine:
                 if crasher is not None:
                     crasher.join(5)
                 if setup.keep_logs:
-                    from ramps.testbed.experiments import _keep
+                    from ramps.lab.experiments import _keep
 
                     time.sleep(0.3)  # the nodes' last trace lines
                     _keep(tb, Path(setup.keep_logs) / f"{sc.name}-{self.name}")
@@ -213,7 +213,7 @@ class RampsEngine:
 
 # ---------------------------------------------------------------- Ray and Dask
 class PeerBed(Testbed):
-    """A testbed whose robots run another engine's node (``python -m ramps.testbed.peers_robot node``)
+    """A testbed whose robots run another engine's node (``python -m ramps.lab.peers_robot node``)
     instead of ``ramps node``: same namespaces, cgroups, caps, load and faults."""
 
     __test__ = False
@@ -226,7 +226,7 @@ class PeerBed(Testbed):
 
     def _node_cmd(self, robot: str) -> list[str]:
         head = self.robots[self.names[0]]["ip"]
-        return [self.python, "-m", "ramps.testbed.peers_robot", "node", self.engine, robot, self.robots[robot]["ip"],
+        return [self.python, "-m", "ramps.lab.peers_robot", "node", self.engine, robot, self.robots[robot]["ip"],
                 head, str(self.cores), str(self.work_dir / robot)]
 
     def wait_alive(self, robots: list[str] | None = None, timeout: float = 60.0) -> float:
@@ -265,7 +265,7 @@ class ClusterEngine:
             marks.mkdir()
             head = tb.ip(tb.names[0])
             for o in sc.origins:
-                argv = [tb.python, "-m", "ramps.testbed.peers_robot", "drive", self.name, o, head,
+                argv = [tb.python, "-m", "ramps.lab.peers_robot", "drive", self.name, o, head,
                         str(sc.per_origin()), str(setup.work), str(sc.robots * setup.cores), str(tb.work_dir),
                         str(setup.peer_nice)]
                 tb._spawn(o, argv, tb.work_dir / f"driver-{o}.log")

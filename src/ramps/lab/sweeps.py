@@ -1,5 +1,8 @@
 """The paper's sweeps and several-origins bursts on real processes, beside the simulator.
 
+The real-process twin of ``ramps.experiments.sweep`` (several origins) and
+of the sweeps of ``ramps.experiments.paper`` (Tables 3-4).
+
 How this works: a configuration is a team (``robots`` emulated robots of
 ``cores`` cores on ``quota`` host cores each, the last ``loaded`` of them
 running ``stress`` busy processes, as the paper's Table 4) and a burst of
@@ -53,7 +56,7 @@ from ramps.core.config import RampsConfig
 from ramps.core.cost import nice_weight, program_share
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import ProgramSpec, PublisherSpec, RobotSpec, Scenario
-from ramps.testbed.speeds import reported_speeds, spread
+from ramps.lab.speeds import reported_speeds, spread
 
 EXPERIMENTS = ("unloaded", "loaded", "multi-origin")
 #: (experiment, robots, programs per origin, loaded robots, origins)
@@ -170,7 +173,7 @@ def simulate_config(robots: int, programs: int, loaded: int, origins: int, *, co
 
 def _workers_cpu(tb, seen: dict[str, dict[int, tuple[str, float]]]) -> None:
     """Add every robot's processes' CPU seconds so far to ``seen`` (robot -> pid -> (kind, seconds))."""
-    from ramps.testbed.fidelity import merge_cpu, robot_cpu
+    from ramps.lab.fidelity import merge_cpu, robot_cpu
 
     for r in tb.names:
         merge_cpu(seen.setdefault(r, {}), robot_cpu(tb, r))
@@ -281,7 +284,7 @@ def run_testbed_sweep(configs: Sequence[tuple[str, int, int, int, int]] | None =
     true configuration."""
     from ramps.testbed import Testbed
     from ramps.testbed.bed import watch_team
-    from ramps.testbed.experiments import SETTLE, _keep, identical_speed
+    from ramps.lab.experiments import SETTLE, _keep, identical_speed
 
     log = log or (lambda _m: None)
     configs = list(configs or DEFAULT_CONFIGS)

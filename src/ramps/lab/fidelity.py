@@ -112,7 +112,7 @@ def run_fidelity(*, caps: bool = True, cores: int = 4, quota: float = 0.8, work:
                  cases: list[tuple[int, int]] | None = None, told_speed: bool = False,
                  log: Callable[[str], None] | None = None) -> FidelityReport:
     from ramps.testbed import Testbed
-    from ramps.testbed.experiments import SETTLE, identical_speed
+    from ramps.lab.experiments import SETTLE, identical_speed
 
     log = log or (lambda _m: None)
     weight = nice_weight(NodeSettings().worker_nice)  # the testbed's nodes run with the default
@@ -142,7 +142,7 @@ def _measure_case(tb: Testbed, team: Any, k: int, b: int, *, work: float, speed:
                   weight: float, log: Callable[[str], None]) -> FidelityCase:
     """One case on robot r1, its ``b`` busy processes already running: ``k`` programs of
     ``work`` units at once, their times and the robot's CPU beside the model's."""
-    from ramps.testbed.experiments import wait_futures
+    from ramps.lab.experiments import wait_futures
 
     dirs = [Path(d) for d in tb.robots["r1"]["cgroup"]]
     cpu_dir, acct_dir = dirs[0], (dirs[1] if len(dirs) > 1 else None)

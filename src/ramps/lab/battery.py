@@ -67,7 +67,7 @@ def run_testbed_battery(*, robots: int = 3, cores: int = 2, quota: float = 0.25,
                         log: Callable[[str], None] | None = None) -> BatteryShed:
     """The experiment (module docstring) on a fresh testbed."""
     from ramps.programs.burn import burn
-    from ramps.testbed.experiments import identical_speed
+    from ramps.lab.experiments import identical_speed
 
     log = log or (lambda _m: None)
     if robots < 2 or programs < 1 or not 0 < drop_at < seconds:
@@ -91,7 +91,7 @@ def _run(files: Path, *, robots: int, cores: int, quota: float, programs: int, s
     """Long because it is the experiment's one timeline: the testbed up, the burst, the drop, the wait,
     the figures from the traces, all inside the testbed's ``with`` block."""
     from ramps.testbed import Testbed
-    from ramps.testbed.experiments import _keep, _log_dir, hosts_at, read_trace
+    from ramps.lab.experiments import _keep, _log_dir, hosts_at, read_trace
 
     names = [f"r{i}" for i in range(1, robots + 1)]
     for name in names:
@@ -145,7 +145,7 @@ def _run(files: Path, *, robots: int, cores: int, quota: float, programs: int, s
 def _shed_times(tb: Any, low: str, hosted: list[str], dropped: float) -> tuple[float | None, float | None]:
     """When ``low`` decided it was below its reserve after ``dropped``, and
     when r1 last had one of ``hosted`` accepted by another robot."""
-    from ramps.testbed.experiments import _log_dir, read_trace
+    from ramps.lab.experiments import _log_dir, read_trace
 
     shed = next((e.t for e in read_trace(_log_dir(tb) / f"{low}.trace.jsonl")
                  if e.what == "battery_low" and e.t >= dropped), None)

@@ -1,5 +1,9 @@
 """The paper's failure experiments on the testbed, and what its experiments share.
 
+The real-process twin of ``ramps.experiments.faults``; the other modules of
+``ramps.lab`` take their shared helpers from here (``SETTLE``,
+``identical_speed``, ``read_trace``, ``hosts_at``, ``_keep``).
+
 How this works: ``run_plan`` runs one ``ramps.experiments.faults.FaultPlan``
 (the same description the simulator runs) on real node processes: a fresh
 five-robot ``Testbed`` (``r1``..``r5`` stand for the paper's R1..R5), 15
@@ -20,7 +24,7 @@ off there (the origin's own record of where its programs run). Lost =
 programs whose future did not complete with the right checksum; duplicated =
 programs the origin delivered more than once.
 
-The randomized fault campaign on the same set-up is ``ramps.testbed.campaign``.
+The randomized fault campaign on the same set-up is ``ramps.lab.campaign``.
 
 Work sizing: the programs must still run at the last snapshot (as in the
 paper). ``work`` defaults to ``0.9 * gap`` units: with 0.4 host cores per

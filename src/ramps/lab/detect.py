@@ -7,8 +7,8 @@ every robot over the bridge, subscribes to the liveliness tokens
 DELETE; then it recovers the robot and times the token's PUT (rejoin). The
 lease that counts is the one the *faulty* node announces (``--lease-ms``).
 
-    python -m ramps.testbed.detect --robots 3 --trials 5            # node default lease
-    python -m ramps.testbed.detect --robots 3 --trials 5 --lease-ms 1000
+    python -m ramps.lab.detect --robots 3 --trials 5            # node default lease
+    python -m ramps.lab.detect --robots 3 --trials 5 --lease-ms 1000
 
 Measured here (2-core VM, cgroup v1, 3 robots at 0.667 host cores each,
 eclipse-zenoh 1.10, discovery multicast + seed; median [min-max] of 5):

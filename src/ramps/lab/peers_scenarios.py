@@ -27,7 +27,7 @@ from collections.abc import Sequence
 
 import msgspec
 
-#: seconds between one origin's submissions (as ``ramps.testbed.sweeps``)
+#: seconds between one origin's submissions (as ``ramps.lab.sweeps``)
 SPACING = 0.05
 #: busy processes of a busy robot (the testbed's background load)
 BUSY = 8
@@ -151,7 +151,7 @@ def ideal(sc: PeerScenario, *, cores: int, speed: float, work: float, worker_nic
     from ramps.experiments.metrics import Machine
     from ramps.experiments.optimum import anneal, improve
     from ramps.experiments.sweep import oracle_schedule
-    from ramps.testbed.sweeps import sim_scenario
+    from ramps.lab.sweeps import sim_scenario
 
     names = [r for r in sc.names if r not in without]
     weight = nice_weight(worker_nice)
@@ -173,9 +173,9 @@ def ideal(sc: PeerScenario, *, cores: int, speed: float, work: float, worker_nic
 
 
 def simulated(sc: PeerScenario, *, cores: int, speed: float, work: float) -> float | None:
-    """The simulator's ramps for the scenario (``ramps.testbed.sweeps.simulate_config``); None with a
+    """The simulator's ramps for the scenario (``ramps.lab.sweeps.simulate_config``); None with a
     crash, or with busy robots that are not the last ones (the sweeps' configurations)."""
-    from ramps.testbed.sweeps import simulate_config
+    from ramps.lab.sweeps import simulate_config
 
     last = sc.names[len(sc.names) - len(sc.loaded):] if sc.loaded else []
     if sc.crash_at is not None or sorted(sc.loaded) != sorted(last) or sc.origins != tuple(sc.names[:len(sc.origins)]):

@@ -1,7 +1,8 @@
 """Load that comes after placement, and relocation, on real processes: ``ramps testbed experiment relocation``.
 
-How this works: the same experiment as ``ramps sim relocation``, on a
-testbed of real ``ramps node`` processes. ``robots`` emulated robots of
+How this works: the same experiment as ``ramps sim relocation``
+(``ramps.experiments.late_load``), on a testbed of real ``ramps node``
+processes. ``robots`` emulated robots of
 ``cores`` cores (``quota`` host cores each); robot r1 submits ``programs``
 ``burn`` programs of ``seconds`` seconds each (alone on an emulated core),
 0.05 s apart; ``load_at`` seconds after the first, r1's own software starts
@@ -98,7 +99,7 @@ def simulate_variant(variant: str, *, robots: int, cores: int, programs: int, se
     for s in range(seeds):
         sc = scenario(variant, robots=robots, cores=cores, programs=programs, work=seconds, loaded="r1",
                       busy=busy, load_at=load_at, checkpoint_every=checkpoint_every, seed=1000 + s)
-        # the node's report period, as ramps.testbed.sweeps does
+        # the node's report period, as ramps.lab.sweeps does
         sc = msgspec.structs.replace(sc, publisher=PublisherSpec(period=1.0, window=1.0),
                                      robots=[msgspec.structs.replace(r, speed=speed) for r in sc.robots])
         res = simulate(sc)
@@ -119,7 +120,7 @@ def run_testbed_relocation(*, robots: int = 3, cores: int = 4, quota: float = 0.
     """Each variant on a fresh testbed and in the simulator (module docstring)."""
     from ramps.programs.burn import burn
     from ramps.testbed import Testbed
-    from ramps.testbed.experiments import _keep, identical_speed
+    from ramps.lab.experiments import _keep, identical_speed
 
     log = log or (lambda _m: None)
     _check(variants, robots=robots, programs=programs, load_at=load_at, seconds=seconds, busy=busy)

@@ -1,4 +1,4 @@
-"""What the two-site experiment reports (``ramps.testbed.sites.run_sites``), and how it is printed.
+"""What the two-site experiment reports (``ramps.lab.sites.run_sites``), and how it is printed.
 
 How this works: ``SitesReport`` holds one run: the time for the two sites to
 join, each layout's batches (``PlacementRun``, ``Batch``: where each kind of

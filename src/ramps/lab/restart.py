@@ -61,7 +61,7 @@ class RestartRun(msgspec.Struct, kw_only=True):
 def run_origin_restart(down: float, *, cut: float = 0.0, programs: int = 15, robots: int = 5, units: float = 1.5,
                        origin_hold: float | None = None, log: Callable[[str], None] | None = None) -> RestartRun:
     from ramps.testbed import Testbed
-    from ramps.testbed.experiments import read_trace
+    from ramps.lab.experiments import read_trace
 
     log = log or (lambda _m: None)
     names = [f"r{i}" for i in range(1, robots + 1)]
@@ -140,7 +140,7 @@ def run_rolling_restart(*, robots: int = 8, origins: int = 3, period: float = 0.
     import threading
 
     from ramps.testbed import Testbed
-    from ramps.testbed.experiments import read_trace
+    from ramps.lab.experiments import read_trace
 
     log = log or (lambda _m: None)
     names = [f"r{i}" for i in range(1, robots + 1)]

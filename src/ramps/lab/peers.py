@@ -13,7 +13,7 @@ first submission. Each engine runs the scenario on a fresh testbed of its own:
 * ``ramps`` and ``round-robin``: ``ramps node`` on every robot with its default
   settings (no ``--speed``: the nodes measure themselves, the user's path),
   the second with ``policy="round_robin"``; programs go through a ``Team``
-  client per origin, as in ``ramps.testbed.sweeps``.
+  client per origin, as in ``ramps.lab.sweeps``.
 * ``ray``: a Ray head on the first robot and a Ray node on every robot
   (``ray start --num-cpus <cores>``), each in its robot's namespace and cgroup,
   and a driver per origin inside that origin's robot.
@@ -22,7 +22,7 @@ first submission. Each engine runs the scenario on a fresh testbed of its own:
   inside its robot.
 
 Ray and Dask run on ``PeerBed``, a ``Testbed`` whose robots run that engine's
-node (``python -m ramps.testbed.peers_robot node ...``) instead of ``ramps
+node (``python -m ramps.lab.peers_robot node ...``) instead of ``ramps
 node``: the same namespaces, cgroups, caps, background load and crash. Their
 programs are ``peer_burn``: ``ramps.programs.burn`` plus a mark on the host's
 disk when it starts and ends (where it ran), so the crash picks a robot
@@ -49,16 +49,16 @@ processes at nice 0 gets a tenth of what one of them gets). The host's speed
 (a work unit's cost moves by 10-40% from minute to minute on a shared VM) is
 measured before every run, so ``ratio`` = makespan / ideal at that speed
 compares across days; ``sim`` is the simulator's ramps for the same
-configuration (``ramps.testbed.sweeps.simulate_config``; not for a crash).
+configuration (``ramps.lab.sweeps.simulate_config``; not for a crash).
 
-The busy robots get their load once the engine is up (as ``ramps.testbed.sweeps``
+The busy robots get their load once the engine is up (as ``ramps.lab.sweeps``
 does): the engines' start-up is not what is compared, and Ray did not come up
 beside a busy robot's load within 300 s.
 
 Where each part is: the scenarios, the records, the ideal and the report in
-``ramps.testbed.peers_scenarios``; the engines, on the host, in
-``ramps.testbed.peers_engines``; what runs inside a robot for Ray and Dask in
-``ramps.testbed.peers_robot``; here, the engines by name (``ENGINES``) and
+``ramps.lab.peers_scenarios``; the engines, on the host, in
+``ramps.lab.peers_engines``; what runs inside a robot for Ray and Dask in
+``ramps.lab.peers_robot``; here, the engines by name (``ENGINES``) and
 ``run_peers``, which runs every scenario through every engine.
 
 Rules: one engine's testbed at a time, taken down (every process of every
@@ -75,8 +75,8 @@ from collections.abc import Callable, Sequence
 
 import msgspec
 
-from ramps.testbed.peers_engines import ClusterEngine, Engine, RampsEngine
-from ramps.testbed.peers_scenarios import EngineRun, PeerScenario, PeersReport, ScenarioResult, Setup, ideal, simulated
+from ramps.lab.peers_engines import ClusterEngine, Engine, RampsEngine
+from ramps.lab.peers_scenarios import EngineRun, PeerScenario, PeersReport, ScenarioResult, Setup, ideal, simulated
 
 ENGINES: dict[str, Callable[[], Engine]] = {
     "ramps": lambda: RampsEngine("ramps"),
@@ -98,7 +98,7 @@ def run_peers(scenarios: Sequence[PeerScenario], engines: Sequence[str], setup: 
     more than engines differ on idle robots, so a comparison of wall times
     takes each engine's median over rounds run in turns
     (``peers_scenarios.medians``)."""
-    from ramps.testbed.experiments import identical_speed
+    from ramps.lab.experiments import identical_speed
 
     log = log or (lambda _m: None)
     started = time.monotonic()
