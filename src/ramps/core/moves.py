@@ -104,6 +104,10 @@ def move_failed(origin: MovingOrigin, ap: AutonomousProgram, now: float, out: li
             out.append(Note(what="unblacklisted", robot=msg.report.robot))
         if msg.permanent:
             ap.moves = origin.config.relocate_max_moves  # that host never will; nor try others
+        elif msg.reason == "late":
+            # the program did not move, and what the host protects ends by
+            # its deadlines: a later check may try again
+            ap.moves -= 1
         why = f"{host} refused: {msg.reason}"
     else:
         origin.host_failures += 1
