@@ -18,17 +18,19 @@ from corehelpers import CFG, NET, busy_origin_team, report, submit, view_of
 from ramps.testing import FakeTeam
 
 
-def test_a_loose_deadline_goes_to_the_slowest_host_in_time_with_room() -> None:
-    # best fit: b (50 s) meets 100 s with room and leaves a to tighter programs;
-    # 60 s leaves b no room (50 s * 1.5), so a (25 s) takes it, as with none
-    plain, loose, tighter = busy_origin_team(), busy_origin_team(), busy_origin_team()
+def test_a_loose_deadline_goes_to_the_slowest_host_in_time() -> None:
+    # best fit: b (50 s) meets 100 s and 60 s (no margin kept) and leaves a
+    # to tighter programs; b misses 40 s, so a (25 s) takes it, as with none
+    plain, loose, snug, tighter = busy_origin_team(), busy_origin_team(), busy_origin_team(), busy_origin_team()
     submit(plain)
     submit(loose, deadline=100.0)
-    submit(tighter, deadline=60.0)
+    submit(snug, deadline=60.0)
+    submit(tighter, deadline=40.0)
     [p] = plain.sent(OffloadRequest)
     [q] = loose.sent(OffloadRequest)
+    [s] = snug.sent(OffloadRequest)
     [r] = tighter.sent(OffloadRequest)
-    assert (p.host, q.host, r.host) == ("a", "b", "a")
+    assert (p.host, q.host, s.host, r.host) == ("a", "b", "b", "a")
     assert p.deadline_in is None
     assert q.deadline_in == pytest.approx(100.0)  # the host admits against it
     assert q.time_budget == pytest.approx(100.0, abs=0.1)  # what the deadline leaves

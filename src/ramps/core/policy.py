@@ -26,8 +26,8 @@ scheduler.
   program away if it is busier than the origin thought, which fixes the
   greedy "location thrashing" of several origins deciding on the same data.
   A program with a deadline (``PlacementRequest.deadline``) goes to the
-  slowest host expected to finish within it with a margin
-  (``DEADLINE_MARGIN``; best fit, which keeps the faster hosts for tighter
+  slowest host expected to finish within it (``DEADLINE_MARGIN``; best
+  fit, which keeps the faster hosts for tighter
   programs, then the ties as above), else to the cheapest host if it is in
   time; its budget is then what the deadline leaves. No deadline places as
   before. ``Placement.late`` says that no host is expected in time (the
@@ -71,9 +71,13 @@ REFINE = 16
 #: full scan (``RampsConfig.placement_sample``, ``RampsPolicy._priced``)
 SHORT_LIST_FOR = 1.0
 #: a program with a deadline goes to the slowest host expected to end it
-#: this much earlier than its deadline (a fraction of its expected time):
-#: room for programs that come later to the same host
-DEADLINE_MARGIN = 0.5
+#: this much earlier than its deadline (a fraction of its expected time);
+#: 0: the slowest host in time, which keeps the most of the faster hosts
+#: for tighter programs. A margin leaves room on the chosen host for
+#: programs that come later; with a perfect view of the present a 50%
+#: margin misses 9% more deadlines than none on the deadline family
+#: (docs/lab/2026-11-27-accelerators-deadlines-gap.md)
+DEADLINE_MARGIN = 0.0
 #: this robot, where a whole core is free for the program, ties with the
 #: best host when it ends the program within this fraction of that host's
 #: time (the ties are then broken as any: least utilised, less busy
