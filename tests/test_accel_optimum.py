@@ -73,6 +73,15 @@ def test_the_rule_with_a_perfect_view_is_never_better_than_the_optimum() -> None
         assert greedy(sc)[0] >= opt.bound - 1e-9
 
 
+def test_the_rule_by_declared_work_chooses_by_it_and_is_measured_by_the_true_work() -> None:
+    # one program: 1 s on g's slot (true), declared 16x that: 16 s, so by the
+    # declaration a's core (10 s) is sooner, and the true makespan is a's 10 s
+    sc = gpu_pair(count=1, accelerator_estimate=320.0)
+    assert greedy(sc) == (pytest.approx(1.0 + COMM), ["g:cuda"])
+    assert greedy(sc, declared=True) == (pytest.approx(10.0), ["a"])
+    assert greedy(gpu_pair(count=1), declared=True) == greedy(gpu_pair(count=1))  # nothing declared apart
+
+
 def test_the_generator_is_deterministic_and_covers_every_kind() -> None:
     assert generate(7, seed=3) == generate(7, seed=3)
     assert generate(7, seed=3) != generate(7, seed=4)

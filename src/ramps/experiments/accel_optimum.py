@@ -249,13 +249,18 @@ def optimum(sc: Scenario, *, time_limit: float = 5.0, choose_device: bool = Fals
                         seconds=solver.wall_time)
 
 
-def greedy(sc: Scenario, *, choose_device: bool = False) -> tuple[float, list[str]]:
+def greedy(sc: Scenario, *, choose_device: bool = False, declared: bool = False) -> tuple[float, list[str]]:
     """ramps' rule with a perfect, instant view of the team: each program in
     submission order to the pool where it would end first (processor sharing
     with the programs placed before it, all started at once, plus its
     communication), with its true work, a robot that fails left out; (the
-    model's makespan of that placement, the pools)."""
+    model's makespan of that placement, the pools). ``declared``: the rule
+    chooses by the accelerator work the programs declare
+    (``accelerator_estimate``), as an origin that knows only that does; the
+    makespan is still the true work's."""
     jobs, pools = jobs_of(sc), [p for p in pools_of(sc) if p.until is None]
+    if declared:
+        jobs = _declared_jobs(sc)
     net = NetworkEstimate(latency=sc.network.latency, bandwidth=sc.network.bandwidth)
     kinds = {r: frozenset(p.kind for p in pools if p.robot == r and p.kind) for r in {p.robot for p in pools}}
     on: list[list[float]] = [[] for _ in pools]
@@ -274,6 +279,14 @@ def greedy(sc: Scenario, *, choose_device: bool = False) -> tuple[float, list[st
         on[pick].append(alone(job, pools[pick]))
         hosts.append(_name(pools[pick]))
     return makespan_of(sc, hosts), hosts
+
+
+def _declared_jobs(sc: Scenario) -> list[Job]:
+    """``jobs_of(sc)`` with each program's declared accelerator work."""
+    return [Job(origin=p.origin, work=p.work, accelerator=p.accelerator,
+                accelerator_work=(p.accelerator_estimate or p.accelerator_work or p.work) if p.accelerator else 0.0,
+                cpu_fallback=p.cpu_fallback, payload=p.payload, result=p.result)
+            for p in sc.programs for _ in range(p.count)]
 
 
 def _end_of_new(mine: float, others: Sequence[float], slots: int) -> float:
