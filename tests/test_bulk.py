@@ -82,3 +82,27 @@ def test_a_failing_put_does_not_stop_the_queue():
     s.send("a", b"good" + b"x" * 20)
     wait_for(lambda: len(sent) == 1)
     assert sent[0].startswith(b"good")
+
+
+def test_a_queued_message_says_when_it_is_on_its_way_and_when_it_is_through():
+    link = SlowLink(seconds=0.2)
+    link.gate.clear()
+    s = OrderedSender(link.put, large=100)
+    said: list[tuple[str, bool, int]] = []
+    assert s.send("a", b"B" * 1000, lambda done: said.append(("big", done, len(link.sent)))) is True
+    assert s.send("a", b"small", lambda done: said.append(("small", done, len(link.sent)))) is True
+    assert said == [("big", False, 0), ("small", False, 0)]  # before any of it is out
+    link.gate.set()
+    wait_for(lambda: len(said) == 4)
+    assert said[2:] == [("big", True, 1), ("small", True, 2)]  # each once it is sent, in order
+
+
+def test_a_message_whose_put_fails_is_through_too():
+    said: list[bool] = []
+
+    def put(key: str, data: bytes, block: bool) -> None:
+        raise RuntimeError("link closed")
+
+    s = OrderedSender(put, large=10)
+    assert s.send("a", b"x" * 100, said.append) is True
+    wait_for(lambda: said == [False, True])

@@ -13,6 +13,7 @@ from ramps.core.events import (
     Cancel,
     Deliver,
     Note,
+    OfferSending,
     PeerAlive,
     PeerLost,
     ProgramFinished,
@@ -340,6 +341,43 @@ def test_the_paper_policy_writes_off_a_silent_host_even_if_it_publishes() -> Non
         team.publish("a", "b")
         team.deliver(hold=no_beats)
     assert not team.notes("suspected") and team.notes("blacklisted")
+
+
+def test_an_offer_still_being_sent_whole_is_not_timed_out_until_its_last_byte_is_out() -> None:
+    """A large offer goes out on a thread of its own (``OfferSending``): the
+    host cannot accept it before it is through, however stale the origin's
+    estimate of the link, so the connect timeout counts from then."""
+    team = busy_origin_team()
+    submit(team)
+    team.deliver(hold=lambda s, to, m: isinstance(m, OffloadRequest))
+    [placed] = team.notes("placed")
+    team.handle("o", OfferSending(program_id="p", attempt=1))
+    team.advance(3 * CFG.connect_timeout)  # a slow link: still sending
+    assert not team.notes("failed")
+    assert team.program("p").state is ProgramState.OFFERED
+    sent_at = team.now
+    team.handle("o", OfferSending(program_id="p", attempt=1, done=True))
+    team.advance(sent_at + CFG.connect_timeout - 0.01)
+    assert not team.notes("failed")  # the host has connect_timeout from the last byte
+    team.advance(sent_at + CFG.connect_timeout + 0.01)
+    [failed] = team.notes("failed")
+    assert (failed.robot, failed.detail) == (placed.robot, "connect_timeout")
+    # the attempt's word from an earlier one changes nothing (an old attempt's thread)
+    team.handle("o", OfferSending(program_id="p", attempt=1, done=True))
+    assert team.program("p").sending == 0
+
+
+def test_an_offer_sent_whole_and_accepted_runs_as_any_other() -> None:
+    team = busy_origin_team()
+    submit(team)
+    team.deliver(hold=lambda s, to, m: isinstance(m, OffloadRequest))
+    team.handle("o", OfferSending(program_id="p", attempt=1))
+    team.advance(2 * CFG.connect_timeout)
+    team.handle("o", OfferSending(program_id="p", attempt=1, done=True))
+    team.release()  # the offer arrives now
+    assert team.program("p").state is ProgramState.RUNNING
+    team.advance(team.now + 3 * CFG.connect_timeout)
+    assert not team.notes("failed")
 
 
 def _in_backoff_after_connect_timeout() -> Team:

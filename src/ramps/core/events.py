@@ -129,6 +129,18 @@ class ApplicationHere(_Rec, frozen=True, kw_only=True):
     this robot is an origin from now on, before its first ``Submit``."""
 
 
+class OfferSending(_Rec, frozen=True, kw_only=True):
+    """The driver sends this attempt's offer whole, on a thread of its own
+    (a large one: ``ramps.runtime.bulk``), or is through with it (``done``:
+    sent, failed or dropped). Its host cannot accept it before it is
+    through, however slow the link: the connect timeout waits
+    (``ramps.core.silence``)."""
+
+    program_id: str
+    attempt: int
+    done: bool = False
+
+
 class Received(_Rec, frozen=True, kw_only=True):
     """A wire message from a teammate."""
 
@@ -137,7 +149,7 @@ class Received(_Rec, frozen=True, kw_only=True):
 
 
 Event = (Submit | Cancel | ProgramFinished | ProgressReported | CheckpointSaved | PeerLost | PeerAlive | Received
-         | Stalled | SpeedMeasured | BatteryMeasured | ApplicationHere)
+         | Stalled | SpeedMeasured | BatteryMeasured | ApplicationHere | OfferSending)
 
 
 # ---------------------------------------------------------------- actions out

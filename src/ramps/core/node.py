@@ -42,6 +42,7 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
+from ramps.core import silence
 from ramps.core.accelerators import Accelerator
 from ramps.core.battery import BatteryMeasured, Reserve, sane_power
 from ramps.core.claims import Claims
@@ -54,6 +55,7 @@ from ramps.core.events import (
     CheckpointSaved,
     Event,
     Note,
+    OfferSending,
     PeerAlive,
     PeerLost,
     ProgramFinished,
@@ -306,6 +308,8 @@ class Node:
                             f"silence counts once their links are back (at most {self.origin.relink.timeout} s)"))
         elif isinstance(event, BatteryMeasured):
             self._battery(event, now, out)
+        elif isinstance(event, OfferSending):
+            silence.sending(self.origin, event.program_id, event.attempt, event.done, now)
         else:
             raise TypeError(f"not a ramps event: {event!r}")
 

@@ -205,7 +205,7 @@ class AutonomousProgram:
         "last_heard", "rejections", "excluded", "submitted_at", "failures", "written_off",
         "made", "moves", "moving_from", "accepted_at", "done", "done_at", "work", "checkpoint",
         "checkpoint_fraction", "resumed_from", "move_wanted_since", "ran_on", "placed_at", "stall_base",
-        "deaths", "accelerator", "settled",
+        "deaths", "accelerator", "settled", "sending",
     )
 
     def __init__(self, submit: Submit, now: float) -> None:
@@ -257,6 +257,9 @@ class AutonomousProgram:
         #: run at most, stalls of the origin's own clock included
         self.placed_at = now
         self.stall_base = 0.0
+        #: the attempt whose offer the driver is still sending whole (0: none): its host
+        #: cannot accept before it is through (``ramps.core.silence``)
+        self.sending = 0
         #: attempts whose worker the program killed by itself (``ProgramResult.worker_died``):
         #: (attempt, host, how it ended); enough of them make it a poison pill
         self.deaths: list[tuple[int, str, str]] = []

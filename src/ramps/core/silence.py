@@ -10,7 +10,11 @@ only from the wake plus the stall's length (at most a heartbeat timeout),
 so a stall of the origin's never writes off a healthy host (issue 23).
 After a stall that may have closed links, ``ramps.core.relink`` says which
 hosts' links are not back: their timeouts wait for the link, and once it is
-back (``relinked``) count from that moment. ``held_off`` sets a due timeout
+back (``relinked``) count from that moment. An offer the driver sends
+whole on a thread of its own (a large one, ``sending``) cannot be accepted
+before its last byte is out, however slow the link and however stale the
+origin's estimate of it: its connect timeout waits until the driver is
+through with it, and counts from then. ``held_off`` sets a due timeout
 again for later when any of this says it is too early.
 
 Fleets: an origin with programs on more than ``placement_sample`` hosts sets
@@ -61,11 +65,31 @@ def stalled(origin: SilentOrigin, seconds: float, now: float, *, links: bool) ->
     origin.wake_grace = 0.0 if links else min(seconds, origin.config.heartbeat_timeout)
 
 
+def sending(origin: SilentOrigin, program_id: str, attempt: int, done: bool, now: float) -> None:
+    """The driver sends ``program_id``'s offer of ``attempt`` whole
+    (``done`` False), or is through with it (True): from then, its host has
+    ``connect_timeout`` to accept it."""
+    ap = origin.programs.get(program_id)
+    if ap is None:
+        return
+    if not done:
+        ap.sending = attempt
+        return
+    if ap.sending != attempt:
+        return
+    ap.sending = 0
+    if ap.attempt == attempt and ap.timer == E.CONNECT_TIMEOUT and ap.deadline is not None:
+        origin.timers.set(ap, max(ap.deadline, now + origin.config.connect_timeout), ap.timer)
+
+
 def held_off(origin: SilentOrigin, ap: AutonomousProgram, kind: Event, now: float) -> bool:
     """Whether ``ap``'s due timer ``kind`` waits on (set again for later): its
     host's link is not back since this robot's stall, or the silence counts
     from this robot's wake and has not lasted long enough."""
     config, timers = origin.config, origin.timers
+    if kind == E.CONNECT_TIMEOUT and ap.sending and ap.sending == ap.attempt:
+        timers.set(ap, now + config.connect_timeout, kind)  # its offer is still on its way out
+        return True
     if origin.relink.waiting(ap.host, now) and kind in (E.HEARTBEAT_TIMEOUT, E.CONNECT_TIMEOUT):
         timers.set(ap, origin.relink.until, kind)  # its link is not back since this robot stalled
         return True

@@ -18,7 +18,11 @@ teammate that follow it while it is on its way queue behind it and keep
 their order; messages to other teammates, and every small message to a
 teammate with nothing queued, are published at once by the driver with
 DROP. A destination holds at most ``MAX_QUEUED`` bytes: beyond that a
-message is dropped (as DROP would drop it), and logged.
+message is dropped (as DROP would drop it), and logged. A message may come
+with ``on_way``: called with False when it is queued (before its thread can
+be through with it) and with True once its thread is (sent or failed), so
+the core's connect timeout of an offer counts from its last byte out
+(``ramps.core.silence``).
 """
 
 from __future__ import annotations
@@ -37,6 +41,8 @@ MAX_QUEUED = 64 * 1024 * 1024
 
 #: put(key, data, block): publish, blocking for room when ``block``
 Put = Callable[[str, bytes, bool], None]
+#: on_way(done): a queued message's sending began (False) or is over (True)
+OnWay = Callable[[bool], None]
 
 
 class OrderedSender:
@@ -49,14 +55,15 @@ class OrderedSender:
         self._name = name
         self._lock = threading.Lock()
         #: key -> messages waiting, and their bytes; a key is here while its thread runs
-        self._queues: dict[str, deque[bytes]] = {}
+        self._queues: dict[str, deque[tuple[bytes, OnWay | None]]] = {}
         self._bytes: dict[str, int] = {}
         self.sent_whole = 0
         self.dropped = 0
 
-    def send(self, key: str, data: bytes) -> bool:
+    def send(self, key: str, data: bytes, on_way: OnWay | None = None) -> bool:
         """Queue ``data`` for ``key`` if it is large or follows a large one
-        still on its way; False: nothing queued, the caller publishes it now."""
+        still on its way (``on_way(False)`` then, and ``on_way(True)`` once
+        it is sent or failed); False: nothing queued, the caller publishes it now."""
         with self._lock:
             q = self._queues.get(key)
             if q is None:
@@ -71,7 +78,9 @@ class OrderedSender:
                 log.warning("node %s: %d bytes for %s dropped: %d bytes already wait for that link", self._name,
                             len(data), key, self._bytes[key])
                 return True
-            q.append(data)
+            if on_way is not None:  # under the lock: before its thread can be through with it
+                on_way(False)
+            q.append((data, on_way))
             self._bytes[key] += len(data)
             return True
 
@@ -87,13 +96,15 @@ class OrderedSender:
                 if not q:
                     del self._queues[key], self._bytes[key]
                     return
-                data = q[0]
+                data, on_way = q[0]
             try:
                 self._put(key, data, len(data) > self.large)
                 if len(data) > self.large:
                     self.sent_whole += 1
             except Exception as exc:  # a closed session or link: the core resends what matters
                 log.warning("node %s could not send %d bytes on %s: %s", self._name, len(data), key, exc)
+            if on_way is not None:
+                on_way(True)
             with self._lock:
                 q.popleft()
                 self._bytes[key] -= len(data)

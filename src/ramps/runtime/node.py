@@ -184,7 +184,7 @@ class NodeRuntime:
                           trace=self.trace, intake=self.intake, membership=self.membership, revoked=self.revoked,
                           same_name=self.same_name)
         self.outbound = Outbound(self, parts, clients=self.clients, reports=self.reports, on_note=on_note,
-                                 stop=lambda: self._q.put(("stop", threading.Event())))
+                                 stop=lambda: self._q.put(("stop", threading.Event())), put=self._q.put)
         #: called on the driver thread after every round of its loop (systemd's watchdog, ramps.runtime.service)
         self.on_turn: Callable[[], None] | None = None
 

@@ -9,7 +9,8 @@ its record and metrics, its transport). ``apply`` turns each action of the
 core into its effect: ``Send`` is published to the teammate's inbox
 (``Outbox``: DROP under congestion, the core survives lost messages; a
 message over 60 KB waits for room instead, on a thread of its own
-destination), ``StartProgram`` and ``StopProgram`` go to the worker pool
+destination, and an offer sent so tells the core when it is on its way and
+when it is through: ``OfferSending``), ``StartProgram`` and ``StopProgram`` go to the worker pool
 (or an accelerator's slot), ``Deliver`` becomes the client's outcome
 (``ClientAnswers``), ``Note`` a client update, a trace line and a log
 line, ``NameTaken`` (another node under this robot's name, ``SameName``)
@@ -28,7 +29,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from ramps.core.events import (
     Action,
@@ -36,13 +37,14 @@ from ramps.core.events import (
     Deliver,
     NameTaken,
     Note,
+    OfferSending,
     Progress,
     PublishReport,
     Send,
     StartProgram,
     StopProgram,
 )
-from ramps.core.messages import encode
+from ramps.core.messages import OffloadRequest, encode
 from ramps.core.speed import MIN_RUN_WORK
 from ramps.runtime import keys, revocation
 
@@ -83,7 +85,8 @@ class Outbound:
     the core's actions applied to its parts and to the world."""
 
     def __init__(self, driver: OutboundDriver, parts: NodeParts, *, clients: ClientAnswers, reports: LoadReports,
-                 on_note: Callable[[Note], None] | None, stop: Callable[[], None]) -> None:
+                 on_note: Callable[[Note], None] | None, stop: Callable[[], None],
+                 put: Callable[[tuple[Any, ...]], None]) -> None:
         self.d = driver
         self.robot, self.team, self.clock, self.awake = parts.robot, parts.team, parts.clock, parts.awake
         self.outbox, self.trace, self.intake = parts.outbox, parts.trace, parts.intake
@@ -92,6 +95,8 @@ class Outbound:
         self.on_note = on_note
         #: asks the driver to stop (this node leaves: another under its name started first)
         self._stop = stop
+        #: queues an item for the driver (from another thread)
+        self._put = put
         #: programs whose calls were found far from their declaration, said once each
         self.misdeclared_warned: set[str] = set()
 
@@ -108,7 +113,8 @@ class Outbound:
             if self.trace.on and isinstance(a, (StartProgram, StopProgram, Send)):
                 self.trace.hosted(a, closing=d.node is not None and d.node.executor.closing)
             if isinstance(a, Send):
-                self.outbox.send(keys.inbox(self.team, a.to), encode(self.robot, a.msg))
+                self.outbox.send(keys.inbox(self.team, a.to), encode(self.robot, a.msg),
+                                 self._on_way(a.msg) if isinstance(a.msg, OffloadRequest) else None)
                 if self.trace.wire:
                     self.trace.write("tx", getattr(a.msg, "program_id", ""), a.to, getattr(a.msg, "attempt", 0),
                                      type(a.msg).__name__)
@@ -135,6 +141,13 @@ class Outbound:
                 self._note(a)
         if prompt is not None:  # held a moment: the changes that follow it go with it
             self.reports.hold(prompt)
+
+    def _on_way(self, offer: OffloadRequest) -> Callable[[bool], None]:
+        """What tells the core that ``offer``, sent whole on its destination's
+        thread, is on its way or through (``OfferSending``; on that thread)."""
+        def on_way(done: bool) -> None:
+            self._put(("progress", OfferSending(program_id=offer.program_id, attempt=offer.attempt, done=done)))
+        return on_way
 
     def _note(self, a: Note) -> None:
         """A note of the core: a client's update, a trace line, a log line, ``on_note``."""

@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 from typing import Callable
 
-from ramps.runtime.bulk import OrderedSender
+from ramps.runtime.bulk import OnWay, OrderedSender
 from ramps.runtime.transport import Publisher, Transport
 
 log = logging.getLogger("ramps.node")
@@ -40,9 +40,10 @@ class Outbox:
     def connected(self) -> bool:
         return self._transport() is not None
 
-    def send(self, key: str, data: bytes) -> None:
-        """A message to a teammate: at once, or by its destination's thread if large (or behind a large one)."""
-        if not self._bulk.send(key, data):
+    def send(self, key: str, data: bytes, on_way: OnWay | None = None) -> None:
+        """A message to a teammate: at once, or by its destination's thread if
+        large (or behind a large one; ``on_way``: see ``OrderedSender.send``)."""
+        if not self._bulk.send(key, data, on_way):
             self.put(key, data)
 
     def put(self, key: str, data: bytes, *, block: bool = False) -> None:
