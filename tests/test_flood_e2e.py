@@ -4,7 +4,8 @@ Two ``ramps node`` processes on loopback (``runtime_team.LocalTeam``: explicit
 endpoints, multicast off). While robot r1's client submits legitimate
 programs (``burn`` and ``echo``, through ``ramps.connect``), a separate Zenoh
 session sends 5,000 malformed messages within about 5 s to r1's inbox and
-to the team's load key expression (which both nodes hear): garbage,
+to the team's load keys (r1 hears periodic reports' and those of the
+instant, r2, which places nothing, those of the instant): garbage,
 truncated and bit-flipped messages, other protocol versions, the wrong
 shape, fields out of their limits, pickles, deep nesting and payloads of
 1-9 MB. The flooder blocks rather than drops when Zenoh's queues are full, so

@@ -33,7 +33,7 @@ NSCLIENT = str(Path(__file__).with_name("nsclient.py"))
 def trace(tb, robot: str = "r1") -> list[dict]:
     import msgspec
 
-    from ramps.testbed.experiments import read_trace
+    from ramps.lab.experiments import read_trace
 
     return [msgspec.structs.asdict(e) for e in read_trace(tb.log_dir / f"{robot}.trace.jsonl")]
 
@@ -114,8 +114,8 @@ def test_written_off_host_that_reappears_has_its_result_discarded_and_rejoins():
 
 @serial
 def test_teammates_keep_hearing_each_other_when_one_drops_off(monkeypatch):
-    """When r4's link is cut while it runs programs of r1, r1-r3 go on hearing
-    each other's load reports (one a second) all through the time Zenoh gives
+    """When r4's link is cut while it runs programs of r1, r1-r3 (each with an
+    application connected) go on hearing each other's load reports (one a second) all through the time Zenoh gives
     r4 up and closes its links. With Zenoh's default 2 receive threads, each
     blocked for 10 s in the close of a link to r4 (SO_LINGER), r1 heard
     nobody for 10 s and wrote healthy r2 and r3 off."""
@@ -123,7 +123,9 @@ def test_teammates_keep_hearing_each_other_when_one_drops_off(monkeypatch):
 
     monkeypatch.setenv("RAMPS_TRACE_WIRE", "1")  # nodes trace every message received
     window = 9.0
-    with Testbed(4, cores=1) as tb, tb.client("r1", timeout=30.0) as team:
+    # an application on each of r1-r3: robots that place programs hear every teammate's periodic reports
+    with Testbed(4, cores=1) as tb, tb.client("r1", timeout=30.0) as team, tb.client("r2", timeout=30.0), \
+            tb.client("r3", timeout=30.0):
         # two programs a robot, each still running on r4 when its link is cut
         # (1 unit: about 3.5 s alone on an emulated core of 0.5 host cores)
         futures = [team.options(work=1.0).submit("burn", units=1.0) for _ in range(8)]
@@ -171,7 +173,7 @@ def test_lossy_link_still_delivers_every_program_once():
 def test_failure_experiment_plan_on_the_testbed():
     """One simultaneous crash plan of the paper's experiment, time-compressed."""
     from ramps.experiments.faults import plans
-    from ramps.testbed.experiments import run_plan
+    from ramps.lab.experiments import run_plan
 
     # R5 cut and R4 crashed together 3 s in; programs of about 6 s here (0.35 units
     # on an emulated core of 0.1 host cores) still run on the survivors at the
@@ -191,7 +193,7 @@ def test_failure_experiment_plan_on_the_testbed():
 # not serial: every program delivered once and every robot back in the team, waited for with
 # room to spare (a write-off that a busy host causes is one more fault the run survives); nothing timed
 def test_testbed_campaign_one_run():
-    from ramps.testbed.campaign import run_campaign
+    from ramps.lab.campaign import run_campaign
 
     rep = run_campaign(1, seed=3, robots=3, duration=12.0)
     assert rep.runs == 1 and rep.lost == 0 and rep.duplicated == 0 and rep.not_rejoined == 0, rep.failed_runs
@@ -204,7 +206,7 @@ def test_testbed_stress_campaign_one_run():
     node killed alone, the origin r2 stalled, 4 busy processes on r3: nothing
     lost or duplicated, no restart that a fault does not explain, no orphan,
     nothing left running."""
-    from ramps.testbed.campaign import run_campaign
+    from ramps.lab.campaign import run_campaign
 
     rep = run_campaign(1, seed=0, only_seed=221, robots=3, duration=12.0, stress=True)
     run = rep.all_runs[0]

@@ -22,7 +22,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.serial,  # busy processes and a shap
 
 def test_a_5_mb_offer_over_a_1_mb_s_link_is_accepted_at_the_first_attempt():
     from ramps.testbed import Testbed
-    from ramps.testbed.experiments import identical_speed
+    from ramps.lab.experiments import identical_speed
     from ramps.testbed.slowlink import TARGET, slow_link
 
     before = others_leftovers()

@@ -127,7 +127,7 @@ def test_a_node_counts_refused_versions_and_unknown_types_apart_and_logs_each_on
     other = team.bus.transport("r9")
     caplog.set_level(logging.WARNING, logger="ramps.node")
     for _ in range(3):
-        other.put(keys.load(team.team, "r9"), raw(v=2, sender="r9", msg={"type": "load", "robot": "r9"}))
+        other.put(keys.load_now(team.team, "r9"), raw(v=2, sender="r9", msg={"type": "load", "robot": "r9"}))
         other.put(keys.inbox(team.team, "r1"), raw(sender="r9", msg={"type": "gossip"}))
     other.put(keys.inbox(team.team, "r1"), b"garbage")
     team.run(2.0)

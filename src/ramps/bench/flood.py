@@ -3,8 +3,9 @@
 How this works: a real team on loopback (two ``ramps node`` processes, r1
 and r2) runs legitimate programs submitted to r1 (``burn`` and ``echo``,
 spread over the flood) while a separate Zenoh session floods r1's inbox
-(``ramps/<team>/msg/r1``) and the team's load key expression (which every
-node hears) with malformed messages: random bytes, truncated and
+(``ramps/<team>/msg/r1``) and the team's load keys (periodic reports'
+keys, which the nodes that place programs hear, and the reports of the
+instant's, which every node hears) with malformed messages: random bytes, truncated and
 bit-flipped valid messages, other protocol versions, the wrong shape, fields
 out of their limits, pickles, deep nesting, and payloads of 1-9 MB (some
 over the 8 MiB message limit). Every message in the pool is checked here to
@@ -176,7 +177,8 @@ def flood_team(*, team: str, endpoints: list[str], target: str, pids: dict[str, 
     origin is ``target``) runs ``programs`` legitimate programs; return the figures.
 
     ``pids``: robot -> node pid, for resident memory. ``load_share`` of the
-    flood goes to the load key expression (every node hears it), the rest to
+    flood goes to the load keys (half to periodic reports', which the target
+    hears, half to those of the instant, which every node hears), the rest to
     the target's inbox; ``big_share`` of it is 1-9 MB. ``block``: the
     flooder waits when Zenoh's queues are full instead of dropping (so every
     message reaches the nodes, at whatever rate they take them)."""
@@ -195,7 +197,7 @@ def flood_team(*, team: str, endpoints: list[str], target: str, pids: dict[str, 
             rss_before, private_before = _memory(pids)
             say(f"flooding {target}: {messages} messages in {seconds:g} s while {programs} programs run ...")
             futures: list = []
-            sent = {"inbox": 0, "load": 0, "big": 0, "bytes": 0, "errors": 0}
+            sent = {"inbox": 0, "load": 0, "now": 0, "big": 0, "bytes": 0, "errors": 0}
             gap = seconds / max(1, programs)
 
             def submit_all() -> None:
@@ -226,11 +228,13 @@ def flood_team(*, team: str, endpoints: list[str], target: str, pids: dict[str, 
             watcher.close()
     return {
         "benchmark": "flood", "target": target, "blocking_sender": block, "robots": robots,
-        "messages_sent": sent["inbox"] + sent["load"],
-        "to_inbox": sent["inbox"], "to_load_key": sent["load"], "big_messages": sent["big"],
+        "messages_sent": sent["inbox"] + sent["load"] + sent["now"],
+        "to_inbox": sent["inbox"], "to_load_key": sent["load"] + sent["now"], "big_messages": sent["big"],
         "bytes_sent": sent["bytes"], "send_errors": sent["errors"], "flood_seconds": flood_seconds,
-        "send_rate_per_s": (sent["inbox"] + sent["load"]) / flood_seconds if flood_seconds else 0.0,
-        "expected_at_target": sent["inbox"] + sent["load"], "expected_at_others": sent["load"],
+        "send_rate_per_s": (sent["inbox"] + sent["load"] + sent["now"]) / flood_seconds if flood_seconds else 0.0,
+        # periodic reports' keys reach the nodes that place programs (the target: its client submits
+        # there), reports of the instant every node
+        "expected_at_target": sent["inbox"] + sent["load"] + sent["now"], "expected_at_others": sent["now"],
         "dropped_counted": counted, "bad_messages_total": after,
         "programs": len(calls), "programs_ok": ok, "programs_wrong": wrong, "programs_failed": failed,
         "program_hosts": hosts, "programs_seconds": programs_seconds, "failures": failures[:10],
@@ -277,9 +281,11 @@ def _send_flood(session: Any, team: str, target: str, inbox: str, sent: dict[str
         else:
             data = small[i % len(small)]
         try:
-            if rng.random() < load_share:
-                session.put(f"ramps/{team}/load/{rng.choice([target, 'r9', 'x'])}", data, congestion_control=cc)
-                sent["load"] += 1
+            if rng.random() < load_share:  # a periodic report's key or one of the instant's
+                kind = rng.choice(("load", "now"))
+                key = f"ramps/{team}/load/{rng.choice([target, 'r9', 'x'])}"
+                session.put(key + "/now" if kind == "now" else key, data, congestion_control=cc)
+                sent[kind] += 1
             else:
                 pub_inbox.put(data)
                 sent["inbox"] += 1

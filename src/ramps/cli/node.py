@@ -332,8 +332,9 @@ def status(
 
     Each row is what that robot last published. "sees" is how many teammates
     the robot itself could place a program on (fresh report, not written
-    off): a robot that sees fewer than the rest is cut off from part of the
-    team, even when this command sees everyone."""
+    off; on a robot no application submits to, the teammates it holds
+    alive): a robot that sees fewer than the rest is cut off from part of
+    the team, even when this command sees everyone."""
 
     from rich.table import Table
 

@@ -114,8 +114,10 @@ class LoadReport(_Msg, frozen=True, kw_only=True, tag="load"):
     #: an origin knows what share a program gets next to a busy robot's work
     program_weight: Weight = 1.0
     #: teammates this robot could place a program on when it reported (a
-    #: fresh report, neither blacklisted nor lost), so ``ramps status`` shows
-    #: a robot that does not see the whole team; None where not counted
+    #: fresh report, neither blacklisted nor lost; on a robot that places
+    #: nothing, and so hears no periodic reports, those whose liveliness it
+    #: holds), so ``ramps status`` shows a robot that does not see the whole
+    #: team; None where not counted
     sees: Count | None = None
     #: the programs running here (at most MAX_LISTED), with their progress,
     #: for ``ramps status`` and the ROS face's diagnostics

@@ -3,7 +3,11 @@
 Everything a team says lives under ``ramps/<team>/``, so teams on one network
 never hear each other:
 
-    ramps/<team>/load/<robot>      load reports (pub/sub, every period)
+    ramps/<team>/load/<robot>      load reports (pub/sub, every period; heard by
+                                   the robots that place programs, applications
+                                   and the robot's own name), and a queryable
+                                   answering with the robot's newest report
+                                   (an origin's first views of its teammates)
     ramps/<team>/load/<robot>/now  reports of the instant (its programs changed),
                                    for its teammates' nodes only
     ramps/<team>/msg/<robot>       protocol messages addressed to a robot

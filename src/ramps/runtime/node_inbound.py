@@ -17,6 +17,11 @@ the teammate's lease on this frozen node that ran out). On a secured team,
 a newer revocation list signed by the team CA (``Revoked``) shuts the
 robots it names out (or makes this robot leave). A node that has heard no
 teammate ``LONELY_AFTER`` seconds after it started says so (``lonely``).
+A robot that comes to place programs (an application connected, or a
+first program) hears every teammate's periodic reports from then on
+(``Membership.widen``); its clients' requests wait (``held``) until its
+teammates' newest reports are in (``("views",)``), so its first placement
+sees the team.
 """
 
 from __future__ import annotations
@@ -57,6 +62,7 @@ if TYPE_CHECKING:
     from ramps.runtime.node_clients import ClientAnswers
     from ramps.runtime.node_intake import WireIntake
     from ramps.runtime.node_revoked import Revoked
+    from ramps.runtime.node_team import Membership
     from ramps.runtime.node_trace import NodeTrace
     from ramps.runtime.settings import NodeSettings
     from ramps.runtime.transport import Transport
@@ -79,6 +85,7 @@ class InboundDriver(Protocol):
     transport: Transport | None
     accel: AcceleratorProbe
     metrics: NodeMetrics | None
+    membership: Membership
 
     def endpoints(self) -> list[str]: ...
 
@@ -99,6 +106,8 @@ class Inbound:
         #: monotonic time (None: looked, or no need), and the warning it gave ("" = none)
         self.lonely_at: float | None = None
         self.lonely = ""
+        #: clients' requests that wait for this origin's first views of its teammates
+        self.held: list[SubmitProgram | CancelSubmitted] = []
 
     # the worker pool's callbacks (on its threads): each only queues an item for the driver
     def finished(self, key: Key, ok: bool, value: bytes, error: str, retryable: bool, cpu_s: float | None = None,
@@ -133,6 +142,10 @@ class Inbound:
         host) and its executor (the teammate as an origin: one gone for good
         has its programs here stopped, see ``Executor.on_origin_lost``)."""
         assert self.d.node is not None
+        if alive:
+            self.d.membership.alive.add(robot)
+        else:
+            self.d.membership.alive.discard(robot)
         return self.d.node.handle(PeerAlive(robot=robot) if alive else PeerLost(robot=robot), now)
 
     def _on_revocations(self, data: bytes, now: float) -> list[Action]:
@@ -157,6 +170,7 @@ class Inbound:
                 continue
             log.warning("node %s: robot %s is revoked by the team (list %d): shut out", self.robot, robot, rl.seq)
             self.held_lost.forget(robot)
+            self.d.membership.alive.discard(robot)
             assert self.d.node is not None
             self.d.node.executor.stop_origin(robot, now, out)
             out.extend(self.d.node.handle(PeerLost(robot=robot), now))
@@ -175,6 +189,9 @@ class Inbound:
         time ``now``: what the core is to do about it."""
         kind = item[0]
         node = self.d.node
+        m = self.d.membership
+        if not m.wide and node is not None and node.submits:  # e.g. programs resumed from its durable record
+            m.widen(self.d.transport)
         if kind == "wire":  # a message the wire refuses needs no core to be dropped and counted
             env = self.intake.decode(item[1], now)
             if env is None:
@@ -186,13 +203,12 @@ class Inbound:
             if self.trace.wire:
                 self.trace.write("rx", getattr(msg, "program_id", ""), env.sender, getattr(msg, "attempt", 0),
                                   f"{type(msg).__name__} queued {now - item[2]:.3f} s", at=item[2])
-            if isinstance(msg, SubmitProgram):
-                return self.clients.submit(msg, now)
-            if isinstance(msg, CancelSubmitted):
-                pid = self.clients.requests.get((msg.client, msg.request_id))
-                if pid is None or node.origin.programs[pid].state in ("done", "failed"):
+            if isinstance(msg, (SubmitProgram, CancelSubmitted)):
+                if not m.ready:  # placed once its teammates' newest reports are in
+                    m.widen(self.d.transport)
+                    self.held.append(msg)
                     return []
-                return node.handle(Cancel(program_id=pid), now)
+                return self._request(msg, now)
             if isinstance(msg, (ProgramOutcome, ProgramUpdate)):
                 return []
             if isinstance(msg, LoadReport) and msg.robot != env.sender:
@@ -220,13 +236,35 @@ class Inbound:
                 self.trace.write("peer_alive" if alive else "peer_lost", "", robot, 0, "liveliness")
             return self.on_liveliness(robot, alive, now)
         if kind == "app":  # an application connected to submit here (its token came)
+            if item[1]:
+                m.widen(self.d.transport)
             return node.handle(ApplicationHere(), now) if item[1] else []
+        if kind == "views":  # the query for the teammates' newest reports is over: what waited goes
+            if m.ready:
+                return []
+            m.ready = True
+            log.info("node %s: %d newest load reports fetched (its own among them); %d requests waited for them",
+                     self.robot, m.fetched, len(self.held))
+            self.trace.write("views", "", "", 0, f"{m.fetched} reports fetched")
+            waiting, self.held = self.held, []
+            return [a for msg in waiting for a in self._request(msg, now)]
         if kind == "call":
             item[1]()
             return []
         if kind == "revoked":
             return self._on_revocations(item[1], now)
         raise ValueError(f"unknown queue item {kind!r}")
+
+    def _request(self, msg: SubmitProgram | CancelSubmitted, now: float) -> list[Action]:
+        """A client's submission or cancellation, to the part it is for."""
+        if isinstance(msg, SubmitProgram):
+            return self.clients.submit(msg, now)
+        node = self.d.node
+        assert node is not None
+        pid = self.clients.requests.get((msg.client, msg.request_id))
+        if pid is None or node.origin.programs[pid].state in ("done", "failed"):
+            return []
+        return node.handle(Cancel(program_id=pid), now)
 
     def look_lonely(self, t: float) -> None:
         """At the clock's monotonic time ``t``, once past ``lonely_at``
@@ -237,7 +275,7 @@ class Inbound:
             return
         self.lonely_at = None
         assert self.d.node is not None
-        if any(r != self.robot for r in self.d.node.view.robots()):
+        if self.d.membership.alive or any(r != self.robot for r in self.d.node.view.robots()):
             return
         s = self.s
         tried = []

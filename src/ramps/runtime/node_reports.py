@@ -19,7 +19,12 @@ changed) goes to the teammates' nodes only (``keys.load_now``), held
 ``PROMPT_HOLD`` so the changes that follow it go with it, the newest only:
 in a burst each change made one, and every report carries the executor's
 counters, so a later one says all an earlier one did. A periodic report
-supersedes a held one.
+supersedes a held one. The newest report published, of either kind, is
+what this robot answers a teammate's query with (``Membership.newest``:
+an origin's first views). A robot that places programs reports as those it
+sees the teammates it could place on (fresh reports, not written off); one
+that does not hears no periodic reports, and reports those whose
+liveliness it holds.
 """
 
 from __future__ import annotations
@@ -129,7 +134,8 @@ class LoadReports:
         report = node.make_report(cpu_busy=busy, runnable=runnable, ramps_avg=ramps_avg, window=self.s.window,
                                   mem_free=mem_free, cpu_per_core=per_core, load_avg=load1,
                                   node_cpu=round(node_cpu, 4))
-        sees = frozenset(node.view.candidates(now)) - {self.robot}
+        m = self.membership
+        sees = frozenset(node.view.candidates(now) if m.wide else m.alive) - {self.robot}
         if sees != self._sees:
             self._log_view_change(self._sees, sees)
             self._sees = sees
@@ -144,7 +150,8 @@ class LoadReports:
                                 blacklisted=len(st.blacklisted), dropped=report.bad_messages,
                                 reports_received=st.reports_received)
         try:
-            self.membership.load_pub.put(encode(self.robot, report))
+            m.newest = data = encode(self.robot, report)
+            m.load_pub.put(data)
             if self.trace.wire:
                 self.trace.write("tx", "", "*", 0, "LoadReport")
         except Exception as exc:
@@ -167,7 +174,8 @@ class LoadReports:
         the one applications hear: a client busy submitting hears no report
         per program start and end."""
         try:
-            self.membership.prompt_pub.put(encode(self.robot, report))
+            self.membership.newest = data = encode(self.robot, report)
+            self.membership.prompt_pub.put(data)
         except Exception as exc:
             log.warning("node %s could not publish its load: %s", self.robot, exc)
 

@@ -5,8 +5,10 @@ only through a ``Transport``: publish bytes on a key (with or without
 blocking when the link is congested), subscribe to a key expression with a
 callback ``(bytes)`` (the drivers never need a sample's key: reading it
 from Zenoh cost about 0.8 us a message, a third of the callback), declare a liveliness token and watch the team's
-tokens ``(key, alive)``, ask whether a key has a subscriber now, list the
-locators and peers, close. ``ZenohTransport`` is that over a real Zenoh
+tokens ``(key, alive)``, ask whether a key has a subscriber now, answer
+queries on a key with the newest bytes there (a queryable) and query a key
+expression once (``get``: each reply's bytes to a callback, then a call
+that says the query is over), list the locators and peers, close. ``ZenohTransport`` is that over a real Zenoh
 session (the only place in the drivers that touches ``zenoh`` objects);
 ``ramps.testing.memory.MemoryTransport`` is the same over an in-process bus,
 so a driver's logic runs in tests in milliseconds, without processes.
@@ -32,6 +34,8 @@ if TYPE_CHECKING:
 OnSample = Callable[[bytes], None]
 #: a liveliness subscriber's callback: the token's key, and whether it came (True) or went
 OnAlive = Callable[[str, bool], None]
+#: a queryable's answer: the bytes to reply with (None: no reply)
+Answer = Callable[[], bytes | None]
 
 
 class Clock(Protocol):
@@ -91,6 +95,16 @@ class Transport(Protocol):
     def publisher(self, key: str, *, block: bool = False) -> Publisher: ...
 
     def put(self, key: str, data: bytes, *, block: bool = False) -> None: ...
+
+    def queryable(self, key: str, answer: Answer) -> Declared:
+        """Answer every query that matches ``key`` with ``answer()``, under ``key``."""
+        ...
+
+    def get(self, key: str, on_reply: OnSample, on_done: Callable[[], None], *, timeout: float) -> None:
+        """Query ``key`` (an expression) once, without waiting: each reply's
+        bytes go to ``on_reply``, then ``on_done`` is called once, after the
+        last reply or ``timeout`` seconds (also when the query could not go)."""
+        ...
 
     def locators(self) -> list[str]: ...
 
@@ -190,6 +204,35 @@ class ZenohTransport:
     def put(self, key: str, data: bytes, *, block: bool = False) -> None:
         self.session.put(key, data, congestion_control=self._cc(block))
 
+    def queryable(self, key: str, answer: Answer) -> Declared:
+        def on_query(query: Any) -> None:  # on a Zenoh callback thread: answer() only reads
+            try:
+                data = answer()
+                if data is not None:
+                    query.reply(key, data)
+            except Exception:
+                pass  # the querier gets no reply from this robot, as from one that is gone
+            finally:
+                query.drop()
+
+        try:
+            return self.session.declare_queryable(key, on_query)
+        except self._z.ZError as exc:
+            raise TransportError(str(exc)) from exc
+
+    def get(self, key: str, on_reply: OnSample, on_done: Callable[[], None], *, timeout: float) -> None:
+        z = self._z
+
+        def reply(r: Any) -> None:
+            if r.ok is not None:
+                on_reply(r.ok.payload.to_bytes())
+
+        try:
+            self.session.get(key, z.handlers.Callback(reply, on_done), target=z.QueryTarget.ALL,
+                             consolidation=z.ConsolidationMode.NONE, timeout=timeout)
+        except Exception:
+            on_done()
+
     def locators(self) -> list[str]:
         """Where this session listens, with the real ports: Zenoh's own list
         where its Python API has one, else each endpoint asked for with a
@@ -246,5 +289,5 @@ def explain_open_error(settings: "NodeSettings", exc: Exception) -> str:
     return text
 
 
-__all__ = ["Clock", "Declared", "OnAlive", "OnSample", "Publisher", "REAL_CLOCK", "RealClock", "Transport",
+__all__ = ["Answer", "Clock", "Declared", "OnAlive", "OnSample", "Publisher", "REAL_CLOCK", "RealClock", "Transport",
            "ZenohTransport", "explain_open_error"]

@@ -3,7 +3,10 @@
 How this works: a ``MemoryBus`` joins several ``MemoryTransport`` (one per
 node or client) in this process. A put is handed at once, synchronously, to
 every subscriber whose key expression intersects the key (as bytes) (Zenoh's own
-``zenoh.KeyExpr.intersects``), on every transport it can reach.
+``zenoh.KeyExpr.intersects``), on every transport it can reach; each
+transport counts what its subscribers heard, by key (``heard``). A ``get``
+is answered at once by every queryable it reaches whose key intersects the
+expression, then told done.
 Liveliness follows Zenoh, whose routing tells a subscriber about a key, not
 about each token: a key is alive for it (PUT) once a token of that key it can
 reach is declared, and gone (DELETE) once the last such token is undeclared,
@@ -30,6 +33,7 @@ is deterministic and takes milliseconds.
 from __future__ import annotations
 
 import functools
+from collections import Counter
 from typing import Any, Callable
 
 import msgspec
@@ -101,6 +105,7 @@ class MemoryBus:
         self.transports: dict[str, MemoryTransport] = {}
         self._subs: list[tuple[MemoryTransport, str, Callable[[bytes], None]]] = []
         self._lsubs: list[_LivelinessSub] = []
+        self._queryables: list[tuple[MemoryTransport, str, Callable[[], bytes | None]]] = []
         self._tokens: list[tuple[MemoryTransport, str]] = []
         self._cut: set[str] = set()
         #: messages that reached no subscriber because a link was cut
@@ -123,6 +128,7 @@ class MemoryBus:
         for t, expr, cb in list(self._subs):
             if intersects(expr, key):
                 if self.reaches(src, t):
+                    t.heard[key] += 1
                     cb(bytes(data))
                     delivered = True
         if not delivered and src.name in self._cut:
@@ -135,6 +141,22 @@ class MemoryBus:
         entry = (t, key, cb)
         self._subs.append(entry)
         return _Declared(lambda: self._drop(self._subs, entry))
+
+    # ------------------------------------------------------------ queries
+    def queryable(self, t: "MemoryTransport", key: str, answer: Callable[[], bytes | None]) -> _Declared:
+        entry = (t, key, answer)
+        self._queryables.append(entry)
+        return _Declared(lambda: self._drop(self._queryables, entry))
+
+    def get(self, src: "MemoryTransport", key: str, on_reply: Callable[[bytes], None],
+            on_done: Callable[[], None]) -> None:
+        for t, qkey, answer in list(self._queryables):
+            if intersects(qkey, key) and self.reaches(src, t):
+                data = answer()
+                if data is not None:
+                    src.heard[qkey] += 1
+                    on_reply(bytes(data))
+        on_done()
 
     # ------------------------------------------------------------ liveliness
     def _alive_for(self, sub: "_LivelinessSub") -> dict[str, None]:
@@ -201,6 +223,7 @@ class MemoryBus:
         t = self.transports[name]
         self._subs = [e for e in self._subs if e[0] is not t]
         self._lsubs = [e for e in self._lsubs if e.t is not t]
+        self._queryables = [e for e in self._queryables if e[0] is not t]
         t.close()
 
 
@@ -223,6 +246,10 @@ class MemoryTransport:
         self._declared: list[_Declared] = []
         #: every put from this transport: (key, bytes, block)
         self.sent: list[tuple[str, bytes, bool]] = []
+        #: samples and replies its subscribers and queries heard, by key
+        self.heard: Counter[str] = Counter()
+        #: the expressions it queried (``get``)
+        self.queried: list[str] = []
 
     def _keep(self, d: _Declared) -> _Declared:
         self._declared.append(d)
@@ -256,6 +283,18 @@ class MemoryTransport:
             return
         self.sent.append((key, bytes(data), block))
         self.bus.put(self, key, data)
+
+    def queryable(self, key: str, answer: Callable[[], bytes | None]) -> _Declared:
+        self._check()
+        return self._keep(self.bus.queryable(self, key, answer))
+
+    def get(self, key: str, on_reply: Callable[[bytes], None], on_done: Callable[[], None], *,
+            timeout: float) -> None:
+        if self.closed:
+            on_done()
+            return
+        self.queried.append(key)
+        self.bus.get(self, key, on_reply, on_done)
 
     def locators(self) -> list[str]:
         return [f"memory/{self.name}"]
