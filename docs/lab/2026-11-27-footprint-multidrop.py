@@ -10,7 +10,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
 os.environ["RAMPS_TRACE_WIRE"] = "1"
 import msgspec
 from ramps.testbed import Testbed
-from ramps.testbed.experiments import read_trace
+from ramps.lab.experiments import read_trace
 from test_testbed import wait_until
 
 def trace(tb, robot):

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from ramps.testbed import Testbed
 from ramps.testbed.bed import watch_team
-from ramps.testbed.experiments import identical_speed
+from ramps.lab.experiments import identical_speed
 
 NAMES = [f"r{i}" for i in range(1, 6)]
 CORES, QUOTA, WORK = 4, 0.32, 1.5

@@ -236,7 +236,7 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     #: Zenoh session lease, ms: how long a frozen or cut-off teammate takes to
     #: be reported gone (keep-alives go 4 times per lease). 2000 ms raised no
     #: false alarm on a link with 20% loss and sub-second dropouts, 1500 ms
-    #: 2-4 a minute (``python -m ramps.testbed.detect --flap``); 1000 ms suits
+    #: 2-4 a minute (``python -m ramps.lab.detect --flap``); 1000 ms suits
     #: wired teams. At least 100
     lease_ms: int = 2000
     #: Zenoh's shared memory for messages over 64 KB between processes of one
