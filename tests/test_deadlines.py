@@ -187,6 +187,25 @@ def test_host_keeps_the_deadlines_it_admitted() -> None:
     assert len(team.actions(StartProgram, "b")) == 6
 
 
+def test_a_host_counts_a_deadline_missed_by_less_than_its_tolerance_as_missed() -> None:
+    # b's 4 cores run 4 programs of 50 s due in 55 s; a fifth of 22 units
+    # shares them for 27.5 s and they end at 55.5 s: 0.5 s late, within the
+    # 2% admission tolerance, which is for the origin's estimate of the
+    # program offered, not for whether a program here would miss its deadline
+    team = busy_origin_team()
+    for i in range(4):
+        team.handle("b", Received(sender="o", msg=OffloadRequest(
+            program_id=f"d{i}", attempt=1, origin="o", host="b", program="route_plan", work=50.0, deadline_in=55.0)))
+    fifth = OffloadRequest(program_id="e", attempt=1, origin="o", host="b", program="route_plan", work=22.0,
+                           expected_runnable=4.0, time_budget=1000.0)
+    team.handle("b", Received(sender="o", msg=fifth))
+    [r] = team.sent(OffloadRejected, by="b")
+    assert (r.reason, r.detail) == ("late", "would make 4 programs here miss their deadline")
+    small = msgspec_replace_offer(fifth, program_id="s", work=18.0)  # they end at 54.5 s: in time
+    team.handle("b", Received(sender="o", msg=small))
+    assert len(team.actions(StartProgram, "b")) == 5
+
+
 def msgspec_replace_offer(req: OffloadRequest, **kw) -> OffloadRequest:
     import msgspec
 

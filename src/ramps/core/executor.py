@@ -284,8 +284,10 @@ class Executor:
             return None
         now = self._advanced_at
         before = self._ends(left, *pool)
+        # no tolerance here: it is for the origin's estimate of the offer,
+        # and a program here pushed past its deadline by any margin misses it
         hurt = sum(1 for job, b, a in zip(jobs, before, after)
-                   if job.due is not None and b <= (job.due - now) * tol < a)
+                   if job.due is not None and b <= job.due - now < a)
         if hurt:
             return f"would make {hurt} program{'s' if hurt > 1 else ''} here miss {'their' if hurt > 1 else 'its'} deadline"
         return None
