@@ -11,7 +11,8 @@ finish on the best other robot (from scratch, or from its last checkpoint,
 plus T_comm of parameters and checkpoint) by ``relocate_gain`` and
 ``relocate_min_gain`` together (``worth_moving``), and has for
 ``relocate_persist`` seconds (a brief spike of load moves nothing); at most
-``relocate_max_moves`` times, never within ``relocate_settle`` of an
+``relocate_max_moves`` times (a move the new host refuses as "late", to
+keep a deadline it runs, counts none), never within ``relocate_settle`` of an
 acceptance, at most one program off a host per check. ``price_move`` asks
 the program's policy for the best other host with a generator of the
 origin's own for relocation, so turning relocation on leaves every
