@@ -29,6 +29,11 @@ team's traffic and nothing else on the host. Per N, in order:
   teammate's periodic reports and probe their links; the others hear none
   of them): the same figures as **idle**.
 
+``router``: the nodes are Zenoh clients of one router (``LocalTeam(router=True)``):
+N links instead of N(N-1)/2, as a large team runs; every message then
+crosses loopback twice (to the router and from it), and the router's own
+CPU is given beside the nodes' (``router_cpu_pct``).
+
 The figures are printed and saved as JSON; nothing here asserts a target
 (issue 26's acceptance asks for 100 nodes formed in under 60 s, under 0.5%
 of a core and 60 MB each when idle).
@@ -116,23 +121,30 @@ def measure_idle(team: Any, seconds: float) -> dict[str, Any]:
     """What each node of ``team`` costs over ``seconds`` with nothing to run."""
     pids = {n: team.nodes[n].pid for n in team.alive()}
 
-    def read() -> dict[str, tuple[float, float, float]]:
-        """Each node's (CPU of the node process, of its whole tree, when read): on a
-        busy host reading 50 trees takes seconds, so each node gets its own interval."""
+    def read() -> dict[str, tuple[float, dict[int, float], float]]:
+        """Each node's (CPU of the node process, of each process of its tree, when read):
+        on a busy host reading 50 trees takes seconds, so each node gets its own interval."""
         got = {}
         for name, pid in pids.items():
             tree = process_tree(pid)
-            got[name] = (cpu_seconds(tree[:1]), cpu_seconds(tree), time.monotonic())
+            got[name] = (cpu_seconds(tree[:1]), {p.pid: cpu_seconds([p]) for p in tree}, time.monotonic())
         return got
 
-    before = read()
+    def tree_s(name: str) -> float:
+        """CPU seconds of ``name``'s tree between the reads, of the processes alive at both
+        (a worker that ended meanwhile takes its seconds with it; one that started has only those since)."""
+        was, now = before[name][1], after[name][1]
+        return sum(now[pid] - was.get(pid, 0.0) for pid in now)
+
+    router = process_tree(team.router_proc.pid) if getattr(team, "router_proc", None) is not None else []
+    before, r0 = read(), cpu_seconds(router)
     b0, p0, t0 = *lo_counters(), time.monotonic()
     time.sleep(seconds)
     b1, p1, t1 = *lo_counters(), time.monotonic()
     span = t1 - t0
-    after = read()
+    after, r1 = read(), cpu_seconds(router)
     node_pct = [100 * (after[n][0] - before[n][0]) / (after[n][2] - before[n][2]) for n in pids]
-    all_pct = [100 * (after[n][1] - before[n][1]) / (after[n][2] - before[n][2]) for n in pids]
+    all_pct = [100 * tree_s(n) / (after[n][2] - before[n][2]) for n in pids]
     trees = {n: process_tree(pid) for n, pid in pids.items()}
     n = len(pids)
     threads = []
@@ -147,7 +159,8 @@ def measure_idle(team: Any, seconds: float) -> dict[str, Any]:
             "node_pss_mib": _median_max([_pss_mib(t[:1]) for t in trees.values()], 1),
             "node_and_fork_server_pss_mib": _median_max([_pss_mib(_with_children(t)) for t in trees.values()], 1),
             "threads": _median_max(threads, 0),
-            "lo_bytes_per_node_s": round((b1 - b0) / n / span), "lo_packets_per_node_s": round((p1 - p0) / n / span)}
+            "lo_bytes_per_node_s": round((b1 - b0) / n / span), "lo_packets_per_node_s": round((p1 - p0) / n / span),
+            "router_cpu_pct": round(100 * (r1 - r0) / span, 1) if router else None}
 
 
 def _finished(client: Any) -> int:
@@ -217,13 +230,13 @@ def wait_heard(client: Any, survivors: set[str], timeout: float) -> float | None
 
 def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeout: float = 120.0,
                  burst_timeout: float = 120.0, kill_at: float = 0.5, seed: int = 1, idle_after: float = 10.0,
-                 log: Any = print) -> dict[str, Any]:
+                 router: bool = False, log: Any = print) -> dict[str, Any]:
     """Every figure of the module docstring for a team of ``n`` nodes."""
     from ramps.errors import NoTeam
     from ramps.testing import LocalTeam
 
-    res: dict[str, Any] = {"nodes": n, "loadavg_before": round(os.getloadavg()[0], 2)}
-    team = LocalTeam(n, cores=1, visible_timeout=form_timeout, team=f"size-{uuid.uuid4().hex[:6]}")
+    res: dict[str, Any] = {"nodes": n, "router": router, "loadavg_before": round(os.getloadavg()[0], 2)}
+    team = LocalTeam(n, cores=1, visible_timeout=form_timeout, team=f"size-{uuid.uuid4().hex[:6]}", router=router)
     try:
         t0 = time.monotonic()
         try:

@@ -305,6 +305,8 @@ def bench_team_size_cmd(
     units: float = typer.Option(0.05, "--units", min=0.001, max=5.0, help="work units of each burst program"),
     form_timeout: float = typer.Option(120.0, "--form-timeout", min=5.0, metavar="SECONDS",
                                        help="seconds the team may take to form (every node seeing all others)"),
+    router: bool = typer.Option(False, "--router", help="the nodes as Zenoh clients of one router (a star, as a large "
+                                "team runs) instead of peers linked pairwise"),
     as_json: bool = typer.Option(False, "--json", help="print the figures as JSON"),
     out_file: Path = typer.Option(Path("bench-results/team-size.json"), "--out", "-o", help="where to save the JSON"),
 ) -> None:
@@ -318,7 +320,7 @@ def bench_team_size_cmd(
     from ramps.bench.teamsize import run_isolated
 
     err.print(f"team sizes {', '.join(map(str, nodes))}: each formed, idle {idle:g} s, a burst, a fifth killed ...")
-    res = run_isolated(list(nodes), idle=idle, units=units, form_timeout=form_timeout)
+    res = run_isolated(list(nodes), idle=idle, units=units, form_timeout=form_timeout, router=router)
 
     def show(r, console) -> None:
         console.print(f"{'nodes':>5} {'formed s':>8} {'CPU %/node':>10} {'all %':>6} {'PSS MiB':>7} {'threads':>7} "
@@ -337,5 +339,10 @@ def bench_team_size_cmd(
                           f"{(k.get('programs', 0) - k.get('delivered', 0)) if k else '-':>4}", highlight=False)
         console.print(f"({'own network namespace' if r['isolated'] else 'the host loopback: traffic of others counted too'}; "
                       "CPU: node, fork server and workers, % of one core; PSS: proportional memory)", highlight=False)
+        for run in r["runs"]:
+            if run.get("router") and run.get("idle"):
+                console.print(f"({run['nodes']} nodes: Zenoh clients of one router, which used "
+                              f"{run['idle']['router_cpu_pct']}% of a core idle; loopback counts each message twice)",
+                              highlight=False)
 
     emit([res], show, as_json=as_json, out_file=out_file)

@@ -23,7 +23,8 @@ testing code that handles ramps messages (``ramps bench fuzz`` runs them).
 from ramps.testing import hostile
 from ramps.testing.fake import FakeTeam
 from ramps.testing.hostile import WIRE_KINDS, random_message
-from ramps.testing.local import LocalTeam, NodeProc, describe, tagged_processes
+from ramps.testing.local import LocalTeam, NodeProc
+from ramps.testing.procs import describe, tagged_processes
 from ramps.testing.memory import FakeClock, MemoryBus, MemoryTeam, MemoryTransport
 
 __all__ = ["FakeClock", "FakeTeam", "LocalTeam", "MemoryBus", "MemoryTeam", "MemoryTransport", "NodeProc", "WIRE_KINDS",

@@ -24,6 +24,7 @@ import psutil
 
 from ramps.runtime.accelerators import remove_slot_folders
 from ramps.runtime.localteam import RobotCgroup, cgroup_mode, free_port, listening_ports, partial_views
+from ramps.testing.procs import describe, killpg, tagged_processes
 
 __all__ = ["LocalTeam", "NodeProc", "describe", "tagged_processes"]
 
@@ -71,6 +72,10 @@ class LocalTeam:
     robot's cgroup. ``secure=True`` gives the team its own CA in
     ``<log_dir>/team-ca``, every node its credentials (``credentials(name)``)
     and ``tls/`` endpoints; clients connect as the application ``app``.
+    ``router=True`` starts a Zenoh router first (``ramps router``) and makes
+    every node a Zenoh client of it (``--mode client``): a star of N links
+    instead of a mesh of N(N-1)/2, as a large team runs; clients and probes
+    connect to the router.
 
     Node output goes to ``<log_dir>/<robot>.log`` (``logs()`` for failure
     messages). A log dir the team made itself is removed on a clean close and
@@ -88,7 +93,8 @@ class LocalTeam:
                  cores: int | None = None, speed: float | None = None, lease_ms: int | None = None,
                  policy: str | None = None, programs: Iterable[str] = (), cpu_quota: float | None = None,
                  env: Mapping[str, str] | None = None, keep_logs: bool = False, verbose: bool = False,
-                 visible_timeout: float = 30.0, secure: bool = False, graceful: bool = True) -> None:
+                 visible_timeout: float = 30.0, secure: bool = False, graceful: bool = True,
+                 router: bool = False) -> None:
         self.names = [f"r{i}" for i in range(1, robots + 1)] if isinstance(robots, int) else list(robots)
         self.team = team or f"local-{uuid.uuid4().hex[:8]}"
         self.default_cores = cores
@@ -115,6 +121,12 @@ class LocalTeam:
         self._clients: list[Any] = []
         self._seed: str | None = None
         self.secure = secure
+        if router and secure:
+            raise ValueError("LocalTeam: a router of a secured team needs its own credentials; not offered here")
+        self.router = router
+        #: the router's endpoint and process, once started (``router``)
+        self.router_endpoint: str | None = None
+        self.router_proc: subprocess.Popen[bytes] | None = None
         self.scheme = "tls" if secure else "tcp"
         self.ca_dir = self.log_dir / "team-ca"
         if secure:
@@ -133,7 +145,7 @@ class LocalTeam:
 
     @property
     def seed(self) -> str:
-        """The endpoint every node connects to: the first robot started."""
+        """The endpoint every node connects to: the first robot started, or the router."""
         if self._seed is None:
             raise RuntimeError("no node started yet")
         return self._seed
@@ -186,7 +198,7 @@ class LocalTeam:
                 if node.proc.poll() is None:
                     self.stop_node(name, timeout=10, check=False)
         for p in self._procs:
-            _killpg(p)
+            killpg(p)
         for p in self._procs:
             try:
                 p.wait(timeout=10)
@@ -252,8 +264,9 @@ class LocalTeam:
 
     def node_argv(self, name: str, port: int, cores: int | None, policy: str | None) -> list[str]:
         """The command line of robot ``name``'s node."""
-        argv = [sys.executable, "-m", "ramps.cli", "node", "--robot", name, "--team", self.team,
-                "--listen", f"{self.scheme}/127.0.0.1:{port}", "--no-multicast"]
+        where = ["--mode", "client"] if self.router else ["--listen", f"{self.scheme}/127.0.0.1:{port}"]
+        argv = [sys.executable, "-m", "ramps.cli", "node", "--robot", name, "--team", self.team, *where,
+                "--no-multicast"]
         for flag, value in (("--speed", self.speed), ("--lease-ms", self.lease_ms), ("--cores", cores),
                             ("--policy", policy or self.policy)):
             if value is not None:
@@ -278,6 +291,8 @@ class LocalTeam:
         if name not in self.names:
             self.names.append(name)
         cores = self.default_cores if cores is None else cores
+        if self.router and self._seed is None:
+            self._start_router()
         port = free_port()
         argv = self.node_argv(name, port, cores, policy) + list(extra_args or [])
         cg = self._cgroup(name)
@@ -291,6 +306,16 @@ class LocalTeam:
         if wait:
             self.wait_visible([name], timeout)
         return node
+
+    def _start_router(self) -> None:
+        """The team's Zenoh router (``router``), listening before any node starts."""
+        port = free_port()
+        self.router_endpoint = self._seed = f"{self.scheme}/127.0.0.1:{port}"
+        self.router_proc = self._popen([sys.executable, "-m", "ramps.cli", "router", "--team", self.team, "--listen", self._seed,
+                                        "--no-multicast"], log=self.log_dir / "router.log", env=self._env(None))
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and (bound := listening_ports()) is not None and port not in bound:
+            time.sleep(0.02)
 
     def spawn(self, argv: list[str], *, robot: str | None = None, name: str = "bg") -> subprocess.Popen[bytes]:
         """A background process of this team (stopped on close); inside ``robot``'s cgroup if it has one."""
@@ -319,13 +344,13 @@ class LocalTeam:
         except subprocess.TimeoutExpired:
             if check:
                 raise AssertionError(f"node {name} did not exit {timeout:g} s after signal {sig}\n{self.logs(name)}")
-            _killpg(node.proc)
+            killpg(node.proc)
             return node.proc.wait(timeout=5)
 
     def kill_node(self, name: str) -> None:
         """SIGKILL the node and its workers (a robot that crashes)."""
         node = self.nodes[name]
-        _killpg(node.proc)
+        killpg(node.proc)
         node.proc.wait(timeout=10)
 
     # ------------------------------------------------------------ looking
@@ -333,6 +358,9 @@ class LocalTeam:
         return [n for n, p in self.nodes.items() if p.proc.poll() is None]
 
     def endpoints(self, names: list[str] | None = None) -> list[str]:
+        """Where a client reaches these nodes: their own endpoints, or the router."""
+        if self.router_endpoint is not None:
+            return [self.router_endpoint]
         return [self.nodes[n].endpoint for n in (names or self.alive())]
 
     def client(self, robot: str | None = None, *, timeout: float = 20.0, connect: list[str] | None = None,
@@ -401,7 +429,7 @@ class LocalTeam:
         """Until every node in ``names`` listens on its port (or exited, or the
         deadline passed: the probe then tells why): a probe opened earlier
         would dial a closed port and wait out Zenoh's retry period."""
-        want = {self.nodes[n].port: n for n in names}
+        want = {} if self.router else {self.nodes[n].port: n for n in names}  # clients of a router listen on none
         while want and time.monotonic() < deadline:
             bound = listening_ports()
             if bound is None:  # cannot tell: the probe waits as it would have
@@ -452,41 +480,7 @@ class LocalTeam:
         try:
             out, err = p.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
-            _killpg(p)
+            killpg(p)
             out, err = p.communicate()
             raise AssertionError(f"ramps {' '.join(args)} did not finish in {timeout:g} s\n{out}\n{err}") from None
         return subprocess.CompletedProcess(p.args, p.returncode, out, err)
-
-
-def _killpg(p: subprocess.Popen[Any]) -> None:
-    try:
-        os.killpg(p.pid, signal.SIGKILL)  # the process and everything it started (a node: its workers)
-    except (ProcessLookupError, PermissionError):
-        pass
-
-
-def tagged_processes(tag: str, value: str) -> list[psutil.Process]:
-    """Live processes (not zombies, not this one) whose environment has ``tag=value``."""
-    found = []
-    me = os.getpid()
-    for p in psutil.process_iter(["pid"]):
-        if p.pid == me:
-            continue
-        try:
-            if p.status() == psutil.STATUS_ZOMBIE:
-                continue
-            if p.environ().get(tag) == value:
-                found.append(p)
-        except (psutil.NoSuchProcess, psutil.AccessDenied, psutil.ZombieProcess, OSError):
-            continue
-    return found
-
-
-def describe(procs: list[psutil.Process]) -> str:
-    out = []
-    for p in procs:
-        try:
-            out.append(f"{p.pid}: {' '.join(p.cmdline())}")
-        except psutil.Error:
-            out.append(f"{p.pid}: ?")
-    return "; ".join(out)
