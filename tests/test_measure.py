@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import subprocess
 import sys
 import threading
@@ -43,6 +44,27 @@ cores = (used() - c0) / (time.monotonic() - t0)  # what the two really got over 
 print(json.dumps(list(s.averages()) + [cores]))
 child.kill()
 '''
+
+
+def test_own_threads_are_read_from_open_files_that_follow_threads_coming_and_going():
+    own = measure.OwnThreads()
+    own.running()
+    listed = set(os.listdir("/proc/self/task"))
+    assert set(own.fds) == listed
+    done = threading.Event()
+    threads = [threading.Thread(target=done.wait, daemon=True) for _ in range(5)]
+    for t in threads:
+        t.start()
+    for _ in range(own.RELIST):
+        own.running()
+    assert {str(t.native_id) for t in threads} <= set(own.fds)  # listed again: the new ones are read
+    done.set()
+    for t in threads:
+        t.join()
+    for _ in range(own.RELIST):
+        own.running()
+    assert set(own.fds) == set(os.listdir("/proc/self/task"))  # the ended ones dropped, their files closed
+    assert own.running() >= 1  # the caller itself is running
 
 
 @pytest.mark.slow
