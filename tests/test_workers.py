@@ -31,7 +31,7 @@ def wait_until(pred, timeout: float, step: float = 0.02) -> bool:
     return pred()
 
 
-def make_pool(size: int, max_size: int | None = None, cpu: dict | None = None):
+def make_pool(size: int, max_size: int | None = None, cpu: dict | None = None, core_share: float = 1.0):
     done: dict = {}
     ev = threading.Event()
 
@@ -42,7 +42,7 @@ def make_pool(size: int, max_size: int | None = None, cpu: dict | None = None):
         ev.set()
 
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([TESTS, os.environ.get("PYTHONPATH", "")]))
-    pool = WorkerPool(size, TARGETS, finished, env=env, max_size=max_size)
+    pool = WorkerPool(size, TARGETS, finished, env=env, max_size=max_size, core_share=core_share)
     pool.start()
     return pool, done
 
@@ -231,6 +231,33 @@ def test_the_pool_waits_for_starved_programs_and_grows_for_a_long_one(monkeypatc
         assert pool.forked == 2 and done[("short", 1)][0]
     finally:
         pool.stop()
+
+
+def test_on_a_robot_whose_cores_are_slices_of_a_host_a_program_getting_its_share_is_not_starved(monkeypatch):
+    """A robot of 4 cores on 0.2 host cores (a container's quota, an emulated
+    robot): a running program that gets its 0.05 host cores is not starved,
+    so a program beyond the cores gets a worker after GROW_AFTER, not after
+    STARVED_CPU of host CPU (2 s at that share). On a robot of whole cores
+    the same CPU is a starved program's, and the queue waits."""
+    import ramps.runtime.workers as workers
+
+    for share, grows in ((0.05, True), (1.0, False)):
+        cpu = {"s": 5.0}
+        monkeypatch.setattr(workers, "proc_cpu", lambda pid, cpu=cpu: (cpu["s"], "R"))
+        pool, done = make_pool(1, core_share=share)
+        try:
+            pool.run(("long", 1), "sleepy", args(seconds=60))
+            pool.run(("short", 1), "sleepy", args(seconds=0.05))
+            time.sleep(3 * workers.GROW_AFTER)
+            cpu["s"] += 2 * workers.STARVED_CPU * 0.05  # what its share gives it in about two GROW_AFTERs
+            if grows:
+                assert wait_until(lambda: ("short", 1) in done, 30), done
+                assert pool.forked == 2
+            else:
+                time.sleep(10 * workers.GROW_AFTER)
+                assert pool.forked == 1 and pool.queued() == 1 and not done
+        finally:
+            pool.stop()
 
 
 def test_the_pool_grows_as_before_where_the_busy_worker_sleeps_or_cannot_be_seen(monkeypatch):

@@ -27,7 +27,10 @@ programs waited. Those are short programs on a host busy with other work
 (the robot's own software), not long ones: a new worker would only split
 the same CPU among more programs, which then all end late together, and
 take more of it from the robot's software; the queue waits for them, as it
-does for tiny ones. A long program (one that gets its CPU), one that sleeps
+does for tiny ones. The CPU is counted in the robot's cores
+(``core_share``: the host cores one of them is, under a CPU quota), so a
+program on a robot whose cores are slices of a host's (a container, an
+emulated robot) that gets its share is not starved. A long program (one that gets its CPU), one that sleeps
 (I/O, an executable's child) or one this system cannot see lets the pool
 grow as above. A worker beyond ``size`` exits after ``RETIRE_AFTER`` idle.
 
@@ -138,7 +141,8 @@ def death_text(ended: dict[str, object] | None) -> str:
 class WorkerPool:
     def __init__(self, size: int, targets: dict[str, str], on_finished: Finished, *,
                  env: dict[str, str] | None = None, nice: int = 0, max_size: int | None = None,
-                 on_progress: Progress | None = None, on_checkpoint: Checkpoint | None = None) -> None:
+                 on_progress: Progress | None = None, on_checkpoint: Checkpoint | None = None,
+                 core_share: float = 1.0) -> None:
         if size < 1:
             raise ValueError("a worker pool needs at least one worker")
         self.size = size
@@ -149,6 +153,8 @@ class WorkerPool:
         self.on_checkpoint = on_checkpoint
         self.env = env
         self.nice = nice
+        #: host cores one of the robot's cores is (under a CPU quota: its share; else 1)
+        self.core_share = min(1.0, max(core_share, 1e-3))
         self._lock = threading.Lock()
         self._sel = selectors.DefaultSelector()
         self._workers: list[_Worker] = []
@@ -357,7 +363,7 @@ class WorkerPool:
             cpu, state = seen
             if w.cpu_mark is None:
                 w.cpu_mark = cpu
-            if state != "R" or cpu - w.cpu_mark >= STARVED_CPU:
+            if state != "R" or cpu - w.cpu_mark >= STARVED_CPU * self.core_share:
                 starved = False
         return starved
 
