@@ -14,8 +14,8 @@ team's traffic and nothing else on the host. Per N, in order:
   processes that map them; the node alone, with its fork server, and with
   its workers too), threads, and the loopback bytes and packets per node
   per second (every message crosses loopback once);
-* **burst**: ``2 N`` ``burn`` programs of ``units`` each from three
-  origins (r1, r2, r3) at once: how many came back once, how many failed,
+* **burst**: ``2 N`` ``burn`` programs of ``units`` each from
+  ``origins`` robots (r1, r2, r3 by default) at once: how many came back once, how many failed,
   how many runs the robots counted (more than the programs: one ran twice),
   the makespan, and the programs per robot;
 * **kill**: a fifth of the robots other than the origins SIGKILLed at once
@@ -25,7 +25,7 @@ team's traffic and nothing else on the host. Per N, in order:
   (where that takes longer than the burst, which survivors it waited for
   and why), and whether every program of that burst still came back;
 * **idle after**: the survivors idle again for ``idle_after`` seconds, the
-  clients closed, r1-r3 having placed programs (origins hear every
+  clients closed, the origins having placed programs (origins hear every
   teammate's periodic reports and probe their links; the others hear none
   of them): the same figures as **idle**.
 
@@ -57,8 +57,8 @@ import psutil
 
 #: a survivor "hears" the team when its newest report is at most this old (seconds)
 HEARD_AGE = 3.0
-#: the origins of the bursts
-ORIGINS = ("r1", "r2", "r3")
+#: how many robots submit the bursts by default (r1, r2, r3)
+ORIGINS = 3
 
 
 def lo_counters() -> tuple[int, int]:
@@ -230,12 +230,14 @@ def wait_heard(client: Any, survivors: set[str], timeout: float) -> float | None
 
 def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeout: float = 120.0,
                  burst_timeout: float = 120.0, kill_at: float = 0.5, seed: int = 1, idle_after: float = 10.0,
-                 router: bool = False, log: Any = print) -> dict[str, Any]:
+                 router: bool = False, origins: int = ORIGINS, log: Any = print) -> dict[str, Any]:
     """Every figure of the module docstring for a team of ``n`` nodes."""
     from ramps.errors import NoTeam
     from ramps.testing import LocalTeam
 
-    res: dict[str, Any] = {"nodes": n, "router": router, "loadavg_before": round(os.getloadavg()[0], 2)}
+    res: dict[str, Any] = {"nodes": n, "router": router, "origins": min(origins, n),
+                           "loadavg_before": round(os.getloadavg()[0], 2)}
+    submitters = [f"r{i}" for i in range(1, min(origins, n) + 1)]
     team = LocalTeam(n, cores=1, visible_timeout=form_timeout, team=f"size-{uuid.uuid4().hex[:6]}", router=router)
     try:
         t0 = time.monotonic()
@@ -252,15 +254,15 @@ def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeou
         res["idle"] = measure_idle(team, idle)
         log(f"  {n} nodes idle: {res['idle']['with_workers_cpu_pct']['median']}% of a core, "
             f"PSS {res['idle']['pss_mib']['median']} MiB each")
-        clients = {o: team.client(o) for o in ORIGINS[:min(3, n)]}
-        first = clients[ORIGINS[0]]
+        clients = {o: team.client(o) for o in submitters}
+        first = clients[submitters[0]]
         before = _finished(first)
         res["burst"] = run_burst(clients, 2 * n, units, burst_timeout)
         time.sleep(2.5)  # the robots' next periodic reports count the runs
         res["burst"]["runs_counted"] = _finished(first) - before
         log(f"  {n} nodes burst: {res['burst']}")
-        victims = random.Random(seed).sample([r for r in team.names if r not in ORIGINS], max(1, n // 5)) \
-            if n > len(ORIGINS) + 1 else []
+        victims = random.Random(seed).sample([r for r in team.names if r not in submitters], max(1, n // 5)) \
+            if n > len(submitters) + 1 else []
         survivors = set(team.names) - set(victims)
         killed: list[float] = []
         heard: list[float] = []

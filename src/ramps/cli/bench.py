@@ -305,13 +305,14 @@ def bench_team_size_cmd(
     units: float = typer.Option(0.05, "--units", min=0.001, max=5.0, help="work units of each burst program"),
     form_timeout: float = typer.Option(120.0, "--form-timeout", min=5.0, metavar="SECONDS",
                                        help="seconds the team may take to form (every node seeing all others)"),
+    origins: int = typer.Option(3, "--origins", min=1, max=20, help="robots that submit the bursts (r1, r2, ...)"),
     router: bool = typer.Option(False, "--router", help="the nodes as Zenoh clients of one router (a star, as a large "
                                 "team runs) instead of peers linked pairwise"),
     as_json: bool = typer.Option(False, "--json", help="print the figures as JSON"),
     out_file: Path = typer.Option(Path("bench-results/team-size.json"), "--out", "-o", help="where to save the JSON"),
 ) -> None:
     """What each robot of a team of N real nodes on loopback costs: time to form, idle CPU, memory, threads and
-    traffic per node, a burst of 2N programs from 3 origins, a fifth of the robots killed at once.
+    traffic per node, a burst of 2N programs from --origins robots, a fifth of the robots killed at once.
 
     With root the team runs in a network namespace of its own, so the traffic counted is the team's alone.
     The nodes share this machine's cores (no cgroups): where programs run says little here; that programs come
@@ -320,7 +321,8 @@ def bench_team_size_cmd(
     from ramps.bench.teamsize import run_isolated
 
     err.print(f"team sizes {', '.join(map(str, nodes))}: each formed, idle {idle:g} s, a burst, a fifth killed ...")
-    res = run_isolated(list(nodes), idle=idle, units=units, form_timeout=form_timeout, router=router)
+    res = run_isolated(list(nodes), idle=idle, units=units, form_timeout=form_timeout, router=router,
+                       origins=origins)
 
     def show(r, console) -> None:
         console.print(f"{'nodes':>5} {'formed s':>8} {'CPU %/node':>10} {'all %':>6} {'PSS MiB':>7} {'threads':>7} "
