@@ -46,7 +46,7 @@ and between an application (client) and its robot's node:
 from __future__ import annotations
 
 import re
-from typing import Annotated, TypeVar, Union
+from typing import Annotated, NoReturn, Union
 
 import msgspec
 from msgspec import Meta
@@ -59,13 +59,12 @@ from ramps.core.wirelimits import (  # the limits and field types, re-exported: 
     MAX_ACCELERATOR_KINDS as MAX_ACCELERATOR_KINDS, MAX_PROBE_BYTES as MAX_PROBE_BYTES, RobotName as RobotName,
     OptRobotName as OptRobotName, Name as Name, Word as Word, Text as Text, Payload as Payload, Count as Count,
     Amount as Amount, Load as Load, Weight as Weight, Cores as Cores, Speed as Speed, Fraction as Fraction,
-    ProgressText as ProgressText, CheckpointState as CheckpointState,
+    ProgressText as ProgressText, CheckpointState as CheckpointState, ListedRobotName, KEY_UNSAFE,
 )
-from ramps.version import __version__
 from ramps.core.wirebase import (  # re-exported: ``messages.WireError`` etc.
     PROTOCOL_MAJOR as PROTOCOL_MAJOR, PROTOCOL_MINOR as PROTOCOL_MINOR, PROTOCOL_VERSION as PROTOCOL_VERSION,
     PROTOCOL as PROTOCOL, WireError as WireError, VersionRefused as VersionRefused,
-    UnknownMessageType as UnknownMessageType, Record as _Msg,
+    UnknownMessageType as UnknownMessageType, Record as _Msg, DECODE_ERRORS, head_decoder, refused, why,
 )
 from ramps.core.client_messages import (  # re-exported: one schema, ``messages.SubmitProgram`` etc.
     SubmitProgram as SubmitProgram, CancelSubmitted as CancelSubmitted, ProgramOutcome as ProgramOutcome,
@@ -197,10 +196,11 @@ class LearnedWork(msgspec.Struct, frozen=True, array_like=True):
 
 
 class RunningProgram(msgspec.Struct, frozen=True, array_like=True):
-    """A program a host runs, as its load report lists it: [program, origin, progress]."""
+    """A program a host runs, as its load report lists it: [program, origin, progress].
+    ``decode`` checks ``origin`` against RobotName's pattern once for the whole list."""
 
     program: Name
-    origin: RobotName
+    origin: ListedRobotName
     #: the newest progress it reported, None before any
     progress: Fraction | None = None
 
@@ -374,17 +374,6 @@ class Envelope(msgspec.Struct, frozen=True, kw_only=True, omit_defaults=True):
     msg: Message
 
 
-class _Head(msgspec.Struct):
-    """What decode reads before the body: the major version, and for a
-    message of another major whatever it says of its sender and itself
-    (raw, so a future envelope of any shape still gets its version named)."""
-
-    v: int
-    sender: msgspec.Raw = msgspec.Raw(b"")
-    minor: msgspec.Raw = msgspec.Raw(b"")
-    release: msgspec.Raw = msgspec.Raw(b"")
-
-
 class _TypeOnly(msgspec.Struct):
     type: Annotated[str, Meta(max_length=MAX_NAME)]
 
@@ -402,19 +391,34 @@ KNOWN_TYPES: frozenset[str] = frozenset(
     t.__struct_config__.tag for t in Message.__args__  # type: ignore[attr-defined]
 )
 
+
+
+class _CheckedRunningProgram(RunningProgram, frozen=True, array_like=True):
+    """RunningProgram with RobotName's pattern on its origin, as msgspec checks it (``_refuse``)."""
+
+    origin: RobotName
+
+
+class _CheckedLoadReport(LoadReport, frozen=True, kw_only=True, tag="load"):
+    running: Annotated[list[_CheckedRunningProgram], Meta(max_length=MAX_LISTED)] = []  # type: ignore[assignment]
+
+
+#: every message, load reports with their listed origins' pattern checked by msgspec
+_CheckedMessage = Union[tuple(_CheckedLoadReport if t is LoadReport else t for t in Message.__args__)]  # type: ignore
+
+
+class _CheckedEnvelope(msgspec.Struct, frozen=True, kw_only=True):
+    v: int
+    sender: RobotName
+    msg: _CheckedMessage  # type: ignore[valid-type]
+
+
 _encoder = msgspec.msgpack.Encoder()
 _envelope_decoder = msgspec.msgpack.Decoder(Envelope)
-_head_decoder = msgspec.msgpack.Decoder(_Head)
+_checked_decoder = msgspec.msgpack.Decoder(_CheckedEnvelope)
 _unknown_decoder = msgspec.msgpack.Decoder(_Unknown)
-_name_decoder = msgspec.msgpack.Decoder(RobotName)
-_minor_decoder = msgspec.msgpack.Decoder(Annotated[int, Meta(ge=0, lt=1 << 16)])
-_release_decoder = msgspec.msgpack.Decoder(Annotated[str, Meta(max_length=32, pattern=r"\A[0-9A-Za-z.+-]*\Z")])
 #: how msgspec words a value outside its field's declared limits
 _CONSTRAINT = re.compile(r"Expected `[a-z]+` (of length|matching|[<>]=?)")
-#: every way msgspec says "not this schema": its own errors, and two it lets
-#: through (a string that is not UTF-8; absurdly deep nesting). Nothing else
-#: may escape ``decode`` (tests/test_fuzz.py, ``ramps bench fuzz``)
-_DECODE_ERRORS = (msgspec.DecodeError, msgspec.ValidationError, UnicodeDecodeError, RecursionError)
 
 
 def encode(sender: str, msg: Message) -> bytes:
@@ -427,54 +431,47 @@ def decode(data: bytes, *, max_bytes: int = MAX_MESSAGE_BYTES) -> Envelope:
     """Decode bytes from the network, or raise WireError saying why not.
 
     In order: the size (before anything is parsed), the major version
-    (before the body, so another version's message is ``VersionRefused``
-    naming both), then the body against the schema with every field's
-    limits; fields this node does not know are ignored, and a type it does
-    not know is ``UnknownMessageType``."""
+    (another version's message is ``VersionRefused`` naming both), then the
+    body against the schema with every field's limits; fields this node does
+    not know are ignored, and a type it does not know is
+    ``UnknownMessageType``. The envelope is parsed once when it is good; only
+    bytes it refuses are read again (``_refuse``) to say why, as the full
+    check words it."""
     if len(data) > max_bytes:
         raise WireError(f"message of {len(data)} bytes exceeds the limit of {max_bytes} bytes")
     try:
-        head = _head_decoder.decode(data)
-    except _DECODE_ERRORS as exc:
-        raise WireError(f"not a ramps message: {_why(exc)}") from exc
-    if head.v != PROTOCOL_MAJOR:
-        raise _refused(head)
+        env = _envelope_decoder.decode(data)
+    except DECODE_ERRORS:
+        _refuse(data)
+    msg = env.msg
+    if env.v != PROTOCOL_MAJOR or (
+            type(msg) is LoadReport and msg.running and KEY_UNSAFE.search("".join([r.origin for r in msg.running]))):
+        _refuse(data)
+    return env
+
+
+def _refuse(data: bytes) -> NoReturn:
+    """Raise the WireError for bytes ``decode`` refuses: the version first
+    (read from the head alone), then the body against the full schema
+    (``_checked_decoder``: RobotName's pattern on every listed origin too), so
+    the error names the first field that breaks a limit in the order it came."""
     try:
-        return _envelope_decoder.decode(data)
-    except _DECODE_ERRORS as exc:
+        head = head_decoder.decode(data)
+    except DECODE_ERRORS as exc:
+        raise WireError(f"not a ramps message: {why(exc)}") from exc
+    if head.v != PROTOCOL_MAJOR:
+        raise refused(head)
+    try:
+        _checked_decoder.decode(data)
+    except DECODE_ERRORS as exc:
         if isinstance(exc, msgspec.ValidationError):
             if _CONSTRAINT.match(str(exc)):
                 raise WireError(f"ramps message field out of bounds: {exc}") from exc
             unknown = _unknown_type(data)
             if unknown is not None:
                 raise unknown from exc
-        raise WireError(f"malformed ramps message: {_why(exc)}") from exc
-
-
-_T = TypeVar("_T")
-
-
-def _optional(decoder: msgspec.msgpack.Decoder[_T], raw: msgspec.Raw) -> _T | None:
-    """What ``raw`` holds if the decoder accepts it, else None (absent, or not sane)."""
-    if not len(raw):
-        return None
-    try:
-        return decoder.decode(raw)
-    except _DECODE_ERRORS:
-        return None
-
-
-def _refused(head: _Head) -> VersionRefused:
-    sender = _optional(_name_decoder, head.sender) or ""
-    minor = _optional(_minor_decoder, head.minor)
-    release = _optional(_release_decoder, head.release) or ""
-    speaks = f"{head.v}" if minor is None else f"{head.v}.{minor}"
-    whose = f"sent by {sender!r}" if sender else "from a node that gave no usable name"
-    rel = f" (ramps {release})" if release else ""
-    return VersionRefused(
-        f"protocol version mismatch: message is version {speaks}, {whose}{rel}; this node speaks version "
-        f"{PROTOCOL} (ramps {__version__}); another major version is refused (docs/wire-compatibility.md)",
-        version=head.v, minor=minor, release=release, sender=sender)
+        raise WireError(f"malformed ramps message: {why(exc)}") from exc
+    raise WireError("malformed ramps message")  # pragma: no cover (the full check takes less than decode)
 
 
 def _unknown_type(data: bytes) -> UnknownMessageType | None:
@@ -482,18 +479,10 @@ def _unknown_type(data: bytes) -> UnknownMessageType | None:
     here (a newer minor's), or None if the failure was anything else."""
     try:
         env = _unknown_decoder.decode(data)
-    except _DECODE_ERRORS:
+    except DECODE_ERRORS:
         return None
     if env.msg.type in KNOWN_TYPES:
         return None
     return UnknownMessageType(
         f"unknown message type {env.msg.type!r} from {env.sender!r} (a newer protocol {PROTOCOL_MAJOR}.x "
         f"node's, skipped; this node speaks {PROTOCOL})", tag=env.msg.type, sender=env.sender)
-
-
-def _why(exc: Exception) -> str:
-    if isinstance(exc, RecursionError):
-        return "nested too deeply"
-    if isinstance(exc, UnicodeDecodeError):
-        return f"a string is not UTF-8 ({exc.reason})"
-    return str(exc)

@@ -7,6 +7,7 @@ the core (``ramps.core.messages``, which re-exports every name here).
 
 from __future__ import annotations
 
+import re
 import sys
 from typing import Annotated
 
@@ -49,9 +50,17 @@ MAX_PROBE_BYTES = 64 * 1024
 # message that breaks one is a WireError at the receiver and never reaches the
 # core. Robot and client names become Zenoh key chunks (``ramps/<team>/msg/<host>``):
 # a wildcard in one would make an honest node publish to every robot's inbox.
-_KEY_SAFE = r"\A[^*$?#\x00-\x1f\x7f]*\Z"
+_KEY_UNSAFE_CHARS = r"*$?#\x00-\x1f\x7f"
+_KEY_SAFE = rf"\A[^{_KEY_UNSAFE_CHARS}]*\Z"
 #: a robot or client name
 RobotName = Annotated[str, Meta(min_length=1, max_length=MAX_NAME, pattern=_KEY_SAFE)]
+#: a robot name in a long list (a load report's ``running``): msgspec checks
+#: its length; ``ramps.core.messages.decode`` checks RobotName's pattern for
+#: the whole list at once (``KEY_UNSAFE`` over the names joined), which is one
+#: regex call instead of one per name and refuses exactly what the pattern does
+ListedRobotName = Annotated[str, Meta(min_length=1, max_length=MAX_NAME)]
+#: any character RobotName's pattern refuses
+KEY_UNSAFE = re.compile(f"[{_KEY_UNSAFE_CHARS}]")
 #: a robot name that may be empty (an outcome refused before any placement)
 OptRobotName = Annotated[str, Meta(max_length=MAX_NAME, pattern=_KEY_SAFE)]
 #: a program's name or id
