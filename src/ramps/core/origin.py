@@ -104,6 +104,9 @@ class Origin(Learning):
         #: host -> its live program ids, in placement order (a set's order
         #: would follow the process's hash seed)
         self.by_host: dict[str, dict[str, None]] = {}
+        #: teammate -> ids of programs offered to it, every one still offered there
+        #: among them (``placing.queued_bytes``); delivered ones leave at once
+        self.offered: dict[str, dict[str, None]] = {}
         self.timers = Timers()
         self.isolation = Isolation(me, view, config, self.programs, self._changed)
         #: finished programs, oldest first: kept for ``result_retention`` so a
@@ -446,6 +449,8 @@ class Origin(Learning):
             self.leave_host(ap, h, None, attempt=attempt)
         ap.live.clear()
         for ids in self.by_host.values():  # the index only serves live programs
+            ids.pop(ap.program_id, None)
+        for ids in self.offered.values():
             ids.pop(ap.program_id, None)
         ap.state = S.DONE if ok else S.FAILED
         ap.deadline = None

@@ -52,6 +52,8 @@ class PlacingOrigin(deadlines.DeliveringOrigin, Protocol):
     programs: dict[str, AutonomousProgram]
     #: host -> the ids of its live programs, in placement order
     by_host: dict[str, dict[str, None]]
+    #: teammate -> ids of the programs offered to it: every one still offered there, and some no longer
+    offered: dict[str, dict[str, None]]
     timers: Timers
     stalled_s: float
     placements: int
@@ -119,11 +121,29 @@ def place(origin: PlacingOrigin, ap: AutonomousProgram, now: float, out: list[Ac
     transfer = 0.0
     if host != origin.me:
         link = origin.links.estimate(host) if origin.links is not None else origin.net
-        programs = origin.programs
-        queued = sum(programs[pid].submit.payload_size for pid in origin.by_host.get(host, ())
-                     if programs[pid].state is S.OFFERED and programs[pid].host == host)
-        transfer = queued / link.bandwidth
+        transfer = queued_bytes(origin, host) / link.bandwidth
     origin.timers.set(ap, now + origin.config.connect_timeout + transfer, Event.CONNECT_TIMEOUT)
+
+
+def queued_bytes(origin: PlacingOrigin, host: str) -> int:
+    """Bytes of parameters of the live programs offered to teammate ``host``
+    and not accepted yet (``OFFERED`` there). Read from ``origin.offered``,
+    which holds each of them (a program becomes OFFERED only by ``offer``
+    or with one straight after, which adds it), so only this robot's recent
+    offers to ``host`` are walked, not all its programs there; those that
+    moved on are dropped from it here."""
+    ids = origin.offered.get(host)
+    if not ids:
+        return 0
+    programs, live = origin.programs, origin.by_host.get(host, {})
+    queued = 0
+    for pid in list(ids):
+        ap = programs.get(pid)
+        if ap is None or ap.state is not S.OFFERED or ap.host != host:
+            del ids[pid]
+        elif pid in live:
+            queued += ap.submit.payload_size
+    return queued
 
 
 def _attempt(origin: PlacingOrigin, ap: AutonomousProgram, host: str, work: float, accel_work: float,
@@ -197,6 +217,8 @@ def offer(origin: PlacingOrigin, ap: AutonomousProgram, out: list[Action], *, ex
     with its latest checkpoint: what is left of the work from there."""
     sub = ap.submit
     resume = ap.checkpoint
+    if ap.placed_host != origin.me:
+        origin.offered.setdefault(ap.placed_host, {})[ap.program_id] = None
     out.append(Send(to=ap.placed_host, msg=OffloadRequest(
         program_id=ap.program_id, attempt=ap.attempt, origin=origin.me, host=ap.placed_host,
         program=sub.program, args=sub.args, payload_size=sub.payload_size, work=ap.work,
