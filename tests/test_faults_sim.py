@@ -80,3 +80,23 @@ def test_cli_campaign_and_faults_json():
     assert data["mode"] == "sequential" and data["summary"]["lost"] == 0
     res = runner.invoke(app, ["sim", "paper", "-e", "faults", "--kind", "meteor"])
     assert res.exit_code == 2 and "unknown kind" in res.output
+
+
+def test_a_program_the_failed_robot_delivers_after_the_failure_was_not_displaced():
+    """On real processes the failure's moment is taken just before it is
+    injected: a program ending there then still delivers its result, and was
+    never displaced (no detection or recovery to wait for)."""
+    from ramps.experiments.faults import _failure_record
+    from ramps.sim.results import TraceEntry
+
+    trace = [TraceEntry(1.0, "r1", "accepted", "p1", "R5", 1, ""),
+             TraceEntry(1.0, "r1", "accepted", "p2", "R5", 1, ""),
+             TraceEntry(3.02, "r1", "delivered", "p1", "R5", 1, ""),  # it ended there as the cut came
+             TraceEntry(4.5, "r1", "failed", "p2", "R5", 1, "heartbeat_timeout"),
+             TraceEntry(4.6, "r1", "accepted", "p2", "R2", 2, "")]
+    rec = _failure_record(trace, 3.0, "R5", "network", set())
+    assert (rec.displaced, rec.detection, rec.recovery) == (1, pytest.approx(1.5), pytest.approx(1.6))
+    rec = _failure_record(trace[:3], 3.0, "R5", "network", set())
+    assert (rec.displaced, rec.detection, rec.recovery) == (1, None, None)  # p2 never recovered
+    rec = _failure_record(trace[:1] + trace[2:3], 3.0, "R5", "network", set())
+    assert (rec.displaced, rec.detection, rec.recovery) == (0, None, 0.0)

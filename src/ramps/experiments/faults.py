@@ -143,10 +143,15 @@ def run_plan(plan: FaultPlan, *, seed: int, policy: str = "ramps") -> FaultRun:
 
 
 def _failure_record(trace, t_fail: float, robot: str, kind: str, done_before: set[str]) -> FailureRecord:
-    """``done_before``: programs delivered before the failure (never displaced)."""
+    """``done_before``: programs delivered before the failure (never displaced).
+    A program the failed robot itself delivers after the failure was not
+    displaced either: it ended there as the failure came (on real processes
+    the failure's moment is taken just before it is injected, and a result
+    already on its way still arrives)."""
     host_at: dict[str, str] = {}
     detection = None
     again: dict[str, float] = {}
+    ended_there: set[str] = set()
     for e in trace:
         if e.t < t_fail:
             if e.what == "accepted":
@@ -156,7 +161,9 @@ def _failure_record(trace, t_fail: float, robot: str, kind: str, done_before: se
             detection = e.t - t_fail
         if e.what == "accepted" and e.other != robot:
             again.setdefault(e.program_id, e.t - t_fail)
-    displaced = {p for p, h in host_at.items() if h == robot and p not in done_before}
+        if e.what == "delivered" and e.other == robot:
+            ended_there.add(e.program_id)
+    displaced = {p for p, h in host_at.items() if h == robot and p not in done_before and p not in ended_there}
     again = {p: t for p, t in again.items() if p in displaced}
     recovery = max(again.values()) if displaced and len(again) == len(displaced) else (0.0 if not displaced else None)
     return FailureRecord(robot=robot, kind=kind, at=t_fail, displaced=len(displaced), detection=detection,
