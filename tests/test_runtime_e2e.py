@@ -439,8 +439,10 @@ def test_loaded_robot_gets_fewer_programs_cgroups(tmp_path):
         st = wait_for(loaded, 30, "r4 to report its background load", poll=0.2)
         assert all(st[n].cores == 1 for n in st), st
         assert max(st[n].runnable for n in ("r1", "r2", "r3")) < st["r4"].runnable
-        # each node reports the CPU it uses itself (a few percent of a core, never all of it)
-        assert all(0.0 < st[n].node_cpu < 0.5 for n in st), {n: st[n].node_cpu for n in st}
+        # each node reports the CPU it uses itself (a few percent of a core, never all of it;
+        # an idle one that places nothing may not have used a 10 ms tick of it yet)
+        cpu = {n: st[n].node_cpu for n in st}
+        assert all(0.0 <= c < 0.5 for c in cpu.values()) and any(c > 0.0 for c in cpu.values()), cpu
         ran = Counter(r["robot"] for r in results([team.submit("sleepy", seconds=1.5) for _ in range(6)]))
         assert sum(ran.values()) == 6
         assert ran["r4"] < min(ran[n] for n in ("r1", "r2", "r3")), dict(ran)
