@@ -136,7 +136,7 @@ def measure_idle(team: Any, seconds: float) -> dict[str, Any]:
         was, now = before[name][1], after[name][1]
         return sum(now[pid] - was.get(pid, 0.0) for pid in now)
 
-    router = process_tree(team.router_proc.pid) if getattr(team, "router_proc", None) is not None else []
+    router = process_tree(team.router_proc.pid) if team.router_proc is not None else []
     before, r0 = read(), cpu_seconds(router)
     b0, p0, t0 = *lo_counters(), time.monotonic()
     time.sleep(seconds)

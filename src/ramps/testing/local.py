@@ -311,11 +311,10 @@ class LocalTeam:
         """The team's Zenoh router (``router``), listening before any node starts."""
         port = free_port()
         self.router_endpoint = self._seed = f"{self.scheme}/127.0.0.1:{port}"
-        self.router_proc = self._popen([sys.executable, "-m", "ramps.cli", "router", "--team", self.team, "--listen", self._seed,
-                                        "--no-multicast"], log=self.log_dir / "router.log", env=self._env(None))
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline and (bound := listening_ports()) is not None and port not in bound:
-            time.sleep(0.02)
+        self.router_proc = proc = self._popen([sys.executable, "-m", "ramps.cli", "router", "--team", self.team,
+                                               "--listen", self._seed, "--no-multicast"],
+                                              log=self.log_dir / "router.log", env=self._env(None))
+        self._wait_ports({port: proc}, time.monotonic() + 30)
 
     def spawn(self, argv: list[str], *, robot: str | None = None, name: str = "bg") -> subprocess.Popen[bytes]:
         """A background process of this team (stopped on close); inside ``robot``'s cgroup if it has one."""
@@ -429,12 +428,17 @@ class LocalTeam:
         """Until every node in ``names`` listens on its port (or exited, or the
         deadline passed: the probe then tells why): a probe opened earlier
         would dial a closed port and wait out Zenoh's retry period."""
-        want = {} if self.router else {self.nodes[n].port: n for n in names}  # clients of a router listen on none
+        if not self.router:  # clients of a router listen on none
+            self._wait_ports({self.nodes[n].port: self.nodes[n].proc for n in names}, deadline)
+
+    @staticmethod
+    def _wait_ports(want: dict[int, subprocess.Popen[bytes]], deadline: float) -> None:
+        """Until each process of ``want`` listens on its port, has exited, or ``deadline`` passed."""
         while want and time.monotonic() < deadline:
             bound = listening_ports()
-            if bound is None:  # cannot tell: the probe waits as it would have
+            if bound is None:  # cannot tell: the caller waits as it would have
                 return
-            want = {p: n for p, n in want.items() if p not in bound and self.nodes[n].proc.poll() is None}
+            want = {p: proc for p, proc in want.items() if p not in bound and proc.poll() is None}
             if want:
                 time.sleep(0.02)
 
