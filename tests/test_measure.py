@@ -167,25 +167,65 @@ def test_the_measuring_child_is_the_nodes_own_work_not_the_robots_load(tmp_path,
     for a second to the origins placing then."""
     import os
 
+    other = subprocess.Popen(["sleep", "30"])  # another process of the robot
     seen: dict[str, object] = {}
     real_waitpid = os.waitpid
 
     def waitpid(pid: int, flags: int):  # the parent, its child's pieces read: what does the run queue read now?
-        (tmp_path / "tasks").write_text(f"{os.getpid()}\n{pid}\n4242424\n")
+        if pid == other.pid:
+            return real_waitpid(pid, flags)
+        (tmp_path / "tasks").write_text(f"{os.getpid()}\n{pid}\n{other.pid}\n")
+        threads = measure.CgroupThreads(tmp_path, None)
+        threads.sample()
         paths: list[str] = []
         monkeypatch.setattr(measure, "_running", lambda ps: paths.extend(ps) or 0)
-        measure._cgroup_usage_and_runnable(tmp_path, None)
         measure.own_running()
         monkeypatch.setattr(measure, "_running", real_running)
-        seen.update(pid=pid, paths=paths, during=set(measure.MEASURING_PIDS))
+        seen.update(pid=pid, read=set(threads._stats), paths=paths, during=set(measure.MEASURING_PIDS))
+        threads.close()
         return real_waitpid(pid, flags)
 
     real_running = measure._running
     monkeypatch.setattr(os, "waitpid", waitpid)
-    speed_probe.chunk_rates_apart(0.02)
+    try:
+        speed_probe.chunk_rates_apart(0.02)
+    finally:
+        other.kill()
+        other.wait()
     pid = seen["pid"]
     assert seen["during"] == {str(pid)}
-    # the robot's queue reads the other process, not the child; the node's own count reads the child
-    assert "/proc/4242424/stat" in seen["paths"]
-    assert seen["paths"].count(f"/proc/{pid}/stat") == 1  # once: as the node's own (own_running)
+    # the robot's queue reads the other process only, not the child nor this process; the node's
+    # own count reads the child
+    assert seen["read"] == {str(other.pid)}
+    assert seen["paths"] == [f"/proc/{pid}/stat"]
     assert measure.MEASURING_PIDS == set()  # gone with its child
+
+
+def test_a_cgroups_threads_are_read_from_open_files_that_follow_threads_and_cgroups(tmp_path):
+    """The cgroup's thread lists and each thread's stat stay open between samples; a cgroup
+    below (a program's cap) is found when the list is made again, a thread that ended is dropped."""
+    sleeper = subprocess.Popen(["sleep", "30"])
+    spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        (tmp_path / "tasks").write_text(f"{sleeper.pid}\n")
+        threads = measure.CgroupThreads(tmp_path, None)
+        deadline = time.monotonic() + 10
+        while threads.sample()[1] and time.monotonic() < deadline:  # until it sleeps (exec done)
+            time.sleep(0.05)
+        assert threads.sample()[1] == 0  # the sleeper is not running
+        assert set(threads._stats) == {str(sleeper.pid)}
+        (tmp_path / "cap").mkdir()
+        (tmp_path / "cap" / "tasks").write_text(f"{spinner.pid}\n")
+        time.sleep(0.2)
+        counts = [threads.sample()[1] for _ in range(threads.RELIST + 5)]
+        assert counts[-1] == 1 and set(threads._stats) == {str(sleeper.pid), str(spinner.pid)}
+        spinner.kill()
+        spinner.wait()
+        threads.sample()
+        assert set(threads._stats) == {str(sleeper.pid)}  # its stat fails to read: dropped
+        threads.close()
+        assert not threads._stats and not threads._lists
+    finally:
+        for p in (sleeper, spinner):
+            p.kill()
+            p.wait()

@@ -232,17 +232,6 @@ def _cgroup_dirs(top: str) -> list[str]:
     return out
 
 
-def _read_all(path: str) -> bytes:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        chunks = []
-        while chunk := os.read(fd, 65536):
-            chunks.append(chunk)
-        return b"".join(chunks)
-    finally:
-        os.close(fd)
-
-
 def _own_threads() -> set[str]:
     try:
         return set(os.listdir("/proc/self/task"))
@@ -287,6 +276,13 @@ class OwnThreads:
                 n += _is_running(data)
             return n
 
+    def tids(self) -> set[str]:
+        """This process's thread ids as last listed (at most ``RELIST`` reads ago)."""
+        with self._lock:
+            if not self.fds:
+                self._relist()
+            return set(self.fds)
+
     def _relist(self) -> None:
         tids = _own_threads()
         for tid in [t for t in self.fds if t not in tids]:
@@ -307,19 +303,95 @@ def own_running() -> int:
     return _OWN.running() + _running([f"/proc/{pid}/stat" for pid in list(MEASURING_PIDS)])
 
 
-def _cgroup_usage_and_runnable(cpu: Path, acct: Path | None) -> tuple[float, int]:
-    """CPU seconds used so far by a cgroup, and its threads in state R now,
-    other than this process's own (the node: see ``LoadSampler``)."""
-    usage = cgroup_usage(cpu, acct)
-    tids: list[str] = []
-    v1 = not os.path.exists(os.path.join(cpu, "cgroup.threads"))  # v1 lists a cgroup's threads in ``tasks``
-    for sub in _cgroup_dirs(str(cpu)):
+class CgroupThreads:
+    """A cgroup's CPU usage and its threads in state R, other than this
+    process's own (the node: see ``LoadSampler``), from files kept open and
+    read again with ``pread``: the usage file, every ``tasks`` (v1) or
+    ``cgroup.threads`` (v2) file of the cgroup and those below it, and each
+    listed thread's ``stat``. Opening them all by path five times a second
+    (some 250 us a sample with 35 threads) was most of an idle node's CPU in
+    an emulated robot. The cgroups below (per-program caps) are listed again
+    every ``RELIST`` samples; a thread that ended is dropped at its first
+    failed read, a new one opened when a ``tasks`` file lists it."""
+
+    RELIST = 5
+
+    def __init__(self, cpu: Path, acct: Path | None) -> None:
+        self.cpu, self.acct = cpu, acct
+        self.v1 = not os.path.exists(os.path.join(cpu, "cgroup.threads"))  # v1 lists threads in ``tasks``
+        self._usage_fd: int | None = None
+        self._usage_v2 = False
+        self._lists: dict[str, int] = {}  # cgroup directory -> its open tasks file
+        self._stats: dict[str, int] = {}  # thread id -> its open stat file
+        self._samples = 0
         try:
-            tids += _read_all(os.path.join(sub, "tasks" if v1 else "cgroup.threads")).decode().split()
+            if acct is not None and (acct / "cpuacct.usage").exists():
+                self._usage_fd = os.open(acct / "cpuacct.usage", os.O_RDONLY)
+            elif (cpu / "cpu.stat").exists():
+                self._usage_fd, self._usage_v2 = os.open(cpu / "cpu.stat", os.O_RDONLY), True
         except OSError:
-            continue
-    own = _own_threads() | MEASURING_PIDS
-    return usage, _running(f"/proc/{tid}/stat" for tid in tids if tid not in own)
+            self._usage_fd = None
+
+    def usage(self) -> float:
+        """CPU seconds used so far by the cgroup and its children (0.0 if unreadable)."""
+        if self._usage_fd is None:
+            return cgroup_usage(self.cpu, self.acct)
+        try:
+            data = os.pread(self._usage_fd, 4096, 0)
+            if not self._usage_v2:
+                return int(data) / 1e9
+            for line in data.splitlines():
+                if line.startswith(b"usage_usec"):
+                    return int(line.split()[1]) / 1e6
+        except (OSError, ValueError):
+            pass
+        return 0.0
+
+    def sample(self) -> tuple[float, int]:
+        """(CPU seconds so far, threads in state R now other than this process's)."""
+        usage = self.usage()
+        if self._samples % self.RELIST == 0:
+            self._relist()
+        self._samples += 1
+        own = _OWN.tids() | MEASURING_PIDS
+        listed: set[str] = set()
+        for d, fd in list(self._lists.items()):
+            try:
+                listed.update(os.pread(fd, 65536, 0).decode().split())
+            except OSError:  # the cgroup went away
+                os.close(fd)
+                del self._lists[d]
+        for tid in [t for t in self._stats if t not in listed]:
+            os.close(self._stats.pop(tid))
+        running = 0
+        for tid in listed - own:
+            if tid not in self._stats:
+                try:
+                    self._stats[tid] = os.open(f"/proc/{tid}/stat", os.O_RDONLY)
+                except OSError:
+                    continue
+            try:
+                running += _is_running(os.pread(self._stats[tid], 1024, 0))
+            except OSError:  # the thread ended
+                os.close(self._stats.pop(tid))
+        return usage, running
+
+    def close(self) -> None:
+        for fd in [*self._lists.values(), *self._stats.values(), *([self._usage_fd] if self._usage_fd else [])]:
+            os.close(fd)
+        self._lists.clear()
+        self._stats.clear()
+        self._usage_fd = None
+
+    def _relist(self) -> None:
+        dirs = set(_cgroup_dirs(str(self.cpu)))
+        for d in [d for d in self._lists if d not in dirs]:
+            os.close(self._lists.pop(d))
+        for d in dirs - self._lists.keys():
+            try:
+                self._lists[d] = os.open(os.path.join(d, "tasks" if self.v1 else "cgroup.threads"), os.O_RDONLY)
+            except OSError:
+                continue
 
 
 class LoadSampler:
@@ -351,7 +423,8 @@ class LoadSampler:
 
     def start(self) -> None:
         psutil.cpu_percent(percpu=False)
-        self._last_usage = _cgroup_usage_and_runnable(self.cgroup, self.acct)[0] if self.cgroup else 0.0
+        self._cg = CgroupThreads(self.cgroup, self.acct) if self.scope == "cgroup" and self.cgroup else None
+        self._last_usage = self._cg.usage() if self._cg else 0.0
         self._last_t = time.monotonic()
         self._thread.start()
 
@@ -363,8 +436,8 @@ class LoadSampler:
         while not self._stop.wait(self.interval):
             now = time.monotonic()
             ramps = float(self._ramps_count())
-            if self.scope == "cgroup" and self.cgroup is not None:
-                usage, running = _cgroup_usage_and_runnable(self.cgroup, self.acct)
+            if self._cg is not None:
+                usage, running = self._cg.sample()
                 busy = max(0.0, (usage - self._last_usage) / max(now - self._last_t, 1e-6))
                 self._last_usage = usage
                 runnable = float(running)
@@ -379,6 +452,8 @@ class LoadSampler:
                 self._samples.append((now, busy, max(runnable, ramps), ramps))
                 while self._samples and self._samples[0][0] < now - self.window:
                     self._samples.popleft()
+        if self._cg is not None:
+            self._cg.close()
 
     def extras(self) -> tuple[list[float], float, int]:
         """(CPU use per core 0..1 since the last call, 1-minute load average,
