@@ -192,11 +192,12 @@ def test_failure_experiment_plan_on_the_testbed():
 
 # not serial: every program delivered once and every robot back in the team, waited for with
 # room to spare (a write-off that a busy host causes is one more fault the run survives); nothing timed
-def test_testbed_campaign_one_run():
+def test_testbed_campaign_one_run(tmp_path):
     from ramps.lab.campaign import run_campaign
 
-    rep = run_campaign(1, seed=3, robots=3, duration=12.0)
-    assert rep.runs == 1 and rep.lost == 0 and rep.duplicated == 0 and rep.not_rejoined == 0, rep.failed_runs
+    rep = run_campaign(1, seed=3, robots=3, duration=12.0, keep_logs=tmp_path)
+    assert rep.runs == 1 and rep.lost == 0 and rep.duplicated == 0 and rep.not_rejoined == 0, (
+        f"{rep.failed_runs} (node logs and traces in {tmp_path})")
     assert rep.completed == rep.programs > 0
 
 

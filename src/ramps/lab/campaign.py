@@ -309,6 +309,7 @@ def _not_rejoined(tb: Testbed, obs: TeamWatcher, recovered: list[str]) -> list[s
         not_rejoined.append(str(exc).splitlines()[0])
     deadline = time.monotonic() + 15.0
     missing: list[str] = []
+    r1 = None
     while time.monotonic() < deadline:
         rows = {row["robot"]: row for row in obs.view()}
         r1 = obs.report("r1")
@@ -318,7 +319,8 @@ def _not_rejoined(tb: Testbed, obs: TeamWatcher, recovered: list[str]) -> list[s
             break
         time.sleep(0.5)
     else:
-        not_rejoined += [f"{r} (blacklisted at r1 or not alive)" for r in missing]
+        not_rejoined += [f"{r} ({'blacklisted at r1' if r in black else 'not alive'}; r1 sees "
+                         f"{r1.sees if r1 else '?'} others)" for r in missing]
     return not_rejoined
 
 
