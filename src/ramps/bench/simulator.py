@@ -10,14 +10,18 @@ from __future__ import annotations
 import os
 import platform
 import time
+from collections import Counter
 
+from ramps.core.config import RampsConfig
 from ramps.experiments.paper import run_experiment
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario
 
 
-def large_team(robots: int = 1000, programs: int = 10_000, origins: int = 10, seed: int = 0) -> Scenario:
-    """A big team: ``origins`` robots each submit an equal share of programs."""
+def large_team(robots: int = 1000, programs: int = 10_000, origins: int = 10, seed: int = 0,
+               config: RampsConfig | None = None) -> Scenario:
+    """A big team: ``origins`` robots each submit an equal share of programs
+    (``config``: the team's core settings, the defaults without)."""
     per = programs // origins
     entries = [
         ProgramSpec(count=per + (1 if i < programs % origins else 0), work=53.0, payload=2000, result=1000,
@@ -25,7 +29,8 @@ def large_team(robots: int = 1000, programs: int = 10_000, origins: int = 10, se
         for i in range(origins)
     ]
     return Scenario(name=f"large-{robots}r-{programs}p", seed=seed,
-                    robots=[RobotSpec(name="w{i}", count=robots, cores=4, speed=1.0)], programs=entries)
+                    robots=[RobotSpec(name="w{i}", count=robots, cores=4, speed=1.0)], programs=entries,
+                    config=config or RampsConfig())
 
 
 def bench_sweep(runs: int = 3, policy: str = "ramps") -> dict:
@@ -39,16 +44,24 @@ def bench_sweep(runs: int = 3, policy: str = "ramps") -> dict:
     return out
 
 
-def bench_large(robots: int = 1000, programs: int = 10_000, origins: int = 10, policy: str = "ramps") -> dict:
-    sc = large_team(robots, programs, origins)
-    started = time.perf_counter()
+def bench_large(robots: int = 1000, programs: int = 10_000, origins: int = 10, policy: str = "ramps",
+                config: RampsConfig | None = None) -> dict:
+    """One ``large_team`` run timed (wall and this process's CPU seconds), its
+    makespan against ``bounds``, and how evenly the robots were loaded."""
+    sc = large_team(robots, programs, origins, config=config)
+    started, cpu = time.perf_counter(), time.process_time()
     res = simulate(sc, policy=policy)
-    wall = time.perf_counter() - started
+    wall, cpu = time.perf_counter() - started, time.process_time() - cpu
+    default = RampsConfig()
+    changed = {name: getattr(sc.config, name) for name in sc.config.__struct_fields__
+               if getattr(sc.config, name) != getattr(default, name)}
     return {**bounds(sc, res.makespan),
-        "robots": robots, "programs": programs, "origins": origins, "policy": policy,
-        "wall_seconds": wall, "completed": res.completed, "lost": res.lost, "duplicated": res.duplicated,
-        "makespan_virtual_s": res.makespan, "events": res.events, "events_per_s": res.events / wall if wall else 0,
+        "robots": robots, "programs": programs, "origins": origins, "policy": policy, "config": changed,
+        "wall_seconds": wall, "cpu_seconds": cpu, "completed": res.completed, "lost": res.lost,
+        "duplicated": res.duplicated, "makespan_virtual_s": res.makespan, "events": res.events,
+        "events_per_s": res.events / wall if wall else 0, "messages_sent": res.messages_sent,
         "rejections": sum(s.rejections for s in res.statistics),
+        "robots_by_programs": {str(k): v for k, v in sorted(Counter(res.distribution.values()).items())},
     }
 
 

@@ -182,6 +182,15 @@ class Node:
         self._dispatch(event, now, out)
         return self._prompt_report(self._loopback(out, now), now)
 
+    def handle_all(self, events: Sequence[Event], now: float) -> list[Action]:
+        """Events of one instant, in order (a driver's batch of messages):
+        ``handle`` of each, with one report of the instant after them all."""
+        self._now = now
+        out: list[Action] = []
+        for event in events:
+            self._dispatch(event, now, out)
+        return self._prompt_report(self._loopback(out, now), now)
+
     def tick(self, now: float, *, origin: bool = True) -> list[Action]:
         """Fire due timers. ``origin=False``: only what this robot owes its
         teammates (its programs' heartbeats, prompt reports), not the origin's

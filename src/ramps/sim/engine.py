@@ -7,7 +7,8 @@ use stale information, as on real robots), and a ``ramps.core.node.Node``,
 the very same object the real runtime drives. The simulator only applies the
 node's actions: ``Send`` becomes a message on a link with latency, bandwidth
 and queueing; ``StartProgram`` a job on the CPU; ``Deliver`` a record. No
-placement or recovery logic lives here.
+placement or recovery logic lives here. In a fleet (more robots than
+``placement_sample``) heartbeats go by mailbox, read in batches (``ramps.sim.fleet``).
 
 Faults: ``crash`` removes the robot and all its state (a new incarnation
 starts on ``recover``); ``network`` isolates it while it keeps computing;
@@ -39,12 +40,13 @@ from ramps.core.cost import NetworkEstimate, nice_weight, program_cores
 from ramps.core.events import (Action, CheckpointSaved, Deliver, Note, PeerAlive, PeerLost, ProgramFinished,
                                PublishReport, Received, Send, StartProgram, StopProgram, Submit)
 from ramps.core.fanout import report_targets
-from ramps.core.messages import LoadReport, Message
+from ramps.core.messages import Heartbeat, LoadReport, Message
 from ramps.core.node import Node
 from ramps.core.program import FINAL
 from ramps.core.speed import REMEASURE_PERIOD, SpeedMeasured
 from ramps.sim.battery import Batteries
 from ramps.sim.cpu import CPU, next_completion, set_frozen, take_finished
+from ramps.sim.fleet import Mailboxes
 from ramps.sim.results import ProgramRecord, SimResult, TraceEntry, tally
 from ramps.sim.scenario import FaultSpec, ProgramSpec, RobotSpec, Scenario
 from ramps.sim.wire import wire_size
@@ -109,6 +111,8 @@ class Simulator:
         #: the origins each robot's load reports go to (all of them but in a fleet: ``ramps.core.fanout``)
         self._report_to = {name: report_targets(name, self.subscribers, len(self.robots), self.sc.config)
                            or self.subscribers for name in self.robots}
+        #: a fleet's heartbeats go by mailbox, read in batches (``ramps.sim.fleet``); None: a team
+        self.mail = Mailboxes(self) if 0 < self.sc.config.placement_sample < len(self.robots) else None
         self._pending = self.events = self.sent = self.dropped = 0
         self._trace_on = trace
         self.trace: list[TraceEntry] = []
@@ -183,7 +187,10 @@ class Simulator:
         node = r.node
         for a in actions:
             if isinstance(a, Send):
-                self._send(r, a.to, a.msg)
+                if self.mail is not None and type(a.msg) is Heartbeat:
+                    self.mail.beat(r, a.to, a.msg)
+                else:
+                    self._send(r, a.to, a.msg)
             elif isinstance(a, StartProgram):
                 work = (self._true_accel if a.accelerator else self._true_work).get(a.program_id, a.work)
                 if a.resume is not None:
@@ -312,16 +319,18 @@ class Simulator:
         if self.net.loss and self.rng.random() < self.net.loss:
             self.dropped += 1
             return
-        link = self._links.get((src.spec.name, to))
-        if link is None:
-            latency, bandwidth = self.net.latency, self.net.bandwidth
-            for end in (src.spec, dst.spec):  # a robot's own worse link counts
-                latency = latency if end.latency is None else max(latency, end.latency)
-                bandwidth = bandwidth if end.bandwidth is None else min(bandwidth, end.bandwidth)
-            link = self._links[(src.spec.name, to)] = [0.0, latency, bandwidth]
+        link = self._links.get((src.spec.name, to)) or self._link(src, dst)
         start = link[0] if link[0] > self.now else self.now
         link[0] = start + wire_size(msg) / link[2]
         self._at(link[0] + link[1], self._arrive, (src, src.epoch, dst, dst.epoch, msg))
+
+    def _link(self, src: _Robot, dst: _Robot) -> list[float]:
+        latency, bandwidth = self.net.latency, self.net.bandwidth
+        for end in (src.spec, dst.spec):  # a robot's own worse link counts
+            latency = latency if end.latency is None else max(latency, end.latency)
+            bandwidth = bandwidth if end.bandwidth is None else min(bandwidth, end.bandwidth)
+        link = self._links[(src.spec.name, dst.spec.name)] = [0.0, latency, bandwidth]
+        return link
 
     def _arrive(self, arg: tuple[_Robot, int, _Robot, int, Message]) -> None:
         src, se, dst, de, msg = arg
@@ -473,7 +482,7 @@ class Simulator:
             distribution=dist, makespan=max(0.0, self._last_delivery - first), completed=completed,
             failed=failed, lost=lost, duplicated=dup, programs=list(self.records.values()),
             statistics=stats, snapshots=self.snapshots, events=self.events, messages_sent=self.sent,
-            messages_dropped=self.dropped, end_time=self.now, wall_seconds=wall, trace=self.trace,
+            messages_dropped=self.dropped + (self.mail.lost if self.mail else 0), end_time=self.now, wall_seconds=wall, trace=self.trace,
             deadlines=deadlines, deadline_misses=misses, energy=energy, charge=charge,
         )
 
