@@ -86,6 +86,32 @@ def test_cgroup_run_queue_counts_the_robots_processes_not_the_nodes_threads():
     assert busy == pytest.approx(cores, rel=0.25), (busy, cores)
 
 
+@pytest.mark.skipif(cgroup_support() is not None, reason=f"cpu cgroups unavailable: {cgroup_support()}")
+def test_a_cgroups_run_queue_follows_processes_that_join_and_leave_it():
+    """On a real cgroup: a process that joins after the first sample is counted, one that
+    ends is not (an open ``tasks`` file keeps the list it first read: they are opened afresh)."""
+    cg = RobotCgroup(f"measure-{time.monotonic_ns()}", 2.0, cgroup_mode())
+    spinner = None
+    try:
+        threads = measure.CgroupThreads(cg.dirs[0], cg.dirs[1] if len(cg.dirs) > 1 else None)
+        assert threads.sample()[1] == 0
+        spinner = subprocess.Popen(cg.wrap([sys.executable, "-c", "while True: pass"]))
+        deadline = time.monotonic() + 10
+        while threads.sample()[1] != 1 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert threads.sample()[1] == 1
+        spinner.kill()
+        spinner.wait()
+        assert threads.sample()[1] == 0 and not threads._stats
+        assert threads.usage() > 0
+        threads.close()
+    finally:
+        if spinner is not None and spinner.poll() is None:
+            spinner.kill()
+            spinner.wait()
+        cg.remove()
+
+
 def test_own_running_counts_this_processes_busy_threads():
     data = b"x" * (32 << 20)
     stop = threading.Event()
@@ -202,7 +228,7 @@ def test_the_measuring_child_is_the_nodes_own_work_not_the_robots_load(tmp_path,
 
 
 def test_a_cgroups_threads_are_read_from_open_files_that_follow_threads_and_cgroups(tmp_path):
-    """The cgroup's thread lists and each thread's stat stay open between samples; a cgroup
+    """Each thread's stat stays open between samples; a cgroup
     below (a program's cap) is found when the list is made again, a thread that ended is dropped."""
     sleeper = subprocess.Popen(["sleep", "30"])
     spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
@@ -224,7 +250,7 @@ def test_a_cgroups_threads_are_read_from_open_files_that_follow_threads_and_cgro
         threads.sample()
         assert set(threads._stats) == {str(sleeper.pid)}  # its stat fails to read: dropped
         threads.close()
-        assert not threads._stats and not threads._lists
+        assert not threads._stats
     finally:
         for p in (sleeper, spinner):
             p.kill()

@@ -305,14 +305,15 @@ def own_running() -> int:
 
 class CgroupThreads:
     """A cgroup's CPU usage and its threads in state R, other than this
-    process's own (the node: see ``LoadSampler``), from files kept open and
-    read again with ``pread``: the usage file, every ``tasks`` (v1) or
-    ``cgroup.threads`` (v2) file of the cgroup and those below it, and each
-    listed thread's ``stat``. Opening them all by path five times a second
+    process's own (the node: see ``LoadSampler``). The usage file and each
+    listed thread's ``stat`` stay open and are read again with ``pread``;
+    the ``tasks`` (v1) or ``cgroup.threads`` (v2) files of the cgroup and
+    those below it are opened afresh each sample (an open one keeps the
+    list it first read). Opening every file by path five times a second
     (some 250 us a sample with 35 threads) was most of an idle node's CPU in
     an emulated robot. The cgroups below (per-program caps) are listed again
     every ``RELIST`` samples; a thread that ended is dropped at its first
-    failed read, a new one opened when a ``tasks`` file lists it."""
+    failed read."""
 
     RELIST = 5
 
@@ -321,7 +322,7 @@ class CgroupThreads:
         self.v1 = not os.path.exists(os.path.join(cpu, "cgroup.threads"))  # v1 lists threads in ``tasks``
         self._usage_fd: int | None = None
         self._usage_v2 = False
-        self._lists: dict[str, int] = {}  # cgroup directory -> its open tasks file
+        self._lists: list[str] = []  # the tasks files of the cgroup and those below it
         self._stats: dict[str, int] = {}  # thread id -> its open stat file
         self._samples = 0
         try:
@@ -355,12 +356,20 @@ class CgroupThreads:
         self._samples += 1
         own = _OWN.tids() | MEASURING_PIDS
         listed: set[str] = set()
-        for d, fd in list(self._lists.items()):
+        for path in self._lists:
             try:
-                listed.update(os.pread(fd, 65536, 0).decode().split())
+                fd = os.open(path, os.O_RDONLY)
             except OSError:  # the cgroup went away
+                continue
+            chunks = []
+            try:
+                while chunk := os.read(fd, 65536):
+                    chunks.append(chunk)
+            except OSError:
+                pass
+            finally:
                 os.close(fd)
-                del self._lists[d]
+            listed.update(b"".join(chunks).decode().split())
         for tid in [t for t in self._stats if t not in listed]:
             os.close(self._stats.pop(tid))
         running = 0
@@ -377,21 +386,14 @@ class CgroupThreads:
         return usage, running
 
     def close(self) -> None:
-        for fd in [*self._lists.values(), *self._stats.values(), *([self._usage_fd] if self._usage_fd else [])]:
+        for fd in [*self._stats.values(), *([self._usage_fd] if self._usage_fd else [])]:
             os.close(fd)
-        self._lists.clear()
         self._stats.clear()
         self._usage_fd = None
 
     def _relist(self) -> None:
-        dirs = set(_cgroup_dirs(str(self.cpu)))
-        for d in [d for d in self._lists if d not in dirs]:
-            os.close(self._lists.pop(d))
-        for d in dirs - self._lists.keys():
-            try:
-                self._lists[d] = os.open(os.path.join(d, "tasks" if self.v1 else "cgroup.threads"), os.O_RDONLY)
-            except OSError:
-                continue
+        name = "tasks" if self.v1 else "cgroup.threads"
+        self._lists = [os.path.join(d, name) for d in _cgroup_dirs(str(self.cpu))]
 
 
 class LoadSampler:
