@@ -180,3 +180,21 @@ def test_small_moves_of_a_share_leave_the_quota_alone(tmp_path, heavy_and_light)
     assert robot.quota(p0) == before
     robot.run(0.2, node=0.0, per_pid={p: CORE for p in heavy + light[:1]})  # 3 stop: the rest get more
     assert robot.quota(p0) > before * 1.5
+
+
+def test_a_program_adopted_between_ticks_is_not_counted_as_the_nodes_use(tmp_path, sleepers):
+    # the capper adopts new processes four times a tick: a worker that starts a program is moved
+    # into a child of its own, and the CPU it uses until the next tick is the program's
+    first, late = sleepers[:3], sleepers[3]
+    robot = FakeRobot(tmp_path, first)
+    for _ in range(30):  # the node's average use settles at its 0.01 host cores
+        robot.run(0.2, node=0.01, per_pid={p: CORE for p in first})
+    settled = robot.caps.node_use
+    assert settled == pytest.approx(0.01, rel=0.05)
+    robot.used[late] = robot.since[late] = 0.0
+    with open(robot.cpu / "cgroup.procs", "a") as f:  # the fork server's new worker, born in the robot
+        f.write(f"{late}\n")
+    robot.caps.adopt(None)
+    assert f"p{late}" in robot.children()
+    robot.run(0.2, node=0.01, per_pid={p: CORE for p in [*first, late]})  # it runs a program until the tick
+    assert robot.caps.node_use == pytest.approx(settled, rel=0.05)

@@ -171,6 +171,8 @@ class RobotCaps:
                     (base / name).mkdir(exist_ok=True)
                 (self.cpu / name / "cpu.cfs_period_us").write_text(str(CFS_PERIOD_US))
                 (self.cpu / name / "cpu.cfs_quota_us").write_text(str(int(self.share * CFS_PERIOD_US)))
+                # what it used before it moved in (a child made anew: nothing); ``tick`` counts from here
+                self._usage.setdefault(name, cgroup_usage(self.cpu / name, self.acct / name if self.acct else None))
                 for base in (self.cpu, self.acct):
                     if base is not None:
                         self._join(base / name, pid)
@@ -294,6 +296,9 @@ class RobotCaps:
             used = cgroup_usage(self.cpu / name, self.acct / name if self.acct else None)
             before = self._usage.get(name)
             self._usage[name] = used
+            # from its usage at adoption (``adopt``): a new child's CPU since then is a program's,
+            # not the node's (counted as the node's, each program a robot started took some of
+            # its neighbours' reserve for a second or two)
             children_used += used - before if before is not None else 0.0
             # runnable counts from the first tick: children just adopted from a pool are busy at once
             if (before is not None and used - before >= BUSY_FRACTION * self._share.get(name, self.share) * dt) \
