@@ -13,13 +13,14 @@ def test_bench_sim_large_only_with_settings_writes_its_figures(tmp_path) -> None
     out = tmp_path / "b.json"
     res = CliRunner().invoke(app, ["bench", "sim", "--large-only", "--robots", "70", "--programs", "140",
                                    "--origins", "2", "--set", "heartbeat_period=5", "--set", "heartbeat_timeout=15",
-                                   "--out", str(out)], catch_exceptions=False)
+                                   "--report-period", "5", "--out", str(out)], catch_exceptions=False)
     assert res.exit_code == 0, res.output
     data = json.loads(out.read_text())
     large = data["large"]
     assert data["sweep"] is None
     assert large["completed"] == 140 and large["lost"] == 0 and large["duplicated"] == 0
     assert large["config"] == {"heartbeat_period": 5.0, "heartbeat_timeout": 15.0}
+    assert large["report_period"] == 5.0
     assert large["cpu_seconds"] > 0 and large["makespan_over_bound"] >= 1.0
     assert sum(large["robots_by_programs"].values()) <= 70
 

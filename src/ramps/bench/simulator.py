@@ -15,13 +15,15 @@ from collections import Counter
 from ramps.core.config import RampsConfig
 from ramps.experiments.paper import run_experiment
 from ramps.sim.engine import simulate
-from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario
+from ramps.sim.scenario import ProgramSpec, PublisherSpec, RobotSpec, Scenario
 
 
 def large_team(robots: int = 1000, programs: int = 10_000, origins: int = 10, seed: int = 0,
-               config: RampsConfig | None = None) -> Scenario:
+               config: RampsConfig | None = None, report_period: float | None = None) -> Scenario:
     """A big team: ``origins`` robots each submit an equal share of programs
-    (``config``: the team's core settings, the defaults without)."""
+    (``config``: the team's core settings, the defaults without;
+    ``report_period``: seconds between a robot's periodic load reports, the
+    simulator's default without)."""
     per = programs // origins
     entries = [
         ProgramSpec(count=per + (1 if i < programs % origins else 0), work=53.0, payload=2000, result=1000,
@@ -30,7 +32,8 @@ def large_team(robots: int = 1000, programs: int = 10_000, origins: int = 10, se
     ]
     return Scenario(name=f"large-{robots}r-{programs}p", seed=seed,
                     robots=[RobotSpec(name="w{i}", count=robots, cores=4, speed=1.0)], programs=entries,
-                    config=config or RampsConfig())
+                    config=config or RampsConfig(),
+                    publisher=PublisherSpec() if report_period is None else PublisherSpec(period=report_period))
 
 
 def bench_sweep(runs: int = 3, policy: str = "ramps") -> dict:
@@ -45,10 +48,10 @@ def bench_sweep(runs: int = 3, policy: str = "ramps") -> dict:
 
 
 def bench_large(robots: int = 1000, programs: int = 10_000, origins: int = 10, policy: str = "ramps",
-                config: RampsConfig | None = None) -> dict:
+                config: RampsConfig | None = None, report_period: float | None = None) -> dict:
     """One ``large_team`` run timed (wall and this process's CPU seconds), its
     makespan against ``bounds``, and how evenly the robots were loaded."""
-    sc = large_team(robots, programs, origins, config=config)
+    sc = large_team(robots, programs, origins, config=config, report_period=report_period)
     started, cpu = time.perf_counter(), time.process_time()
     res = simulate(sc, policy=policy)
     wall, cpu = time.perf_counter() - started, time.process_time() - cpu
@@ -57,6 +60,7 @@ def bench_large(robots: int = 1000, programs: int = 10_000, origins: int = 10, p
                if getattr(sc.config, name) != getattr(default, name)}
     return {**bounds(sc, res.makespan),
         "robots": robots, "programs": programs, "origins": origins, "policy": policy, "config": changed,
+        "report_period": sc.publisher.period,
         "wall_seconds": wall, "cpu_seconds": cpu, "completed": res.completed, "lost": res.lost,
         "duplicated": res.duplicated, "makespan_virtual_s": res.makespan, "events": res.events,
         "events_per_s": res.events / wall if wall else 0, "messages_sent": res.messages_sent,

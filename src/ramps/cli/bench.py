@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import statistics
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 import typer
 
@@ -57,6 +57,9 @@ def bench_sim(
     origins: int = typer.Option(10, "--origins", min=1, help="robots that submit programs in the large scenario"),
     settings: list[str] = typer.Option([], "--set", help="change a core setting of the large team, e.g. "
                                        "--set heartbeat_period=5 --set heartbeat_timeout=15 --set report_fanout=16"),
+    report_period: Optional[float] = typer.Option(None, "--report-period", min=0.1,
+                                                  help="seconds between a robot's periodic load reports in the "
+                                                       "large team (default: the simulator's, 2)"),
     large_only: bool = typer.Option(False, "--large-only", help="time the large team only, not the paper sweep"),
     out_file: Path = typer.Option(Path("bench-results/sim.json"), "--out", "-o", help="where to save the JSON"),
 ) -> None:
@@ -74,7 +77,7 @@ def bench_sim(
         out.print(f"paper sweep (unloaded + loaded, {runs} runs each): {sweep['wall_seconds']:.2f} s "
                   f"({sweep['unloaded']['simulations'] + sweep['loaded']['simulations']} simulations)")
     err.print(f"large team: {robots} robots, {programs} programs from {origins} origins ...")
-    large = bench_large(robots, programs, origins, config=config)
+    large = bench_large(robots, programs, origins, config=config, report_period=report_period)
     out.print(f"large team ({robots} robots, {programs} programs): {large['wall_seconds']:.2f} s wall, "
               f"{large['cpu_seconds']:.2f} s CPU, {large['events']} events ({large['events_per_s']:.0f}/s), "
               f"completed {large['completed']}, lost {large['lost']}, duplicated {large['duplicated']}, "

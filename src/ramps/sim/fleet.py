@@ -71,11 +71,11 @@ _Waiting = tuple[_Robot, int, _Robot, int, Message]
 
 
 class Mailboxes:
-    """Every fleet robot's mailbox: (receiver, grid step) -> (sender, kind) -> what waits."""
+    """Every fleet robot's mailbox: (receiver, grid step) -> sending host -> what waits."""
 
     def __init__(self, sim: _Sim) -> None:
         self.sim = sim
-        self._boxes: dict[tuple[str, int], dict[tuple[str, type], _Waiting]] = {}
+        self._boxes: dict[tuple[str, int], dict[str, _Waiting]] = {}
         #: messages read, and lost with a link that broke while they waited; mailboxes read
         self.read = self.lost = self.batches = 0
 
@@ -98,7 +98,7 @@ class Mailboxes:
         if box is None:
             box = self._boxes[key] = {}
             self.sim._at(step * GRID, self._read, key)
-        box[(src.spec.name, type(msg))] = (src, src.epoch, dst, dst.epoch, msg)
+        box[src.spec.name] = (src, src.epoch, dst, dst.epoch, msg)
 
     def _read(self, key: tuple[str, int]) -> None:
         box = self._boxes.pop(key)
