@@ -14,7 +14,7 @@ heartbeat whose host's links broke (crash, cut, freeze) before it was read,
 or whose receiver's did, is lost, as one in flight on a link is.
 
 What it changes: a heartbeat reaches its origin up to ``GRID`` later than
-on its own (a sixth of the 2 s a silent host has before it is written
+on its own (a tenth of the 2 s a silent host has before it is written
 off, by default), in one batch; nothing else. Teams of at most
 ``placement_sample`` robots never use it: they run exactly as without it.
 Load reports do not go by mailbox: an origin that hears a host's report of
