@@ -219,7 +219,7 @@ def test_the_pool_waits_for_starved_programs_and_grows_for_a_long_one(monkeypatc
     import ramps.runtime.workers as workers
 
     cpu = {"s": 5.0}
-    monkeypatch.setattr(workers, "proc_cpu", lambda pid: (cpu["s"], "R"))
+    monkeypatch.setattr(workers._Worker, "cpu", lambda self: (cpu["s"], "R"))
     pool, done = make_pool(1)
     try:
         pool.run(("long", 1), "sleepy", args(seconds=60))
@@ -243,7 +243,7 @@ def test_on_a_robot_whose_cores_are_slices_of_a_host_a_program_getting_its_share
 
     for share, grows in ((0.05, True), (1.0, False)):
         cpu = {"s": 5.0}
-        monkeypatch.setattr(workers, "proc_cpu", lambda pid, cpu=cpu: (cpu["s"], "R"))
+        monkeypatch.setattr(workers._Worker, "cpu", lambda self, cpu=cpu: (cpu["s"], "R"))
         pool, done = make_pool(1, core_share=share)
         try:
             pool.run(("long", 1), "sleepy", args(seconds=60))
@@ -267,7 +267,7 @@ def test_the_pool_grows_as_before_where_the_busy_worker_sleeps_or_cannot_be_seen
     import ramps.runtime.workers as workers
 
     for seen in ((5.0, "S"), None):
-        monkeypatch.setattr(workers, "proc_cpu", lambda pid, seen=seen: seen)
+        monkeypatch.setattr(workers._Worker, "cpu", lambda self, seen=seen: seen)
         pool, done = make_pool(1)
         try:
             pool.run(("long", 1), "sleepy", args(seconds=60))
@@ -284,3 +284,30 @@ def test_proc_cpu_reads_a_live_process_and_none_for_a_gone_one():
     seen = proc_cpu(os.getpid())
     assert seen is not None and seen[0] > 0 and seen[1] == "R"  # this process, running this line
     assert proc_cpu(2**22 + 12345) is None  # beyond any pid
+
+
+def test_a_workers_cpu_is_read_again_from_its_open_stat_file():
+    import subprocess
+    import sys
+
+    from ramps.runtime.measure import proc_cpu, stat_cpu
+
+    spin = "import time\nt = time.process_time()\nwhile time.process_time() - t < 0.3: pass\ntime.sleep(30)"
+    child = subprocess.Popen([sys.executable, "-c", spin])
+    fd = os.open(f"/proc/{child.pid}/stat", os.O_RDONLY)
+    try:
+        first = stat_cpu(fd)
+        assert first is not None
+        deadline = time.monotonic() + 20
+        while (seen := stat_cpu(fd)) is not None and seen[0] < 0.3 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert seen is not None and seen[0] >= 0.3 > first[0]  # the same open file, read afresh
+        assert seen[0] == pytest.approx(proc_cpu(child.pid)[0], abs=0.05)
+        child.kill()
+        child.wait()
+        assert stat_cpu(fd) is None  # reaped: gone
+    finally:
+        os.close(fd)
+        if child.poll() is None:
+            child.kill()
+            child.wait()

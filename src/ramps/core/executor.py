@@ -1,20 +1,17 @@
 """The program executor: runs registered programs for any teammate.
 
-How this works: an ``OffloadRequest`` is accepted (``StartProgram`` for the
-driver, ``OffloadAccepted`` for the origin) or turned away with a reason:
-``unknown_program`` and ``bad_request`` are permanent, ``busy`` means the
-host has more runnable work than the origin expected (ramps negotiation) and
-the origin should place again at once, ``late`` that the program would
-compute here for longer than its deadline leaves (``deadline_in``), or
-would slow a program running here past a deadline it would have met (by
-processor sharing of the work each has left; checked for offers that
-negotiate, not forced ones). While programs run, the executor
-sends each origin one ``Heartbeat`` per period listing its programs; a
-program's progress goes to its origin at once, or with the next heartbeat if
-some went less than a period ago (``ProgramProgress``, the newest only). A result
-is sent to the origin and kept, resent every ``result_resend`` seconds, until
-the origin acknowledges it, so a result survives a lost message or an origin
-that is briefly cut off.
+How this works: an ``OffloadRequest`` is accepted (``StartProgram`` for the driver,
+``OffloadAccepted`` for the origin) or turned away with a reason: ``unknown_program`` and
+``bad_request`` are permanent, ``busy`` means the host has more runnable work than the origin
+expected (ramps negotiation) and the origin should place again at once, ``late`` that the program
+would compute here for longer than its deadline leaves (``deadline_in``), or would slow a program
+running here past a deadline it would have met (by processor sharing of the work each has left;
+checked for offers that negotiate, not forced ones). While programs run, the executor sends each
+origin one ``Heartbeat`` per period listing its programs; a program's progress goes to its origin at
+once, or with the next heartbeat if some went less than a period ago (``ProgramProgress``, the
+newest only). A result is sent to the origin and kept, resent every ``result_resend`` seconds, until
+the origin acknowledges it, so a result survives a lost message or an origin that is briefly cut
+off.
 
 An origin whose liveliness is lost (its robot crashed or left the network)
 and does not come back within ``origin_gone_after`` (``RampsConfig.origin_hold``)
@@ -40,7 +37,6 @@ from __future__ import annotations
 
 import heapq
 import math
-
 from collections.abc import Callable, Sequence
 
 from ramps.core.accelerators import Accelerator, slot_share
@@ -101,6 +97,7 @@ class Executor:
         self.accelerators = {a.kind: a for a in accelerators}
         self.on_accelerators = {a.kind: 0 for a in accelerators}
         self._on_any = 0
+        self._with_due = 0  # running programs with a deadline (none: ``_makes_late`` walks none)
         self.config = config
         #: the share of a CPU each of this robot's cores is (a quota shared by
         #: its cores; 1 without one): a program's CPU second is this robot's
@@ -168,6 +165,7 @@ class Executor:
     def _started(self, key: Key, job: _Job) -> None:
         self.running[key] = job
         self._beats = None
+        self._with_due += job.due is not None
         if job.accelerator:
             self.on_accelerators[job.accelerator] += 1
             self._on_any += 1
@@ -175,6 +173,7 @@ class Executor:
     def _ended(self, key: Key) -> _Job | None:
         job = self.running.pop(key, None)
         self._beats = None
+        self._with_due -= job is not None and job.due is not None
         if job is not None and job.accelerator:
             self.on_accelerators[job.accelerator] -= 1
             self._on_any -= 1
@@ -272,6 +271,8 @@ class Executor:
         """Why taking ``req`` would miss a deadline (its own, or that of a
         program running here that would have made it), by processor sharing
         of the work each has left; None if it would not. ``_advance`` first."""
+        if req.deadline_in is None and not self._with_due:
+            return None  # no program here has a deadline: no walk over them
         jobs, *pool = self._pool(req.accelerator)
         if req.deadline_in is None and not any(job.due is not None for job in jobs):
             return None

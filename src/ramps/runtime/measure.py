@@ -175,6 +175,18 @@ def proc_cpu(pid: int) -> tuple[float, str] | None:
     return (int(rest[11]) + int(rest[12])) / _CLOCK_TICKS, rest[0]
 
 
+def stat_cpu(fd: int) -> tuple[float, str] | None:
+    """``proc_cpu`` from an open ``/proc/<pid>/stat`` (read again with ``pread``:
+    opening it by path cost the worker pool more than reading), None if the
+    process is gone."""
+    try:
+        raw = os.pread(fd, 1024, 0)
+    except OSError:
+        return None
+    rest = raw[raw.rindex(b")") + 2:].split()
+    return (int(rest[11]) + int(rest[12])) / _CLOCK_TICKS, rest[0].decode()
+
+
 def cgroup_tree(d: Path | str) -> list[Path]:
     """A cgroup and every cgroup below it (the testbed caps each program in a
     child of its robot's), deepest first, so they can be removed in order."""

@@ -64,7 +64,7 @@ import msgspec
 
 from ramps.runtime.forkserver import Forked
 from ramps.runtime.frames import frame
-from ramps.runtime.measure import proc_cpu
+from ramps.runtime.measure import stat_cpu
 
 Key = tuple[str, int]
 #: on_finished(key, ok, value_bytes, error_text, retryable, cpu_seconds or None,
@@ -108,7 +108,7 @@ class _Job(NamedTuple):
 
 
 class _Worker:
-    __slots__ = ("proc", "fd", "buf", "job", "cancelled", "retiring", "idle_since", "ended", "cpu_mark")
+    __slots__ = ("proc", "fd", "buf", "job", "cancelled", "retiring", "idle_since", "ended", "cpu_mark", "stat_fd")
 
     def __init__(self, proc: Forked) -> None:
         self.proc = proc
@@ -122,6 +122,22 @@ class _Worker:
         self.ended: dict[str, object] | None = None
         #: its CPU seconds when the pool first looked at it running its program while others waited
         self.cpu_mark: float | None = None
+        #: its ``/proc/<pid>/stat``, opened the first time the pool looks (``cpu``)
+        self.stat_fd: int | None = None
+
+    def cpu(self) -> tuple[float, str] | None:
+        """Its CPU seconds and state (``ramps.runtime.measure.proc_cpu``), None if unreadable."""
+        if self.stat_fd is None:
+            try:
+                self.stat_fd = os.open(f"/proc/{self.proc.pid}/stat", os.O_RDONLY)
+            except OSError:
+                return None
+        return stat_cpu(self.stat_fd)
+
+    def close_stat(self) -> None:
+        if self.stat_fd is not None:
+            os.close(self.stat_fd)
+            self.stat_fd = None
 
 
 def death_text(ended: dict[str, object] | None) -> str:
@@ -270,6 +286,8 @@ class WorkerPool:
         self._stop_server()
         if self._thread.is_alive():
             self._thread.join(timeout=2)
+        for w in workers:
+            w.close_stat()
         self._sel.close()
         for fd in (self._wake_r, self._wake_w):
             try:
@@ -357,7 +375,7 @@ class WorkerPool:
         for w in self._workers:
             if w.job is None or select.select([w.fd], [], [], 0)[0]:
                 continue  # idle, or its reply (or progress) not read yet: it waits for this pool, not for CPU
-            seen = proc_cpu(w.proc.pid)
+            seen = w.cpu()
             if seen is None:
                 return False  # cannot tell: grow as on any system
             cpu, state = seen
@@ -372,7 +390,7 @@ class WorkerPool:
         wait: the mark ``_starved_locked`` counts from."""
         for w in self._workers:
             if w.job is not None and w.cpu_mark is None:
-                seen = proc_cpu(w.proc.pid)
+                seen = w.cpu()
                 if seen is not None:
                     w.cpu_mark = seen[0]
 
@@ -455,6 +473,7 @@ class WorkerPool:
                     # end of file: the worker is gone
                     self._sel.unregister(w.fd)
                     self._workers.remove(w)
+                    w.close_stat()
                     w.proc.wait()
                     for f in (w.proc.stdin, w.proc.stdout):
                         try:
