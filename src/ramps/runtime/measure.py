@@ -417,10 +417,10 @@ class LoadSampler:
     weighted cost model reads as competing work. Worker processes (programs)
     are counted.
 
-    Every 0.2 s by default (5 samples a window): reading the run queue of an
-    emulated robot's cgroup was most of an idle node's CPU (0.7-1.4 ms a
-    sample; at 10 samples a second, 0.3 of an emulated core of 0.05 host
-    cores, which its programs then lacked)."""
+    Every 0.2 s by default (5 samples a window): on a robot with a CPU limit
+    (cgroup scope) a sample reads the cgroup through ``CgroupThreads``, about
+    125 us with 35 threads, about half of an idle node's CPU there
+    (docs/lab/2026-11-27-cgroup-sampler.md)."""
 
     def __init__(self, ramps_count: Callable[[], int], *, window: float = 1.0, interval: float = 0.2,
                  scope: str = "host", cgroup: Path | None = None, acct: Path | None = None) -> None:
