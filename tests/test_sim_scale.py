@@ -69,3 +69,14 @@ def test_handle_all_is_handle_of_each_in_order() -> None:
     assert batch == singly
     assert one.view.reports_received == each.view.reports_received
     assert {r: one.view.report_of(r).seq for r in ("r0", "r1", "r2")} == {r: 2 for r in ("r0", "r1", "r2")}
+
+
+def test_a_crashed_host_in_a_fleet_loses_the_heartbeats_waiting_for_it_and_its_programs_run_again() -> None:
+    sc = large_team(80, 400, 4)
+    sc = msgspec.structs.replace(sc, faults=[FaultSpec(at=8.0, robot="w10", kind="crash"),
+                                             FaultSpec(at=30.0, robot="w10", kind="recover")])
+    sim = Simulator(sc)
+    res = sim.run()
+    assert res.completed == 400 and res.lost == 0 and res.duplicated == 0
+    assert sum(s.host_failures for s in res.statistics) > 0
+    assert sim.mail is not None and res.messages_dropped >= sim.mail.lost
