@@ -69,6 +69,7 @@ from ramps.core.executor import Executor
 from ramps.core.identity import SameName
 from ramps.core.links import IDLE_REFRESH, Links
 from ramps.core.loadview import LoadView, report_problem
+from ramps.core.oneway import OneWay
 from ramps.core.messages import (
     AcceleratorSeen,
     BurstClaim,
@@ -136,7 +137,7 @@ class Node:
         #: end (``flush``, or the next ``tick``): ``ramps.core.burst``
         self.origin.bursts = bursts
         #: T_comm per teammate, measured by link probes (``probe_period``)
-        self.links = Links(net or NetworkEstimate())
+        self.links, self.oneway = Links(net or NetworkEstimate()), OneWay(robot)  # oneway: split sessions
         if self.config.probe_period > 0:
             self.origin.links = self.links
         self._probe_due: float | None = 0.0 if self.config.probe_period > 0 else None
@@ -216,6 +217,7 @@ class Node:
             out.extend(self.links.probes(self.view.candidates(now), self.robot, now, self.config.placement_sample,
                                          refresh))
             self._probe_due = now + self.config.probe_period
+            out.extend(self.oneway.check(self.view, now, self.submits and not self.config.report_fanout))
         return self._prompt_report(out, now)
 
     def flush(self, now: float) -> list[Action]:
@@ -296,11 +298,13 @@ class Node:
                 self._go_by_speed(now, out, "measured again while idle")
         elif isinstance(event, PeerLost):
             if event.robot != self.robot:
+                self.oneway.peer_lost(event.robot, now)
                 self.executor.on_origin_lost(event.robot, now)  # its programs here: stopped if it stays away
                 if self.speed_class.forget(event.robot):
                     self._go_by_speed(now, out, f"{event.robot} left its class")
                 self.origin.on_peer_lost(event.robot, now, out)
         elif isinstance(event, PeerAlive):
+            self.oneway.peer_alive(event.robot, now)
             if event.robot != self.robot:
                 self._published = (-1, -1)  # a teammate (new, or back) hears this robot's load now, not next period
             self.executor.on_origin_back(event.robot)

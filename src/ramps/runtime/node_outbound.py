@@ -161,6 +161,11 @@ class Outbound:
             log.info("node %s: %s %s %s %s", self.robot, a.what, a.robot, a.program_id, a.detail)
         elif a.what == "misdeclared":
             self._warn_misdeclared(a)
+        elif a.what == "one_way":  # a split Zenoh session (ramps.core.oneway): only a restart heals it
+            log.warning("node %s: teammate %s is heard one way only: %s. Restarting either node heals it "
+                        "(docs/deploying.md, Leaving, crashing and restarting)", self.robot, a.robot, a.detail)
+        elif a.what == "two_way":
+            log.warning("node %s: teammate %s is heard both ways again", self.robot, a.robot)
         if self.on_note is not None:
             self.on_note(a)
 

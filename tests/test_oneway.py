@@ -1,0 +1,96 @@
+"""A teammate heard one way only (a split Zenoh session, ``ramps.core.oneway``):
+noted once, after ``ONE_WAY_AFTER``, from either side, and noted again when it
+ends; never for a teammate that is simply gone or frozen. Through the real core
+(``FakeTeam``): reports are published by hand, liveliness is the transport's
+``PeerAlive``/``PeerLost``."""
+
+from __future__ import annotations
+
+from corehelpers import report, submit
+
+from ramps.core.events import ApplicationHere, PeerAlive, PeerLost
+from ramps.core.loadview import LoadView
+from ramps.core.oneway import ONE_WAY_AFTER, OneWay
+from ramps.testing import FakeTeam
+
+
+def team_with_origin() -> FakeTeam:
+    team = FakeTeam({"o": (4, 1.0), "a": (4, 1.0), "b": (4, 1.0)})
+    for other in ("a", "b"):
+        team.handle("o", PeerAlive(robot=other))
+    team.handle("o", ApplicationHere())  # an application submits here: o hears periodic reports
+    team.publish()
+    return team
+
+
+def every_period(team: FakeTeam, until: float, publishing: tuple[str, ...]) -> None:
+    """Advance to ``until``, the ``publishing`` robots reporting every second."""
+    t = team.now
+    while t < until:
+        t = min(until, t + 1.0)
+        team.advance(t)
+        team.now = t
+        if publishing:
+            team.publish(*publishing)
+
+
+def test_a_teammate_alive_whose_reports_stop_is_noted_once_and_again_when_they_come_back() -> None:
+    team = team_with_origin()
+    every_period(team, ONE_WAY_AFTER - 5, ("a", "b"))
+    every_period(team, ONE_WAY_AFTER + 35, ("b",))  # a's reports stop reaching o; its token stays
+    noted = team.notes("one_way")
+    assert [n.robot for n in noted] == ["a"]
+    assert "no load report" in noted[0].detail
+    every_period(team, ONE_WAY_AFTER + 60, ("b",))
+    assert len(team.notes("one_way")) == 1  # once
+    every_period(team, ONE_WAY_AFTER + 75, ("a", "b"))
+    assert [n.robot for n in team.notes("two_way")] == ["a"]
+
+
+def test_reports_from_a_teammate_whose_liveliness_is_gone_are_noted() -> None:
+    # the other side of the split: its reports still arrive, its token does not come back
+    team = team_with_origin()
+    every_period(team, 5.0, ("a", "b"))
+    team.handle("o", PeerLost(robot="a"))
+    every_period(team, ONE_WAY_AFTER + 20, ("a", "b"))
+    [noted] = team.notes("one_way")
+    assert noted.robot == "a" and "liveliness token has been gone" in noted.detail
+
+
+def test_a_teammate_gone_or_frozen_or_merely_quiet_is_not_noted() -> None:
+    team = team_with_origin()
+    every_period(team, 5.0, ("a", "b"))
+    team.handle("o", PeerLost(robot="a"))  # crashed: no token, no reports
+    every_period(team, 12.0, ("b",))
+    team.handle("o", PeerLost(robot="b"))  # frozen past its lease, then back before long
+    every_period(team, 20.0, ())
+    team.handle("o", PeerAlive(robot="b"))
+    every_period(team, ONE_WAY_AFTER + 40, ("b",))
+    assert not team.notes("one_way")
+
+
+def test_a_robot_that_places_nothing_does_not_expect_periodic_reports() -> None:
+    team = FakeTeam({"o": (4, 1.0), "a": (4, 1.0)})
+    team.handle("o", PeerAlive(robot="a"))  # o places nothing: it hears only reports of the instant
+    every_period(team, ONE_WAY_AFTER * 3, ())
+    assert not team.notes("one_way")
+    submit(team)  # now it places: from then on it counts, not from a's arrival long ago
+    team.deliver()
+    every_period(team, team.now + ONE_WAY_AFTER / 2, ())
+    assert not team.notes("one_way")
+    every_period(team, team.now + ONE_WAY_AFTER, ())
+    assert [n.robot for n in team.notes("one_way")] == ["a"]
+
+
+def test_the_detector_alone_against_a_view() -> None:
+    view = LoadView("o", cores=4, speed=1.0)
+    ow = OneWay("o")
+    ow.peer_alive("o", 0.0)  # itself: never
+    ow.peer_alive("a", 0.0)
+    assert ow.check(view, 0.5, True) == []  # it hears periodic reports from now
+    view.on_report(report("a", seq=1), 1.0)
+    assert ow.check(view, 10.0, True) == []
+    assert [n.what for n in ow.check(view, 1.0 + ONE_WAY_AFTER + 1, True)] == ["one_way"]
+    view.on_report(report("a", seq=2), 40.0)
+    assert [n.what for n in ow.check(view, 41.0, True)] == ["two_way"]
+    assert ow.check(view, 42.0, True) == []
