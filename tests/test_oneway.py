@@ -94,3 +94,27 @@ def test_the_detector_alone_against_a_view() -> None:
     view.on_report(report("a", seq=2), 40.0)
     assert [n.what for n in ow.check(view, 41.0, True)] == ["two_way"]
     assert ow.check(view, 42.0, True) == []
+
+
+def test_a_node_logs_a_teammate_heard_one_way_only(caplog):
+    """Real drivers on the memory bus: r2's messages stop reaching r1 (its token stays);
+    r1, which places programs for an application, warns once, and again when it ends."""
+    import logging
+
+    from ramps.testing.memory import MemoryTeam
+
+    team = MemoryTeam({"r1": (2, 1.0), "r2": (2, 1.0)})
+    app = team.connect("r1")
+    try:
+        team.run(5.0)
+        caplog.set_level(logging.WARNING, logger="ramps.node")
+        team.bus.split("r2", "r1")
+        team.run(ONE_WAY_AFTER + 10.0)
+        warned = [r.getMessage() for r in caplog.records if "heard one way only" in r.getMessage()]
+        assert len(warned) == 1 and "teammate r2" in warned[0] and "no load report" in warned[0], warned
+        team.bus.restore("r2")
+        team.run(10.0)
+        assert any("r2 is heard both ways again" in r.getMessage() for r in caplog.records)
+    finally:
+        app.close()
+        team.close()

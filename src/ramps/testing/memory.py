@@ -108,6 +108,8 @@ class MemoryBus:
         self._queryables: list[tuple[MemoryTransport, str, Callable[[], bytes | None]]] = []
         self._tokens: list[tuple[MemoryTransport, str]] = []
         self._cut: set[str] = set()
+        #: (sender, receiver): data dropped that way only, liveliness kept (``split``)
+        self._one_way: set[tuple[str, str]] = set()
         #: messages that reached no subscriber because a link was cut
         self.lost = 0
 
@@ -126,7 +128,7 @@ class MemoryBus:
     def put(self, src: "MemoryTransport", key: str, data: bytes) -> None:
         delivered = False
         for t, expr, cb in list(self._subs):
-            if intersects(expr, key):
+            if intersects(expr, key) and (src.name, t.name) not in self._one_way:
                 if self.reaches(src, t):
                     t.heard[key] += 1
                     cb(bytes(data))
@@ -210,8 +212,14 @@ class MemoryBus:
         self._cut.add(name)
         self._sync()  # it hears its teammates go, and they hear it go
 
+    def split(self, sender: str, receiver: str) -> None:
+        """What ``sender`` publishes no longer reaches ``receiver``; tokens stay (a split
+        Zenoh session, eclipse-zenoh/zenoh#2806). ``restore(sender)`` ends it."""
+        self._one_way.add((sender, receiver))
+
     def restore(self, name: str) -> None:
         """Join a cut transport again: the tokens on both sides come back."""
+        self._one_way = {pair for pair in self._one_way if pair[0] != name}
         if name not in self._cut:
             return
         self._cut.discard(name)
