@@ -36,7 +36,10 @@ burst of equal programs is then planned too.
 A pool's end with the programs ``works`` planned there: when the largest of
 them ends under processor sharing with the rest and with the work left of
 those already there (``shared_finish_time``; one whose work the view does
-not know counts as the largest), plus the longest T_comm of them. Pure
+not know counts as the largest), plus the longest T_comm of them; with
+``RampsConfig.place_by`` "pool_end", when the last program there ends,
+those already there included (a plan then weighs the delay it brings
+them). Pure
 functions and the origin's own objects: no clock, no I/O.
 """
 
@@ -68,40 +71,50 @@ PLAN_STEPS = 2
 PLAN_POOLS = 32
 
 
-def pool_end(pool: Pool, works: list[float], comms: list[float]) -> float:
+def pool_end(pool: Pool, works: list[float], comms: list[float], whole: bool = False) -> float:
     """Seconds until the last of ``works`` placed on ``pool`` together ends,
-    and its result is back (0 for none)."""
+    and its result is back (0 for none); ``whole``: until the last program
+    of the pool ends, those already there included (``RampsConfig.place_by``
+    "pool_end")."""
     if not works:
         return 0.0
     top = max(works)
+    if whole and pool.known:
+        top = max(top, max(pool.known))
     others = list(pool.known)
     others += [top] * pool.unknown
     others += works
-    others.remove(top)
+    others.remove(top)  # the largest of works, or of those already there (whole)
     return shared_finish_time(top, others, pool.cores, pool.speed, pool.background, pool.weight) + max(comms)
 
 
-def plan(options: list[dict[tuple[str, str], Pool]]
+def plan(options: list[dict[tuple[str, str], Pool]], whole: bool = False
          ) -> tuple[list[tuple[str, str]], dict[tuple[str, str], float]]:
     """The pool of each program (``options[i]``: its pools by (robot, kind),
     ``RampsPolicy.pools``) that makes the burst end soonest, by the search
-    of the module docstring, and each pool's end then."""
+    of the module docstring, and each pool's end then. ``whole``: a pool
+    ends when the last of its programs does, those already there included
+    (``pool_end``), and the first placement breaks ties by when the
+    burst's programs there end."""
     pools: dict[tuple[str, str], Pool] = {}
     for opts in options:
         for key, p in opts.items():
             pools.setdefault(key, p)
     on: dict[tuple[str, str], list[int]] = {key: [] for key in pools}
 
-    def end(key: tuple[str, str], jobs: list[int]) -> float:
-        return pool_end(pools[key], [options[j][key].work for j in jobs], [options[j][key].comm for j in jobs])
+    def end(key: tuple[str, str], jobs: list[int], whole: bool = whole) -> float:
+        return pool_end(pools[key], [options[j][key].work for j in jobs], [options[j][key].comm for j in jobs],
+                        whole)
 
-    alone = [min(end(key, [j]) for key in opts) for j, opts in enumerate(options)]
+    alone = [min(end(key, [j], False) for key in opts) for j, opts in enumerate(options)]
     where: list[tuple[str, str]] = [("", "")] * len(options)
     for j in sorted(range(len(options)), key=lambda j: -alone[j]):
         best = None
         for key in options[j]:
             p = pools[key]
-            rank = (end(key, on[key] + [j]), (p.unknown + len(p.known) + len(on[key]) + 1.0) / p.cores)
+            # whole: then when the burst's own programs there end
+            rank = (end(key, on[key] + [j]), end(key, on[key] + [j], False) if whole else 0.0,
+                    (p.unknown + len(p.known) + len(on[key]) + 1.0) / p.cores)
             if best is None or rank < best[0]:
                 best = (rank, key)
         assert best is not None
@@ -238,7 +251,7 @@ def _place_together(origin: BurstOrigin, group: list[AutonomousProgram], now: fl
             pools = heapq.nsmallest(PLAN_POOLS, pools, key=lambda p: pool_end(p, [p.work], [p.comm]))
         planned.append(ap)
         options.append({(p.robot, p.kind): p for p in pools})
-    where, ends = plan(options)
+    where, ends = plan(options, origin.config.place_by == "pool_end")
     took = [pool_end(options[j][w], [options[j][w].work], [options[j][w].comm]) for j, w in enumerate(where)]
     last = max(ends.values())
     for j in sorted(range(len(planned)), key=lambda j: -took[j]):

@@ -8,7 +8,12 @@ minutes; the paper's own settings are available as ``RampsConfig.paper()``.
 
 from __future__ import annotations
 
+from typing import Literal
+
 import msgspec
+
+#: the rules ``RampsConfig.place_by`` may name
+PLACE_BY = ("own_end", "pool_end")
 
 
 class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -163,11 +168,22 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: core over its speed, dearer the emptier its battery); between, a trade
     #: of one for the other (``ramps sim energy`` draws it)
     energy_weight: float = 0.0
+    #: what ``ramps`` placement weighs of each host (eq. 1): "own_end", when
+    #: the new program itself would end there; "pool_end", when the last
+    #: program of that host's pool (its cores, or its slots of the program's
+    #: accelerator: every program there, the new one included) would end,
+    #: then the program's own end; a host where the new program delays those
+    #: already there then costs that delay. Programs with a deadline, and
+    #: all when ``energy_weight`` is above 0, are placed by their own end
+    #: either way (docs/lab/2026-11-27-pool-end.md)
+    place_by: Literal["own_end", "pool_end"] = "own_end"
 
     def __post_init__(self) -> None:
+        if self.place_by not in PLACE_BY:
+            raise ValueError(f"place_by must be one of {', '.join(PLACE_BY)}, got {self.place_by!r}")
         for name in self.__struct_fields__:
             value = getattr(self, name)
-            if value < 0:
+            if not isinstance(value, str) and value < 0:
                 raise ValueError(f"{name} must be >= 0, got {value}")
         if self.heartbeat_timeout <= self.heartbeat_period:
             raise ValueError(

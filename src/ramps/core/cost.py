@@ -138,6 +138,21 @@ def shared_finish_time(work: float, others: list[float], cores: float, speed: fl
     return t + (work - left[-1]) / (speed * program_share(cores, k - m, background, weight))
 
 
+def pool_finish_time(work: float, others: list[float], cores: float, speed: float, background: float = 0.0,
+                     weight: float = 1.0) -> float:
+    """Seconds until the last of a new program of ``work`` units and ramps
+    programs with ``others`` units left each ends, all sharing one robot's
+    cores (or slots) under processor sharing: ``shared_finish_time`` of the
+    largest of them (``RampsConfig.place_by`` "pool_end")."""
+    top = max(others, default=work)
+    if top <= work:
+        return shared_finish_time(work, others, cores, speed, background, weight)
+    rest = list(others)
+    rest.remove(top)
+    rest.append(work)
+    return shared_finish_time(top, rest, cores, speed, background, weight)
+
+
 #: the share of each program at each count, per (cores, background, weight) (``_shares``)
 _SHARE_TABLES: dict[tuple[float, float, float], list[float]] = {}
 

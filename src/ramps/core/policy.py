@@ -41,7 +41,12 @@ scheduler.
   the others out when it may not run on a CPU.
   With ``RampsConfig.energy_weight`` above 0, hosts are chosen by time and
   energy per unit of work, weighed (``battery.rank_by_energy``), and
-  priced (time, budget) by time alone. A burst (programs an origin
+  priced (time, budget) by time alone. With ``RampsConfig.place_by``
+  "pool_end" (and no deadline nor energy weight), a host costs when the
+  last program of its pool (``pool_finish_time``: those there by their
+  work left, and the new one) would end, and costs within
+  ``tie_tolerance`` go to the program's own earliest end, then as above;
+  the budget is the best other host's cost so ranked. A burst (programs an origin
   gets at one instant) is planned as a whole (``plans``, ``pools``;
   ``ramps.core.burst``): ``choose`` then takes the host of the plan
   (``PlacementRequest.prefer``), with a budget of at least the plan's end.
@@ -61,7 +66,7 @@ import msgspec
 
 from ramps.core.battery import rank_by_energy, unrank
 from ramps.core.config import RampsConfig
-from ramps.core.cost import NetworkEstimate, comm_time, program_share, shared_finish_time
+from ramps.core.cost import NetworkEstimate, comm_time, pool_finish_time, program_share, shared_finish_time
 from ramps.core.loadview import LoadView
 
 
@@ -221,18 +226,22 @@ class RampsPolicy(Policy):
               links: Callable[[str], NetworkEstimate] | None) -> list[list[Any]]:
         """``choose``'s first estimate on each of the ``scanned`` robots, by
         the count of tasks there: [t, utilisation, robot, runnable,
-        background, ramps, cores, speed, weight, t_comm]."""
+        background, ramps, cores, speed, weight, t_comm, pool], ``pool`` the
+        program's work there and the work left of the programs on the slots
+        of its accelerator, where it runs on them there (None on CPUs)."""
         me = view.me
         work = req.work
         t_comm_default = comm_time(req.payload_size, req.result_size, net)
         rows: list[list[Any]] = []
         for robot, cores, speed, ramps, background, weight in scanned:
             runnable = ramps + background
+            pool = None
             if robot in slots:  # on its accelerator there: its slots, shared by the programs on them
                 _, count, a_speed, on_it, known = slots[robot]
                 # the work left where this origin placed them, the new program's work for the others
                 others = known + [req.accelerator_work] * (round(on_it) - len(known))
                 t = shared_finish_time(req.accelerator_work, others, count, a_speed)
+                pool = (req.accelerator_work, others)
                 runnable, background, ramps, cores, speed, weight = on_it, 0.0, 0.0, count, a_speed, 1.0
             elif background == 0.0 or weight == 1.0:  # equal sharing (the common, fast case)
                 t = work / (speed * min(1.0, cores / (runnable + 1.0)))
@@ -244,7 +253,7 @@ class RampsPolicy(Policy):
                                                                          links(robot))
                 t += t_comm
             rows.append([t, (runnable + 1.0) / cores, robot, runnable, background, ramps, cores, speed, weight,
-                         t_comm])
+                         t_comm, pool])
         return rows
 
     def _priced(self, req: PlacementRequest, view: LoadView, now: float, rng: random.Random, net: NetworkEstimate,
@@ -315,13 +324,19 @@ class RampsPolicy(Policy):
         busy = [r for r in rows if r[5] > 0]
         if len(busy) > REFINE:
             busy = heapq.nsmallest(REFINE, busy, key=lambda r: (r[0], rng.random()))
+        pooled = config.place_by == "pool_end" and req.deadline is None and config.energy_weight <= 0
         for row in busy:
             left = view.remaining_work(row[2], now, round(row[5]), work)
             if left is None:
                 continue
             t = shared_finish_time(work, left, row[6], row[7], row[4], row[8]) + row[9]
             row[0] = min(row[0], t)
+            if pooled:
+                row[10] = (work, left)
         times = rank_by_energy(view, rows, config.energy_weight)  # energy against time (ramps.core.battery)
+        if pooled:  # by the pool's end, then the program's own (RampsConfig.place_by)
+            times = _rank_by_pool_end(rows)
+            own = {row[2]: t for row, t in zip(rows, times)}
         t_best = min(row[0] for row in rows)
         planned = next((row for row in rows if row[2] == req.prefer), None) if req.prefer else None
         # costs within the tolerance are equal (eq. 1 cannot tell them apart);
@@ -332,6 +347,9 @@ class RampsPolicy(Policy):
         if req.deadline is not None and t_best <= req.deadline:
             limit = min(limit, req.deadline)  # of equal costs, only those in time
         tied = [row for row in rows if row[0] <= limit]
+        if pooled:  # of equal pool ends, the program's own earliest end
+            o_best = min(own[row[2]] for row in tied)
+            tied = [row for row in tied if own[row[2]] <= o_best * (1.0 + config.tie_tolerance) + 1e-9]
         home = _home(req, rows, me, t_best, config)
         if home is not None and home not in tied:
             tied.append(home)  # a whole core free at home, within HOME_MARGIN: a tie too
@@ -349,8 +367,11 @@ class RampsPolicy(Policy):
         pick = planned or next((row for row in tied if row[2] == me), None)
         if pick is None:
             pick = tied[0] if len(tied) == 1 else rng.choice(tied)
+        # the budget: the best other host's cost, as ranked
+        alternative = min((row[0] for row in rows if row[2] != pick[2]), default=None) if pooled else None
         unrank(rows, times)
-        alternative = min((row[0] for row in rows if row[2] != pick[2]), default=None)
+        if not pooled:
+            alternative = min((row[0] for row in rows if row[2] != pick[2]), default=None)
         budget = alternative - pick[9] if alternative is not None and math.isfinite(alternative) else None
         if req.deadline is not None and pick[0] <= req.deadline:
             budget = max(budget or 0.0, req.deadline - pick[9])  # what the deadline leaves
@@ -358,6 +379,23 @@ class RampsPolicy(Policy):
             budget = max(budget or 0.0, req.plan_end - pick[9])  # the plan's end: the burst ends no later there
         return Placement(host=pick[2], expected_runnable=pick[3], expected_time=pick[0], time_budget=budget,
                          late=req.deadline is not None and pick[0] > req.deadline)
+
+
+def _rank_by_pool_end(rows: list[list[Any]]) -> list[float]:
+    """Each row's time (``row[0]``, the program's own end there) becomes
+    when the last program of its pool would end with the program placed
+    there (``pool_finish_time``, plus T_comm), and the own times are returned
+    (``unrank`` puts them back). A pool is known by ``row[10]``: the
+    program's work there and the work left of the programs on the slots of
+    its accelerator, or on the cores where ``choose`` read them; where it is
+    not, every program there counts as the new one's size, and the pool
+    ends with the new program."""
+    times = [row[0] for row in rows]
+    for row in rows:
+        if row[10] is not None and row[10][1]:
+            work, left = row[10]
+            row[0] = max(row[0], pool_finish_time(work, left, row[6], row[7], row[4], row[8]) + row[9])
+    return times
 
 
 def _home(req: PlacementRequest, rows: list[list[Any]], me: str, t_best: float,
