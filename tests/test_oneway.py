@@ -118,3 +118,20 @@ def test_a_node_logs_a_teammate_heard_one_way_only(caplog):
     finally:
         app.close()
         team.close()
+
+
+def test_the_metrics_gauge_counts_teammates_heard_one_way_now():
+    from ramps.core.events import Note
+    from ramps.runtime.metrics import NodeMetrics
+
+    m = NodeMetrics("r1", "t")
+
+    def value() -> float | None:
+        return m.registry.get_sample_value("ramps_one_way_teammates", {"robot": "r1"})
+
+    assert value() == 0
+    m.on_action(Note(what="one_way", robot="r2"), None)
+    m.on_action(Note(what="one_way", robot="r3"), None)
+    assert value() == 2
+    m.on_action(Note(what="two_way", robot="r2"), None)
+    assert value() == 1

@@ -111,7 +111,9 @@ class NodeMetrics:
                           ("ramps_programs_running", "programs running in this robot's executor"),
                           ("ramps_programs_in_flight", "programs of this origin not yet delivered"),
                           ("ramps_teammates_seen", "teammates this robot could place a program on now"),
-                          ("ramps_blacklisted_teammates", "teammates on this robot's blacklist now")):
+                          ("ramps_blacklisted_teammates", "teammates on this robot's blacklist now"),
+                          ("ramps_one_way_teammates", "teammates heard one way only now (a split Zenoh "
+                           "session: restart either node)")):
             g[name] = Gauge(name, doc, r, registry=reg).labels(robot)
         self.g = g
         g["ramps_cores"].set(cores)
@@ -190,6 +192,8 @@ class NodeMetrics:
                 self.misdeclared.labels(me, _program(node, a.program_id)).inc()
             elif what == "deadline_missed":
                 self.deadline_misses.labels(me, _program(node, a.program_id)).inc()
+            elif what in ("one_way", "two_way"):
+                self.g["ramps_one_way_teammates"].inc(1 if what == "one_way" else -1)
         elif isinstance(a, StartProgram):
             self.run.labels(me, a.program, a.origin).inc()
             self._remember(self._running, (a.program_id, a.attempt), a.program)
