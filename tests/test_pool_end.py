@@ -1,9 +1,9 @@
 """``RampsConfig.place_by``: a host costs when the program itself would end
-there ("own_end", the default) or when the last program of that host's pool
-would end, the new one included ("pool_end"). Where a program that ends
-first on a busy host delays the program already there, the pool-end rule
-sends it elsewhere and the team ends sooner; where it delays no one, both
-rules place alike (docs/lab/2026-11-27-pool-end.md)."""
+there ("own_end", eq. 1 as published) or when the last program of that
+host's pool would end, the new one included ("pool_end", the default).
+Where a program that ends first on a busy host delays the program already
+there, the pool-end rule sends it elsewhere and the team ends sooner; where
+it delays no one, both rules place alike (docs/lab/2026-11-27-pool-end.md)."""
 
 from __future__ import annotations
 
@@ -43,14 +43,31 @@ def test_the_pool_end_rule_leaves_a_busy_host_to_its_program_and_the_team_ends_s
     assert pool.makespan == pytest.approx(10.0, rel=0.01)  # b's program alone: 20 units at speed 2
 
 
-def test_off_by_default_and_a_program_with_a_deadline_is_placed_by_its_own_end() -> None:
-    assert RampsConfig().place_by == "own_end"
+def test_on_by_default_and_a_program_with_a_deadline_is_placed_by_its_own_end() -> None:
+    assert RampsConfig().place_by == "pool_end"
     default = simulate(_busy_fast_robot(None), policy="ramps", seed=1, trace=True)
-    off = simulate(_busy_fast_robot("own_end"), policy="ramps", seed=1, trace=True)
-    assert default.trace == off.trace and default.makespan == off.makespan
+    pool = simulate(_busy_fast_robot("pool_end"), policy="ramps", seed=1, trace=True)
+    assert default.trace == pool.trace and default.makespan == pool.makespan
     own = simulate(_busy_fast_robot("own_end", deadline=30.0), policy="ramps", seed=1, trace=True)
     pool = simulate(_busy_fast_robot("pool_end", deadline=30.0), policy="ramps", seed=1, trace=True)
     assert own.trace == pool.trace  # best fit decides; the option changes nothing
+
+
+def test_programs_alike_are_placed_alike_by_either_rule() -> None:
+    """A program no smaller than those already on a pool and started no
+    earlier ends last there: its own end is the pool's (the paper's
+    experiments and the several-origins sweep, whose programs are alike,
+    give the same figures by either rule)."""
+    def team(place_by: str) -> Scenario:
+        return Scenario(name="alike", config=RampsConfig(place_by=place_by),  # type: ignore[arg-type]
+                        robots=[RobotSpec(name="a", cores=2, speed=1.0), RobotSpec(name="b", cores=1, speed=2.0),
+                                RobotSpec(name="c", cores=4, speed=0.5, background=2)],
+                        programs=[ProgramSpec(origin="a", count=5, work=20.0, spacing=0.05),
+                                  ProgramSpec(origin="c", count=4, work=20.0, at=3.0, spacing=0.5)])
+    own = simulate(team("own_end"), policy="ramps", seed=3, trace=True)
+    pool = simulate(team("pool_end"), policy="ramps", seed=3, trace=True)
+    assert own.completed == pool.completed == 9
+    assert own.trace == pool.trace
 
 
 def _choose(view: LoadView, place_by: str, work: float = 4.0) -> str:

@@ -169,14 +169,15 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: of one for the other (``ramps sim energy`` draws it)
     energy_weight: float = 0.0
     #: what ``ramps`` placement weighs of each host (eq. 1): "own_end", when
-    #: the new program itself would end there; "pool_end", when the last
+    #: the new program itself would end there (eq. 1 as published);
+    #: "pool_end", when the last
     #: program of that host's pool (its cores, or its slots of the program's
     #: accelerator: every program there, the new one included) would end,
     #: then the program's own end; a host where the new program delays those
     #: already there then costs that delay. Programs with a deadline, and
     #: all when ``energy_weight`` is above 0, are placed by their own end
     #: either way (docs/lab/2026-11-27-pool-end.md)
-    place_by: Literal["own_end", "pool_end"] = "own_end"
+    place_by: Literal["own_end", "pool_end"] = "pool_end"
 
     def __post_init__(self) -> None:
         if self.place_by not in PLACE_BY:

@@ -42,7 +42,7 @@ scheduler.
   With ``RampsConfig.energy_weight`` above 0, hosts are chosen by time and
   energy per unit of work, weighed (``battery.rank_by_energy``), and
   priced (time, budget) by time alone. With ``RampsConfig.place_by``
-  "pool_end" (and no deadline nor energy weight), a host costs when the
+  "pool_end" (the default; no deadline nor energy weight), a host costs when the
   last program of its pool (``pool_finish_time``: those there by their
   work left, and the new one) would end, and costs within
   ``tie_tolerance`` go to the program's own earliest end, then as above;
