@@ -135,3 +135,26 @@ def test_the_metrics_gauge_counts_teammates_heard_one_way_now():
     assert value() == 2
     m.on_action(Note(what="two_way", robot="r2"), None)
     assert value() == 1
+
+
+def test_a_node_set_to_restart_when_split_leaves_the_team_and_says_why():
+    """``restart_when_split``: r1, hearing r2 one way only, hands back what it runs and leaves
+    (the CLI then exits with 75 for its supervisor); without it, r1 stays."""
+    from ramps.testing.memory import MemoryTeam
+
+    for restart in (False, True):
+        team = MemoryTeam({"r1": (2, 1.0), "r2": (2, 1.0)}, settings={"restart_when_split": restart})
+        app = team.connect("r1")
+        try:
+            team.run(5.0)
+            team.bus.split("r2", "r1")
+            team.run(ONE_WAY_AFTER + 10.0)
+            r1 = team.nodes["r1"]
+            if restart:
+                assert r1.wait(0) and "teammate r2 is heard one way only" in r1.split
+                assert not team.nodes["r2"].wait(0) and not team.nodes["r2"].split  # r2 hears r1: it stays
+            else:
+                assert not r1.wait(0) and r1.split == ""
+        finally:
+            app.close()
+            team.close()

@@ -33,6 +33,9 @@ from ramps.cli.common import (
     out,
 )
 
+#: the exit code of a node that left to be restarted (``restart_when_split``): EX_TEMPFAIL
+SPLIT_EXIT = 75
+
 
 def node(
     robot: Optional[str] = typer.Option(None, "--robot", "-r", help="this robot's name (default: host name; env RAMPS_ROBOT)"),
@@ -172,6 +175,8 @@ def node(
         service.close()
     if rt.name_taken:
         fail(f"this node left the team: {rt.name_taken}")
+    if rt.split:  # EX_TEMPFAIL: the supervisor starts it again, which heals the split (restart_when_split)
+        fail(f"this node left the team to be restarted: {rt.split}", code=SPLIT_EXIT)
     if rt.revoked_self:
         fail(f"robot {rt.robot} was revoked by team {rt.team} (revocation list {rt.revocations.seq if rt.revocations else '?'}): it left the team")
 

@@ -185,6 +185,7 @@ class NodeRuntime:
                           same_name=self.same_name)
         self.outbound = Outbound(self, parts, clients=self.clients, reports=self.reports, on_note=on_note,
                                  stop=lambda: self._q.put(("stop", threading.Event())), put=self._q.put)
+        self.outbound.restart_when_split = settings.restart_when_split
         #: called on the driver thread after every round of its loop (systemd's watchdog, ramps.runtime.service)
         self.on_turn: Callable[[], None] | None = None
 
@@ -328,6 +329,11 @@ class NodeRuntime:
         return self.same_name.taken
 
     @property
+    def split(self) -> str:
+        """Why this node left the team to be restarted, a teammate heard one way only ("" = it did not)."""
+        return self.outbound.split
+
+    @property
     def revoked_self(self) -> bool:
         """Whether this robot was revoked by its team (then it leaves)."""
         return self.revoked.me
@@ -424,7 +430,7 @@ class NodeRuntime:
             if item[0] == "stop":
                 self.outbound.apply(actions)
                 self.outbound.shutdown(item[1])
-                if self.revoked.me or self.same_name.taken:  # nobody asked: leave now (the CLI sees wait())
+                if self.revoked.me or self.same_name.taken or self.outbound.split:  # nobody asked: leave now
                     self._teardown()
                 return False
             try:

@@ -99,6 +99,9 @@ class Outbound:
         self._put = put
         #: programs whose calls were found far from their declaration, said once each
         self.misdeclared_warned: set[str] = set()
+        #: leave when a teammate is heard one way only (``NodeSettings.restart_when_split``), and why it left
+        self.restart_when_split = False
+        self.split = ""
 
     def apply(self, actions: list[Action]) -> None:
         """Each of the core's ``actions``, in order, to its effect."""
@@ -164,6 +167,10 @@ class Outbound:
         elif a.what == "one_way":  # a split Zenoh session (ramps.core.oneway): only a restart heals it
             log.warning("node %s: teammate %s is heard one way only: %s. Restarting either node heals it "
                         "(docs/deploying.md, Leaving, crashing and restarting)", self.robot, a.robot, a.detail)
+            if self.restart_when_split and not self.split:
+                self.split = f"teammate {a.robot} is heard one way only ({a.detail})"
+                log.error("node %s: leaving the team to be restarted (restart_when_split): %s", self.robot, self.split)
+                self._stop()
         elif a.what == "two_way":
             log.warning("node %s: teammate %s is heard both ways again", self.robot, a.robot)
         if self.on_note is not None:

@@ -249,6 +249,13 @@ class NodeSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fie
     #: emulated on one host (the testbed), else their large messages bypass
     #: the emulated network
     shared_memory: bool = False
+    #: leave the team and exit with code 75 when a teammate is heard one way
+    #: only (a split Zenoh session: docs/deploying.md), for the supervisor
+    #: (systemd's ``Restart=``, a container's restart policy) to start the node
+    #: again, which heals the split; its durable record keeps its programs.
+    #: Off: the node only warns (``ramps_one_way_teammates``). Only under a
+    #: supervisor: a node run by hand would stay out of the team
+    restart_when_split: bool = False
     #: what the load publisher measures: ``host``, ``cgroup``, or ``auto``
     #: (``cgroup`` when the node runs in a cpu cgroup with a quota)
     load_scope: str = "auto"
@@ -412,6 +419,7 @@ _ENV: dict[str, tuple[str, _EnvForm | type[str] | type[int] | type[float]]] = {
     "RAMPS_LEASE_MS": ("lease_ms", int),
     "RAMPS_NODE_NICE": ("node_nice", int),
     "RAMPS_SHARED_MEMORY": ("shared_memory", "bool"),
+    "RAMPS_RESTART_WHEN_SPLIT": ("restart_when_split", "bool"),
     "RAMPS_SECURE": ("secure", "bool"),
     "RAMPS_CREDENTIALS": ("credentials", str),
     "RAMPS_MEMBERS": ("members", "list"),
