@@ -158,3 +158,12 @@ def test_a_node_set_to_restart_when_split_leaves_the_team_and_says_why():
         finally:
             app.close()
             team.close()
+
+
+def test_the_split_experiment_reads_ss_lines():
+    from ramps.lab.split import parse_ss
+
+    text = ("0      0      10.201.1.2:7447  10.201.1.254:37094\n"
+            "0      0      10.201.1.2:44398   10.201.1.1:7447 \n\n")
+    assert parse_ss(text) == [("10.201.1.2", "7447", "10.201.1.254", "37094"),
+                              ("10.201.1.2", "44398", "10.201.1.1", "7447")]

@@ -155,6 +155,7 @@ def testbed_experiment_slow_link(
 
 
 __import__("ramps.cli.sites", fromlist=["register"]).register(experiment_app)  # experiment sites
+__import__("ramps.cli.split", fromlist=["register"]).register(experiment_app)  # experiment split
 
 
 @experiment_app.command("relocation")
