@@ -121,6 +121,7 @@ class RestoringOrigin(Protocol):
     programs: dict[str, AutonomousProgram]
     #: host -> the ids of its live programs, in placement order
     by_host: dict[str, dict[str, None]]
+    hosts_of: dict[str, set[str]]
     #: restored programs offered to their host again and not answered yet: id -> attempt
     resumed: dict[str, int]
     timers: Timers
@@ -152,6 +153,7 @@ def restore(origin: RestoringOrigin, programs: list[AutonomousProgram], now: flo
                 del ap.live[attempt]
             else:
                 origin.by_host.setdefault(host, {})[ap.program_id] = None
+                origin.hosts_of.setdefault(ap.program_id, set()).add(host)
         out.append(Note(what="restored", program_id=ap.program_id, robot=ap.host or "", attempt=ap.attempt,
                         detail=f"{len(ap.live)} live cop{'y' if len(ap.live) == 1 else 'ies'}"))
         if ap.host is not None and ap.live.get(ap.attempt) == ap.host:

@@ -107,6 +107,8 @@ class Origin(Learning):
         #: teammate -> ids of programs offered to it, every one still offered there
         #: among them (``placing.queued_bytes``); delivered ones leave at once
         self.offered: dict[str, dict[str, None]] = {}
+        #: program -> every host it was put under in ``by_host`` or ``offered`` (``deliver`` clears those)
+        self.hosts_of: dict[str, set[str]] = {}
         self.timers = Timers()
         self.isolation = Isolation(me, view, config, self.programs, self._changed)
         #: finished programs, oldest first: kept for ``result_retention`` so a
@@ -448,10 +450,9 @@ class Origin(Learning):
             out.append(Send(to=h, msg=CancelProgram(program_id=ap.program_id, attempt=attempt, origin=self.me)))
             self.leave_host(ap, h, None, attempt=attempt)
         ap.live.clear()
-        for ids in self.by_host.values():  # the index only serves live programs
-            ids.pop(ap.program_id, None)
-        for ids in self.offered.values():
-            ids.pop(ap.program_id, None)
+        for h in self.hosts_of.pop(ap.program_id, ()):  # the indexes serve live programs only
+            self.by_host.get(h, {}).pop(ap.program_id, None)
+            self.offered.get(h, {}).pop(ap.program_id, None)
         ap.state = S.DONE if ok else S.FAILED
         ap.deadline = None
         self._finished.append((now, ap.program_id))

@@ -54,6 +54,7 @@ class PlacingOrigin(deadlines.DeliveringOrigin, Protocol):
     by_host: dict[str, dict[str, None]]
     #: teammate -> ids of the programs offered to it: every one still offered there, and some no longer
     offered: dict[str, dict[str, None]]
+    hosts_of: dict[str, set[str]]
     timers: Timers
     stalled_s: float
     placements: int
@@ -163,6 +164,7 @@ def _attempt(origin: PlacingOrigin, ap: AutonomousProgram, host: str, work: floa
     ap.placed_at, ap.stall_base = now, origin.stalled_s
     ap.resumed_from = resumed_from
     origin.by_host.setdefault(host, {})[ap.program_id] = None
+    origin.hosts_of.setdefault(ap.program_id, set()).add(host)
     origin.view.book(host, ap.program_id, ap.attempt, ap.accelerator, work, now)
     origin.placements += 1
 
@@ -219,6 +221,7 @@ def offer(origin: PlacingOrigin, ap: AutonomousProgram, out: list[Action], *, ex
     resume = ap.checkpoint
     if ap.placed_host != origin.me:
         origin.offered.setdefault(ap.placed_host, {})[ap.program_id] = None
+        origin.hosts_of.setdefault(ap.program_id, set()).add(ap.placed_host)
     out.append(Send(to=ap.placed_host, msg=OffloadRequest(
         program_id=ap.program_id, attempt=ap.attempt, origin=origin.me, host=ap.placed_host,
         program=sub.program, args=sub.args, payload_size=sub.payload_size, work=ap.work,
