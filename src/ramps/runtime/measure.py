@@ -160,7 +160,17 @@ def proc_stat_fields(pid: int) -> list[str] | None:
         raw = Path(f"/proc/{pid}/stat").read_text()
     except OSError:
         return None
+    return _stat_fields(raw)
+
+
+def _stat_fields(raw: str) -> list[str]:
+    """A ``stat`` line's fields after the command name (which may hold spaces and brackets)."""
     return raw[raw.rindex(")") + 2:].split()
+
+
+def _cpu_and_state(rest: list[str]) -> tuple[float, str]:
+    """(user + system CPU seconds, state) of a ``stat`` line's fields after the name."""
+    return (int(rest[11]) + int(rest[12])) / _CLOCK_TICKS, rest[0]
 
 
 _CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
@@ -170,9 +180,7 @@ def proc_cpu(pid: int) -> tuple[float, str] | None:
     """(CPU seconds a process has used, user and system, and its state: ``R``
     running or runnable, ``S`` sleeping, ...), or None if it is gone."""
     rest = proc_stat_fields(pid)
-    if rest is None:
-        return None
-    return (int(rest[11]) + int(rest[12])) / _CLOCK_TICKS, rest[0]
+    return None if rest is None else _cpu_and_state(rest)
 
 
 def stat_cpu(fd: int) -> tuple[float, str] | None:
@@ -183,8 +191,7 @@ def stat_cpu(fd: int) -> tuple[float, str] | None:
         raw = os.pread(fd, 1024, 0)
     except OSError:
         return None
-    rest = raw[raw.rindex(b")") + 2:].split()
-    return (int(rest[11]) + int(rest[12])) / _CLOCK_TICKS, rest[0].decode()
+    return _cpu_and_state(_stat_fields(raw.decode()))
 
 
 def cgroup_tree(d: Path | str) -> list[Path]:
@@ -198,14 +205,26 @@ def cgroup_usage(cpu: Path, acct: Path | None) -> float:
     """CPU seconds used so far by a cgroup and its children (0.0 if unreadable):
     cpuacct.usage on v1, cpu.stat's usage_usec on v2."""
     try:
-        if acct is not None and (acct / "cpuacct.usage").exists():
-            return int((acct / "cpuacct.usage").read_text()) / 1e9
-        if (cpu / "cpu.stat").exists():
-            for line in (cpu / "cpu.stat").read_text().splitlines():
-                if line.startswith("usage_usec"):
-                    return int(line.split()[1]) / 1e6
+        f = _usage_file(cpu, acct)
+        return 0.0 if f is None else _usage_seconds(f.read_bytes(), v2=f.name == "cpu.stat")
     except (OSError, ValueError):
-        pass
+        return 0.0
+
+
+def _usage_file(cpu: Path, acct: Path | None) -> Path | None:
+    """The file that counts a cgroup's CPU: ``cpuacct.usage`` (v1), else ``cpu.stat`` (v2), if either is there."""
+    if acct is not None and (acct / "cpuacct.usage").exists():
+        return acct / "cpuacct.usage"
+    return cpu / "cpu.stat" if (cpu / "cpu.stat").exists() else None
+
+
+def _usage_seconds(data: bytes, *, v2: bool) -> float:
+    """CPU seconds from ``_usage_file``'s text: nanoseconds (v1), or its ``usage_usec`` line (v2)."""
+    if not v2:
+        return int(data) / 1e9
+    for line in data.splitlines():
+        if line.startswith(b"usage_usec"):
+            return int(line.split()[1]) / 1e6
     return 0.0
 
 
@@ -242,6 +261,17 @@ def _cgroup_dirs(top: str) -> list[str]:
         except OSError:
             continue
     return out
+
+
+def _read_all(path: str) -> bytes:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        chunks = []
+        while chunk := os.read(fd, 65536):
+            chunks.append(chunk)
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
 
 
 def _own_threads() -> set[str]:
@@ -316,16 +346,12 @@ def own_running() -> int:
 
 
 class CgroupThreads:
-    """A cgroup's CPU usage and its threads in state R, other than this
-    process's own (the node: see ``LoadSampler``). The usage file and each
-    listed thread's ``stat`` stay open and are read again with ``pread``;
-    the ``tasks`` (v1) or ``cgroup.threads`` (v2) files of the cgroup and
-    those below it are opened afresh each sample (an open one keeps the
-    list it first read). Opening every file by path five times a second
-    (some 250 us a sample with 35 threads) was most of an idle node's CPU in
-    an emulated robot. The cgroups below (per-program caps) are listed again
-    every ``RELIST`` samples; a thread that ended is dropped at its first
-    failed read."""
+    """A cgroup's CPU usage and its threads in state R, other than this process's own (the node: see ``LoadSampler``).
+    The usage file and each listed thread's ``stat`` stay open and are read again with ``pread``; the ``tasks``
+    (v1) or ``cgroup.threads`` (v2) files of the cgroup and those below it are opened afresh each sample (an
+    open one keeps the list it first read). Opening every file by path five times a second (some 250 us a sample
+    with 35 threads) was most of an idle node's CPU in an emulated robot. The cgroups below (per-program caps)
+    are listed again every ``RELIST`` samples; a thread that ended is dropped at its first failed read."""
 
     RELIST = 5
 
@@ -337,11 +363,10 @@ class CgroupThreads:
         self._lists: list[str] = []  # the tasks files of the cgroup and those below it
         self._stats: dict[str, int] = {}  # thread id -> its open stat file
         self._samples = 0
+        f = _usage_file(cpu, acct)
         try:
-            if acct is not None and (acct / "cpuacct.usage").exists():
-                self._usage_fd = os.open(acct / "cpuacct.usage", os.O_RDONLY)
-            elif (cpu / "cpu.stat").exists():
-                self._usage_fd, self._usage_v2 = os.open(cpu / "cpu.stat", os.O_RDONLY), True
+            if f is not None:
+                self._usage_fd, self._usage_v2 = os.open(f, os.O_RDONLY), f.name == "cpu.stat"
         except OSError:
             self._usage_fd = None
 
@@ -350,15 +375,9 @@ class CgroupThreads:
         if self._usage_fd is None:
             return cgroup_usage(self.cpu, self.acct)
         try:
-            data = os.pread(self._usage_fd, 4096, 0)
-            if not self._usage_v2:
-                return int(data) / 1e9
-            for line in data.splitlines():
-                if line.startswith(b"usage_usec"):
-                    return int(line.split()[1]) / 1e6
+            return _usage_seconds(os.pread(self._usage_fd, 4096, 0), v2=self._usage_v2)
         except (OSError, ValueError):
-            pass
-        return 0.0
+            return 0.0
 
     def sample(self) -> tuple[float, int]:
         """(CPU seconds so far, threads in state R now other than this process's)."""
@@ -370,18 +389,9 @@ class CgroupThreads:
         listed: set[str] = set()
         for path in self._lists:
             try:
-                fd = os.open(path, os.O_RDONLY)
+                listed.update(_read_all(path).decode().split())
             except OSError:  # the cgroup went away
                 continue
-            chunks = []
-            try:
-                while chunk := os.read(fd, 65536):
-                    chunks.append(chunk)
-            except OSError:
-                pass
-            finally:
-                os.close(fd)
-            listed.update(b"".join(chunks).decode().split())
         for tid in [t for t in self._stats if t not in listed]:
             os.close(self._stats.pop(tid))
         running = 0
