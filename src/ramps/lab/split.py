@@ -47,8 +47,10 @@ def parse_ss(text: str) -> list[tuple[str, str, str, str]]:
 def black_hole(nss: dict[str, str], conns: list[tuple[str, str, str, str]]) -> None:
     """Send the packets of ``conns`` (seen from r2: r2's side first) into an 8 bit/s class,
     in both robots' namespaces (``nss``: robot -> namespace); every other packet passes."""
+    from ramps.testbed.net import run_in
+
     def tc(robot: str, *args: str) -> None:
-        subprocess.run(["ip", "netns", "exec", nss[robot], "tc", *args], check=True, capture_output=True)
+        run_in(["tc", *args], nss[robot])
 
     for robot in ("r1", "r2"):
         tc(robot, "qdisc", "add", "dev", "eth0", "root", "handle", "1:", "htb", "default", "10")
@@ -70,7 +72,7 @@ def run_split(*, restart: bool, leases: tuple[int, int] = (2000, 20000), watch: 
 
     log = log or (lambda _m: None)
     x = net.free_subnet()
-    r2_ip = f"{net.SUBNET_BASE}.{x}.2"
+    r2_ip = net.robot_ip(x, 2)
     cfg: dict[str, dict[str, Any]] = {"r1": {"connect": [f"tcp/{r2_ip}:7447"], "lease_ms": leases[0], "restart_when_split": restart},
            "r2": {"lease_ms": leases[1], "restart_when_split": restart}}
     out: dict[str, Any] = {"restart_when_split": restart, "leases_ms": list(leases)}

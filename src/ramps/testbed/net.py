@@ -197,13 +197,14 @@ def set_loss(ns: str, loss: float) -> None:
     if exe is None:
         raise NetError("packet loss needs iptables (apt-get install iptables)")
     for chain in ("INPUT", "OUTPUT"):
-        _run([exe, "-w", "-F", chain], ns)
+        run_in([exe, "-w", "-F", chain], ns)
         if loss > 0:
-            _run([exe, "-w", "-A", chain, "-m", "statistic", "--mode", "random",
+            run_in([exe, "-w", "-A", chain, "-m", "statistic", "--mode", "random",
                   "--probability", f"{loss:.4f}", "-j", "DROP"], ns)
 
 
-def _run(argv: list[str], ns: str) -> None:
+def run_in(argv: list[str], ns: str) -> None:
+    """Run ``argv`` in namespace ``ns``; NetError with its stderr if it fails."""
     r = subprocess.run(["nsenter", f"--net={NETNS_DIR / ns}", *argv], capture_output=True, text=True)
     if r.returncode != 0:
         raise NetError(f"{' '.join(argv)} in {ns} failed: {r.stderr.strip()}")
