@@ -11,6 +11,7 @@ import os
 import platform
 import time
 from collections import Counter
+from typing import Sequence
 
 from ramps.core.config import RampsConfig
 from ramps.experiments.paper import run_experiment
@@ -69,20 +70,56 @@ def bench_large(robots: int = 1000, programs: int = 10_000, origins: int = 10, p
     }
 
 
+def fluid_bound(jobs: Sequence[tuple[float, float]], speed: float, capacity: float) -> float:
+    """A lower bound of any schedule's makespan of ``jobs`` ((release time,
+    work units) pairs) on cores of at most ``speed`` work units a second
+    each, ``capacity`` work units a second in all: even if a program could
+    move, split its time between cores and never wait, it runs on one core
+    at a time, so by any time s it has done at most ``max(0, s - r) *
+    speed`` of its work, and what is left, R(s), needs R(s) / capacity more
+    seconds of the whole team. The bound is the largest ``s + R(s) /
+    capacity``; it is at least the capacity bound (s = the first release)
+    and the release bound (s = the last ``r + work / speed``). R is
+    piecewise linear with its breakpoints at each r and r + work / speed,
+    so the largest value is at one of them: one sweep over them in time
+    order."""
+    if not jobs:
+        return 0.0
+    change: dict[float, int] = {}  # at each breakpoint: programs that start or stop losing work
+    for r, w in jobs:
+        change[r] = change.get(r, 0) + 1
+        end = r + w / speed
+        change[end] = change.get(end, 0) - 1
+    left, active, best = float(sum(w for _, w in jobs)), 0, 0.0
+    prev = min(change)
+    for t in sorted(change):
+        left = max(0.0, left - active * speed * (t - prev))
+        best, prev = max(best, t + left / capacity), t
+        active += change[t]
+    return best
+
+
 def bounds(sc: Scenario, makespan: float) -> dict:
     """Lower bounds of the optimum's makespan for a ``large_team`` scenario,
     and the makespan over each: the capacity bound (all work over all
-    cores) and the release bound (the last program submitted, run alone on
-    a core from then). With many origins the release bound is the larger:
-    origin i starts at second i, so the 100th submits its last program at
-    109 s, which needs 53 s more wherever it runs."""
+    cores), the release bound (the last program submitted, run alone on a
+    core from then) and ``fluid_bound``, at least both. With many origins
+    the release bound is larger than the capacity bound: origin i starts at
+    second i, so the 100th submits its last program at 109 s, which needs
+    53 s more wherever it runs. Release times are counted from the first
+    ``at``, jittered ones at their earliest."""
     team = sc.team()
-    capacity = sum(p.count * p.work for p in sc.programs) / sum(r.cores * r.speed for r in team)
+    cores = sum(r.cores * r.speed for r in team)
+    capacity = sum(p.count * p.work for p in sc.programs) / cores
     fastest = max(r.speed for r in team)
-    release = max(p.at + (p.count - 1) * p.spacing + p.work / fastest for p in sc.programs) - min(
-        p.at for p in sc.programs)
-    return {"capacity_bound": capacity, "release_bound": release, "makespan_over_capacity": makespan / capacity,
-            "makespan_over_bound": makespan / max(capacity, release)}
+    t0 = min(p.at for p in sc.programs)
+    release = max(p.at + (p.count - 1) * p.spacing + p.work / fastest for p in sc.programs) - t0
+    fluid = fluid_bound([(max(0.0, p.at + i * p.spacing - p.jitter) - t0 if p.jitter else p.at + i * p.spacing - t0,
+                          p.work) for p in sc.programs for i in range(p.count)], fastest, cores)
+    best = max(capacity, release, fluid)
+    return {"capacity_bound": capacity, "release_bound": release, "fluid_bound": fluid,
+            "makespan_over_capacity": makespan / capacity, "makespan_over_release": makespan / max(capacity, release),
+            "makespan_over_bound": makespan / best}
 
 
 def machine() -> dict:
