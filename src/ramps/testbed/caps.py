@@ -45,6 +45,18 @@ node takes what it uses and the programs share the rest fairly (measured:
 parent got 0.02-1.00). The node's load sampler, walking one cgroup instead of
 sixteen, costs less too.
 
+**Fair in the end.** The kernel does not hold the children of one robot to their
+quotas evenly: a child's CPU time is handed out in slices that can outlast a
+period, and a write of its quota refills it, so where the busy children's
+quotas fill the robot the robot's own quota throttles them, and which of them
+runs then is the kernel's choice. Measured with four programs on a robot of four
+emulated cores, each child's quota 0.040-0.048 host cores: one got 0.063-0.070
+over half-second windows, the newest 0.031-0.038, and ran 6.45 s where its
+siblings took 4.78-5.27 (docs/lab/2026-11-27-fair-caps.md). So each busy child
+is owed what its share gave it and it did not get, and its quota is its share
+moved by what it is owed beyond the others, over ``OWED_HORIZON``: the one the
+kernel favoured gets less until they are even.
+
 The capper rereads the state file every period (robots restart after a crash
 with new workers), and exits when the file is gone (``down``). Caps are
 cgroup v1 only: on v2 a process may not stay in a cgroup whose children have
@@ -84,6 +96,12 @@ QUOTA_SHORT = 0.01
 #: programs on four cores (0.8 each), not four (pooled, one that the kernel favoured ran
 #: faster than a core, ended early, and left the other three capped at a core each)
 POOL_SHARE = 0.9
+#: a busy child owed CPU by the kernel gets its share and what it is owed over this many
+#: seconds; what a child may be owed (or owe) is at most this many seconds of its share
+OWED_HORIZON = 1.0
+OWED_MAX = 0.5
+#: seconds over which what a child is owed fades (what it lost under other neighbours)
+OWED_DECAY = 10.0
 
 
 def _is_node(pid: int) -> bool:
@@ -140,6 +158,7 @@ class RobotCaps:
         self._usage: dict[str, float] = {}  # CPU seconds of each child at the last tick
         self._quota: dict[str, int] = {}
         self._share: dict[str, float] = {}  # host cores of each child
+        self._owed: dict[str, float] = {}  # CPU seconds each busy child's share gave it and it did not get
         self.share = self.core
         #: the robot's CPU seconds at the last tick, and its node's averaged use (host cores)
         self._robot_used: float | None = None
@@ -244,6 +263,7 @@ class RobotCaps:
         self._usage.clear()
         self._quota.clear()
         self._share.clear()
+        self._owed.clear()
         self._proc_used = {pid: got[0] for pid in self._programs() if (got := self._proc_cpu(pid)) is not None}
         self.pooled = True
 
@@ -278,6 +298,7 @@ class RobotCaps:
             self.adopt(self._node_pid)
         busy: list[str] = []
         live = []
+        got: dict[str, float] = {}  # CPU seconds of each live child since the last tick
         children_used = 0.0  # CPU seconds of the live children since the last tick
         for name in self.children():
             try:
@@ -299,7 +320,9 @@ class RobotCaps:
             # from its usage at adoption (``adopt``): a new child's CPU since then is a program's,
             # not the node's (counted as the node's, each program a robot started took some of
             # its neighbours' reserve for a second or two)
-            children_used += used - before if before is not None else 0.0
+            if before is not None:
+                got[name] = used - before
+                children_used += used - before
             # runnable counts from the first tick: children just adopted from a pool are busy at once
             if (before is not None and used - before >= BUSY_FRACTION * self._share.get(name, self.share) * dt) \
                     or self._runnable(int(name[len(CHILD_PREFIX):])):
@@ -313,6 +336,7 @@ class RobotCaps:
         if _full(self.cores, [weight[n] for n in busy]):
             self._pool()
             return
+        self._owe(busy, got, dt)
         parts, level = weighted_shares(self.cores, [weight[n] for n in busy])
         share = dict(zip(busy, parts))  # emulated cores of each busy child
         # a nice-0 newcomer's share, for children adopted before the next tick
@@ -326,14 +350,48 @@ class RobotCaps:
         if total > room:
             for name in busy:
                 self._share[name] *= room / total
+        self._write_quotas(live, busy, quota, room, crowded=total > room)
+
+    def _owe(self, busy: list[str], got: dict[str, float], dt: float) -> None:
+        """What each busy child is owed: the CPU seconds its share gave it since the last tick
+        less what it got, summed while it stays busy (within ``OWED_MAX`` seconds of its share).
+        Children that stop being busy are owed nothing."""
+        owed = {}
+        for name in busy:
+            share = self._share.get(name)
+            if share and name in got:
+                limit = OWED_MAX * share
+                kept = self._owed.get(name, 0.0) * max(0.0, 1.0 - dt / OWED_DECAY)
+                owed[name] = max(-limit, min(limit, kept + share * dt - got[name]))
+        self._owed = owed
+
+    def _targets(self, busy: list[str], room: float, crowded: bool) -> dict[str, float]:
+        """Host cores each busy child's quota is set to: its share, and where the busy children
+        fill what the node leaves (``crowded``), more for one owed more than the others (in
+        seconds of its own share), less for one owed less, over about ``OWED_HORIZON`` seconds;
+        together at most ``room``. The kernel does not hold children of one throttled robot to
+        their quotas evenly (module docstring, "fair in the end"); where the robot's quota does
+        not bind, each child's own does, and a quota rewritten more often only overruns more."""
+        if not crowded:
+            return {n: self._share[n] for n in busy}
+        rel = {n: self._owed.get(n, 0.0) / self._share[n] for n in busy if self._share[n] > 0}
+        mean = sum(rel.values()) / len(rel) if rel else 0.0
+        out = {n: self._share[n] * max(1 - OWED_MAX, min(1 + OWED_MAX, 1 + (rel.get(n, mean) - mean) / OWED_HORIZON))
+               for n in busy}
+        total = sum(out.values())
+        return {n: v * room / total for n, v in out.items()} if total > room else out
+
+    def _write_quotas(self, live: list[str], busy: list[str], quota: float, room: float, *, crowded: bool) -> None:
+        """Every live child's quota: a busy one's target (``_targets``), an idle one's share."""
+        target = self._targets(busy, room, crowded)
         # the busy children's quotas as they stand: over what the node leaves, the robot's
         # own quota throttles and the kernel starves some of them (the margin is the slack
         # between where they are set and where they must be rewritten)
         given = sum(self._quota.get(n, 0) for n in busy)
         over = given > (quota - self.node_use) * CFS_PERIOD_US
-        short = given < sum(self._share[n] for n in busy) * (1 - QUOTA_SHORT) * CFS_PERIOD_US
+        short = given < sum(target.values()) * (1 - QUOTA_SHORT) * CFS_PERIOD_US
         for name in live:
-            q = max(1000, int(self._share[name] * CFS_PERIOD_US))
+            q = max(1000, int(target.get(name, self._share[name]) * CFS_PERIOD_US))
             old = self._quota.get(name)
             # a write refills the child's runtime at once: rewriting a quota every tick for
             # small changes let programs overrun theirs by a third (and the robot's quota with them)
