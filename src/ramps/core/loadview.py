@@ -136,12 +136,9 @@ class LoadView:
             rob.bookings.clear()
             rob.accel.clear()
             rob.stale = True
-        rob.report = report
-        rob.received_at = now
-        if report.low_battery and report.robot != self.me:
-            self.low_battery.add(report.robot)
-        else:
-            self.low_battery.discard(report.robot)
+        rob.report, rob.received_at = report, now
+        (self.low_battery.add if report.low_battery and report.robot != self.me else self.low_battery.discard)(
+            report.robot)
         rob.paper_booked = 0
         rob.lost = False
         self.reports_received += 1
@@ -154,13 +151,11 @@ class LoadView:
             return True
         return False
 
-    # Counting bookings. ``unseen_accept``/``unseen_finish`` are always what
-    # ``_recount`` (every booking through ``_kind``) would make them, and a
-    # booking the current report shows started and finished is dropped. They
-    # change only where a booking changes (``accepted``, ``released``) or
-    # where a report's totals pass a booking's sequence numbers, so only those
-    # bookings are looked at: a report or a result costs O(log n) per
-    # booking it settles, not O(n) for every booking on that host.
+    # Counting bookings. ``unseen_accept``/``unseen_finish`` are always what ``_recount`` (every
+    # booking through ``_kind``) would make them, and a booking the current report shows started and
+    # finished is dropped. They change only where a booking changes (``accepted``, ``released``) or
+    # where a report's totals pass a booking's sequence numbers, so only those bookings are looked
+    # at: a report or a result costs O(log n) per booking it settles, not O(n) per booking there.
     def _recount(self, rob: _Robot) -> None:
         """Count every booking afresh (and index those a report has yet to show)."""
         rep = rob.report
@@ -196,6 +191,10 @@ class LoadView:
         was_acc, was_fin = rob.counted
         if rob.stale or acc_total < was_acc or fin_total < was_fin:
             self._recount(rob)
+            return
+        wa, wf = rob.waiting_accept, rob.waiting_finish
+        if (not wa or wa[0][0] > acc_total) and (not wf or wf[0][0] > fin_total):
+            rob.counted = (acc_total, fin_total)  # no booking's number passed (most reports an origin hears)
             return
         passed: dict[int, tuple[tuple[str, int], _Booking]] = {}
         for heap, total, field in ((rob.waiting_accept, acc_total, "accept_seq"),
@@ -438,9 +437,11 @@ class LoadView:
             rob.lost = lost
 
     def candidates(self, now: float) -> list[str]:
-        """Robots a program may be placed on now: this robot, and every
+        """``scan``'s robots, without their figures: this robot, and every
         teammate with a fresh report that is neither blacklisted nor lost."""
-        return [row[0] for row in self.scan(now, frozenset())]
+        horizon, bl, me = now - self.max_report_age, self._blacklist, self.me
+        return [n for n, r in self._robots.items() if n == me or not (
+            r.report is None or r.lost or r.received_at < horizon or n in bl)]
 
     def scan(self, now: float, exclude: frozenset[str], paper: bool = False,
              only: list[str] | None = None) -> list[tuple[str, float, float, float, float, float]]:
@@ -450,16 +451,14 @@ class LoadView:
         (with ``paper``, ``ramps`` is the paper's load and background 0).
         ``cores`` are those the robot's programs can have: its cores less
         what its node itself uses (``LoadReport.node_cpu``, at most half of
-        them; the paper's prototype counted all of them).
-
-        The hot path of placement in large teams: the same reading as
-        ``candidates`` + ``ramps_programs`` + ``background`` (or
-        ``paper_load``), without building intermediate objects.
+        them; the paper's prototype counted all of them). The hot path of
+        placement in large teams: ``ramps_programs`` + ``background`` (or
+        ``paper_load``) of each of ``candidates``, without objects between.
         An ``exclude`` that would leave no candidate at all is ignored.
         ``only``: these robots alone, in this order (a sample of a large
         team, ``RampsConfig.placement_sample``; names not in the view skipped)."""
         horizon = now - self.max_report_age
-        blacklist = self._blacklist
+        blacklist, factors = self._blacklist, self.speed_factor
         out = []
         robots = self._robots
         for name, rob in robots.items() if only is None else [(n, robots[n]) for n in only if n in robots]:
@@ -479,7 +478,7 @@ class LoadView:
             if rep is None:  # only this robot gets here without a report
                 cores, speed, weight = self.cores, self.speed_of(name, self.speed), self.program_weight
             else:
-                cores, speed, weight = rep.cores, self.speed_of(name, rep.speed), rep.program_weight
+                cores, speed, weight = rep.cores, rep.speed * factors.get(name, 1.0), rep.program_weight
                 if rep.node_cpu and not paper:
                     cores = program_cores(rep.cores, rep.node_cpu)
             out.append((name, cores, speed, ramps, background, weight))

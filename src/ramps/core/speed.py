@@ -247,6 +247,8 @@ class HostSpeeds:
         of 0.67 against a boot figure 1.5x too fast went on to scale the
         robot's re-measured true speed down to 0.67 of it, and it got no
         programs.)"""
+        if self._reported.get(host) == speed:
+            return False  # the common case, without a logarithm: the same figure as before
         if not (math.isfinite(speed) and speed > 0) or not speed_moved(speed, self._reported.setdefault(host, speed)):
             return False
         self._reported[host] = speed

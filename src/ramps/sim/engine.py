@@ -301,13 +301,15 @@ class Simulator:
         src, epoch, report = arg
         if epoch != src.epoch:
             return
-        for name in self._report_to[src.spec.name]:
-            if name == src.spec.name:
+        sender, robots, loss, now = src.spec.name, self.robots, self.net.loss, self.now
+        event = Received(sender=sender, msg=report)  # frozen: one for every robot that hears it
+        for name in self._report_to[sender]:
+            if name == sender:
                 continue
-            dst = self.robots[name]
-            if not dst.reachable or (self.net.loss and self.rng.random() < self.net.loss):
+            dst = robots[name]
+            if not dst.reachable or (loss and self.rng.random() < loss):
                 continue
-            self._handle(dst, Received(sender=src.spec.name, msg=report))
+            self._apply(dst, dst.node.handle(event, now))
 
     # ================================================================ network
     def _send(self, src: _Robot, to: str, msg: Message) -> None:
