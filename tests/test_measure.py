@@ -187,6 +187,31 @@ def test_a_measurement_apart_runs_in_a_child_and_brings_its_pieces_back():
         os.waitpid(-1, os.WNOHANG)  # no child left behind
 
 
+def test_a_measurement_apart_is_given_up_when_a_program_starts():
+    """A re-measurement's child takes a robot of small quota-sliced cores' whole
+    quota for about a second: when ``stop`` says a program started, the child is
+    killed and nothing is measured; asked with nothing starting, it measures."""
+    import os
+
+    asked = []
+
+    def program_started() -> bool:
+        asked.append(1)
+        return len(asked) >= 2  # the second look: a program came
+
+    with pytest.raises(speed_probe.Interrupted):
+        speed_probe.chunk_rates_apart(30.0, program_started)  # 30 s of CPU if left alone
+    assert len(asked) == 2
+    with pytest.raises(ChildProcessError):
+        os.waitpid(-1, os.WNOHANG)  # the child is killed and reaped
+    assert not speed_probe.MEASURING_PIDS
+    samples = speed_probe.SpeedSamples()
+    with pytest.raises(speed_probe.Interrupted):
+        speed_probe.measure_speed(30.0, samples=samples, apart=True, stop=lambda: True)
+    assert samples.latest == 0.0 and samples.rate() == 0.0  # nothing added
+    assert speed_probe.chunk_rates_apart(0.02, lambda: False)  # never told to stop: it measures
+
+
 def test_the_measuring_child_is_the_nodes_own_work_not_the_robots_load(tmp_path, monkeypatch):
     """While a re-measurement's child runs, the robot's run queue leaves it out,
     as it leaves out the node's threads: counted, every idle robot looked busy

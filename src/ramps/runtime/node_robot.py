@@ -27,7 +27,7 @@ from typing import Any, Callable
 from ramps.core.speed import REMEASURE_CPU, SpeedMeasured, next_remeasure
 from ramps.runtime.measure import cgroup_dirs, cpu_limit, cpu_model, detect_cores
 from ramps.runtime.settings import NodeSettings
-from ramps.runtime.speed_probe import SpeedSamples, core_fraction, measure_speed
+from ramps.runtime.speed_probe import Interrupted, SpeedSamples, core_fraction, measure_speed
 from ramps.runtime.transport import Clock
 
 log = logging.getLogger("ramps.node")
@@ -110,7 +110,8 @@ class RobotMeasure:
         """Measure this robot's speed again at wall-clock time ``at`` (the
         team's grid, ``next_remeasure``), off the driver's thread (briefly:
         ``REMEASURE_CPU`` s of CPU), with every piece timed so far
-        (``SpeedSamples``), unless a program started meanwhile; the core
+        (``SpeedSamples``), unless a program started meanwhile (before or
+        while it measures: the measuring child is killed); the core
         takes the figure if it moved. A measurement still running when the
         next one's thread starts (one beside busy processes takes longer than
         its second) is waited for until the moment: a moment one robot skips
@@ -122,8 +123,10 @@ class RobotMeasure:
             if not idle():
                 return
             speed = measure_speed(REMEASURE_CPU, quota=self.quota, cores=self.cores, samples=self.samples,
-                                  apart=True)
+                                  apart=True, stop=lambda: not idle())
             figure = self.samples.latest * self.core_fraction()
+        except Interrupted:  # a program started: it has the robot's CPU, the next moment on the grid measures
+            return
         except Exception:  # never worth a node
             log.exception("node %s: measuring its speed again failed", self.robot)
             return

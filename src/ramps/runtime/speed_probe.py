@@ -15,9 +15,12 @@ from __future__ import annotations
 
 import math
 import os
+import select
+import signal
 import statistics
 import time
 from collections import deque
+from typing import Callable
 
 from ramps.runtime.measure import MEASURING_PIDS
 from ramps.runtime.spin import ITERATIONS_PER_UNIT, spin
@@ -87,7 +90,15 @@ def chunk_rates(seconds: float) -> dict[int, list[float]]:
     return pieces
 
 
-def chunk_rates_apart(seconds: float) -> dict[int, list[float]]:
+#: seconds between two looks at ``chunk_rates_apart``'s ``stop`` while its child computes
+STOP_POLL = 0.02
+
+
+class Interrupted(Exception):
+    """A measurement given up because its ``stop`` said so (a program started)."""
+
+
+def chunk_rates_apart(seconds: float, stop: Callable[[], bool] | None = None) -> dict[int, list[float]]:
     """``chunk_rates`` in a forked child of this process: a node's other
     threads (its driver, Zenoh's callbacks, the load sampler) take the GIL
     from a measuring thread every few milliseconds, and its pieces, as long
@@ -96,7 +107,11 @@ def chunk_rates_apart(seconds: float) -> dict[int, list[float]]:
     in 5 of 10 afterwards. The child has only the forking thread, computes,
     writes its pieces to a pipe and leaves with ``os._exit``, in the node's
     cgroup and at its priority, as the boot measurement ran. Falls back to
-    this thread where there is no ``fork``."""
+    this thread where there is no ``fork``. ``stop``, asked every ``STOP_POLL``
+    s while the child computes: when it says so, the child is killed and
+    ``Interrupted`` raised, so a re-measurement never takes CPU from a program
+    that starts meanwhile (on a robot of small quota-sliced cores the child, at
+    the node's priority, takes the robot's whole quota for about a second)."""
     import msgspec
 
     if not hasattr(os, "fork"):
@@ -119,7 +134,15 @@ def chunk_rates_apart(seconds: float) -> dict[int, list[float]]:
     os.close(w)
     try:
         chunks = []
-        while chunk := os.read(r, 65536):
+        while True:
+            if stop is not None and not select.select([r], [], [], STOP_POLL)[0]:
+                if stop():
+                    os.kill(pid, signal.SIGKILL)
+                    raise Interrupted
+                continue
+            chunk = os.read(r, 65536)
+            if not chunk:
+                break
             chunks.append(chunk)
     finally:
         os.close(r)
@@ -223,7 +246,8 @@ def fastest_quarter(rates: list[float]) -> float:
 
 
 def measure_speed(seconds: float = 0.2, *, quota: float | None = None, cores: int = 1,
-                  samples: SpeedSamples | None = None, apart: bool = False, boot: bool = False) -> float:
+                  samples: SpeedSamples | None = None, apart: bool = False, boot: bool = False,
+                  stop: Callable[[], bool] | None = None) -> float:
     """Work units per second of one of this robot's cores (1.0 = the reference core).
 
     Two parts, measured apart: what a CPU second computes here
@@ -232,9 +256,10 @@ def measure_speed(seconds: float = 0.2, *, quota: float | None = None, cores: in
     the robot's cores is (the kernel's ``quota`` shared by ``cores``).
     ``apart``: in a forked child (``chunk_rates_apart``), for a process that
     runs other threads; ``boot``: the node's measurement at its start (see
-    ``SpeedSamples``)."""
+    ``SpeedSamples``); ``stop``: give an ``apart`` measurement up when it says
+    so (``Interrupted``, nothing added to ``samples``)."""
     samples = samples if samples is not None else SpeedSamples()
-    samples.add(chunk_rates_apart(seconds) if apart else chunk_rates(seconds), boot=boot)
+    samples.add(chunk_rates_apart(seconds, stop) if apart else chunk_rates(seconds), boot=boot)
     return samples.speed(quota=quota, cores=cores)
 
 
