@@ -137,8 +137,10 @@ class LoadView:
             rob.accel.clear()
             rob.stale = True
         rob.report, rob.received_at = report, now
-        (self.low_battery.add if report.low_battery and report.robot != self.me else self.low_battery.discard)(
-            report.robot)
+        if report.low_battery and report.robot != self.me:
+            self.low_battery.add(report.robot)
+        else:
+            self.low_battery.discard(report.robot)
         rob.paper_booked = 0
         rob.lost = False
         self.reports_received += 1
@@ -436,12 +438,14 @@ class LoadView:
         if rob is not None:
             rob.lost = lost
 
+    def _passed_over(self, name: str, rob: _Robot, horizon: float) -> bool:
+        """A teammate placed on by no one now: no report since ``horizon``, lost or blacklisted."""
+        return name != self.me and (rob.report is None or rob.lost or rob.received_at < horizon or name in self._blacklist)
+
     def candidates(self, now: float) -> list[str]:
-        """``scan``'s robots, without their figures: this robot, and every
-        teammate with a fresh report that is neither blacklisted nor lost."""
-        horizon, bl, me = now - self.max_report_age, self._blacklist, self.me
-        return [n for n, r in self._robots.items() if n == me or not (
-            r.report is None or r.lost or r.received_at < horizon or n in bl)]
+        """``scan``'s robots without their figures: this robot and every teammate not ``_passed_over``."""
+        horizon = now - self.max_report_age
+        return [n for n, r in self._robots.items() if not self._passed_over(n, r, horizon)]
 
     def scan(self, now: float, exclude: frozenset[str], paper: bool = False,
              only: list[str] | None = None) -> list[tuple[str, float, float, float, float, float]]:
@@ -457,15 +461,12 @@ class LoadView:
         An ``exclude`` that would leave no candidate at all is ignored.
         ``only``: these robots alone, in this order (a sample of a large
         team, ``RampsConfig.placement_sample``; names not in the view skipped)."""
-        horizon = now - self.max_report_age
-        blacklist, factors = self._blacklist, self.speed_factor
+        horizon, factors, passed_over, robots = now - self.max_report_age, self.speed_factor, self._passed_over, self._robots
         out = []
-        robots = self._robots
         for name, rob in robots.items() if only is None else [(n, robots[n]) for n in only if n in robots]:
+            if passed_over(name, rob, horizon):
+                continue
             rep = rob.report
-            if name != self.me:
-                if rep is None or rob.lost or rob.received_at < horizon or name in blacklist:
-                    continue
             background = 0.0
             if paper:
                 ramps = (rep.cpu_busy if rep else 0.0) + rob.paper_booked

@@ -301,15 +301,15 @@ class Simulator:
         src, epoch, report = arg
         if epoch != src.epoch:
             return
-        sender, robots, loss, now = src.spec.name, self.robots, self.net.loss, self.now
+        sender = src.spec.name
         event = Received(sender=sender, msg=report)  # frozen: one for every robot that hears it
         for name in self._report_to[sender]:
             if name == sender:
                 continue
-            dst = robots[name]
-            if not dst.reachable or (loss and self.rng.random() < loss):
+            dst = self.robots[name]
+            if not dst.reachable or (self.net.loss and self.rng.random() < self.net.loss):
                 continue
-            self._apply(dst, dst.node.handle(event, now))
+            self._handle(dst, event)
 
     # ================================================================ network
     def _send(self, src: _Robot, to: str, msg: Message) -> None:

@@ -354,8 +354,8 @@ class RobotCaps:
 
     def _owe(self, busy: list[str], got: dict[str, float], dt: float) -> None:
         """What each busy child is owed: the CPU seconds its share gave it since the last tick
-        less what it got, summed while it stays busy (within ``OWED_MAX`` seconds of its share).
-        Children that stop being busy are owed nothing."""
+        less what it got, summed while it stays busy and fading over ``OWED_DECAY`` (within
+        ``OWED_MAX`` seconds of its share). Children that stop being busy are owed nothing."""
         owed = {}
         for name in busy:
             share = self._share.get(name)
