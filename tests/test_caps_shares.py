@@ -132,22 +132,33 @@ def test_a_full_robot_has_no_caps_and_is_capped_again_when_a_share_reaches_a_cor
 
 
 def test_a_program_the_kernel_starved_keeps_the_robot_full(tmp_path, sleepers):
-    # four programs use their share, the kernel gives the fifth nothing: it is runnable all the
-    # same, so five programs fill the 4 cores (0.8 of a core each) and the robot stays pooled
-    # (counted idle, the four would be capped at a core each, the fifth waiting for a tick)
-    robot = FakeRobot(tmp_path, sleepers[:5])
+    # seven programs use their share, the kernel gives the eighth nothing: it is runnable all
+    # the same, so eight programs fill the 4 cores (half a core each) and the robot stays
+    # pooled (counted idle, the seven would be capped, the eighth waiting for a tick)
+    robot = FakeRobot(tmp_path, sleepers[:8])
     for _ in range(3):
-        robot.run(0.2, node=0.0, per_pid={p: QUOTA / 5 for p in sleepers[:5]})
+        robot.run(0.2, node=0.0, per_pid={p: QUOTA / 8 for p in sleepers[:8]})
     assert robot.caps.pooled
-    robot.runnable = {sleepers[4]}
+    robot.runnable = {sleepers[7]}
     for _ in range(3):
-        robot.run(0.2, node=0.0, per_pid={p: QUOTA / 4 for p in sleepers[:4]})
+        robot.run(0.2, node=0.0, per_pid={p: QUOTA / 7 for p in sleepers[:7]})
     assert robot.caps.pooled and robot.children() == []
-    robot.runnable = set()  # it exited meanwhile, say: four on four cores are capped, a core each
-    robot.run(0.2, node=0.0, per_pid={p: QUOTA / 4 for p in sleepers[:4]})
+    robot.runnable = set()  # it exited meanwhile, say: seven on four cores are capped
+    robot.run(0.2, node=0.0, per_pid={p: QUOTA / 7 for p in sleepers[:7]})
     assert not robot.caps.pooled
-    robot.run(0.2, node=0.0, per_pid={p: QUOTA / 4 for p in sleepers[:4]})
-    assert [robot.quota(p) for p in sleepers[:4]] == [pytest.approx(CORE, rel=0.01)] * 4
+    for _ in range(3):
+        robot.run(0.2, node=0.0, per_pid={p: QUOTA / 7 for p in sleepers[:7]})
+    assert [robot.quota(p) for p in sleepers[:7]] == [pytest.approx(QUOTA / 7, rel=0.02)] * 7
+
+
+def test_five_programs_on_four_cores_are_capped_not_pooled(tmp_path, sleepers):
+    # 0.8 of a core each: pooled, the kernel ran them unevenly for seconds; capped, each at
+    # its share of what the node leaves
+    robot = FakeRobot(tmp_path, sleepers[:5])
+    for _ in range(5):
+        robot.run(0.2, node=0.0, per_pid={p: QUOTA / 5 for p in sleepers[:5]})
+    assert not robot.caps.pooled and robot.in_robot() == []
+    assert [robot.quota(p) for p in sleepers[:5]] == [pytest.approx(QUOTA / 5, rel=0.02)] * 5
 
 
 def test_capped_shares_follow_cfs_weights_and_leave_the_node_its_use(tmp_path, heavy_and_light):

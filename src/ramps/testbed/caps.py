@@ -31,9 +31,9 @@ its programs. Without that reserve, fifteen programs filling a robot of 4
 emulated cores pushed it over its quota by the node's 3% and finished
 spread over 85-126 s where processor sharing ends them together.
 
-**A full robot has no caps.** Where no busy process's share comes near a whole
-emulated core (at most ``POOL_SHARE`` of one: five programs on four cores, or
-programs next to eight busy processes), no cap binds, and the
+**A crowded robot has no caps.** Where no busy process's share exceeds half an
+emulated core (``POOL_SHARE``: eight programs on four cores, or programs next to
+eight busy processes), no cap would bind, and the
 kernel shares one cgroup by CFS weight as it shares a real robot's cores. So
 then the capper moves every process back into the robot's own cgroup and
 removes the children ("pooled"), and caps again (the next period) when a share
@@ -43,7 +43,11 @@ reserve an estimate); pooled, the kernel gives the robot its whole quota, the
 node takes what it uses and the programs share the rest fairly (measured:
 0.62-0.68 CPU s each in 30 s, where sibling cgroups under the same throttled
 parent got 0.02-1.00). The node's load sampler, walking one cgroup instead of
-sixteen, costs less too.
+sixteen, costs less too. With a few programs to each host CPU the kernel is
+not fair over seconds (which CPU's queue a program waits in decides its part):
+five pooled programs on a robot of four cores ended 3.5-8.5 s after their start
+where processor sharing ends them together after about 7 s; capped, with what
+each is owed, within 0.9 s of each other (docs/lab/2026-11-28-sweep-pooling.md).
 
 **Fair in the end.** The kernel does not hold the children of one robot to their
 quotas evenly: a child's CPU time is handed out in slices that can outlast a
@@ -92,10 +96,11 @@ NODE_MAX = 0.5
 #: ``QUOTA_SHORT`` (small steps down, each under the step, once left them up to 5% short)
 QUOTA_STEP = 0.05
 QUOTA_SHORT = 0.01
-#: a robot is pooled when no busy process's share exceeds this fraction of a core: five
-#: programs on four cores (0.8 each), not four (pooled, one that the kernel favoured ran
-#: faster than a core, ended early, and left the other three capped at a core each)
-POOL_SHARE = 0.9
+#: a robot is pooled when no busy process's share exceeds this fraction of a core: eight
+#: programs on four cores (0.5 each), not five (0.8 each): pooled, the kernel ran five
+#: programs on two host CPUs unevenly for seconds (one ended after 3.5 s, one after 8.5 s,
+#: where processor sharing ends them together after 7), capped they ended within 0.9 s
+POOL_SHARE = 0.5
 #: a busy child owed CPU by the kernel gets its share and what it is owed over this many
 #: seconds; what a child may be owed (or owe) is at most this many seconds of its share
 OWED_HORIZON = 1.0
