@@ -81,6 +81,24 @@ def test_the_boot_measurement_counts_only_until_the_grid_outvotes_it():
     assert 0.44 < s.rate() < 0.50
 
 
+def test_runs_are_compared_only_with_runs_elsewhere_of_their_own_time():
+    # a and b ran the program while the whole team ran at 0.7 of its speed (say, a host
+    # shared with other work): 0.43 units a call where the team's CPU does it in 0.3 now
+    speeds = HostSpeeds(CFG)
+    speeds.on_result("burn", "a", 0.43, started=0.0, now=8.0)
+    speeds.on_result("burn", "b", 0.43, started=0.0, now=8.0)
+    # h's runs came after theirs ended: against them it would look 1.43x faster than it says
+    assert not speeds.on_result("burn", "h", 0.30, started=10.0, now=16.0)
+    assert not speeds.on_result("burn", "h", 0.30, started=10.0, now=16.0)
+    assert "h" not in speeds.factor
+    # next to a run of the same minute on a, it is compared, and a host slower than the
+    # others of its time is slow
+    speeds.on_result("burn", "a", 0.30, started=20.0, now=26.0)
+    assert not speeds.on_result("burn", "h", 0.45, started=21.0, now=28.0)
+    assert speeds.on_result("burn", "h", 0.45, started=21.5, now=28.5)
+    assert speeds.factor["h"] == pytest.approx(0.30 / 0.45)
+
+
 def test_a_host_slower_than_it_says_on_the_same_program_gets_a_factor():
     speeds = HostSpeeds(CFG)
     assert not speeds.on_result("plan", "a", 53.0)  # nothing to compare with yet

@@ -184,8 +184,7 @@ class Executor:
         return len(self.running) - self._on_any
 
     def set_speed(self, speed: float, now: float) -> None:
-        """This robot's speed changed (``ramps.core.speed``): running
-        programs were credited at the old one until ``now``."""
+        """This robot's speed changed (``ramps.core.speed``): programs were credited at the old one until ``now``."""
         self._advance(now)
         self.speed = speed
 
@@ -232,12 +231,13 @@ class Executor:
             # deciding on the same data); the rejection carries a fresh report
             if req.accelerator:
                 slots: float = self.accelerators[req.accelerator].count
-                actual = float(self.on_accelerators[req.accelerator])
+                actual, other = float(self.on_accelerators[req.accelerator]), 0.0
             else:
-                slots, actual = self.cores, self.background + self.cpu_programs()
+                slots, actual, other = self.cores, self.background + self.cpu_programs(), self.background
             if (actual + 1.0 > slots and actual > req.expected_runnable + self.config.admission_slack
                     and not self._still_best_here(req)):
-                reject = ("busy", False, f"{actual:.1f} runnable here, origin expected {req.expected_runnable:.1f}")
+                reject = ("busy", False, f"{actual:.1f} runnable here ({other:.1f} besides programs), "
+                                         f"origin expected {req.expected_runnable:.1f}")
         if reject is not None:
             self.refused += 1
             reason, permanent, detail = reject

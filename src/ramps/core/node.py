@@ -393,7 +393,7 @@ class Node:
             self.origin.on_heartbeat(msg, now, out)
         elif isinstance(msg, ProgramResult):
             if self.host_speeds is not None:
-                self._compare_speed(msg, out)
+                self._compare_speed(msg, now, out)
             self.origin.on_result(msg, now, out)
         elif isinstance(msg, ResultAck):
             self.executor.on_ack(msg)
@@ -422,7 +422,7 @@ class Node:
                             mem_free=mem_free, cpu_per_core=cpu_per_core or [], load_avg=load_avg,
                             blacklisted=self.view.blacklisted(), node_cpu=node_cpu)
 
-    def _compare_speed(self, msg: ProgramResult, out: list[Action]) -> None:
+    def _compare_speed(self, msg: ProgramResult, now: float, out: list[Action]) -> None:
         """The first wanted result of a whole run (not resumed, not moved):
         how fast its host really was, next to the same program elsewhere."""
         ap = self.origin.programs.get(msg.program_id)
@@ -431,7 +431,8 @@ class Node:
             return
         assert self.host_speeds is not None
         before = self.host_speeds.factor.get(msg.host, 1.0)
-        if self.host_speeds.on_result(ap.submit.program, msg.host, msg.work_done, ap.submit.work):
+        if self.host_speeds.on_result(ap.submit.program, msg.host, msg.work_done, ap.submit.work,
+                                      started=ap.placed_at, now=now):
             out.append(Note(what="speed", program_id=msg.program_id, robot=msg.host, attempt=msg.attempt,
                             detail=f"runs at {self.host_speeds.factor[msg.host]:.3g} of the speed it reports "
                                    f"(was {before:.3g}): {ap.submit.program} took {msg.work_done:.4g} units "

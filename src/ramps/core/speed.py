@@ -231,8 +231,8 @@ class HostSpeeds:
         #: host -> factor on its reported speed (absent = 1)
         self.factor: dict[str, float] = {}
         self._figures: dict[str, deque[float]] = {}
-        #: program name -> recent runs: (host, work in the team's terms)
-        self._runs: dict[str, deque[tuple[str, float]]] = {}
+        #: program name -> recent runs: (host, work in the team's terms, when it ended)
+        self._runs: dict[str, deque[tuple[str, float, float]]] = {}
         #: results compared, and changes of a factor they made
         self.samples = 0
         self.corrections = 0
@@ -255,20 +255,25 @@ class HostSpeeds:
         self._figures.pop(host, None)
         return self.factor.pop(host, None) is not None
 
-    def on_result(self, program: str, host: str, work_done: float, declared: float = 0.0) -> bool:
+    def on_result(self, program: str, host: str, work_done: float, declared: float = 0.0, *,
+                  started: float | None = None, now: float = math.inf) -> bool:
         """A first, wanted result of ``program`` from ``host``, which counted
         ``work_done`` units at the speed it reports, of a call that declared
-        ``declared`` units (0: compare the raw work); True if the host's
-        factor changed."""
+        ``declared`` units (0: compare the raw work), placed at ``started`` and
+        ended at ``now``; True if the host's factor changed. It is compared
+        only with runs elsewhere still going when it was placed: what a CPU
+        second does drifts with the whole team (a host shared with other work,
+        a VM at half speed for minutes), and a run against runs of a slower
+        minute set one identical robot 1.37x above the rest."""
         cfg = self.config
         if not cfg.speed_learning or not (math.isfinite(work_done) and work_done >= MIN_RUN_WORK):
             return False
         if math.isfinite(declared) and declared > 0:
             work_done /= declared  # per declared unit: calls of different sizes compare
         runs = self._runs.setdefault(program, deque(maxlen=RUNS))
-        elsewhere = [w for h, w in runs if h != host]
+        elsewhere = [w for h, w, end in runs if h != host and (started is None or end >= started)]
         factor = self.factor.get(host, 1.0)
-        runs.append((host, work_done * factor))
+        runs.append((host, work_done * factor, now))
         if not elsewhere:
             return False  # nothing to compare with yet
         # only runs within the bound of this one can be the same instance
