@@ -60,9 +60,11 @@ def test_stages_come_from_the_origin_and_host_traces_in_submission_order(tmp_pat
 
 def test_a_rounds_line_names_the_ratio_beside_the_bound():
     phase = {"ms": [1.0] * 6, "worker_cpu_per_call_ms": 30.0, "workers_forked": 0, "stages_p50_ms": None,
-             "cores_used": 0.4}
+             "cores_used": 0.4, "hosts": ["r2", "r1", "r1", "r1", "r2", "r3"]}
     r = {"cold_over_sequential_p50": 4.1, "bound": bound(6, 2, 0.030, 30.0), "loadavg_1m": [3.0, 5.5],
          "cold_at_once": phase, "warm_one_after_another": phase}
     line = describe_round(1, r)
     assert "4.1x" in line and "at least 2.0x" in line and "3.0x if all share" in line and "load average 3.0-5.5" in line
     assert "the workers had 0.40 cores in the cold burst" in line
+    assert "this host's bound for 6 calls of 30 ms (30 ms CPU) on 2 cores" in line
+    assert "the cold burst ran on r1 3, r2 2, r3 1" in line

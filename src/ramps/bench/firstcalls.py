@@ -50,6 +50,10 @@ each phase) lower the cores left: ``cores_used`` is the CPU the workers got
 over a phase's wall time (on a loaded host, six calls at once may get no
 more of it than one call alone).
 
+``--testbed`` (``ramps.bench.firstcalls_testbed``) runs the same phases, with
+the same stages and CPU figures, on a fresh emulated team a round: robots
+of their own cores, whose bound the emulated team sets, not this host.
+
 Memory: the resident (RSS), proportional (PSS: shared pages divided among
 their users) and unique (USS) memory of each node's fork server and its idle
 workers, right after the team started and again after the calls (once the
@@ -66,8 +70,10 @@ import statistics
 import sys
 import threading
 import time
+from collections import Counter
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import psutil
 
@@ -80,6 +86,14 @@ MB = 1 << 20
 #: its origin runs itself has no ``started`` and ``finished`` lines: its
 #: ``accepted`` and ``delivered`` stand for them)
 STAGE_LINES = ("placed", "started", "accepted", "finished", "delivered")
+
+
+class HasNodes(Protocol):
+    """A started team as the measuring reads it: each robot's node process, by robot
+    (``LocalTeam.nodes``; ``EmulatedTeam`` on the testbed), whose ``pid`` is the node's."""
+
+    @property
+    def nodes(self) -> Mapping[str, Any]: ...
 
 
 class _TracedTeam(LocalTeam):
@@ -134,7 +148,7 @@ def _mem(proc: psutil.Process) -> dict:
     return {"rss_mb": m.rss / MB, "pss_mb": getattr(m, "pss", 0) / MB, "uss_mb": m.uss / MB}
 
 
-def _fork_servers(team: LocalTeam) -> dict[str, psutil.Process]:
+def _fork_servers(team: HasNodes) -> dict[str, psutil.Process]:
     servers = {}
     for name, node in team.nodes.items():
         try:
@@ -146,7 +160,7 @@ def _fork_servers(team: LocalTeam) -> dict[str, psutil.Process]:
     return servers
 
 
-def worker_cpu(team: LocalTeam) -> dict[int, float]:
+def worker_cpu(team: HasNodes) -> dict[int, float]:
     """CPU seconds (user and system) of every live worker of every node, by pid."""
     cpu = {}
     for server in _fork_servers(team).values():
@@ -163,7 +177,7 @@ def worker_cpu(team: LocalTeam) -> dict[int, float]:
     return cpu
 
 
-def executor_memory(team: LocalTeam) -> dict:
+def executor_memory(team: HasNodes) -> dict:
     """Each robot's node, fork server and workers: RSS, PSS and USS in MB
     (and the fork server's CPU seconds so far: its start, preload included)."""
     robots = {}
@@ -255,7 +269,7 @@ def bound(calls: int, host_cores: int, cpu_s: float, seq_p50_ms: float, run_alon
             "cores_for_1x": calls}
 
 
-def _phase(team: LocalTeam, run: Any) -> dict:
+def _phase(team: HasNodes, run: Any) -> dict:
     load = os.getloadavg()[0]
     before = worker_cpu(team)
     calls = run()
@@ -280,45 +294,73 @@ def _stage_p50(phase: dict) -> dict | None:
     return {k: statistics.median(s[k] for s in st) for k in st[0] if k.endswith("_ms")}
 
 
+def measure(team: HasNodes, client: Any, calls: int, program: str, kwargs: dict,
+            traces: Callable[[], list[Path]]) -> dict:
+    """The three phases on a started ``team`` through ``client``, each call's stages from the
+    ``traces`` it writes, and the executors' memory before and after: what a round on loopback
+    and one on the testbed (``ramps.bench.firstcalls_testbed``) share."""
+    mem_start = executor_memory(team)
+    cold = _phase(team, lambda: _at_once(client, program, calls, kwargs))
+    seq = _phase(team, lambda: _one_after_another(client, program, calls, kwargs))
+    warm = _phase(team, lambda: _at_once(client, program, calls, kwargs))
+    traced = read_traces(traces())
+    done = cold["calls"] + seq["calls"] + warm["calls"]
+    st = stages(done, traced)
+    for i, phase in enumerate((cold, seq, warm)):
+        phase["stages"] = st[i * calls:(i + 1) * calls] if st else None
+        phase["stages_p50_ms"] = _stage_p50(phase)
+    time.sleep(RETIRE_AFTER + 1.5)  # workers beyond the cores retire
+    return {"cold_at_once": cold, "warm_one_after_another": seq, "warm_at_once": warm,
+            "memory_start": mem_start, "memory_after": executor_memory(team)}
+
+
+def run_alone_ms(m: dict) -> float | None:
+    """The p50 time a call alone took from started to finished (one after another), if traced."""
+    return (m["warm_one_after_another"]["stages_p50_ms"] or {}).get("started_to_finished_ms")
+
+
+def round_result(started_s: float, m: dict, b: dict) -> dict:
+    """A round's figures: ``measure``'s, the ratios and the bound ``b``."""
+    cold, seq, warm = m["cold_at_once"], m["warm_one_after_another"], m["warm_at_once"]
+    return {"team_start_s": started_s, "cold_at_once": cold, "warm_one_after_another": seq, "warm_at_once": warm,
+            "cold_over_sequential_p50": cold["p50_ms"] / seq["p50_ms"],
+            "cold_over_warm_at_once_p50": cold["p50_ms"] / warm["p50_ms"], "bound": b,
+            "loadavg_1m": [cold["loadavg_1m"], seq["loadavg_1m"], warm["loadavg_1m"], os.getloadavg()[0]],
+            "memory_start": m["memory_start"], "memory_after": m["memory_after"]}
+
+
 def _round(nodes: int, cores: int, calls: int, program: str, kwargs: dict, host_cores: int) -> dict:
     t0 = time.perf_counter()
     with _TracedTeam(nodes, cores=cores, speed=1.0) as team:
         started_s = time.perf_counter() - t0
         client = team.client()
         time.sleep(1.5)  # let every load server hear every robot once
-        mem_start = executor_memory(team)
-        cold = _phase(team, lambda: _at_once(client, program, calls, kwargs))
-        seq = _phase(team, lambda: _one_after_another(client, program, calls, kwargs))
-        warm = _phase(team, lambda: _at_once(client, program, calls, kwargs))
-        traced = read_traces(sorted(team.log_dir.glob("*.trace")))
-        done = cold["calls"] + seq["calls"] + warm["calls"]
-        st = stages(done, traced)
-        for i, phase in enumerate((cold, seq, warm)):
-            phase["stages"] = st[i * calls:(i + 1) * calls] if st else None
-            phase["stages_p50_ms"] = _stage_p50(phase)
-        time.sleep(RETIRE_AFTER + 1.5)  # workers beyond the cores retire
-        mem_after = executor_memory(team)
-    alone = (seq["stages_p50_ms"] or {}).get("started_to_finished_ms")
-    b = bound(calls, host_cores, seq["worker_cpu_per_call_ms"] / 1e3, seq["p50_ms"], alone)
-    return {"team_start_s": started_s, "cold_at_once": cold, "warm_one_after_another": seq, "warm_at_once": warm,
-            "cold_over_sequential_p50": cold["p50_ms"] / seq["p50_ms"],
-            "cold_over_warm_at_once_p50": cold["p50_ms"] / warm["p50_ms"], "bound": b,
-            "loadavg_1m": [cold["loadavg_1m"], seq["loadavg_1m"], warm["loadavg_1m"], os.getloadavg()[0]],
-            "memory_start": mem_start, "memory_after": mem_after}
+        m = measure(team, client, calls, program, kwargs, lambda: sorted(team.log_dir.glob("*.trace")))
+    seq = m["warm_one_after_another"]
+    b = bound(calls, host_cores, seq["worker_cpu_per_call_ms"] / 1e3, seq["p50_ms"], run_alone_ms(m))
+    return round_result(started_s, m, b)
+
+
+def _bound_head(b: dict, calls: int) -> str:
+    if b.get("mode") == "testbed":  # ramps.bench.firstcalls_testbed.emulated_bound
+        return (f"the emulated team's bound for {calls} calls of {b['c_ms']:.0f} ms ({b['host_cpu_ms']:.0f} ms of host "
+                f"CPU, {b['cpu_ms']:.0f} ms on an emulated core of {b['core_host_cores']:.2f} host cores) on "
+                f"{b['robots']} robots of {b['cores_per_robot']} cores")
+    return f"this host's bound for {calls} calls of {b['c_ms']:.0f} ms ({b['cpu_ms']:.0f} ms CPU) on {b['host_cores']} cores"
 
 
 def describe_round(i: int, r: dict) -> str:
-    """One round's ratio beside the bound this host sets, and where the time went."""
+    """One round's ratio beside the bound this host (or the emulated team) sets, and where the time went."""
     b, seq, cold = r["bound"], r["warm_one_after_another"], r["cold_at_once"]
-    text = (f"round {i}: cold at once / one after another {r['cold_over_sequential_p50']:.1f}x; this host's "
-            f"bound for {len(cold['ms'])} calls of {b['c_ms']:.0f} ms ({b['cpu_ms']:.0f} ms CPU) on {b['host_cores']} "
-            f"cores: at least "
+    text = (f"round {i}: cold at once / one after another {r['cold_over_sequential_p50']:.1f}x; "
+            f"{_bound_head(b, len(cold['ms']))}: at least "
             f"{b['ratio_floor']:.1f}x ({b['median_slot']:g} calls' CPU before the median ends), "
             f"{b['shared_ratio_floor']:.1f}x if all share the cores; 1x needs {b['cores_for_1x']} cores; "
             f"load average {min(r['loadavg_1m']):.1f}-{max(r['loadavg_1m']):.1f}; the workers had "
             f"{cold['cores_used']:.2f} cores in the cold burst, {seq['cores_used']:.2f} one after another. CPU per call "
             f"(workers) cold {cold['worker_cpu_per_call_ms']:.0f} ms, one after another "
-            f"{seq['worker_cpu_per_call_ms']:.0f} ms; workers forked in the cold burst {cold['workers_forked']}")
+            f"{seq['worker_cpu_per_call_ms']:.0f} ms; workers forked in the cold burst {cold['workers_forked']}; "
+            f"the cold burst ran on " + ", ".join(f"{h} {n}" for h, n in sorted(Counter(cold["hosts"]).items())))
     for label, phase in (("cold at once", cold), ("one after another", seq)):
         p = phase["stages_p50_ms"]
         if p:
@@ -329,25 +371,43 @@ def describe_round(i: int, r: dict) -> str:
     return text
 
 
-def bench_first_calls(*, nodes: int = 3, cores: int = 2, calls: int = 6, rounds: int = 1,
-                      program: str = "route_plan", picks: int = 8, show: Any = None) -> dict:
-    """``program`` takes ``seed`` (call i gets seed i) and, for route_plan,
-    ``picks``. ``show`` gets each round's line beside its bound
-    (``describe_round``; default: printed to stderr)."""
-    kwargs = {"picks": picks} if program == "route_plan" else {}
-    host_cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+def host_cores() -> int:
+    """The cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def run_rounds(rounds: int, one: Callable[[], dict], show: Any = None) -> list[dict]:
+    """``rounds`` results of ``one``, each shown as it ends (``describe_round``; default: to stderr)."""
     results = []
     for i in range(1, rounds + 1):
-        results.append(_round(nodes, cores, calls, program, kwargs, host_cores))
+        results.append(one())
         (show or (lambda s: print(s, file=sys.stderr, flush=True)))(describe_round(i, results[-1]))
+    return results
 
+
+def summary(results: list[dict], **head: Any) -> dict:
+    """The benchmark's JSON: ``head`` (what ran, and where), the rounds and their spread."""
     def spread(key: str) -> dict:
         xs = [r[key] for r in results]
         return {"median": statistics.median(xs), "min": min(xs), "max": max(xs)}
 
-    return {"benchmark": "first-calls", "machine": machine(), "nodes": nodes, "cores": cores, "calls": calls,
-            "program": program, "kwargs": kwargs, "host_cores": host_cores, "rounds": results,
+    return {"benchmark": "first-calls", "machine": machine(), **head, "rounds": results,
             "cold_over_sequential_p50": spread("cold_over_sequential_p50"),
             "cold_over_warm_at_once_p50": spread("cold_over_warm_at_once_p50"),
             "ratio_floor": {"median": statistics.median(r["bound"]["ratio_floor"] for r in results),
                             "shared": statistics.median(r["bound"]["shared_ratio_floor"] for r in results)}}
+
+
+def program_kwargs(program: str, picks: int) -> dict:
+    return {"picks": picks} if program == "route_plan" else {}
+
+
+def bench_first_calls(*, nodes: int = 3, cores: int = 2, calls: int = 6, rounds: int = 1,
+                      program: str = "route_plan", picks: int = 8, show: Any = None) -> dict:
+    """On loopback (``mode`` "loopback"). ``program`` takes ``seed`` (call i gets seed i) and, for
+    route_plan, ``picks``. ``show`` gets each round's line beside its bound (``run_rounds``)."""
+    kwargs = program_kwargs(program, picks)
+    hc = host_cores()
+    results = run_rounds(rounds, lambda: _round(nodes, cores, calls, program, kwargs, hc), show)
+    return summary(results, mode="loopback", nodes=nodes, cores=cores, calls=calls, program=program, kwargs=kwargs,
+                   host_cores=hc)

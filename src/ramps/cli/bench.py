@@ -168,20 +168,31 @@ def _show_comparison(title: str, vs: dict) -> None:
 
 @bench_app.command("first-calls")
 def bench_first_calls_cmd(
-    nodes: int = typer.Option(3, "--nodes", min=1, help="real node processes on loopback"),
-    cores: int = typer.Option(2, "--cores", min=1, help="cores each node declares (its idle workers)"),
+    nodes: int = typer.Option(3, "--nodes", min=1, help="real node processes (robots with --testbed)"),
+    cores: int = typer.Option(2, "--cores", min=1, help="cores each node declares (its idle workers); "
+                              "with --testbed, the emulated cores each robot has"),
     calls: int = typer.Option(6, "--calls", min=1, help="calls in each phase"),
     rounds: int = typer.Option(1, "--rounds", "-n", min=1, help="times on a fresh team"),
+    testbed: bool = typer.Option(False, "--testbed", help="on a fresh emulated team a round (`ramps testbed`: "
+                                 "a network namespace and a cpu cgroup a robot; needs root), not on loopback"),
+    quota: Optional[float] = typer.Option(None, "--quota", min=0.01, help="with --testbed: host cores each robot "
+                                          "gets (default: nine tenths of this host's cores shared out)"),
+    keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="with --testbed: copy each round's node "
+                                             "logs and traces to DIR/round-<i>"),
     out_file: Path = typer.Option(Path("bench-results/first-calls.json"), "--out", "-o",
                                   help="where to save the JSON"),
 ) -> None:
     """A fresh team's first calls of a heavy program (route_plan: OR-Tools), all at once, against the same
-    calls one after another and at once again; and the memory of each node's fork server and workers."""
-    from ramps.bench.firstcalls import bench_first_calls
+    calls one after another and at once again; and the memory of each node's fork server and workers.
+    On loopback the nodes share this host's cores; with --testbed each robot has its own (emulated)."""
+    if testbed:
+        res = _first_calls_on_testbed(nodes, cores, calls, rounds, quota, keep_logs)
+    else:
+        from ramps.bench.firstcalls import bench_first_calls
 
-    err.print(f"{rounds} round(s): a fresh team of {nodes} nodes on loopback, {calls} route_plan calls at once "
-              f"(cold), one after another, at once (warm) ...")
-    res = bench_first_calls(nodes=nodes, cores=cores, calls=calls, rounds=rounds)
+        err.print(f"{rounds} round(s): a fresh team of {nodes} nodes on loopback, {calls} route_plan calls at once "
+                  f"(cold), one after another, at once (warm) ...")
+        res = bench_first_calls(nodes=nodes, cores=cores, calls=calls, rounds=rounds)
     for i, r in enumerate(res["rounds"], 1):
         c, s, w = r["cold_at_once"], r["warm_one_after_another"], r["warm_at_once"]
         out.print(f"round {i} (team up in {r['team_start_s']:.1f} s): cold at once p50 {c['p50_ms']:.0f} ms "
@@ -207,6 +218,23 @@ def bench_first_calls_cmd(
     out_file.parent.mkdir(parents=True, exist_ok=True)
     out_file.write_text(json.dumps(res, indent=2) + "\n")
     out.print(f"saved {out_file}")
+
+
+def _first_calls_on_testbed(robots: int, cores: int, calls: int, rounds: int, quota: float | None,
+                            keep_logs: Path | None) -> dict:
+    from ramps.bench.firstcalls_testbed import bench_first_calls_testbed, default_quota
+    from ramps.errors import RampsError
+    from ramps.testbed import Testbed
+
+    q = quota if quota is not None else default_quota(robots)
+    err.print(f"{rounds} round(s): a fresh emulated team of {robots} robots of {cores} cores on {q:g} host cores "
+              f"each ({q / cores:.2f} a core), {calls} route_plan calls at once (cold), one after another, "
+              f"at once (warm) ...")
+    try:
+        return bench_first_calls_testbed(lambda: Testbed(robots, cores=cores, quota=q, speed=1.0), robots=robots,
+                                         cores=cores, quota=q, calls=calls, rounds=rounds, keep_logs=keep_logs)
+    except (PermissionError, RampsError) as exc:
+        fail(str(exc))
 
 
 @bench_app.command("accelerators")
