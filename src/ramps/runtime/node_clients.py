@@ -16,11 +16,15 @@ its client is not reachable (``OUTCOME_HOLD`` at most); progress updates are
 advisory and dropped under congestion.
 
 With a durable record (``--state-dir``, ``ramps.runtime.store``) every
-program a client submitted here is written down with its request before
-anything of it is sent, after each change that a restart must know (placed,
-accepted, moved, checkpointed), and replaced by its outcome before that is
+program a client submitted here is written down with its request in the
+driver round that placed it, after each change that a restart must know
+(placed, moved, checkpointed), and replaced by its outcome before that is
 sent: a node restarted after a crash resumes them (``restore``), answers
 their clients' requests as the old one would, and sends each outcome once.
+A round's offers and programs started go out while its record is written
+(``ramps.runtime.node_outbound.before_record``); nothing that tells the
+client its program is taken goes before it, so a program a node died
+before writing down is one its client submits again.
 """
 
 from __future__ import annotations

@@ -44,7 +44,7 @@ from ramps.core.events import (
     StartProgram,
     StopProgram,
 )
-from ramps.core.messages import OffloadRequest, encode
+from ramps.core.messages import Heartbeat, OffloadAccepted, OffloadRequest, ProgramResult, encode
 from ramps.core.speed import MIN_RUN_WORK
 from ramps.runtime import keys, revocation
 
@@ -62,8 +62,32 @@ if TYPE_CHECKING:
 log = logging.getLogger("ramps.node")
 #: core notes a client hears about (ProgramUpdate.state), as placed/running/host_failed
 _CLIENT_STATES = {"placed": "placed", "accepted": "running", "failed": "host_failed"}
+#: messages that may go before the durable record of their round is written (``before_record``)
+SAFE_BEFORE_RECORD = (OffloadRequest, OffloadAccepted, ProgramResult, Heartbeat)
 #: programs found far from their declaration that are named in a warning, at most
 MISDECLARED_WARNED = 1024
+
+
+def before_record(actions: list[Action]) -> int:
+    """How many of ``actions``, from the first, may take effect before the
+    durable record of their round is written: offers to hosts and a host's
+    answers (``SAFE_BEFORE_RECORD``), programs started, reports of the
+    instant, and notes that tell no client anything at once. None of them
+    tells a client that its program is taken, nor a host that its result is
+    kept: a node that dies before the record is written leaves its client's
+    submission unacknowledged, so the client submits it again to the
+    restarted node (``ramps.runtime.pending.SUBMIT_RESEND``), and a host's
+    result for a program the restarted node does not know is dropped."""
+    for i, a in enumerate(actions):
+        if isinstance(a, Send):
+            if not isinstance(a.msg, SAFE_BEFORE_RECORD):
+                return i
+        elif isinstance(a, Note):
+            if a.what == "failed" or (a.what == "placed" and a.attempt > 1):  # told at once (``TOLD_AT_ONCE``)
+                return i
+        elif not isinstance(a, (StartProgram, PublishReport)):
+            return i
+    return len(actions)
 
 
 class OutboundDriver(Protocol):
@@ -104,13 +128,20 @@ class Outbound:
         self.split = ""
 
     def apply(self, actions: list[Action]) -> None:
-        """Each of the core's ``actions``, in order, to its effect."""
+        """Each of the core's ``actions``, in order, to its effect. With a
+        durable record, what changed is written first (``ClientAnswers.persist``),
+        after only the leading actions that tell nobody anything a restart
+        must keep (``before_record``): offers and programs started go out
+        while it is written."""
         d = self.d
-        if d.store is not None:  # written before anything of it is sent
-            self.clients.persist(d.store, actions)
+        store = d.store
+        first = before_record(actions) if store is not None else -1
         mnow = self.awake.now()  # the core's clock, for metrics' latencies
         prompt = None  # the newest report of the instant: the only one of a batch that goes out (``LoadReports``)
-        for a in actions:
+        for i, a in enumerate(actions):
+            if i == first:
+                assert store is not None
+                self.clients.persist(store, actions)
             if d.metrics is not None:
                 d.metrics.on_action(a, d.node, mnow)
             if self.trace.on and isinstance(a, (StartProgram, StopProgram, Send)):
@@ -142,6 +173,8 @@ class Outbound:
                     self._stop()
             elif isinstance(a, Note):
                 self._note(a)
+        if store is not None and first >= len(actions):
+            self.clients.persist(store, actions)
         if prompt is not None:  # held a moment: the changes that follow it go with it
             self.reports.hold(prompt)
 
