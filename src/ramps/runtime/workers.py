@@ -341,10 +341,15 @@ class WorkerPool:
             return {w.job: w.proc.pid for w in self._workers if w.job is not None}
 
     def _dispatch_locked(self) -> None:
-        idle = [w for w in self._workers if w.job is None and not w.retiring and w.proc.poll() is None]
+        """Queued programs to idle workers, in order, each worker looked at
+        only when one needs it (whether it lives is a system call)."""
+        if not self._queue:
+            return
+        idle = (w for w in self._workers if w.job is None and not w.retiring and w.proc.poll() is None)
         now = time.monotonic()
         while self._queue:
-            if not idle:
+            w = next(idle, None)
+            if w is None:
                 if (len(self._workers) >= self.max_size or now - self._queue[0].queued_at < GROW_AFTER
                         or now - self._last_progress < GROW_AFTER or self._starved_locked()):
                     return
@@ -352,8 +357,7 @@ class WorkerPool:
                     self._add_worker()
                 except OSError:  # out of processes or memory: the queue waits for a worker
                     return
-                idle.append(self._workers[-1])
-            w = idle.pop(0)
+                w = self._workers[-1]
             job = self._queue.popleft()
             w.job, w.cancelled, w.cpu_mark = job.key, False, None
             message: list[Any] = [job.program, job.args]
