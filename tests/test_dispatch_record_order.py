@@ -1,8 +1,9 @@
 """The durable record and a program's messages: offers and programs started
 go out while the record of their round is written; nothing that tells a
 client its program is taken, nor a host that its result is kept, goes
-before it (``ramps.runtime.node_outbound.before_record``). The real driver
-and core over the in-memory transport (``ramps.testing.memory``)."""
+before it (``ramps.runtime.node_outbound.before_record``), and an outcome
+goes before the acknowledgement of its result. The real driver and core
+over the in-memory transport (``ramps.testing.memory``)."""
 
 from __future__ import annotations
 
@@ -31,6 +32,8 @@ def _offer(pid: str = "p") -> Send:
 
 
 def test_only_what_tells_nobody_anything_goes_before_the_record():
+    """``before_record`` counts the leading actions that tell no client and
+    no host anything a restart must keep, and stops at the first other."""
     start = StartProgram(program_id="p", attempt=1, origin="r1", program="echo", args=b"", work=1.0)
     placed = Note(what="placed", program_id="p", robot="r2", attempt=1)
     accepted = Note(what="accepted", program_id="p", robot="r2", attempt=1)
@@ -51,6 +54,9 @@ def test_only_what_tells_nobody_anything_goes_before_the_record():
 
 
 def test_the_offer_goes_before_the_record_and_the_outcome_after_it(tmp_path):
+    """The record of a placed program is written after its offer went; its
+    outcome goes after the record of its delivery, and before the host's
+    acknowledgement of its result."""
     team = MemoryTeam({"r1": (1, 1.0), "r2": (4, 4.0)}, settings={"state_dir": str(tmp_path)})
     try:
         team.run(3.0)
@@ -83,7 +89,7 @@ def test_the_offer_goes_before_the_record_and_the_outcome_after_it(tmp_path):
         offer = seq.index(("put", "OffloadRequest"))
         assert offer < saves[0]  # the offer went while its record was written
         assert seq[saves[-1]][1] == ([], [pid])  # then delivered: the program's row gives way to its outcome
-        assert saves[-1] < seq.index(("put", "ResultAck")) and saves[-1] < seq.index(("put", "ProgramOutcome"))
+        assert saves[-1] < seq.index(("put", "ProgramOutcome")) < seq.index(("put", "ResultAck"))  # the caller first
         assert store.programs() == 0
     finally:
         team.close()

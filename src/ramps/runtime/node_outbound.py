@@ -6,8 +6,8 @@ through (``NodeParts``, and the clients' and load reports' parts); of the
 driver it reads only what ``OutboundDriver`` names, what
 the driver has once started (the core, its worker pool and accelerators,
 its record and metrics, its transport). ``apply`` turns each action of the
-core into its effect: ``Send`` is published to the teammate's inbox
-(``Outbox``: DROP under congestion, the core survives lost messages; a
+core into its effect: ``Send`` is published to the teammate's inbox (a
+result's acknowledgement after the round's outcomes; ``Outbox``: DROP under congestion, the core survives lost messages; a
 message over 60 KB waits for room instead, on a thread of its own
 destination, and an offer sent so tells the core when it is on its way and
 when it is through: ``OfferSending``), ``StartProgram`` and ``StopProgram`` go to the worker pool
@@ -44,7 +44,7 @@ from ramps.core.events import (
     StartProgram,
     StopProgram,
 )
-from ramps.core.messages import Heartbeat, OffloadAccepted, OffloadRequest, ProgramResult, encode
+from ramps.core.messages import Heartbeat, OffloadAccepted, OffloadRequest, ProgramResult, ResultAck, encode
 from ramps.core.speed import MIN_RUN_WORK
 from ramps.runtime import keys, revocation
 
@@ -63,7 +63,7 @@ log = logging.getLogger("ramps.node")
 #: core notes a client hears about (ProgramUpdate.state), as placed/running/host_failed
 _CLIENT_STATES = {"placed": "placed", "accepted": "running", "failed": "host_failed"}
 #: messages that may go before the durable record of their round is written (``before_record``)
-SAFE_BEFORE_RECORD = (OffloadRequest, OffloadAccepted, ProgramResult, Heartbeat)
+SAFE_BEFORE_RECORD = frozenset({OffloadRequest, OffloadAccepted, ProgramResult, Heartbeat})
 #: programs found far from their declaration that are named in a warning, at most
 MISDECLARED_WARNED = 1024
 
@@ -77,15 +77,16 @@ def before_record(actions: list[Action]) -> int:
     kept: a node that dies before the record is written leaves its client's
     submission unacknowledged, so the client submits it again to the
     restarted node (``ramps.runtime.pending.SUBMIT_RESEND``), and a host's
-    result for a program the restarted node does not know is dropped."""
+    result for a program the restarted node does not know is dropped.
+    (Records and messages are final classes: their exact types are looked up.)"""
     for i, a in enumerate(actions):
-        if isinstance(a, Send):
-            if not isinstance(a.msg, SAFE_BEFORE_RECORD):
+        if type(a) is Send:
+            if type(a.msg) not in SAFE_BEFORE_RECORD:
                 return i
-        elif isinstance(a, Note):
-            if a.what == "failed" or (a.what == "placed" and a.attempt > 1):  # told at once (``TOLD_AT_ONCE``)
-                return i
-        elif not isinstance(a, (StartProgram, PublishReport)):
+        elif type(a) is Note:
+            if a.what == "failed" or (a.what == "placed" and a.attempt > 1):
+                return i  # told at once (``TOLD_AT_ONCE``)
+        elif type(a) is not StartProgram and type(a) is not PublishReport:
             return i
     return len(actions)
 
@@ -128,16 +129,19 @@ class Outbound:
         self.split = ""
 
     def apply(self, actions: list[Action]) -> None:
-        """Each of the core's ``actions``, in order, to its effect. With a
-        durable record, what changed is written first (``ClientAnswers.persist``),
-        after only the leading actions that tell nobody anything a restart
-        must keep (``before_record``): offers and programs started go out
-        while it is written."""
+        """Each of the core's ``actions``, in order, to its effect, except
+        that a host's acknowledgements of results go last, after the outcomes
+        their callers wait for. With a durable record, what changed is
+        written first (``ClientAnswers.persist``), after only the leading
+        actions that tell nobody anything a restart must keep
+        (``before_record``): offers and programs started go out while it is
+        written."""
         d = self.d
         store = d.store
         first = before_record(actions) if store is not None else -1
         mnow = self.awake.now()  # the core's clock, for metrics' latencies
         prompt = None  # the newest report of the instant: the only one of a batch that goes out (``LoadReports``)
+        acks: list[Send] = []
         for i, a in enumerate(actions):
             if i == first:
                 assert store is not None
@@ -147,11 +151,10 @@ class Outbound:
             if self.trace.on and isinstance(a, (StartProgram, StopProgram, Send)):
                 self.trace.hosted(a, closing=d.node is not None and d.node.executor.closing)
             if isinstance(a, Send):
-                self.outbox.send(keys.inbox(self.team, a.to), encode(self.robot, a.msg),
-                                 self._on_way(a.msg) if isinstance(a.msg, OffloadRequest) else None)
-                if self.trace.wire:
-                    self.trace.write("tx", getattr(a.msg, "program_id", ""), a.to, getattr(a.msg, "attempt", 0),
-                                     type(a.msg).__name__)
+                if type(a.msg) is ResultAck:
+                    acks.append(a)
+                else:
+                    self._send(a)
             elif isinstance(a, StartProgram):
                 if a.accelerator:  # when one of its slots is free (AcceleratorProbe.start)
                     d.accel.start((a.program_id, a.attempt), a.accelerator, self._runner(a))
@@ -175,8 +178,18 @@ class Outbound:
                 self._note(a)
         if store is not None and first >= len(actions):
             self.clients.persist(store, actions)
+        for a in acks:
+            self._send(a)
         if prompt is not None:  # held a moment: the changes that follow it go with it
             self.reports.hold(prompt)
+
+    def _send(self, a: Send) -> None:
+        """``a``'s message to its teammate's inbox (``Outbox.send``)."""
+        self.outbox.send(keys.inbox(self.team, a.to), encode(self.robot, a.msg),
+                         self._on_way(a.msg) if isinstance(a.msg, OffloadRequest) else None)
+        if self.trace.wire:
+            self.trace.write("tx", getattr(a.msg, "program_id", ""), a.to, getattr(a.msg, "attempt", 0),
+                             type(a.msg).__name__)
 
     def _on_way(self, offer: OffloadRequest) -> Callable[[bool], None]:
         """What tells the core that ``offer``, sent whole on its destination's
