@@ -121,6 +121,10 @@ def test_a_round_on_a_testbed_runs_the_three_phases_and_reads_its_nodes_traces(t
     assert len(lines) == 2 and "the emulated team's bound for 3 calls" in lines[0]
     assert "on 3 robots of 1 cores" in lines[0] and "the cold burst ran on r1 1, r2 1, r3 1" in lines[0]
     assert describe_round(1, res["rounds"][0]) == lines[0]
+    host = res["rounds"][0]["bound"]["host"]  # short calls share the host's cores within a CFS period
+    assert host["host_cores"] == firstcalls.host_cores() and host["cpu_ms"] == pytest.approx(
+        res["rounds"][0]["warm_one_after_another"]["worker_cpu_per_call_ms"])
+    assert f"within a CFS period the robots share this host's {host['host_cores']} cores" in lines[0]
 
 
 def test_the_command_without_root_says_so_before_making_anything(tmp_path, monkeypatch):

@@ -352,11 +352,14 @@ def _bound_head(b: dict, calls: int) -> str:
 def describe_round(i: int, r: dict) -> str:
     """One round's ratio beside the bound this host (or the emulated team) sets, and where the time went."""
     b, seq, cold = r["bound"], r["warm_one_after_another"], r["cold_at_once"]
+    hb = b.get("host")  # the testbed's: the host's cores within a CFS period
     text = (f"round {i}: cold at once / one after another {r['cold_over_sequential_p50']:.1f}x; "
             f"{_bound_head(b, len(cold['ms']))}: at least "
             f"{b['ratio_floor']:.1f}x ({b['median_slot']:g} calls' CPU before the median ends), "
             f"{b['shared_ratio_floor']:.1f}x if all share the cores; 1x needs {b['cores_for_1x']} cores; "
-            f"load average {min(r['loadavg_1m']):.1f}-{max(r['loadavg_1m']):.1f}; the workers had "
+            + (f"within a CFS period the robots share this host's {hb['host_cores']} cores: at least "
+               f"{hb['ratio_floor']:.1f}x, {hb['shared_ratio_floor']:.1f}x shared; " if hb else "")
+            + f"load average {min(r['loadavg_1m']):.1f}-{max(r['loadavg_1m']):.1f}; the workers had "
             f"{cold['cores_used']:.2f} cores in the cold burst, {seq['cores_used']:.2f} one after another. CPU per call "
             f"(workers) cold {cold['worker_cpu_per_call_ms']:.0f} ms, one after another "
             f"{seq['worker_cpu_per_call_ms']:.0f} ms; workers forked in the cold burst {cold['workers_forked']}; "
