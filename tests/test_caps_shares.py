@@ -49,11 +49,13 @@ class FakeRobot:
     """A robot's cpu and cpuacct cgroups (v1 layout) holding ``pids``, whose
     CPU use the test sets."""
 
-    def __init__(self, root: Path, pids: list[int]) -> None:
+    def __init__(self, root: Path, pids: list[int], period_us: int | None = None) -> None:
         self.cpu, self.acct = root / "cpu" / "robot", root / "cpuacct" / "robot"
         for d in (self.cpu, self.acct):
             d.mkdir(parents=True)
             (d / "cgroup.procs").write_text("".join(f"{p}\n" for p in pids))
+        if period_us is not None:
+            (self.cpu / "cpu.cfs_period_us").write_text(f"{period_us}\n")
         self.node = 0.0
         self.used = {pid: 0.0 for pid in pids}
         self.since = dict(self.used)
@@ -247,3 +249,13 @@ def test_a_robot_with_room_to_spare_keeps_each_program_at_its_share(tmp_path, sl
     for _ in range(10):
         robot.run(0.2, node=0.01, per_pid={three[0]: CORE * 1.2, three[1]: CORE, three[2]: CORE * 0.8})
     assert [robot.quota(p) for p in three] == [pytest.approx(CORE, rel=0.01)] * 3
+
+
+def test_children_take_the_robots_cfs_period(tmp_path, sleepers):
+    # a robot made with a 20 ms period (``Testbed(period_us=)``: emulated cores that hold for
+    # calls shorter than 100 ms): its programs' caps are quotas over 20 ms too
+    robot = FakeRobot(tmp_path, sleepers[:3], period_us=20_000)
+    p = sleepers[0]
+    assert (robot.cpu / f"p{p}" / "cpu.cfs_period_us").read_text() == "20000"
+    robot.run(0.2, node=0.0, per_pid={q: CORE for q in sleepers[:3]})
+    assert int((robot.cpu / f"p{p}" / "cpu.cfs_quota_us").read_text()) == pytest.approx(CORE * 20000, rel=0.01)

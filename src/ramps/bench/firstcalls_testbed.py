@@ -29,13 +29,16 @@ the capper need (``default_quota``: nine tenths of the host's cores
 shared out), and other processes on the host (the load average, taken at
 each phase) take from the robots as from anything else.
 
-A quota holds over the kernel's CFS period (100 ms), not within it: a call
-of less CPU than its cap allows in a period (``route_plan`` with 8 picks:
-15-50 ms against 30 ms a period at 0.3 host cores) runs at the host's
-speed, and six of them at once share the host's cores, whatever robots
-they are on. So ``bound["host"]`` is also given: ``firstcalls.bound`` on
-this host's cores with the calls' host CPU, the floor that such short
-calls meet on the testbed too (the larger of the two holds).
+A quota holds over the kernel's CFS period, not within it: with the
+kernel's 100 ms, a call of less CPU than its cap allows in a period
+(``route_plan`` with 8 picks: 15-50 ms against 30 ms a period at 0.3 host
+cores) runs at the host's speed, and six of them at once share the host's
+cores, whatever robots they are on. So ``ramps bench first-calls
+--testbed`` makes its robots with a 10 ms period (``--period-ms``;
+``Testbed(period_us=)``), over which emulated cores hold for such calls;
+``bound["host"]`` is also given: ``firstcalls.bound`` on this host's cores
+with the calls' host CPU, the floor that calls shorter than a period's
+quota meet on the testbed too (the larger of the two holds).
 """
 
 from __future__ import annotations

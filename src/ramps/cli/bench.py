@@ -179,6 +179,9 @@ def bench_first_calls_cmd(
                                           "gets (default: nine tenths of this host's cores shared out)"),
     keep_logs: Optional[Path] = typer.Option(None, "--keep-logs", help="with --testbed: copy each round's node "
                                              "logs and traces to DIR/round-<i>"),
+    period_ms: float = typer.Option(10.0, "--period-ms", min=1.0, max=1000.0, help="with --testbed: the robots' "
+                                    "CFS period: the kernel holds a quota over each, so a call shorter than one "
+                                    "period's quota runs at the host's speed (100: the kernel's default)"),
     out_file: Path = typer.Option(Path("bench-results/first-calls.json"), "--out", "-o",
                                   help="where to save the JSON"),
 ) -> None:
@@ -186,7 +189,7 @@ def bench_first_calls_cmd(
     calls one after another and at once again; and the memory of each node's fork server and workers.
     On loopback the nodes share this host's cores; with --testbed each robot has its own (emulated)."""
     if testbed:
-        res = _first_calls_on_testbed(nodes, cores, calls, rounds, quota, keep_logs)
+        res = _first_calls_on_testbed(nodes, cores, calls, rounds, quota, keep_logs, int(period_ms * 1000))
     else:
         from ramps.bench.firstcalls import bench_first_calls
 
@@ -221,18 +224,20 @@ def bench_first_calls_cmd(
 
 
 def _first_calls_on_testbed(robots: int, cores: int, calls: int, rounds: int, quota: float | None,
-                            keep_logs: Path | None) -> dict:
+                            keep_logs: Path | None, period_us: int) -> dict:
     from ramps.bench.firstcalls_testbed import bench_first_calls_testbed, default_quota
     from ramps.errors import RampsError
     from ramps.testbed import Testbed
 
     q = quota if quota is not None else default_quota(robots)
     err.print(f"{rounds} round(s): a fresh emulated team of {robots} robots of {cores} cores on {q:g} host cores "
-              f"each ({q / cores:.2f} a core), {calls} route_plan calls at once (cold), one after another, "
-              f"at once (warm) ...")
+              f"each ({q / cores:.2f} a core, a CFS period of {period_us / 1000:g} ms), {calls} route_plan calls "
+              f"at once (cold), one after another, at once (warm) ...")
     try:
-        return bench_first_calls_testbed(lambda: Testbed(robots, cores=cores, quota=q, speed=1.0), robots=robots,
-                                         cores=cores, quota=q, calls=calls, rounds=rounds, keep_logs=keep_logs)
+        res = bench_first_calls_testbed(lambda: Testbed(robots, cores=cores, quota=q, speed=1.0, period_us=period_us),
+                                        robots=robots, cores=cores, quota=q, calls=calls, rounds=rounds,
+                                        keep_logs=keep_logs)
+        return res | {"period_ms": period_us / 1000}
     except (PermissionError, RampsError) as exc:
         fail(str(exc))
 

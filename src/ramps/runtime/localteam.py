@@ -105,9 +105,10 @@ def cgroup_mode() -> str | None:
 class RobotCgroup:
     """One robot's cpu cgroup (and cpuacct on v1, for its CPU usage)."""
 
-    def __init__(self, name: str, quota: float, mode: str) -> None:
+    def __init__(self, name: str, quota: float, mode: str, period: int = 100_000) -> None:
+        """``period``: the CFS period, microseconds: the kernel holds the quota over each (a
+        program shorter than one period's quota runs at full host speed)."""
         self.mode = mode
-        period = 100_000
         if mode == "v2":
             self.dirs = [CG_ROOT / name]
             self.dirs[0].mkdir()

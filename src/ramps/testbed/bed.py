@@ -101,7 +101,7 @@ class Testbed:
                  lease_ms: int | None = None, policy: str | None = None, loaded: dict[str, int] | None = None,
                  discovery: str = "both", caps: bool = True, python: str | None = None,
                  state_dir: Path | None = None, config: Mapping[str, Any] | None = None,
-                 robot_config: Mapping[str, Mapping[str, Any]] | None = None) -> None:
+                 robot_config: Mapping[str, Mapping[str, Any]] | None = None, period_us: int = 100_000) -> None:
         net.need_root()
         mode = cgroup_mode()
         if mode is None:
@@ -112,8 +112,7 @@ class Testbed:
         self.quota = float(quota) if quota is not None else round(max(0.05, host_cores / len(names)), 3)
         if not self.quota > 0:
             raise ValueError(f"quota must be > 0 host cores, got {quota}")
-        self.names = names
-        self.team_name = team
+        self.names, self.team_name, self.period_us = names, team, int(period_us)  # period: RobotCgroup
         self.cores: int | None = cores
         self.speed: float | None = speed
         self.policy: str | None = policy
@@ -363,7 +362,7 @@ class Testbed:
                 for r in self.names:
                     rb = self.robots[r]
                     net.make_robot(self.tb, self.x, rb["index"], r)
-                    cg = RobotCgroup(rb["ns"], self.quota, self.mode)
+                    cg = RobotCgroup(rb["ns"], self.quota, self.mode, self.period_us)
                     rb["cgroup"] = [str(d) for d in cg.dirs]
                     self._save()
                 for r in self.names:

@@ -81,7 +81,7 @@ from ramps.runtime.measure import cgroup_usage, proc_cpu, proc_stat_fields
 
 #: seconds between two share updates
 PERIOD = 0.2
-#: CFS period of the child cgroups, microseconds
+#: CFS period of a robot whose cgroup states none (and of its children), microseconds
 CFS_PERIOD_US = 100_000
 #: a child is busy when it used this fraction of its share in the last period
 BUSY_FRACTION = 0.25
@@ -153,11 +153,21 @@ def niceness(pid: int) -> int:
     return 0 if rest is None else int(rest[16])
 
 
+def _period(cpu: Path) -> int:
+    """The CFS period of the robot's cgroup, microseconds (``CFS_PERIOD_US`` where unreadable)."""
+    try:
+        return int((cpu / "cpu.cfs_period_us").read_text())
+    except (OSError, ValueError):
+        return CFS_PERIOD_US
+
+
 class RobotCaps:
     """The caps of one robot: its cgroup dirs (cpu, and cpuacct on v1)."""
 
     def __init__(self, cpu: Path, acct: Path | None, quota: float, cores: int) -> None:
         self.cpu, self.acct = cpu, acct
+        #: the robot's CFS period (``Testbed(period_us=)``), its children's too
+        self.period = _period(cpu)
         self.core = quota / cores
         self.cores = cores
         self._usage: dict[str, float] = {}  # CPU seconds of each child at the last tick
@@ -193,8 +203,8 @@ class RobotCaps:
                     if base is None:
                         continue
                     (base / name).mkdir(exist_ok=True)
-                (self.cpu / name / "cpu.cfs_period_us").write_text(str(CFS_PERIOD_US))
-                (self.cpu / name / "cpu.cfs_quota_us").write_text(str(int(self.share * CFS_PERIOD_US)))
+                (self.cpu / name / "cpu.cfs_period_us").write_text(str(self.period))
+                (self.cpu / name / "cpu.cfs_quota_us").write_text(str(int(self.share * self.period)))
                 # what it used before it moved in (a child made anew: nothing); ``tick`` counts from here
                 self._usage.setdefault(name, cgroup_usage(self.cpu / name, self.acct / name if self.acct else None))
                 for base in (self.cpu, self.acct):
@@ -393,10 +403,10 @@ class RobotCaps:
         # own quota throttles and the kernel starves some of them (the margin is the slack
         # between where they are set and where they must be rewritten)
         given = sum(self._quota.get(n, 0) for n in busy)
-        over = given > (quota - self.node_use) * CFS_PERIOD_US
-        short = given < sum(target.values()) * (1 - QUOTA_SHORT) * CFS_PERIOD_US
+        over = given > (quota - self.node_use) * self.period
+        short = given < sum(target.values()) * (1 - QUOTA_SHORT) * self.period
         for name in live:
-            q = max(1000, int(target.get(name, self._share[name]) * CFS_PERIOD_US))
+            q = max(1000, int(target.get(name, self._share[name]) * self.period))
             old = self._quota.get(name)
             # a write refills the child's runtime at once: rewriting a quota every tick for
             # small changes let programs overrun theirs by a third (and the robot's quota with them)
