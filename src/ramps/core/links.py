@@ -49,6 +49,8 @@ IDLE_REFRESH = 6
 #: padding of a bandwidth probe, and how often a link gets one
 PADDED_BYTES = 16 * 1024
 PADDED_EVERY = 3
+#: the padding itself, one immutable object every padded probe carries
+_PADDING = bytes(PADDED_BYTES)
 #: how many of the latest plain and padded round trips the least is taken of
 PLAIN_WINDOW = 5
 PADDED_WINDOW = 3
@@ -127,7 +129,7 @@ class Links:
         link.waiting[now] = PADDED_BYTES if padded else 0
         while len(link.waiting) > 2 * PADDED_EVERY:  # unanswered for long: lost
             del link.waiting[next(iter(link.waiting))]
-        return LinkProbe(sent_at=now, padding=b"\0" * PADDED_BYTES if padded else b"")
+        return LinkProbe(sent_at=now, padding=_PADDING if padded else b"")
 
     def on_reply(self, robot: str, msg: LinkProbeReply, now: float) -> None:
         link = self._links.get(robot)

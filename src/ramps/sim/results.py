@@ -4,7 +4,8 @@ Plain data."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
+from typing import Any
 
 import msgspec
 
@@ -97,3 +98,18 @@ def tally(records: Iterable[ProgramRecord], robots: list[str]) -> tuple[dict[str
         elif not rec.error:
             lost += 1
     return dist, completed, failed, lost, dup, deadlines, misses
+
+
+def running_where(robots: Mapping[str, Any], records: Mapping[str, ProgramRecord]) -> dict[str, int]:
+    """Where each still-running program's current attempt runs now: the
+    programs on each of the simulator's ``robots`` (``ramps.sim.engine._Robot``)."""
+    counts = {n: 0 for n in robots}
+    for name, r in robots.items():
+        if not r.alive:
+            continue
+        for pid, attempt in r.cpu.jobs:
+            origin = robots.get(records[pid].origin)
+            ap = origin.node.origin.programs.get(pid) if origin else None
+            if ap is not None and ap.attempt == attempt and ap.host == name:
+                counts[name] += 1
+    return counts
