@@ -21,7 +21,9 @@ hosts. So when the programs running here change (one accepted, one
 finished), the node publishes a report of that instant at once
 (``PublishReport``), at most one per ``prompt_report_interval``, and its own
 view of itself is updated at once: an origin always knows exactly what its
-own robot runs. This is the paper's cNAMP (origins learn each other's
+own robot runs. A driver may set ``prompt_hold``: the changes that follow
+the first within it go in one report, made when it is over, and a robot
+that places nothing takes in only the reports it publishes. This is the paper's cNAMP (origins learn each other's
 bookings) done by the host, which is the one robot that knows them all.
 
 Bursts (``bursts``): programs submitted in one batch of the driver's events
@@ -69,6 +71,7 @@ from ramps.core.executor import Executor
 from ramps.core.identity import SameName
 from ramps.core.links import IDLE_REFRESH, Links
 from ramps.core.loadview import LoadView, report_problem
+from ramps.core.node_accelerators import accelerators_seen
 from ramps.core.oneway import OneWay
 from ramps.core.messages import (
     AcceleratorSeen,
@@ -146,6 +149,9 @@ class Node:
                                  core_fraction=core_fraction, accelerators=accelerators)
         #: an application submits here (from its first Submit; told in reports of the instant); the bursts' claims
         self.submits, self.claims = submits, Claims(self.executor)
+        #: the latest time the driver passed in (reports estimate the work
+        #: left in running programs as of then)
+        self._now = 0.0
         #: what the driver last measured of each accelerator kind: (memory
         #: total, memory free, utilisation or None), for the load reports
         self.accelerator_measured: dict[str, tuple[int, int, float | None]] = {}
@@ -160,17 +166,14 @@ class Node:
         if self.host_speeds is not None:
             self.view.speed_factor = self.host_speeds.factor
         self._report_seq = 0
-        #: the latest time the driver passed in (reports estimate the work
-        #: left in running programs as of then)
-        self._now = 0.0
         #: free memory and the node's own CPU the driver last measured (reports of the instant repeat them)
         self._mem_free = 0
         self._node_cpu = 0.0
-        #: prompt reports: (accepted, finished) counts last published, the
-        #: time of the last one, and when the next one is due
+        #: prompt reports: (accepted, finished) counts last published, the time of the last
+        #: one, when the next one is due, and the seconds one waits for the changes that follow it
         self._prompt = self.policy.shares_load and self.config.prompt_reports
         self._published = (-1, -1) if submits else (0, 0)  # a submitter tells it at once
-        self._prompted_at = -float("inf")
+        self._prompted_at, self.prompt_hold = -float("inf"), 0.0  # no hold: each change at once
         self._prompt_due: float | None = None
         #: this robot's battery: below its reserve or not, and the watts a busy core draws (None: not known)
         self.reserve = Reserve(self.config.battery_reserve, self.config.battery_hysteresis)
@@ -249,8 +252,11 @@ class Node:
             self._prompt_due = None
             return out
         due = self._prompted_at + self.config.prompt_report_interval
+        if self.prompt_hold > 0.0:  # the first change not published yet is due a hold later
+            due = max(due, now + self.prompt_hold if self._prompt_due is None else self._prompt_due)
         if now < due:  # this robot's own view is exact at once; the team hears at ``due``
-            self.view.on_report(self.current_report(), now, fresh=True)
+            if self.submits or self.prompt_hold <= 0.0:
+                self.view.on_report(self.current_report(), now, fresh=True)
             self._prompt_due = due
             return out
         self._published, self._prompted_at, self._prompt_due = counts, now, None
@@ -282,6 +288,8 @@ class Node:
         elif isinstance(event, (Submit, ApplicationHere)):
             if not self.submits:  # an application submits here: teammates hear it now (ramps.core.claims)
                 self.submits, self._published = True, (-1, -1)
+                if self.prompt_hold > 0.0:  # it places from an exact view of itself
+                    self.view.on_report(self.current_report(), now, fresh=True)
             if isinstance(event, Submit):
                 self.origin.submit(event, now, out)
         elif isinstance(event, ProgramFinished):
@@ -475,16 +483,7 @@ class Node:
 
     def _accelerators_seen(self) -> list[AcceleratorSeen]:
         """This robot's accelerators as its reports list them."""
-        ex = self.executor
-        if not ex.accelerators:
-            return []
-        out = []
-        for kind, a in ex.accelerators.items():
-            total, free, util = self.accelerator_measured.get(kind, (0, 0, None))
-            on_it = ex.on_accelerators[kind]
-            out.append(AcceleratorSeen(kind, a.count, a.speed, on_it, total, free, util,
-                                       ex.remaining(self._now, kind) if on_it else []))
-        return out
+        return accelerators_seen(self.executor, self.accelerator_measured, self._now)
 
     def statistics(self) -> NodeStatistics:
         o, e = self.origin, self.executor

@@ -75,7 +75,7 @@ from ramps.runtime.node_parts import NodeParts
 from ramps.runtime.node_awake import AwakeClock, HeldLosses
 from ramps.runtime.node_outbox import Outbox
 from ramps.runtime.node_name import SameName
-from ramps.runtime.node_reports import LoadReports
+from ramps.runtime.node_reports import PROMPT_HOLD, LoadReports
 from ramps.runtime.node_revoked import Revoked
 from ramps.runtime.node_robot import RobotMeasure
 from ramps.runtime.node_team import Membership, join_checks
@@ -210,6 +210,7 @@ class NodeRuntime:
                          registry=self.registry.names(), program_weight=nice_weight(s.worker_nice),
                          core_fraction=m.core_fraction(), accelerators=self.accel.accelerators,
                          speed_class=m.speed_class())
+        self.node.prompt_hold = PROMPT_HOLD  # one report of the instant a hold, made when it is over
         if s.state_dir not in ("", "off"):  # a foreign record: ConfigError, before anything starts
             self.store = OriginStore(s.state_dir, team=self.team, robot=self.robot, sync=s.state_sync)
             self.node.origin.changed = set()

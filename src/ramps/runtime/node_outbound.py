@@ -181,7 +181,7 @@ class Outbound:
         for a in acks:
             self._send(a)
         if prompt is not None:  # held a moment: the changes that follow it go with it
-            self.reports.hold(prompt)
+            self.reports.hold(prompt, held=d.node is not None and d.node.prompt_hold > 0.0)
 
     def _send(self, a: Send) -> None:
         """``a``'s message to its teammate's inbox (``Outbox.send``)."""

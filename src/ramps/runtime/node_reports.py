@@ -18,8 +18,10 @@ A report of the instant (``PublishReport``: the programs running here
 changed) goes to the teammates' nodes only (``keys.load_now``), held
 ``PROMPT_HOLD`` so the changes that follow it go with it, the newest only:
 in a burst each change made one, and every report carries the executor's
-counters, so a later one says all an earlier one did. A periodic report
-supersedes a held one. The newest report published, of either kind, is
+counters, so a later one says all an earlier one did. The node's core
+holds them itself (``Node.prompt_hold``, set by the driver): it makes one
+report when the hold is over instead of one per change, and that one goes
+at once. A periodic report supersedes one the driver holds. The newest report published, of either kind, is
 what this robot answers a teammate's query with (``Membership.newest``:
 an origin's first views). A robot that places programs reports as those it
 sees the teammates it could place on (fresh reports, not written off); one
@@ -100,9 +102,14 @@ class LoadReports:
         #: where the next report's links start in the sorted teammates measured
         self._links_turn = 0
 
-    def hold(self, report: LoadReport) -> None:
+    def hold(self, report: LoadReport, *, held: bool = False) -> None:
         """A report of the instant from the core: published ``PROMPT_HOLD`` after
-        the first not yet published, the newest then."""
+        the first not yet published, the newest then; at once where the core
+        ``held`` it so itself (``Node.prompt_hold``: it made it when the hold was over)."""
+        if held:
+            self._held = None
+            self._publish_prompt(report)
+            return
         if self._held is None:
             self._due = self.awake.now() + PROMPT_HOLD
         self._held = report
