@@ -109,7 +109,10 @@ class Links:
         traffic stays bounded in a large team and every link is still
         measured every few periods. ``refresh`` > 0: not to a link measured
         (latency and bandwidth) and probed within the last ``refresh`` seconds."""
-        others = [robot for robot in candidates if robot != me and not self._fresh(robot, now, refresh)]
+        if refresh > 0.0:
+            others = [robot for robot in candidates if robot != me and not self._fresh(robot, now, refresh)]
+        else:  # nothing is fresh: a node that submits probes every period
+            others = [robot for robot in candidates if robot != me]
         if 0 < most < len(others):
             others, self._turn = in_turn(others, self._turn, most)
         return [Send(to=robot, msg=self.probe(robot, now)) for robot in others]

@@ -23,7 +23,8 @@ import heapq
 import itertools
 
 from ramps.core.accelerators import reported_left, work_left
-from ramps.core.cost import program_cores, program_share
+from ramps.core.cost import program_share
+from ramps.core.loadview_scan import Scanning
 from ramps.core.messages import MAX_LISTED, AcceleratorSeen, LoadReport
 from ramps.core.reportcheck import report_problem
 
@@ -56,7 +57,7 @@ def _kind(b: _Booking, acc_total: int, fin_total: int) -> int:
 
 class _Robot:
     __slots__ = ("report", "received_at", "bookings", "unseen_accept", "unseen_finish", "paper_booked", "lost",
-                 "counted", "waiting_accept", "waiting_finish", "stale", "accel")
+                 "counted", "waiting_accept", "waiting_finish", "stale", "accel", "row", "row_factor", "row_rate")
 
     def __init__(self) -> None:
         self.report: LoadReport | None = None
@@ -82,9 +83,14 @@ class _Robot:
         #: bookings of programs on an accelerator (kind, booking, work there, placed at):
         #: not CPU programs, so kept apart from ``bookings`` (``accelerator_rows``)
         self.accel: dict[tuple[str, int], tuple[str, _Booking, float, float]] = {}
+        #: its ``scan`` row kept until the report or the counts change (None: to make), the
+        #: speed factor it was made with, and relocation's rate of it (``ramps.core.loadview_scan``)
+        self.row: tuple[str, float, float, float, float, float] | None = None
+        self.row_factor = 1.0
+        self.row_rate: float | None = None
 
 
-class LoadView:
+class LoadView(Scanning):
     def __init__(self, me: str, *, cores: int, speed: float, max_report_age: float = 10.0,
                  program_weight: float = 1.0) -> None:
         self.me = me
@@ -136,7 +142,7 @@ class LoadView:
             rob.bookings.clear()
             rob.accel.clear()
             rob.stale = True
-        rob.report, rob.received_at = report, now
+        rob.report, rob.received_at, rob.row = report, now, None
         if report.low_battery and report.robot != self.me:
             self.low_battery.add(report.robot)
         else:
@@ -183,6 +189,7 @@ class LoadView:
         rob.unseen_finish = counts[_UNSEEN_FINISH]
         rob.counted = (acc_total, fin_total)
         rob.stale = False
+        rob.row = None
 
     def _count_report(self, rob: _Robot) -> None:
         """``rob`` has a new report: the bookings whose sequence numbers its totals passed change how
@@ -214,6 +221,7 @@ class LoadView:
     def _move(self, rob: _Robot, key: tuple[str, int], before: int, after: int) -> None:
         """The booking ``key`` counted as ``before`` and counts as ``after``
         now; one the report shows ended is dropped."""
+        rob.row = None
         if before == _UNSEEN_ACCEPT:
             rob.unseen_accept -= 1
         elif before == _UNSEEN_FINISH:
@@ -252,6 +260,7 @@ class LoadView:
             rob.stale = True  # the one it replaces still counts, until the next change counts afresh
         rob.bookings[key] = _Booking()
         rob.unseen_accept += 1
+        rob.row = None
         rob.paper_booked += 1
 
     def accepted(self, robot: str, program_id: str, attempt: int, accept_seq: int) -> None:
@@ -437,57 +446,6 @@ class LoadView:
         rob = self._robots.get(robot)
         if rob is not None:
             rob.lost = lost
-
-    def _passed_over(self, name: str, rob: _Robot, horizon: float) -> bool:
-        """A teammate placed on by no one now: no report since ``horizon``, lost or blacklisted."""
-        return name != self.me and (rob.report is None or rob.lost or rob.received_at < horizon or name in self._blacklist)
-
-    def candidates(self, now: float) -> list[str]:
-        """``scan``'s robots without their figures: this robot and every teammate not ``_passed_over``."""
-        horizon = now - self.max_report_age
-        return [n for n, r in self._robots.items() if not self._passed_over(n, r, horizon)]
-
-    def scan(self, now: float, exclude: frozenset[str], paper: bool = False,
-             only: list[str] | None = None) -> list[tuple[str, float, float, float, float, float]]:
-        """(robot, cores, speed, ramps, background, weight) for every candidate,
-        in one pass: ramps programs there by ramps' reading of the view, other
-        runnable tasks, and the scheduler weight of a program against them
-        (with ``paper``, ``ramps`` is the paper's load and background 0).
-        ``cores`` are those the robot's programs can have: its cores less
-        what its node itself uses (``LoadReport.node_cpu``, at most half of
-        them; the paper's prototype counted all of them). The hot path of
-        placement in large teams: ``ramps_programs`` + ``background`` (or
-        ``paper_load``) of each of ``candidates``, without objects between.
-        An ``exclude`` that would leave no candidate at all is ignored.
-        ``only``: these robots alone, in this order (a sample of a large
-        team, ``RampsConfig.placement_sample``; names not in the view skipped)."""
-        horizon, factors, passed_over, robots = now - self.max_report_age, self.speed_factor, self._passed_over, self._robots
-        out = []
-        for name, rob in robots.items() if only is None else [(n, robots[n]) for n in only if n in robots]:
-            if passed_over(name, rob, horizon):
-                continue
-            rep = rob.report
-            background = 0.0
-            if paper:
-                ramps = (rep.cpu_busy if rep else 0.0) + rob.paper_booked
-            else:
-                base = rep.ramps_running if rep else 0
-                ramps = max(0, base + rob.unseen_accept - rob.unseen_finish)
-                if rep is not None and rep.runnable > rep.ramps_avg:
-                    background = rep.runnable - rep.ramps_avg
-            cores: float
-            if rep is None:  # only this robot gets here without a report
-                cores, speed, weight = self.cores, self.speed_of(name, self.speed), self.program_weight
-            else:
-                cores, speed, weight = rep.cores, rep.speed * factors.get(name, 1.0), rep.program_weight
-                if rep.node_cpu and not paper:
-                    cores = program_cores(rep.cores, rep.node_cpu)
-            out.append((name, cores, speed, ramps, background, weight))
-        if exclude:
-            kept = [e for e in out if e[0] not in exclude]
-            if kept:
-                return kept
-        return out
 
     def isolated(self, now: float, timeout: float) -> bool:
         """True when this robot has heard from teammates before but from none

@@ -122,16 +122,14 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
     programs = to_check(origin, now)
     if isinstance(programs, bool):
         return programs
-    rows = {row[0]: row for row in origin.view.scan(now, frozenset())}
+    # the rows, and the fastest a new program could run anywhere by the
+    # count of tasks (the policy's first estimate): a program that would
+    # not gain by the thresholds even at that rate is not priced (most
+    # checks in a balanced team end here, at O(programs))
+    rows, best_rate = origin.view.rows_and_best_rate(now)
     keep = False
     see_factors(origin, now)
     stalled = now - origin.woke_at < cfg.relocate_calm  # this robot's view and clock were behind
-    # the fastest a new program could run anywhere by the count of tasks
-    # (the policy's first estimate): a program that would not gain by the
-    # thresholds even at that rate is not priced (most checks in a
-    # balanced team end here, at O(programs))
-    best_rate = max((speed * program_share(cores, ramps + 1.0, background, weight)
-                     for _, cores, speed, ramps, background, weight in rows.values()), default=0.0)
     if best_rate <= 0.0:
         return any(ap.state is S.RUNNING or ap.state is S.MOVING for ap in programs)
     priced: list[tuple[float, AutonomousProgram]] = []
