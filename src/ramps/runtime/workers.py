@@ -165,10 +165,8 @@ class WorkerPool:
         self.max_size = max(size, max_size if max_size is not None else 8 * size)
         self.targets = dict(targets)
         self.on_finished = on_finished
-        self.on_progress = on_progress
-        self.on_checkpoint = on_checkpoint
-        self.env = env
-        self.nice = nice
+        self.on_progress, self.on_checkpoint = on_progress, on_checkpoint
+        self.env, self.nice = env, nice
         #: host cores one of the robot's cores is (under a CPU quota: its share; else 1)
         self.core_share = min(1.0, max(core_share, 1e-3))
         self._lock = threading.Lock()
@@ -179,8 +177,7 @@ class WorkerPool:
         self._sel.register(self._wake_r, selectors.EVENT_READ, None)
         self._stopping = False
         self._thread = threading.Thread(target=self._monitor, name="ramps-workers", daemon=True)
-        self.started = 0
-        self.died = 0
+        self.started = self.died = 0
         #: workers forked by the fork server (all of them, unless it failed)
         self.forked = 0
         self._server: subprocess.Popen[bytes] | None = None
@@ -267,11 +264,10 @@ class WorkerPool:
             self._queue.clear()
         self._poke()
         for w in workers:
-            for f in (w.proc.stdin, ):
-                try:
-                    f.close()
-                except OSError:
-                    pass
+            try:
+                w.proc.stdin.close()
+            except OSError:
+                pass
             if w.proc.poll() is None:
                 w.proc.kill()
         for w in workers:
@@ -309,11 +305,14 @@ class WorkerPool:
         with self._lock:
             if self._stopping:
                 return
+            before = len(self._queue)
             self._queue.append(_Job(key, program, args, time.monotonic(), resume, accelerator))
             self._dispatch_locked()
-            waiting = bool(self._queue)
-        if waiting:
-            self._poke()  # the monitor starts a worker for it if it waits GROW_AFTER
+            # the monitor (a worker for a program that waits GROW_AFTER, from its busy workers' CPU) wakes when
+            # programs start to wait or a worker took one; not for each behind them (it wakes every GROW_AFTER / 2)
+            wake = bool(self._queue) and (before == 0 or len(self._queue) <= before)
+        if wake:
+            self._poke()
 
     def cancel(self, key: Key) -> None:
         with self._lock:
