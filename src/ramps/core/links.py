@@ -74,7 +74,7 @@ class LinkEstimate(msgspec.Struct, kw_only=True):
 
 
 class _Link:
-    __slots__ = ("probes", "replies", "plain", "padded", "size", "waiting", "latency", "bandwidth", "sent")
+    __slots__ = ("probes", "replies", "plain", "padded", "size", "waiting", "latency", "bandwidth", "sent", "estimate")
 
     def __init__(self) -> None:
         self.probes = self.replies = self.size = 0
@@ -87,8 +87,11 @@ class _Link:
         #: the figures, updated with each reply (read at every placement)
         self.latency: float | None = None
         self.bandwidth: float | None = None
+        #: ``Links.estimate`` of these figures, made at its first reading after each update
+        self.estimate: NetworkEstimate | None = None
 
     def update(self) -> None:
+        self.estimate = None
         self.latency = min(self.plain) / 2 if self.plain else None
         # bandwidth is what the padding adds over a plain round trip
         self.bandwidth = (self.size / max(MIN_TRANSFER, min(self.padded) - min(self.plain))
@@ -155,8 +158,10 @@ class Links:
         link = self._links.get(robot)
         if link is None or link.latency is None:
             return self.default
-        return NetworkEstimate(latency=link.latency,
-                               bandwidth=self.default.bandwidth if link.bandwidth is None else link.bandwidth)
+        if link.estimate is None:
+            link.estimate = NetworkEstimate(
+                latency=link.latency, bandwidth=self.default.bandwidth if link.bandwidth is None else link.bandwidth)
+        return link.estimate
 
     def measured(self) -> dict[str, LinkEstimate]:
         return {r: LinkEstimate(latency=link.latency, bandwidth=link.bandwidth, probes=link.probes,

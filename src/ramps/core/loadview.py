@@ -145,14 +145,20 @@ class LoadView(Scanning):
         rob.report, rob.received_at, rob.row = report, now, None
         if report.low_battery and report.robot != self.me:
             self.low_battery.add(report.robot)
-        else:
+        elif self.low_battery:
             self.low_battery.discard(report.robot)
         rob.paper_booked = 0
         rob.lost = False
         self.reports_received += 1
         if report.robot != self.me:
             self.last_remote_report = now
-        self._count_report(rob)
+        wa, wf, (was_acc, was_fin) = rob.waiting_accept, rob.waiting_finish, rob.counted
+        acc_total, fin_total = report.accepted_total, report.finished_total
+        if (not rob.stale and was_acc <= acc_total and was_fin <= fin_total and (not wa or wa[0][0] > acc_total)
+                and (not wf or wf[0][0] > fin_total)):
+            rob.counted = (acc_total, fin_total)  # ``_count_report``'s common case, without a call
+        else:
+            self._count_report(rob)
         bl = self._blacklist.get(report.robot)
         if bl is not None and (report.incarnation != bl[0] or report.seq > bl[1]):
             del self._blacklist[report.robot]
@@ -243,6 +249,10 @@ class LoadView(Scanning):
 
     def robots(self) -> list[str]:
         return list(self._robots)
+
+    def size(self) -> int:
+        """How many robots the view holds (``robots``' length, without the list)."""
+        return len(self._robots)
 
     # ------------------------------------------------------------ bookings
     def book(self, robot: str, program_id: str, attempt: int, accelerator: str = "", work: float = 0.0,

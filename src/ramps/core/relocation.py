@@ -195,7 +195,7 @@ def to_check(origin: RelocatingOrigin, now: float) -> list[AutonomousProgram] | 
     more than ``placement_sample`` robots) the running ones not ``settled``;
     a bool where a fleet's check has nothing to do: whether to check again."""
     cfg = origin.config
-    if not 0 < cfg.placement_sample < len(origin.view.robots()):
+    if not 0 < cfg.placement_sample < origin.view.size():
         return list(origin.programs.values())
     programs = [ap for ap in origin.programs.values()
                 if (ap.state is S.RUNNING or ap.state is S.MOVING) and ap.settled != ap.attempt]
