@@ -15,9 +15,11 @@ team's traffic and nothing else on the host. Per N, in order:
   its workers too), threads, and the loopback bytes and packets per node
   per second (every message crosses loopback once);
 * **burst**: ``2 N`` ``burn`` programs of ``units`` each from
-  ``origins`` robots (r1, r2, r3 by default) at once: how many came back once, how many failed,
-  how many runs the robots counted (more than the programs: one ran twice),
-  the makespan, and the programs per robot;
+  ``origins`` robots (r1, r2, r3 by default) at once: how many came back (each future
+  resolves once), how many failed, how many runs the robots' executors ended (``runs_counted``:
+  more than the programs where programs were moved, since a move ends one run and starts
+  another, or where one ran twice), the makespan, each program's time from the burst's start
+  to its result (the median), and the programs per robot;
 * **kill**: a fifth of the robots other than the origins SIGKILLed at once
   ``kill_at`` seconds into a second burst (``during_burst`` False: that
   burst had ended by then, and they were killed after it): seconds until every survivor's report says it
@@ -33,6 +35,9 @@ team's traffic and nothing else on the host. Per N, in order:
 N links instead of N(N-1)/2, as a large team runs; every message then
 crosses loopback twice (to the router and from it), and the router's own
 CPU is given beside the nodes' (``router_cpu_pct``).
+
+``cpu_quota``: every robot a cgroup of one emulated core, the burst beside the simulator's run
+of the same team (``ramps.bench.teamsize_sim``).
 
 The figures are printed and saved as JSON; nothing here asserts a target
 (issue 26's acceptance asks for 100 nodes formed in under 60 s, under 0.5%
@@ -177,6 +182,7 @@ def run_burst(clients: dict[str, Any], programs: int, units: float, timeout: flo
     done: Counter[str] = Counter()
     errors: Counter[str] = Counter()
     failed = 0
+    turnaround: list[float] = []
     pending = set(range(len(futs)))
     while pending and time.monotonic() - t0 < timeout:
         if during is not None:
@@ -187,6 +193,7 @@ def run_burst(clients: dict[str, Any], programs: int, units: float, timeout: flo
                 pending.discard(i)
                 if f.exception() is None:
                     done[f.host] += 1
+                    turnaround.append(time.monotonic() - t0)
                 else:
                     failed += 1
                     errors[type(f.exception()).__name__] += 1
@@ -194,6 +201,8 @@ def run_burst(clients: dict[str, Any], programs: int, units: float, timeout: flo
     span = time.monotonic() - t0
     return {"programs": programs, "delivered": sum(done.values()), "failed": failed, "errors": dict(errors),
             "unfinished": len(pending), "makespan_s": round(span, 2) if not pending else None,
+            "median_turnaround_s": round(statistics.median(turnaround), 2) if turnaround else None,
+            "per_origin": dict(Counter(names[i % len(names)] for i in range(programs))),
             "robots_used": len(done), "robots_by_programs": dict(sorted(Counter(done.values()).items())),
             "per_robot": dict(sorted(done.items()))}
 
@@ -230,15 +239,28 @@ def wait_heard(client: Any, survivors: set[str], timeout: float) -> float | None
 
 def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeout: float = 120.0,
                  burst_timeout: float = 120.0, kill_at: float = 0.5, seed: int = 1, idle_after: float = 10.0,
-                 router: bool = False, origins: int = ORIGINS, log: Any = print) -> dict[str, Any]:
-    """Every figure of the module docstring for a team of ``n`` nodes."""
+                 router: bool = False, origins: int = ORIGINS, cpu_quota: float | None = None,
+                 program_seconds: float = 20.0, keep_logs: str | None = None, log: Any = print) -> dict[str, Any]:
+    """Every figure of the module docstring for a team of ``n`` nodes; with
+    ``cpu_quota``, on robots of one emulated core each (``ramps.bench.teamsize_sim``)
+    running programs of ``program_seconds`` alone, beside the simulator; ``keep_logs``: a
+    directory where the nodes' logs and traces are kept (``size-<n>/``)."""
     from ramps.errors import NoTeam
     from ramps.testing import LocalTeam
 
-    res: dict[str, Any] = {"nodes": n, "router": router, "origins": min(origins, n),
+    res: dict[str, Any] = {"nodes": n, "router": router, "origins": min(origins, n), "cpu_quota": cpu_quota,
                            "loadavg_before": round(os.getloadavg()[0], 2)}
     submitters = [f"r{i}" for i in range(1, min(origins, n) + 1)]
-    team = LocalTeam(n, cores=1, visible_timeout=form_timeout, team=f"size-{uuid.uuid4().hex[:6]}", router=router)
+    speed = None
+    if cpu_quota is not None:
+        from ramps.bench.teamsize_sim import robot_speed
+
+        speed = robot_speed(cpu_quota)
+        units = round(program_seconds * speed, 5)
+        log(f"  robots of one core of {cpu_quota:g} host cores: {speed:g} units/s, programs of {units:g} units")
+    team = LocalTeam(n, cores=1, visible_timeout=form_timeout, team=f"size-{uuid.uuid4().hex[:6]}", router=router,
+                     cpu_quota=cpu_quota, speed=speed, keep_logs=keep_logs is not None, trace=keep_logs is not None,
+                     log_dir=None if keep_logs is None else Path(keep_logs) / f"size-{n}")
     try:
         t0 = time.monotonic()
         try:
@@ -261,37 +283,15 @@ def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeou
         time.sleep(2.5)  # the robots' next periodic reports count the runs
         res["burst"]["runs_counted"] = _finished(first) - before
         log(f"  {n} nodes burst: {res['burst']}")
-        victims = random.Random(seed).sample([r for r in team.names if r not in submitters], max(1, n // 5)) \
-            if n > len(submitters) + 1 else []
-        survivors = set(team.names) - set(victims)
-        killed: list[float] = []
-        heard: list[float] = []
-        looked = [0.0]
+        if cpu_quota is not None and speed is not None:
+            from ramps.bench.teamsize_sim import compare
 
-        def kill(elapsed: float) -> None:
-            if victims and not killed and elapsed >= kill_at:
-                for v in victims:
-                    team.kill_node(v)
-                killed.append(time.monotonic())
-            elif killed and not heard and time.monotonic() - looked[0] >= 0.2:
-                looked[0] = time.monotonic()
-                if hears(first, survivors):
-                    heard.append(looked[0])
-
-        res["kill"] = run_burst(clients, 2 * n, units, burst_timeout, during=kill)
-        res["kill"]["killed"] = len(victims)
-        res["kill"]["during_burst"] = bool(killed)
-        if victims and not killed:  # the burst ended first: the kill still tells how soon survivors hear
-            kill(kill_at)
-        if killed and not heard:
-            res["kill"]["late_at_burst_end"] = late(first, survivors)  # who the hearing waits for, and why
-            if wait_heard(first, survivors, 30.0) is not None:
-                heard.append(time.monotonic())
-            else:
-                res["kill"]["late_after_30_s"] = late(first, survivors)
-        if killed:
-            res["kill"]["heard_s_after_kill"] = round(heard[0] - killed[0], 2) if heard else None
-        log(f"  {n} nodes, {len(victims)} killed: {res['kill']}")
+            node_cpu = res["idle"]["with_workers_cpu_pct"]["median"] / 100 / cpu_quota
+            res["burst"]["simulator"] = compare(res["burst"], n=n, per_origin=res["burst"]["per_origin"],
+                                                units=units, speed=speed, node_cpu=node_cpu)
+            log(f"  {n} nodes burst beside the simulator: {res['burst']['simulator']}")
+        res["kill"] = _kill_phase(team, clients, submitters, n, units, burst_timeout, kill_at, seed)
+        log(f"  {n} nodes, {res['kill']['killed']} killed: {res['kill']}")
         if idle_after > 0:
             for c in clients.values():
                 c.close()
@@ -303,6 +303,44 @@ def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeou
         team.close()
         res["loadavg_after"] = round(os.getloadavg()[0], 2)
     return res
+
+
+def _kill_phase(team: Any, clients: dict[str, Any], submitters: list[str], n: int, units: float,
+                burst_timeout: float, kill_at: float, seed: int) -> dict[str, Any]:
+    """A second burst with a fifth of the robots other than the origins SIGKILLed
+    ``kill_at`` seconds in: how soon the survivors hear each other, what came back."""
+    first = clients[submitters[0]]
+    victims = random.Random(seed).sample([r for r in team.names if r not in submitters], max(1, n // 5)) \
+        if n > len(submitters) + 1 else []
+    survivors = set(team.names) - set(victims)
+    killed: list[float] = []
+    heard: list[float] = []
+    looked = [0.0]
+
+    def kill(elapsed: float) -> None:
+        if victims and not killed and elapsed >= kill_at:
+            for v in victims:
+                team.kill_node(v)
+            killed.append(time.monotonic())
+        elif killed and not heard and time.monotonic() - looked[0] >= 0.2:
+            looked[0] = time.monotonic()
+            if hears(first, survivors):
+                heard.append(looked[0])
+
+    out = run_burst(clients, 2 * n, units, burst_timeout, during=kill)
+    out["killed"] = len(victims)
+    out["during_burst"] = bool(killed)
+    if victims and not killed:  # the burst ended first: the kill still tells how soon survivors hear
+        kill(kill_at)
+    if killed and not heard:
+        out["late_at_burst_end"] = late(first, survivors)  # who the hearing waits for, and why
+        if wait_heard(first, survivors, 30.0) is not None:
+            heard.append(time.monotonic())
+        else:
+            out["late_after_30_s"] = late(first, survivors)
+    if killed:
+        out["heard_s_after_kill"] = round(heard[0] - killed[0], 2) if heard else None
+    return out
 
 
 def bench_team_size(sizes: list[int], *, isolated: bool = False, **kw: Any) -> dict[str, Any]:
@@ -323,7 +361,8 @@ def run_isolated(sizes: list[int], **kw: Any) -> dict[str, Any]:
     try:
         subprocess.run(["ip", "netns", "exec", ns, "ip", "link", "set", "lo", "up"], check=True)
         arg = json.dumps({"sizes": sizes, "isolated": True, **kw})
-        proc = subprocess.run(["ip", "netns", "exec", ns, sys.executable, "-m", "ramps.bench.teamsize", arg],
+        # nsenter, not `ip netns exec`: that mounts a sysfs of its own, without the cpu cgroups
+        proc = subprocess.run(["nsenter", f"--net=/run/netns/{ns}", sys.executable, "-m", "ramps.bench.teamsize", arg],
                               stdout=subprocess.PIPE, text=True)
         if proc.returncode != 0:
             raise RuntimeError(f"the measurement in namespace {ns} exited with {proc.returncode}")

@@ -353,6 +353,17 @@ def bench_team_size_cmd(
     origins: int = typer.Option(3, "--origins", min=1, max=20, help="robots that submit the bursts (r1, r2, ...)"),
     router: bool = typer.Option(False, "--router", help="the nodes as Zenoh clients of one router (a star, as a large "
                                 "team runs) instead of peers linked pairwise"),
+    cpu_quota: float = typer.Option(None, "--cpu-quota", min=0.011, max=64.0, metavar="CORES",
+                                    help="run every node in a cpu cgroup of this many host cores (a robot of one "
+                                    "emulated core; needs root), its programs sized by --program-seconds, and "
+                                    "compare the burst with the simulator's run of the same team (e.g. 0.018 for "
+                                    "100 robots on 2 host cores)"),
+    program_seconds: float = typer.Option(20.0, "--program-seconds", min=0.5, max=600.0, metavar="SECONDS",
+                                          help="with --cpu-quota: each burst program's seconds alone on a robot"),
+    burst_timeout: float = typer.Option(120.0, "--burst-timeout", min=5.0, metavar="SECONDS",
+                                        help="seconds a burst may take"),
+    keep_logs: Path = typer.Option(None, "--keep-logs", metavar="DIR",
+                                   help="keep every node's log and trace under DIR/size-N/"),
     as_json: bool = typer.Option(False, "--json", help="print the figures as JSON"),
     out_file: Path = typer.Option(Path("bench-results/team-size.json"), "--out", "-o", help="where to save the JSON"),
 ) -> None:
@@ -360,23 +371,25 @@ def bench_team_size_cmd(
     traffic per node, a burst of 2N programs from --origins robots, a fifth of the robots killed at once.
 
     With root the team runs in a network namespace of its own, so the traffic counted is the team's alone.
-    The nodes share this machine's cores (no cgroups): where programs run says little here; that programs come
-    back once, and how soon survivors hear each other, does. Minutes per size (a 50-node team starts 50 Python
-    processes)."""
+    Without --cpu-quota the nodes share this machine's cores: where programs run says little; that programs
+    come back once, and how soon survivors hear each other, does. With --cpu-quota every robot is a cgroup of
+    one emulated core and the burst is compared with the simulator's makespan for the same team. Minutes per
+    size (a 50-node team starts 50 Python processes)."""
     from ramps.bench.teamsize import run_isolated
 
     err.print(f"team sizes {', '.join(map(str, nodes))}: each formed, idle {idle:g} s, a burst, a fifth killed ...")
     res = run_isolated(list(nodes), idle=idle, units=units, form_timeout=form_timeout, router=router,
-                       origins=origins)
+                       origins=origins, cpu_quota=cpu_quota, program_seconds=program_seconds,
+                       burst_timeout=burst_timeout, keep_logs=None if keep_logs is None else str(keep_logs.resolve()))
 
     def show(r, console) -> None:
         console.print(f"{'nodes':>5} {'formed s':>8} {'CPU %/node':>10} {'all %':>6} {'PSS MiB':>7} {'threads':>7} "
-                      f"{'lo B/s/node':>11} {'burst':>12} {'once':>5} {'killed':>6} {'heard s':>7} {'lost':>4}",
+                      f"{'lo B/s/node':>11} {'burst':>12} {'runs':>5} {'killed':>6} {'heard s':>7} {'lost':>4}",
                       highlight=False)
         for run in r["runs"]:
             i, b, k = run.get("idle", {}), run.get("burst", {}), run.get("kill", {})
             burst = f"{b.get('delivered', '-')}/{b.get('programs', '-')} {b.get('makespan_s') or '-'}s" if b else "-"
-            once = "-" if not b else "yes" if b.get("runs_counted") == b.get("delivered") else str(b.get("runs_counted"))
+            once = "-" if not b else str(b.get("runs_counted"))
             console.print(f"{run['nodes']:>5} {run['formed_s'] if run['formed_s'] is not None else 'no':>8} "
                           f"{i.get('with_workers_cpu_pct', {}).get('median', '-'):>10} "
                           f"{i.get('all_nodes_cpu_pct', '-'):>6} {i.get('pss_mib', {}).get('median', '-'):>7} "
@@ -385,8 +398,18 @@ def bench_team_size_cmd(
                           f"{k.get('heard_s_after_kill') if k.get('heard_s_after_kill') is not None else '-':>7} "
                           f"{(k.get('programs', 0) - k.get('delivered', 0)) if k else '-':>4}", highlight=False)
         console.print(f"({'own network namespace' if r['isolated'] else 'the host loopback: traffic of others counted too'}; "
-                      "CPU: node, fork server and workers, % of one core; PSS: proportional memory)", highlight=False)
+                      "CPU: node, fork server and workers, % of one core; PSS: proportional memory; runs: runs the robots "
+                      "ended in the burst, more than its programs where programs were moved)", highlight=False)
         for run in r["runs"]:
+            sim = run.get("burst", {}).get("simulator")
+            if sim and "ratio_ideal" in sim:
+                console.print(f"({run['nodes']} robots of {run['cpu_quota']:g} host cores: burst "
+                              f"{run['burst']['makespan_s']} s, {run['burst']['robots_by_programs']} robots by "
+                              f"programs; the simulator {sim['ideal']['makespan_s']} s "
+                              f"{sim['ideal']['robots_by_programs']} (ratio {sim['ratio_ideal']}), with the "
+                              f"node's CPU {sim['with_node']['makespan_s']} s ({sim['ratio_with_node']}), at the "
+                              f"programs' own speed {sim['corrected']['makespan_s']} s ({sim['ratio_corrected']}))",
+                              highlight=False)
             if run.get("router") and run.get("idle"):
                 console.print(f"({run['nodes']} nodes: Zenoh clients of one router, which used "
                               f"{run['idle']['router_cpu_pct']}% of a core idle; loopback counts each message twice)",

@@ -94,7 +94,7 @@ class LocalTeam:
                  policy: str | None = None, programs: Iterable[str] = (), cpu_quota: float | None = None,
                  env: Mapping[str, str] | None = None, keep_logs: bool = False, verbose: bool = False,
                  visible_timeout: float = 30.0, secure: bool = False, graceful: bool = True,
-                 router: bool = False) -> None:
+                 router: bool = False, trace: bool = False) -> None:
         self.names = [f"r{i}" for i in range(1, robots + 1)] if isinstance(robots, int) else list(robots)
         self.team = team or f"local-{uuid.uuid4().hex[:8]}"
         self.default_cores = cores
@@ -105,6 +105,8 @@ class LocalTeam:
         self.cpu_quota = cpu_quota
         self.env = dict(os.environ if env is None else env)
         self.verbose = verbose
+        #: every node writes its decisions to ``<log_dir>/<robot>.trace.jsonl`` (``ramps node --trace``)
+        self.trace = trace
         self.visible_timeout = visible_timeout
         self.graceful = graceful
         self.log_dir = Path(log_dir) if log_dir is not None else Path(tempfile.mkdtemp(prefix="ramps-team-"))
@@ -279,6 +281,8 @@ class LocalTeam:
             argv += ["--program", prog]
         if self.verbose:
             argv.append("--verbose")
+        if self.trace:
+            argv += ["--trace", str(self.log_dir / f"{name}.trace.jsonl")]
         return argv
 
     def start_node(self, name: str, cores: int | None = None, extra_env: Mapping[str, str] | None = None, *,
