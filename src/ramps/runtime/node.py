@@ -42,6 +42,7 @@ revocation list (``node_revoked.Revoked``) and its trace file
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 import queue
@@ -243,6 +244,8 @@ class NodeRuntime:
             self._driver = threading.Thread(target=self._drive, name=f"ramps-node-{self.robot}", daemon=True)
             self._driver.start()
         self._started = True
+        if threaded and not gc.get_freeze_count():  # what start-up made lives as long as the process:
+            gc.freeze()  # the collector's full passes leave it alone (once a process)
         log.info("node %s joined team %s: %d cores, speed %.2f, load scope %s", self.robot, self.team,
                  self.cores, self.speed, m.scope)
         return self
