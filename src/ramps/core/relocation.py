@@ -133,6 +133,10 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
     if best_rate <= 0.0:
         return any(ap.state is S.RUNNING or ap.state is S.MOVING for ap in programs)
     priced: list[tuple[float, AutonomousProgram]] = []
+    # what the loop reads of each host (and program) once: nothing it does changes them
+    shares: dict[str, float] = {}
+    ages: dict[str, float | None] = {}
+    doubts: dict[tuple[str, str], str | None] = {}
     for ap in programs:
         if ap.state is not S.RUNNING and ap.state is not S.MOVING:
             continue
@@ -144,20 +148,27 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
         row = rows.get(ap.host or "")
         if row is None:
             continue  # its host is suspect or gone quiet: failure detection's business
-        _, cores, speed, ramps, background, weight = row
-        ap.done = min(ap.work, ap.done + max(0.0, now - ap.done_at)
-                      * speed * program_share(cores, max(1.0, ramps), background, weight))
+        host, cores, speed, ramps, background, weight = row
+        share = shares.get(host)  # one figure for every program on this host
+        if share is None:
+            share = shares[host] = program_share(cores, max(1.0, ramps), background, weight)
+        ap.done = min(ap.work, ap.done + max(0.0, now - ap.done_at) * speed * share)
         ap.done_at = now
         if ap.state is not S.RUNNING or len(ap.live) != 1 or now - ap.accepted_at < cfg.relocate_settle:
             continue
-        age = origin.view.report_age(ap.placed_host, now)
+        placed = ap.placed_host
+        age = ages[placed] if placed in ages else ages.setdefault(placed, origin.view.report_age(placed, now))
         if ap.host != origin.me and (age is None or now - age < ap.accepted_at):
             continue  # no report of its host since it started there
         if ap.checkpoint is None and done_bound(origin, ap, now, speed) > cfg.relocate_max_done * ap.work:
             ap.move_wanted_since = None
             ap.settled = ap.attempt  # passed over from now on in a large view
             continue  # a restart would lose what it did, and it may have done over half its work
-        doubt = "stalled" if stalled else uncertain(origin, ap, now)
+        if stalled:
+            doubt: str | None = "stalled"
+        else:  # the same for every program of one name on one host
+            key = (placed, ap.submit.program)
+            doubt = doubts[key] if key in doubts else doubts.setdefault(key, uncertain(origin, ap, now))
         if doubt is not None:
             origin.withheld[doubt] = origin.withheld.get(doubt, 0) + 1
             ap.move_wanted_since = None
@@ -165,7 +176,7 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
         left = max(0.0, ap.work - ap.done)
         t_floor = origin.work_estimate(ap.submit) * (
             1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0)) / best_rate
-        rate = speed * program_share(cores, max(1.0, ramps), background, weight)
+        rate = speed * share
         if not worth_moving(origin, left / rate, t_floor):
             ap.move_wanted_since = None
             continue  # not even by the count of tasks here (an upper bound of the estimate below)

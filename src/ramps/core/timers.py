@@ -36,12 +36,13 @@ class Timers:
 
     def first(self, programs: Mapping[str, AutonomousProgram]) -> float | None:
         """When the earliest pending timer is due (stale entries dropped)."""
-        while self._heap:
-            when, _, pid = self._heap[0]
-            ap = programs.get(pid)
-            if ap is not None and ap.deadline == when:
-                return when
-            heapq.heappop(self._heap)  # stale entry
+        heap = self._heap
+        while heap:
+            top = heap[0]
+            ap = programs.get(top[2])
+            if ap is not None and ap.deadline == top[0]:
+                return top[0]
+            heapq.heappop(heap)  # stale entry
         return None
 
     def due(self, now: float, programs: Mapping[str, AutonomousProgram]) -> Iterator[AutonomousProgram]:

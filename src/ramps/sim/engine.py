@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import gc
 import heapq
+import itertools
 import math
 import random
 import time as _wallclock  # only for reporting how long a run took
@@ -96,7 +97,7 @@ class Simulator:
         self.rng = random.Random(self.seed)
         self.now = 0.0
         self._heap: list[tuple[float, int, Callable[..., None], Any]] = []
-        self._seq = 0
+        self._seq = itertools.count(1)  # ties in time: in the order scheduled
         self.robots: dict[str, _Robot] = {r.name: _Robot(r) for r in self.sc.team()}
         self.names = list(self.robots)
         self.net = self.sc.network
@@ -109,6 +110,7 @@ class Simulator:
         #: programs that checkpoint: seconds between checkpoints, bytes of each
         self._checkpoint: dict[str, tuple[float, int]] = {}
         self.subscribers = sorted({p.origin for p in self.sc.programs})
+        self._submitters = frozenset(self.subscribers)
         #: the origins each robot's load reports go to (all of them but in a fleet: ``ramps.core.fanout``)
         self._report_to = {name: report_targets(name, self.subscribers, len(self.robots), self.sc.config)
                            or self.subscribers for name in self.robots}
@@ -125,19 +127,18 @@ class Simulator:
 
     # ================================================================ event heap
     def _at(self, t: float, fn: Callable[..., None], arg: Any = None) -> None:
-        self._seq += 1
-        heapq.heappush(self._heap, (t, self._seq, fn, arg))
+        heapq.heappush(self._heap, (t, next(self._seq), fn, arg))
 
     def run(self) -> SimResult:
         started = _wallclock.perf_counter()
-        self._setup()
-        until = self.sc.until if self.sc.until is not None else 86_400.0
-        heap, pop, events = self._heap, heapq.heappop, 0
         # a run's objects hold no cycles to collect (none at 1,000 robots), and the
         # collector's passes over their millions cost a tenth of the run: off until it ends
-        collecting = gc.isenabled()
+        collecting, events = gc.isenabled(), 0
         gc.disable()
         try:
+            self._setup()
+            until = self.sc.until if self.sc.until is not None else 86_400.0
+            heap, pop = self._heap, heapq.heappop
             while heap and self._pending > 0:
                 t, _, fn, arg = pop(heap)
                 if t > until:
@@ -185,7 +186,7 @@ class Simulator:
             spec.name, cores=spec.cores, speed=spec.measured_speed or spec.speed, policy=self.policy, config=self.sc.config,
             rng=random.Random(self.rng.getrandbits(64)), incarnation=r.incarnation,
             net=NetworkEstimate(latency=self.net.latency, bandwidth=self.net.bandwidth), program_weight=weight,
-            accelerators=accels, bursts=True, submits=spec.name in self.subscribers,
+            accelerators=accels, bursts=True, submits=spec.name in self._submitters,
         )
         r.node.executor.background = float(spec.background)
         r.wake_at = math.inf
@@ -292,7 +293,7 @@ class Simulator:
             self._handle(r, reading)
         report = r.node.make_report(cpu_busy=busy, runnable=runnable, ramps_avg=ramps_avg, window=pub.window,
                                     mem_free=r.spec.memory, node_cpu=r.spec.node_cpu)
-        if r.spec.name in self.subscribers:
+        if r.spec.name in self._submitters:
             self._handle(r, Received(sender=r.spec.name, msg=report))
         self._broadcast(r, report)
 
