@@ -189,6 +189,62 @@ def test_robots_re_measure_on_one_wall_clock_grid_often_at_first_then_settle():
     assert all(next_remeasure(x, 0) >= x + 1.0 for x in (0.0, 2.0, 2.5, 2.99, 1e9 + 0.1))
 
 
+def test_a_steady_speed_is_measured_less_often_on_the_same_grid():
+    """Each settled re-measurement that did not move the speed doubles the
+    period, at most REMEASURE_BACKOFF times; every longer period's moments
+    are moments of the shorter ones, so robots at different stages of the
+    back-off still measure at common moments."""
+    from ramps.core.speed import REMEASURE_BACKOFF
+
+    t, settled = 10_000.0, REMEASURE_EARLY_COUNT
+    top = REMEASURE_PERIOD * 2 ** REMEASURE_BACKOFF
+    for steady in range(REMEASURE_BACKOFF + 3):
+        period = REMEASURE_PERIOD * 2 ** min(steady, REMEASURE_BACKOFF)
+        nxt = next_remeasure(t, settled, steady)
+        # the next moment of its own period's grid, which is on the settled grid too
+        assert nxt % period == pytest.approx(0.0) and t + 1.0 <= nxt <= t + 1.0 + period
+        t = nxt
+    assert t % top == pytest.approx(0.0)  # no further apart than the cap: 480 s
+    assert next_remeasure(t, settled, 0) - t == pytest.approx(REMEASURE_PERIOD)  # moved: back to the period
+    assert next_remeasure(5.0, 3, steady=4) == next_remeasure(5.0, 3)  # boot's early moments never back off
+
+
+def test_the_node_backs_off_only_while_its_measurements_agree(monkeypatch):
+    """``RobotMeasure`` counts the re-measurements in a row that left its
+    speed where it was, with the real ``SpeedSamples`` and ``speed_moved``
+    (a measurement that moves the mean by more than 1% starts over)."""
+    import ramps.runtime.node_robot as nr
+    from ramps.runtime.settings import NodeSettings
+
+    class StillClock:  # the moment is now: nothing to wait for
+        def monotonic(self) -> float:
+            return 0.0
+
+        def time(self) -> float:
+            return 0.0
+
+        def sleep(self, seconds: float) -> None:
+            pass
+
+    rates = iter([1.0, 1.0, 1.3, 1.3])
+
+    def fake_measure(seconds, *, quota=None, cores=1, samples=None, apart=False, boot=False, stop=None):
+        r = next(rates)
+        samples.add({0: [r]}, boot=boot)
+        return samples.speed(quota=quota, cores=cores)
+
+    monkeypatch.setattr(nr, "measure_speed", fake_measure)
+    rm = nr.RobotMeasure(NodeSettings(robot="r", team="t", cores=1), StillClock(), "r")
+    rm.samples.add({0: [1.0]}, boot=True)
+    got = []
+    for _ in range(4):
+        rm._remeasure(0.0, lambda: True, got.append)
+        got.append(rm.steady)
+    steady = [x for x in got if isinstance(x, int)]
+    assert steady == [1, 2, 0, 0]  # 1.0, 1.0 agree; 1.3 moves the mean twice over
+    assert len([x for x in got if isinstance(x, tuple)]) == 4  # every figure still goes to the core
+
+
 def test_speed_learning_off_keeps_every_measurement():
     off = msgspec.structs.replace(CFG, speed_learning=False)
     assert not SpeedEstimate(0.7, off).measured(1.0)

@@ -93,19 +93,28 @@ REMEASURE_EARLY = 3.0
 REMEASURE_EARLY_COUNT = 12
 #: CPU seconds one re-measurement spends (``measure_speed``'s ``seconds``)
 REMEASURE_CPU = 0.2
+#: once settled, each re-measurement in a row that did not move the speed
+#: doubles the period, up to this many doublings (30 s -> 480 s): at 30 s an
+#: idle node's re-measurements alone took 0.67% of a core
+REMEASURE_BACKOFF = 4
 
 
-def next_remeasure(wall: float, count: int) -> float:
+def next_remeasure(wall: float, count: int, steady: int = 0) -> float:
     """The wall-clock time of a node's next re-measurement after its
     ``count``-th (0: boot), at ``wall`` now: the next multiple of the period
     (``REMEASURE_EARLY`` for the first ``REMEASURE_EARLY_COUNT``, then
-    ``REMEASURE_PERIOD``) at least a second away. On one wall-clock grid,
+    ``REMEASURE_PERIOD``, doubled for each of the ``steady`` latest
+    re-measurements in a row that left the speed where it was, at most
+    ``REMEASURE_BACKOFF`` times) at least a second away. Every period is a
+    multiple of the one before, so robots that backed off measure at moments
+    the others measure at too. On one wall-clock grid,
     robots measure at the same moments and so under the same conditions:
     identical robots on one busy host, re-measuring each on its own
     schedule, drifted 1.02-1.22x apart within 20 s as the host's load came
     and went, where their simultaneous boot measurements had agreed
     (docs/lab/2026-11-26-self-measured-speed.md)."""
-    period = REMEASURE_EARLY if count < REMEASURE_EARLY_COUNT else REMEASURE_PERIOD
+    period = REMEASURE_EARLY if count < REMEASURE_EARLY_COUNT else \
+        REMEASURE_PERIOD * 2 ** min(max(steady, 0), REMEASURE_BACKOFF)
     return math.floor((wall + 1.0) / period + 1.0) * period
 
 

@@ -6,8 +6,8 @@ cores (``--cores``, else the host's), its CPU quota (the smallest on its
 cgroup's path), where load is measured (``--load-scope``: the cgroup when
 there is a quota) and its speed (``--speed``, else measured, pieces kept in
 ``SpeedSamples``). A speed measured at boot is measured again while no
-program runs, soon after boot and then now and then, on a grid of wall-clock
-moments the whole team shares (robots booting together measure each other's
+program runs, soon after boot and then now and then (less often while it
+finds the same speed), on a grid of wall-clock moments the whole team shares (robots booting together measure each other's
 start-up; ``ramps.core.speed``): before each periodic report the driver
 asks ``remeasure_due``, which starts the measurement's thread a little
 early; its figure goes to the driver's queue as a ``("speed", ...)`` item.
@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from ramps.core.speed import REMEASURE_CPU, SpeedMeasured, next_remeasure
+from ramps.core.speed import REMEASURE_CPU, SpeedMeasured, next_remeasure, speed_moved
 from ramps.runtime.measure import cgroup_dirs, cpu_limit, cpu_model, detect_cores
 from ramps.runtime.settings import NodeSettings
 from ramps.runtime.speed_probe import Interrupted, SpeedSamples, core_fraction, measure_speed
@@ -58,6 +58,8 @@ class RobotMeasure:
         #: the wall-clock time of the next re-measurement (None: told its speed), how many were due
         self.remeasure_at: float | None = None
         self.remeasures = 0
+        #: re-measurements in a row that left the speed where it was (the period backs off)
+        self.steady = 0
         self._remeasuring = threading.Lock()
         #: this process's CPU seconds and the time when last read, and the cores it used
         #: (averaged), for load reports: the cost model takes them off a full robot's cores
@@ -104,7 +106,7 @@ class RobotMeasure:
             threading.Thread(target=self._remeasure, args=(due, idle, put), name=f"ramps-speed-{self.robot}",
                              daemon=True).start()
         self.remeasures += 1
-        self.remeasure_at = next_remeasure(due, self.remeasures)
+        self.remeasure_at = next_remeasure(due, self.remeasures, self.steady)
 
     def _remeasure(self, at: float, idle: Callable[[], bool], put: Callable[[tuple[Any, ...]], None]) -> None:
         """Measure this robot's speed again at wall-clock time ``at`` (the
@@ -122,9 +124,11 @@ class RobotMeasure:
             self.clock.sleep(max(0.0, at - self.clock.time()))
             if not idle():
                 return
+            before = self.samples.speed(quota=self.quota, cores=self.cores)
             speed = measure_speed(REMEASURE_CPU, quota=self.quota, cores=self.cores, samples=self.samples,
                                   apart=True, stop=lambda: not idle())
             figure = self.samples.latest * self.core_fraction()
+            self.steady = 0 if speed_moved(speed, before) else self.steady + 1
         except Interrupted:  # a program started: it has the robot's CPU, the next moment on the grid measures
             return
         except Exception:  # never worth a node
