@@ -164,11 +164,7 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
             ap.move_wanted_since = None
             ap.settled = ap.attempt  # passed over from now on in a large view
             continue  # a restart would lose what it did, and it may have done over half its work
-        if stalled:
-            doubt: str | None = "stalled"
-        else:  # the same for every program of one name on one host
-            key = (placed, ap.submit.program)
-            doubt = doubts[key] if key in doubts else doubts.setdefault(key, uncertain(origin, ap, now))
+        doubt = "stalled" if stalled else doubt_of(origin, ap, now, doubts)
         if doubt is not None:
             origin.withheld[doubt] = origin.withheld.get(doubt, 0) + 1
             ap.move_wanted_since = None
@@ -180,10 +176,7 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
         if not worth_moving(origin, left / rate, t_floor):
             ap.move_wanted_since = None
             continue  # not even by the count of tasks here (an upper bound of the estimate below)
-        others = origin.view.remaining_work(ap.placed_host, now, round(ramps), ap.work) or []
-        if others:  # one of them is this program: the one closest to its estimate
-            others.pop(min(range(len(others)), key=lambda i: abs(others[i] - left)))
-        t_here = shared_finish_time(left, others, cores, speed, background, weight)
+        t_here = time_here(origin, ap, now, row, left)
         if not worth_moving(origin, t_here, t_floor):
             ap.move_wanted_since = None
         elif ap.move_wanted_since is None:
@@ -200,6 +193,25 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
             moved_off.add(ap.host or "")
             origin.relocate(ap, placement, now, out)
     return keep
+
+def time_here(origin: RelocatingOrigin, ap: AutonomousProgram, now: float,
+              row: tuple[str, float, float, float, float, float], left: float) -> float:
+    """When ``ap``, with ``left`` units to do, ends where it runs (its host's
+    ``row``): processor sharing with the work its host's report lists left."""
+    _, cores, speed, ramps, background, weight = row
+    others = origin.view.remaining_work(ap.placed_host, now, round(ramps), ap.work) or []
+    if others:  # one of them is this program: the one closest to its estimate
+        others.pop(min(range(len(others)), key=lambda i: abs(others[i] - left)))
+    return shared_finish_time(left, others, cores, speed, background, weight)
+
+
+def doubt_of(origin: RelocatingOrigin, ap: AutonomousProgram, now: float,
+             doubts: dict[tuple[str, str], str | None]) -> str | None:
+    """``uncertain``, kept in ``doubts`` for the rest of a check: the same for
+    every program of one name on one host."""
+    key = (ap.placed_host, ap.submit.program)
+    return doubts[key] if key in doubts else doubts.setdefault(key, uncertain(origin, ap, now))
+
 
 def to_check(origin: RelocatingOrigin, now: float) -> list[AutonomousProgram] | bool:
     """The programs a check looks at: all of them, or in a fleet (a view of
