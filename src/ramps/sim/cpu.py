@@ -9,10 +9,19 @@ removing a job first advances, then the rate changes. The CPU also keeps
 running integrals of busy cores, runnable tasks and ramps programs, so the
 load publisher can average them over its window exactly as a real robot's
 ``/proc/stat`` sampling would. A frozen robot (SIGSTOP) makes no progress.
+
+An experiment, off by default (``CPU.most_work_left_first``): a robot
+without background processes that holds more programs than cores runs
+those with the most work left first, in its fluid form: the programs at
+the highest level of work left run a core each, those tied at a level
+share what cores are left, the others wait, and a level that falls to
+the next joins it (an event: ``next_completion`` returns when). No
+runtime does this (docs/lab/2026-11-28-sim-scale-5.md).
 """
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 from ramps.core.cost import program_share
@@ -22,6 +31,11 @@ Key = tuple[str, int]
 
 class CPU:
     __slots__ = ("cores", "speed", "background", "weight", "jobs", "t", "frozen", "_hist", "_ib", "_ir", "_ik")
+
+    #: run the programs with the most work left first where there are more
+    #: programs than cores and no background (see the module docstring);
+    #: False: processor sharing, what every robot does
+    most_work_left_first: bool = False
 
     def __init__(self, cores: float, speed: float, background: int, now: float, weight: float = 1.0) -> None:
         self.cores = cores
@@ -69,10 +83,39 @@ class CPU:
         self._ir += rr * dt
         self._ik += rk * dt
         if self.jobs and not self.frozen:
-            done = self.rate() * dt
-            for key in self.jobs:
-                self.jobs[key] -= done
+            levels = self._levels()
+            if levels is None:
+                done = self.rate() * dt
+                for key in self.jobs:
+                    self.jobs[key] -= done
+            else:
+                jobs = self.jobs
+                for level, keys, rate in levels:
+                    left = level - rate * dt
+                    for key in keys:
+                        jobs[key] = left
         self.t = now
+
+    def _levels(self) -> list[tuple[float, list[Key], float]] | None:
+        """Most work left first (``most_work_left_first``): the programs by
+        level of work left, highest first, each level's keys and the rate
+        each of them runs at; None where processor sharing applies."""
+        if not self.most_work_left_first or self.background or len(self.jobs) <= self.cores:
+            return None
+        levels: list[tuple[float, list[Key], float]] = []
+        free = self.cores
+        for key in sorted(self.jobs, key=self.jobs.__getitem__, reverse=True):
+            left = self.jobs[key]
+            if levels and levels[-1][0] - left <= 1e-9:  # tied (a level that fell to this one)
+                levels[-1][1].append(key)
+                continue
+            levels.append((left, [key], 0.0))
+        out = []
+        for level, keys, _ in levels:
+            share = min(1.0, free / len(keys)) if free > 0 else 0.0
+            free -= share * len(keys)
+            out.append((level, keys, self.speed * share))
+        return out
 
     def add(self, key: Key, work: float, now: float) -> None:
         self.advance(now)
@@ -100,6 +143,13 @@ class CPU:
         """When the next job finishes if nothing changes, and which."""
         if not self.jobs or self.frozen:
             return None
+        levels = self._levels()
+        if levels is not None:  # the first level to fall to the next, or to end
+            best = (math.inf, levels[0][1][0])
+            for (level, keys, rate), below in zip(levels, levels[1:] + [(0.0, [], 0.0)]):
+                if rate > below[2]:
+                    best = min(best, (self.t + max(0.0, level - below[0]) / (rate - below[2]), keys[0]))
+            return best
         key = min(self.jobs, key=self.jobs.__getitem__)
         return self.t + max(0.0, self.jobs[key]) / self.rate(), key
 
