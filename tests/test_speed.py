@@ -226,7 +226,7 @@ def test_the_node_backs_off_only_while_its_measurements_agree(monkeypatch):
         def sleep(self, seconds: float) -> None:
             pass
 
-    rates = iter([1.0, 1.0, 1.3, 1.3])
+    rates = iter([1.0])
 
     def fake_measure(seconds, *, quota=None, cores=1, samples=None, apart=False, boot=False, stop=None):
         r = next(rates)
@@ -236,6 +236,10 @@ def test_the_node_backs_off_only_while_its_measurements_agree(monkeypatch):
     monkeypatch.setattr(nr, "measure_speed", fake_measure)
     rm = nr.RobotMeasure(NodeSettings(robot="r", team="t", cores=1), StillClock(), "r")
     rm.samples.add({0: [1.0]}, boot=True)
+    rm._remeasure(0.0, lambda: True, lambda item: None)  # one of the boot's early moments: no back-off yet
+    assert rm.steady == 0
+    rates = iter([1.0, 1.0, 1.3, 1.3])
+    rm.remeasures = REMEASURE_EARLY_COUNT + 1  # settled
     got = []
     for _ in range(4):
         rm._remeasure(0.0, lambda: True, got.append)

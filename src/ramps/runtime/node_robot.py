@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
-from ramps.core.speed import REMEASURE_CPU, SpeedMeasured, next_remeasure, speed_moved
+from ramps.core.speed import REMEASURE_CPU, REMEASURE_EARLY_COUNT, SpeedMeasured, next_remeasure, speed_moved
 from ramps.runtime.measure import cgroup_dirs, cpu_limit, cpu_model, detect_cores
 from ramps.runtime.settings import NodeSettings
 from ramps.runtime.speed_probe import Interrupted, SpeedSamples, core_fraction, measure_speed
@@ -128,7 +128,8 @@ class RobotMeasure:
             speed = measure_speed(REMEASURE_CPU, quota=self.quota, cores=self.cores, samples=self.samples,
                                   apart=True, stop=lambda: not idle())
             figure = self.samples.latest * self.core_fraction()
-            self.steady = 0 if speed_moved(speed, before) else self.steady + 1
+            settled = self.remeasures > REMEASURE_EARLY_COUNT  # the boot's early moments never back off
+            self.steady = 0 if speed_moved(speed, before) else self.steady + 1 if settled else 0
         except Interrupted:  # a program started: it has the robot's CPU, the next moment on the grid measures
             return
         except Exception:  # never worth a node
