@@ -55,9 +55,8 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: in a view of more robots than this, ``ramps`` placement prices a
     #: short list of this many instead of all: the cheapest at its latest
     #: full scan (ties drawn at random), this robot and the burst plan's
-    #: host; a full scan again each second, or once none of them is cheaper
-    #: than the robot after them was (none as cheap, where all cost as much
-    #: as it) (docs/lab/2026-11-27-sim-scale.md, 2026-11-28-sim-scale-5.md).
+    #: host; a full scan again each second, or once none of them is as cheap
+    #: as the robot after them was (docs/lab/2026-11-27-sim-scale.md).
     #: 0: all, always
     placement_sample: int = 64
     #: in a team of more robots than ``placement_sample``, where more

@@ -215,9 +215,8 @@ class RampsPolicy(Policy):
 
     def __init__(self) -> None:
         #: a large team's cheapest robots by count at the latest full scan
-        #: (``RampsConfig.placement_sample`` of them), the most one of them
-        #: may cost for the list to stand (below the cost of the robot after
-        #: them), and until when it stands (``_priced``)
+        #: (``RampsConfig.placement_sample`` of them), the cost of the one
+        #: after them, and until when the list stands (``_priced``)
         self._short: list[str] = []
         self._cut = math.inf
         self._short_until = -math.inf
@@ -264,15 +263,10 @@ class RampsPolicy(Policy):
         ``RampsConfig.placement_sample`` robots, of a short list instead
         while it stands: the cheapest robots by count at the latest full
         scan (with this robot and the plan's host), for ``SHORT_LIST_FOR``
-        seconds and while one of them still costs less than the robot
-        after them did (no more, where every one of them cost as much as
-        it: the list is then a draw among equals). So the list falls once
-        its cheaper robots have risen to that robot's level, and the next
-        scan draws among every robot at that level, not only the listed
-        ones, which would otherwise go a program ahead of the robots tied
-        with them off the list. A robot off the list gets cheaper only as
-        its programs end, which the next full scan sees. Robots that cost
-        the same are listed by chance, so origins deciding at once list
+        seconds and while one of them still costs no more than the robot
+        after them did. A robot off the list gets cheaper only as its
+        programs end, which the next full scan sees. Robots that cost the
+        same are listed by chance, so origins deciding at once list
         different ones."""
         slots = {row[0]: row for row in view.accelerator_rows(now, req.accelerator, exclude)} \
             if req.accelerator else {}
@@ -286,10 +280,7 @@ class RampsPolicy(Policy):
         if sample and len(rows) > sample:
             ranked = heapq.nsmallest(sample + 1, rows, key=lambda r: (r[0], rng.random()))
             self._short = [row[2] for row in ranked[:sample]]
-            cut = ranked[-1][0]
-            # below the robot after them while some listed robot is (costs 1e-9 apart are equal)
-            self._cut = cut - 1e-9 if ranked[0][0] < cut - 1e-9 else cut
-            self._short_until = now + SHORT_LIST_FOR
+            self._cut, self._short_until = ranked[-1][0], now + SHORT_LIST_FOR
         else:
             self._short = []
         return rows
