@@ -83,7 +83,7 @@ class CPU:
         self._ir += rr * dt
         self._ik += rk * dt
         if self.jobs and not self.frozen:
-            levels = self._levels()
+            levels = self._levels() if self.most_work_left_first else None
             if levels is None:
                 done = self.rate() * dt
                 for key in self.jobs:
@@ -97,10 +97,10 @@ class CPU:
         self.t = now
 
     def _levels(self) -> list[tuple[float, list[Key], float]] | None:
-        """Most work left first (``most_work_left_first``): the programs by
-        level of work left, highest first, each level's keys and the rate
+        """Most work left first (for ``most_work_left_first``): the programs
+        by level of work left, highest first, each level's keys and the rate
         each of them runs at; None where processor sharing applies."""
-        if not self.most_work_left_first or self.background or len(self.jobs) <= self.cores:
+        if self.background or len(self.jobs) <= self.cores:
             return None
         levels: list[tuple[float, list[Key], float]] = []
         free = self.cores
@@ -143,7 +143,7 @@ class CPU:
         """When the next job finishes if nothing changes, and which."""
         if not self.jobs or self.frozen:
             return None
-        levels = self._levels()
+        levels = self._levels() if self.most_work_left_first else None
         if levels is not None:  # the first level to fall to the next, or to end
             best = (math.inf, levels[0][1][0])
             for (level, keys, rate), below in zip(levels, levels[1:] + [(0.0, [], 0.0)]):
