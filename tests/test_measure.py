@@ -280,3 +280,21 @@ def test_a_cgroups_threads_are_read_from_open_files_that_follow_threads_and_cgro
         for p in (sleeper, spinner):
             p.kill()
             p.wait()
+
+
+def test_an_idle_robot_is_sampled_less_often_until_a_program_runs():
+    """No program here: a sample every ``idle_interval``; one runs: every ``interval``
+    again, from the next sample on (counts compared within one run)."""
+    programs = [0]
+    s = measure.LoadSampler(lambda: programs[0], window=60.0, interval=0.02, idle_interval=0.1)
+    s.start()
+    try:
+        time.sleep(0.6)
+        idle = len(s._samples)
+        programs[0] = 1
+        time.sleep(0.6)
+        busy = len(s._samples) - idle
+    finally:
+        s.stop()
+    assert idle >= 1 and busy >= 2.5 * idle, (idle, busy)
+    assert s.averages()[2] > 0  # the program was counted

@@ -1,7 +1,7 @@
 """What a load publisher measures on a real robot.
 
 How this works: a sampler thread reads the CPU every ``interval`` seconds
-and keeps the samples of the last ``window`` seconds; ``averages()`` returns
+(``idle_interval`` while no program runs) and keeps the samples of the last ``window`` seconds; ``averages()`` returns
 what a ``LoadReport`` needs: busy cores, runnable tasks (the run queue, like
 load average but over the window, so 8 ``stress`` processes count as 8) and
 ramps programs. Two scopes:
@@ -135,10 +135,8 @@ def cpu_model() -> str:
     return " / ".join(parts)[:128] or os.uname().machine[:128] or "unknown"
 
 
-#: pids of this process's measuring children (``ramps.runtime.speed_probe.chunk_rates_apart``) now
-#: running: the node's own work, like its threads, not load of the robot's
-#: (counted, a re-measurement made every idle robot look busy for a second to
-#: origins placing then, which put their programs elsewhere)
+#: pids of this process's measuring children (``speed_probe.chunk_rates_apart``) now running: the node's
+#: own work, not the robot's load (counted, a re-measurement made idle robots look busy for a second)
 MEASURING_PIDS: set[str] = set()
 
 
@@ -289,10 +287,8 @@ def _is_running(stat: bytes) -> bool:
 
 class OwnThreads:
     """This process's threads' ``stat`` files, kept open and read again with
-    ``pread`` each time (opening ~30 of them by path five times a second was
-    most of an idle node's sampling: 241 against 96 us a read); listed again
-    every ``RELIST`` reads, since threads come and go (the worker pool's,
-    Zenoh's), and a thread that ended is dropped at its first failed read."""
+    ``pread`` (opening ~30 by path was 241 against 96 us a read); listed again
+    every ``RELIST`` reads (threads come and go), an ended one dropped."""
 
     RELIST = 10
 
@@ -346,12 +342,11 @@ def own_running() -> int:
 
 
 class CgroupThreads:
-    """A cgroup's CPU usage and its threads in state R, other than this process's own (the node: see ``LoadSampler``).
-    The usage file and each listed thread's ``stat`` stay open and are read again with ``pread``; the ``tasks``
-    (v1) or ``cgroup.threads`` (v2) files of the cgroup and those below it are opened afresh each sample (an
-    open one keeps the list it first read). Opening every file by path five times a second (some 250 us a sample
-    with 35 threads) was most of an idle node's CPU in an emulated robot. The cgroups below (per-program caps)
-    are listed again every ``RELIST`` samples; a thread that ended is dropped at its first failed read."""
+    """A cgroup's CPU usage and its threads in state R, other than this process's own (the node: see
+    ``LoadSampler``). The usage file and each thread's ``stat`` stay open, read again with ``pread`` (opening
+    each by path, some 250 us a sample, was most of an idle emulated robot's node); the ``tasks`` (v1) or
+    ``cgroup.threads`` (v2) files are opened afresh each sample (an open one keeps the list it first read), and
+    the cgroups below (per-program caps) listed again every ``RELIST`` samples."""
 
     RELIST = 5
 
@@ -427,15 +422,17 @@ class LoadSampler:
     weighted cost model reads as competing work. Worker processes (programs)
     are counted.
 
-    Every 0.2 s by default (5 samples a window): on a robot with a CPU limit
-    (cgroup scope) a sample reads the cgroup through ``CgroupThreads``, about
-    125 us with 35 threads, about half of an idle node's CPU there
-    (docs/lab/2026-11-27-cgroup-sampler.md)."""
+    Every 0.2 s by default (5 samples a window), every ``idle_interval`` while
+    no program runs here: a sample reads the node's ~30 threads' state
+    (``own_running``, ~100 us) or a cgroup's (``CgroupThreads``), about two
+    thirds of an idle node's CPU (docs/lab/2026-11-27-cgroup-sampler.md)."""
 
     def __init__(self, ramps_count: Callable[[], int], *, window: float = 1.0, interval: float = 0.2,
-                 scope: str = "host", cgroup: Path | None = None, acct: Path | None = None) -> None:
+                 idle_interval: float = 0.4, scope: str = "host", cgroup: Path | None = None,
+                 acct: Path | None = None) -> None:
         self.window = window
         self.interval = interval
+        self.idle_interval = max(interval, idle_interval)
         self.scope = scope
         self.cgroup = cgroup
         self.acct = acct
@@ -457,9 +454,11 @@ class LoadSampler:
 
     def _run(self) -> None:
         ncpu = psutil.cpu_count() or 1
-        while not self._stop.wait(self.interval):
+        wait = self.interval
+        while not self._stop.wait(wait):
             now = time.monotonic()
             ramps = float(self._ramps_count())
+            wait = self.interval if ramps > 0 else self.idle_interval
             if self._cg is not None:
                 usage, running = self._cg.sample()
                 busy = max(0.0, (usage - self._last_usage) / max(now - self._last_t, 1e-6))
