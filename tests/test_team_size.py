@@ -53,7 +53,8 @@ def test_loopback_counters_read_this_namespace():
 
 @pytest.mark.slow
 def test_a_real_team_measured_end_to_end():
-    res = measure_size(5, idle=1.0, units=0.2, kill_at=0.3, form_timeout=60.0, burst_timeout=60.0, log=lambda s: None)
+    res = measure_size(5, idle=1.0, units=0.2, kill_at=0.3, form_timeout=60.0, burst_timeout=60.0, settle=0.0,
+                       log=lambda s: None)
     assert res["formed_s"] is not None and res["formed_s"] > 0
     idle = res["idle"]
     assert idle["pss_mib"]["median"] >= idle["node_and_fork_server_pss_mib"]["median"] \

@@ -9,8 +9,9 @@ team's traffic and nothing else on the host. Per N, in order:
   that it sees all the others (``LocalTeam.start``), or None when that did
   not happen within ``form_timeout``;
 * **idle**: with no client connected, over ``idle`` seconds, each node's CPU
-  (the node process alone, and with its fork server and workers) as % of
-  one core, its proportional memory (PSS: shared pages split among the
+  (the node process alone, and with its fork server, workers and its speed
+  re-measurements, children it waits for) as % of one core, from ``settle``
+  seconds after the nodes started (the boot's early re-measurements over), its proportional memory (PSS: shared pages split among the
   processes that map them; the node alone, with its fork server, and with
   its workers too), threads, and the loopback bytes and packets per node
   per second (every message crosses loopback once);
@@ -85,13 +86,15 @@ def process_tree(pid: int) -> list[psutil.Process]:
         return []
 
 
-def cpu_seconds(procs: list[psutil.Process]) -> float:
-    """User and system CPU seconds of ``procs``, those gone since left out."""
+def cpu_seconds(procs: list[psutil.Process], reaped: bool = False) -> float:
+    """User and system CPU seconds of ``procs``, those gone since left out;
+    ``reaped``: with those of their children that ended and were waited for
+    (a node's speed re-measurement runs in a child for a fifth of a second)."""
     total = 0.0
     for p in procs:
         try:
             t = p.cpu_times()
-            total += t.user + t.system
+            total += t.user + t.system + ((t.children_user + t.children_system) if reaped else 0.0)
         except psutil.Error:
             pass
     return total
@@ -132,12 +135,14 @@ def measure_idle(team: Any, seconds: float) -> dict[str, Any]:
         got = {}
         for name, pid in pids.items():
             tree = process_tree(pid)
-            got[name] = (cpu_seconds(tree[:1]), {p.pid: cpu_seconds([p]) for p in tree}, time.monotonic())
+            got[name] = (cpu_seconds(tree[:1]),  # the node's reaped children are its speed re-measurements
+                         {p.pid: cpu_seconds([p], reaped=p.pid == pid) for p in tree}, time.monotonic())
         return got
 
     def tree_s(name: str) -> float:
-        """CPU seconds of ``name``'s tree between the reads, of the processes alive at both
-        (a worker that ended meanwhile takes its seconds with it; one that started has only those since)."""
+        """CPU seconds of ``name``'s tree between the reads, of the processes alive at both and
+        of the node's children it waited for meanwhile (its speed re-measurements; not a worker
+        that ended, whose whole life's CPU its fork server's counters would add)."""
         was, now = before[name][1], after[name][1]
         return sum(now[pid] - was.get(pid, 0.0) for pid in now)
 
@@ -240,7 +245,8 @@ def wait_heard(client: Any, survivors: set[str], timeout: float) -> float | None
 def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeout: float = 120.0,
                  burst_timeout: float = 120.0, kill_at: float = 0.5, seed: int = 1, idle_after: float = 10.0,
                  router: bool = False, origins: int = ORIGINS, cpu_quota: float | None = None,
-                 program_seconds: float = 20.0, keep_logs: str | None = None, log: Any = print) -> dict[str, Any]:
+                 program_seconds: float = 20.0, keep_logs: str | None = None, settle: float = 40.0,
+                 log: Any = print) -> dict[str, Any]:
     """Every figure of the module docstring for a team of ``n`` nodes; with
     ``cpu_quota``, on robots of one emulated core each (``ramps.bench.teamsize_sim``)
     running programs of ``program_seconds`` alone, beside the simulator; ``keep_logs``: a
@@ -272,7 +278,7 @@ def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeou
             log(f"  {n} nodes: not formed within {form_timeout:g} s")
             return res
         log(f"  {n} nodes: formed in {res['formed_s']} s; idle for {idle:g} s ...")
-        time.sleep(2.0)
+        time.sleep(max(2.0, settle - (time.monotonic() - t0)))  # a node re-measures its speed often at first
         res["idle"] = measure_idle(team, idle)
         log(f"  {n} nodes idle: {res['idle']['with_workers_cpu_pct']['median']}% of a core, "
             f"PSS {res['idle']['pss_mib']['median']} MiB each")

@@ -347,6 +347,9 @@ def bench_team_size_cmd(
     nodes: list[int] = typer.Option([10, 25], "--nodes", "-n", min=4, max=200,
                                     help="team sizes to measure, one after another (repeatable)"),
     idle: float = typer.Option(20.0, "--idle", min=2.0, metavar="SECONDS", help="seconds over which an idle node's cost is measured"),
+    settle: float = typer.Option(40.0, "--settle", min=0.0, metavar="SECONDS",
+                                 help="measure idle nodes from this many seconds after they started (a node "
+                                 "re-measures its speed every 3 s for its first 36 s)"),
     units: float = typer.Option(0.05, "--units", min=0.001, max=5.0, help="work units of each burst program"),
     form_timeout: float = typer.Option(120.0, "--form-timeout", min=5.0, metavar="SECONDS",
                                        help="seconds the team may take to form (every node seeing all others)"),
@@ -379,7 +382,7 @@ def bench_team_size_cmd(
 
     err.print(f"team sizes {', '.join(map(str, nodes))}: each formed, idle {idle:g} s, a burst, a fifth killed ...")
     res = run_isolated(list(nodes), idle=idle, units=units, form_timeout=form_timeout, router=router,
-                       origins=origins, cpu_quota=cpu_quota, program_seconds=program_seconds,
+                       origins=origins, cpu_quota=cpu_quota, program_seconds=program_seconds, settle=settle,
                        burst_timeout=burst_timeout, keep_logs=None if keep_logs is None else str(keep_logs.resolve()))
 
     def show(r, console) -> None:
