@@ -114,7 +114,7 @@ class Simulator:
         #: the origins each robot's load reports go to (all of them but in a fleet: ``ramps.core.fanout``)
         self._report_to = {name: report_targets(name, self.subscribers, len(self.robots), self.sc.config)
                            or self.subscribers for name in self.robots}
-        self._hearing: dict[_Robot, list[_Robot]] = {}
+        self._hearing: dict[_Robot, list[_Robot]] = {}  # ``_report_to`` as robots, made as needed
         #: a fleet's heartbeats go by mailbox, read in batches (``ramps.sim.fleet``); None: a team
         self.mail = Mailboxes(self) if 0 < self.sc.config.placement_sample < len(self.robots) else None
         self._pending = self.events = self.sent = self.dropped = 0
