@@ -268,7 +268,7 @@ class Node:
 
     def _loopback(self, out: list[Action], now: float) -> list[Action]:
         """Hand messages addressed to this robot straight back in."""
-        if not any(isinstance(a, Send) and a.to == self.robot for a in out):
+        if not out or not any(isinstance(a, Send) and a.to == self.robot for a in out):
             return out
         result: list[Action] = []
         queue = deque(out)
