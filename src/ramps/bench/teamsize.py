@@ -264,6 +264,12 @@ def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeou
         speed = robot_speed(cpu_quota)
         units = round(program_seconds * speed, 5)
         log(f"  robots of one core of {cpu_quota:g} host cores: {speed:g} units/s, programs of {units:g} units")
+        host = len(os.sched_getaffinity(0))
+        if n * cpu_quota > host:
+            res["oversubscribed"] = round(n * cpu_quota / host, 2)
+            log(f"  warning: {n} robots of {cpu_quota:g} cores need {n * cpu_quota:g} host cores and this machine "
+                f"has {host}: busy robots will get less than their quota, and the comparison says little "
+                f"(choose --cpu-quota {0.9 * host / n:.3g} or less)")
     team = LocalTeam(n, cores=1, visible_timeout=form_timeout, team=f"size-{uuid.uuid4().hex[:6]}", router=router,
                      cpu_quota=cpu_quota, speed=speed, keep_logs=keep_logs is not None, trace=keep_logs is not None,
                      log_dir=None if keep_logs is None else Path(keep_logs) / f"size-{n}")
