@@ -246,11 +246,12 @@ def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeou
                  burst_timeout: float = 120.0, kill_at: float = 0.5, seed: int = 1, idle_after: float = 10.0,
                  router: bool = False, origins: int = ORIGINS, cpu_quota: float | None = None,
                  program_seconds: float = 20.0, keep_logs: str | None = None, settle: float = 40.0,
-                 log: Any = print) -> dict[str, Any]:
+                 lead: float = 0.0, log: Any = print) -> dict[str, Any]:
     """Every figure of the module docstring for a team of ``n`` nodes; with
     ``cpu_quota``, on robots of one emulated core each (``ramps.bench.teamsize_sim``)
     running programs of ``program_seconds`` alone, beside the simulator; ``keep_logs``: a
-    directory where the nodes' logs and traces are kept (``size-<n>/``)."""
+    directory where the nodes' logs and decision traces are kept (``size-<n>/``); ``lead``:
+    seconds between the clients connecting and the first burst."""
     from ramps.errors import NoTeam
     from ramps.testing import LocalTeam
 
@@ -289,6 +290,7 @@ def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeou
         log(f"  {n} nodes idle: {res['idle']['with_workers_cpu_pct']['median']}% of a core, "
             f"PSS {res['idle']['pss_mib']['median']} MiB each")
         clients = {o: team.client(o) for o in submitters}
+        time.sleep(lead)  # ``lead``: the origins hear that the others submit before the burst
         first = clients[submitters[0]]
         before = _finished(first)
         res["burst"] = run_burst(clients, 2 * n, units, burst_timeout)

@@ -365,6 +365,9 @@ def bench_team_size_cmd(
                                           help="with --cpu-quota: each burst program's seconds alone on a robot"),
     burst_timeout: float = typer.Option(120.0, "--burst-timeout", min=5.0, metavar="SECONDS",
                                         help="seconds a burst may take"),
+    lead: float = typer.Option(0.0, "--lead", min=0.0, max=60.0, metavar="SECONDS",
+                               help="seconds between the applications connecting to the origins and the first "
+                               "burst (0: at once, as an application that connects and submits)"),
     keep_logs: Path = typer.Option(None, "--keep-logs", metavar="DIR",
                                    help="keep every node's log and trace under DIR/size-N/"),
     as_json: bool = typer.Option(False, "--json", help="print the figures as JSON"),
@@ -383,6 +386,7 @@ def bench_team_size_cmd(
     err.print(f"team sizes {', '.join(map(str, nodes))}: each formed, idle {idle:g} s, a burst, a fifth killed ...")
     res = run_isolated(list(nodes), idle=idle, units=units, form_timeout=form_timeout, router=router,
                        origins=origins, cpu_quota=cpu_quota, program_seconds=program_seconds, settle=settle,
+                       lead=lead,
                        burst_timeout=burst_timeout, keep_logs=None if keep_logs is None else str(keep_logs.resolve()))
 
     def show(r, console) -> None:
