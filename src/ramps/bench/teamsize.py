@@ -11,9 +11,10 @@ team's traffic and nothing else on the host. Per N, in order:
 * **idle**: with no client connected, over ``idle`` seconds, each node's CPU
   (the node process alone, and with its fork server, workers and its speed
   re-measurements, children it waits for) as % of one core, from ``settle``
-  seconds after the nodes started (the boot's early re-measurements over), its proportional memory (PSS: shared pages split among the
-  processes that map them; the node alone, with its fork server, and with
-  its workers too), threads, and the loopback bytes and packets per node
+  seconds after the nodes started (the boot's early re-measurements over),
+  its proportional memory (PSS: shared pages split among the processes that
+  map them; the node alone, with its fork server, and with its workers
+  too), threads, and the loopback bytes and packets per node
   per second (every message crosses loopback once);
 * **burst**: ``2 N`` ``burn`` programs of ``units`` each from
   ``origins`` robots (r1, r2, r3 by default) at once: how many came back (each future

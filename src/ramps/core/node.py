@@ -23,8 +23,8 @@ finished), the node publishes a report of that instant at once
 view of itself is updated at once: an origin always knows exactly what its
 own robot runs. A driver may set ``prompt_hold``: the changes that follow
 the first within it go in one report, made when it is over, and a robot
-that places nothing takes in only the reports it publishes. This is the paper's cNAMP (origins learn each other's
-bookings) done by the host, which is the one robot that knows them all.
+that places nothing takes in only the reports it publishes. This is the
+paper's cNAMP (origins learn each other's bookings) done by the host, which is the one robot that knows them all.
 
 Bursts (``bursts``): programs submitted in one batch of the driver's events
 wait for its end (``flush``, or the next ``tick``) and for the claims of the

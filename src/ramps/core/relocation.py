@@ -194,6 +194,7 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
             origin.relocate(ap, placement, now, out)
     return keep
 
+
 def time_here(origin: RelocatingOrigin, ap: AutonomousProgram, now: float,
               row: tuple[str, float, float, float, float, float], left: float) -> float:
     """When ``ap``, with ``left`` units to do, ends where it runs (its host's

@@ -1,8 +1,8 @@
 """What a load publisher measures on a real robot.
 
 How this works: a sampler thread reads the CPU every ``interval`` seconds
-(``idle_interval`` while no program runs) and keeps the samples of the last ``window`` seconds; ``averages()`` returns
-what a ``LoadReport`` needs: busy cores, runnable tasks (the run queue, like
+(``idle_interval`` while no program runs) and keeps the samples of the last
+``window`` seconds; ``averages()`` returns what a ``LoadReport`` needs: busy cores, runnable tasks (the run queue, like
 load average but over the window, so 8 ``stress`` processes count as 8) and
 ramps programs. Two scopes:
 

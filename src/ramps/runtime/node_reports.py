@@ -21,8 +21,8 @@ in a burst each change made one, and every report carries the executor's
 counters, so a later one says all an earlier one did. The node's core
 holds them itself (``Node.prompt_hold``, set by the driver): it makes one
 report when the hold is over instead of one per change, and that one goes
-at once. A periodic report supersedes one the driver holds. The newest report published, of either kind, is
-what this robot answers a teammate's query with (``Membership.newest``:
+at once. A periodic report supersedes one the driver holds. The newest
+report published, of either kind, is what this robot answers a teammate's query with (``Membership.newest``:
 an origin's first views). A robot that places programs reports as those it
 sees the teammates it could place on (fresh reports, not written off); one
 that does not hears no periodic reports, and reports those whose

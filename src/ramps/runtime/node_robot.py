@@ -7,8 +7,9 @@ cgroup's path), where load is measured (``--load-scope``: the cgroup when
 there is a quota) and its speed (``--speed``, else measured, pieces kept in
 ``SpeedSamples``). A speed measured at boot is measured again while no
 program runs, soon after boot and then now and then (less often while it
-finds the same speed), on a grid of wall-clock moments the whole team shares (robots booting together measure each other's
-start-up; ``ramps.core.speed``): before each periodic report the driver
+finds the same speed), on a grid of wall-clock moments the whole team
+shares (robots booting together measure each other's start-up;
+``ramps.core.speed``): before each periodic report the driver
 asks ``remeasure_due``, which starts the measurement's thread a little
 early; its figure goes to the driver's queue as a ``("speed", ...)`` item.
 For each report it also scales a cgroup's CPU use to the robot's cores
