@@ -6,8 +6,8 @@ and ``report_problem`` passes a sound report in one chain of comparisons.
 Each must give exactly what the straightforward code gives (the same
 floats, the same counts, the same words), or the simulator's fixed-seed
 sweeps would change: here each is checked against that code, kept below as
-the reference, over generated inputs. The driver publishes one report of
-the instant per moment (``PROMPT_HOLD``, the newest), a client decodes
+the reference, over generated inputs. The driver publishes the newest
+report of the instant of a batch, once, at once, a client decodes
 load reports only when ``status()`` asks for them, a program's updates to
 its client wait a moment (none if its outcome goes first), its acceptance
 writes nothing to the durable record, and a call's argument names are
@@ -228,35 +228,27 @@ class _Pub:
         self.sent.append(data)
 
 
-def test_one_report_of_the_instant_goes_out_per_moment_the_newest():
-    """Reports of the instant the core asks for within ``PROMPT_HOLD`` (one
-    batch of actions or several): the newest is published, once, when the
-    hold is over (each says all the earlier ones did: the executor's
-    counters only grow), as the core made it, on the key only teammates'
-    nodes hear."""
-    from ramps.runtime.node_reports import PROMPT_HOLD
-
+def test_the_newest_report_of_the_instant_of_a_batch_goes_out_at_once():
+    """Reports of the instant in one batch of the core's actions: the newest
+    is published, once, at once (each says all the earlier ones did: the
+    executor's counters only grow; the core held them, ``Node.prompt_hold``),
+    as the core made it, on the key only teammates' nodes hear. The driver
+    holds none itself: nothing is due later."""
     clock = FakeClock()
     rt = rn.NodeRuntime(load_settings(flags={"robot": "r1", "team": "t"}, environ={}), clock=clock)
     rt.node = Node("r1", cores=2, speed=1.0, rng=random.Random(0))
     rt.membership.load_pub, rt.membership.prompt_pub = periodic, pub = _Pub(), _Pub()
     first, second, third = (report("r1", seq=s, accepted_total=s) for s in (1, 2, 3))
-    now = clock.monotonic()
     rt.outbound.apply([PublishReport(report=first), Note(what="placed", robot="r2"), PublishReport(report=second)])
-    assert rt.outbound.held_due(now) == now + PROMPT_HOLD
-    clock.advance(PROMPT_HOLD / 2)
-    rt.outbound.apply([PublishReport(report=third)])  # a later batch within the hold: it goes too, not later
-    rt.outbound.flush_held(clock.monotonic())
-    assert pub.sent == [] and rt.outbound.held_due(clock.monotonic()) == now + PROMPT_HOLD
-    clock.advance(PROMPT_HOLD / 2)
-    rt.outbound.flush_held(clock.monotonic())
     assert len(pub.sent) == 1 and periodic.sent == []
-    sent = decode(pub.sent[0]).msg
-    assert sent.seq == 3 and sent.accepted_total == 3 and sent == third
+    assert decode(pub.sent[0]).msg == second
+    assert rt.outbound.held_due(clock.monotonic()) == float("inf")
+    rt.outbound.apply([PublishReport(report=third)])
+    assert len(pub.sent) == 2 and decode(pub.sent[1]).msg == third
     rt.outbound.apply([Note(what="placed", robot="r2")])
-    clock.advance(PROMPT_HOLD)
+    clock.advance(1.0)
     rt.outbound.flush_held(clock.monotonic())
-    assert len(pub.sent) == 1 and rt.outbound.held_due(clock.monotonic()) == float("inf")  # nothing changed
+    assert len(pub.sent) == 2 and rt.membership.newest == pub.sent[1]  # nothing changed: nothing more
 
 
 def test_reports_of_the_instant_reach_the_nodes_not_the_clients():

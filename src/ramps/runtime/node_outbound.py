@@ -17,8 +17,8 @@ line, ``NameTaken`` (another node under this robot's name, ``SameName``)
 this node's leaving or a line saying the other leaves; programs it hosts
 for other origins are traced as this robot runs them
 (``NodeTrace.hosted``). ``PublishReport`` (a report of the instant: the
-programs running here changed) goes to ``LoadReports``, the newest of a
-batch only, after the batch's messages; ``publish`` has it publish the
+programs running here changed, made by the core once its hold is over) goes
+to ``LoadReports``, the newest of a batch only, after the batch's messages; ``publish`` has it publish the
 periodic load report, and the team's revocation list when it is due again
 (``Revoked``). ``shutdown`` hands running programs back and cancels this
 origin's.
@@ -140,7 +140,7 @@ class Outbound:
         store = d.store
         first = before_record(actions) if store is not None else -1
         mnow = self.awake.now()  # the core's clock, for metrics' latencies
-        prompt = None  # the newest report of the instant: the only one of a batch that goes out (``LoadReports``)
+        prompt = None  # the newest report of the instant: the only one of a batch that goes out
         acks: list[Send] = []
         for i, a in enumerate(actions):
             if i == first:
@@ -180,8 +180,8 @@ class Outbound:
             self.clients.persist(store, actions)
         for a in acks:
             self._send(a)
-        if prompt is not None:  # held a moment: the changes that follow it go with it
-            self.reports.hold(prompt, held=d.node is not None and d.node.prompt_hold > 0.0)
+        if prompt is not None:  # the core held it (``Node.prompt_hold``): the changes that followed go with it
+            self.reports.publish_prompt(prompt)
 
     def _send(self, a: Send) -> None:
         """``a``'s message to its teammate's inbox (``Outbox.send``)."""
@@ -224,13 +224,12 @@ class Outbound:
 
     def held_due(self, now: float) -> float:
         """The core's time at which something held is due: an outcome to look
-        at again, a client's update, a report of the instant (inf: none)."""
-        return min(self.clients.held_due(now), self.reports.due())
+        at again, a client's update (inf: none)."""
+        return self.clients.held_due(now)
 
     def flush_held(self, now: float) -> None:
         """Send what is held and due by the core's time ``now``."""
         self.clients.flush(now)
-        self.reports.flush(now)
 
     def _runner(self, a: StartProgram) -> Callable[[Grant | None], None]:
         """How to start ``a`` in a worker once its accelerator slot is granted."""

@@ -15,13 +15,11 @@ The links go ``LINKS_PER_REPORT`` teammates a report, in turn, so a
 report's size does not grow with the team; a client keeps the newest of
 each (``ramps.runtime.futures.TeamReports``).
 A report of the instant (``PublishReport``: the programs running here
-changed) goes to the teammates' nodes only (``keys.load_now``), held
-``PROMPT_HOLD`` so the changes that follow it go with it, the newest only:
-in a burst each change made one, and every report carries the executor's
-counters, so a later one says all an earlier one did. The node's core
-holds them itself (``Node.prompt_hold``, set by the driver): it makes one
-report when the hold is over instead of one per change, and that one goes
-at once. A periodic report supersedes one the driver holds. The newest
+changed) goes to the teammates' nodes only (``keys.load_now``), at once
+(``publish_prompt``). The core holds them (``Node.prompt_hold``, set by the
+driver to ``PROMPT_HOLD``) so that the changes that follow one go with it:
+it makes one report when the hold is over, with the executor's newest
+counters, instead of one per change. The newest
 report published, of either kind, is what this robot answers a teammate's query with (``Membership.newest``:
 an origin's first views). A robot that places programs reports as those it
 sees the teammates it could place on (fresh reports, not written off); one
@@ -57,9 +55,9 @@ if TYPE_CHECKING:
     from ramps.runtime.settings import NodeSettings
 
 log = logging.getLogger("ramps.node")
-#: seconds a report of the instant waits for the changes that follow it, the newest going
-#: then: a host's acceptance and the end of a short program go as one report, after its
-#: result, and the teammates it wakes do not take the CPU from the program meanwhile
+#: seconds the core holds a report of the instant for the changes that follow it (``Node.prompt_hold``),
+#: the newest going then: a host's acceptance and the end of a short program go as one report, after
+#: its result, and the teammates it wakes do not take the CPU from the program meanwhile
 PROMPT_HOLD = 0.005
 
 
@@ -94,35 +92,10 @@ class LoadReports:
         #: the last periodic report, and the teammates in this robot's view then
         self.last: LoadReport | None = None
         self._sees: frozenset[str] = frozenset()
-        #: the newest report of the instant not published yet, and the core's time it is due
-        self._held: LoadReport | None = None
-        self._due = 0.0
         #: reads this robot's battery before each periodic report (made at the first)
         self._battery: BatteryReader | None = None
         #: where the next report's links start in the sorted teammates measured
         self._links_turn = 0
-
-    def hold(self, report: LoadReport, *, held: bool = False) -> None:
-        """A report of the instant from the core: published ``PROMPT_HOLD`` after
-        the first not yet published, the newest then; at once where the core
-        ``held`` it so itself (``Node.prompt_hold``: it made it when the hold was over)."""
-        if held:
-            self._held = None
-            self._publish_prompt(report)
-            return
-        if self._held is None:
-            self._due = self.awake.now() + PROMPT_HOLD
-        self._held = report
-
-    def due(self) -> float:
-        """The core's time a held report of the instant is due (inf: none held)."""
-        return self._due if self._held is not None else float("inf")
-
-    def flush(self, now: float) -> None:
-        """Publish the held report of the instant if it is due by the core's time ``now``."""
-        if self._held is not None and now >= self._due:
-            report, self._held = self._held, None
-            self._publish_prompt(report)
 
     def publish(self, now: float) -> None:
         """The periodic load report, at the core's time ``now``."""
@@ -149,7 +122,6 @@ class LoadReports:
         report = msgspec.structs.replace(report, bad_messages=self.intake.bad + self.intake.overflow,  # `ramps status`
                                          sees=len(sees), running=self._running_list(), **self._learned())
         self.last = report
-        self._held = None  # this report says all a held one would
         if d.metrics is not None:
             st = node.statistics()
             d.metrics.on_report(cpu_busy=busy, runnable=runnable, load_avg=load1, mem_free=mem_free,
@@ -173,7 +145,7 @@ class LoadReports:
         assert self.d.node is not None
         self._apply(self.d.node.handle(BatteryMeasured(charge=charge, power=power), now))
 
-    def _publish_prompt(self, report: LoadReport) -> None:
+    def publish_prompt(self, report: LoadReport) -> None:
         """A report of the instant from the core (its programs changed), to its
         teammates' nodes only (``keys.load_now``), as the core made it: what
         their decisions read. What only a person reads (what runs here, the
