@@ -414,7 +414,7 @@ class NodeRuntime:
         deadline = node.next_deadline()
         next_pub = self._next_pub
         wake = next_pub if deadline is None else min(deadline, next_pub)
-        wake = min(wake, self.held_lost.next_due())
+        wake = min(wake, self.held_lost.next_due()) if self.held_lost.held else wake
         wait = max(0.0, min(wake, self.outbound.held_due(now)) - now)
         self.awake.sleep(wait)
         try:
@@ -473,7 +473,7 @@ class NodeRuntime:
             wake = self._next_pub
             deadline = node.next_deadline()
             wake = wake if deadline is None else min(wake, deadline)
-            wake = min(wake, self.held_lost.next_due())
+            wake = min(wake, self.held_lost.next_due()) if self.held_lost.held else wake
             self.awake.sleep(max(0.0, min(wake, self.outbound.held_due(now)) - now))
         return True
 

@@ -158,6 +158,8 @@ class ClientAnswers:
         of each one delivered (sent once written, by ``tell``)."""
         assert self.d.node is not None
         origin = self.d.node.origin
+        if not origin.changed and not any(type(a) is Deliver for a in actions):
+            return  # nothing to write (a host's rounds, most of an origin's)
         changed, origin.changed = origin.changed or set(), set()
         records = {}
         written = self._recorded

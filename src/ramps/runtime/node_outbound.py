@@ -139,16 +139,18 @@ class Outbound:
         d = self.d
         store = d.store
         first = before_record(actions) if store is not None else -1
-        mnow = self.awake.now()  # the core's clock, for metrics' latencies
+        metrics = d.metrics
+        mnow = self.awake.now() if metrics is not None else 0.0  # the core's clock, for metrics' latencies
+        traced = self.trace.on
         prompt = None  # the newest report of the instant: the only one of a batch that goes out
         acks: list[Send] = []
         for i, a in enumerate(actions):
             if i == first:
                 assert store is not None
                 self.clients.persist(store, actions)
-            if d.metrics is not None:
-                d.metrics.on_action(a, d.node, mnow)
-            if self.trace.on and isinstance(a, (StartProgram, StopProgram, Send)):
+            if metrics is not None:
+                metrics.on_action(a, d.node, mnow)
+            if traced and isinstance(a, (StartProgram, StopProgram, Send)):
                 self.trace.hosted(a, closing=d.node is not None and d.node.executor.closing)
             if isinstance(a, Send):
                 if type(a.msg) is ResultAck:
@@ -164,7 +166,7 @@ class Outbound:
                 d.pool.cancel((a.program_id, a.attempt))
                 d.accel.release((a.program_id, a.attempt))
             elif isinstance(a, Deliver):
-                if self.trace.on:  # first, so a caller holding the result finds it traced
+                if traced:  # first, so a caller holding the result finds it traced
                     self.trace.write("delivered", a.program_id, a.host, a.attempts, a.error_kind)
                 self.clients.deliver(a)
             elif isinstance(a, PublishReport):

@@ -51,7 +51,7 @@ class Outbox:
         if self._transport() is None:
             return
         try:
-            self.publisher(key, block).put(data)
+            (self.pubs.get(key) or self.publisher(key, block)).put(data)
         except Exception as exc:
             log.warning("node %s could not publish on %s: %s", self.robot, key, exc)
 

@@ -50,16 +50,12 @@ class Clock(Protocol):
 
 
 class RealClock:
-    """The process's clocks (``time.monotonic``, ``time.time``, ``time.sleep``)."""
+    """The process's clocks: ``time.monotonic``, ``time.time`` and ``time.sleep``
+    themselves (a node's driver reads the clock several times a message)."""
 
-    def monotonic(self) -> float:
-        return time.monotonic()
-
-    def time(self) -> float:
-        return time.time()
-
-    def sleep(self, seconds: float) -> None:
-        time.sleep(seconds)
+    monotonic = staticmethod(time.monotonic)
+    sleep = staticmethod(time.sleep)
+    time = staticmethod(time.time)
 
 
 REAL_CLOCK = RealClock()
@@ -114,11 +110,12 @@ class Transport(Protocol):
 
 
 class _ZenohPublisher:
+    #: publish ``data`` (Zenoh's own method: a node puts twice a program)
+    put: Callable[[bytes], None]
+
     def __init__(self, pub: Any) -> None:
         self._pub = pub
-
-    def put(self, data: bytes) -> None:
-        self._pub.put(data)
+        self.put = pub.put
 
     def matching(self) -> bool:
         return bool(self._pub.matching_status.matching)
