@@ -172,6 +172,8 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
         left = max(0.0, ap.work - ap.done)
         t_floor = origin.work_estimate(ap.submit) * (
             1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0)) / best_rate
+        if ap.submit.accelerator:  # on a CPU, but it can use an accelerator: the fastest slot may be its floor
+            t_floor = min(t_floor, slot_floor(origin, ap, now))
         rate = speed * share
         if not worth_moving(origin, left / rate, t_floor):
             ap.move_wanted_since = None
@@ -193,6 +195,26 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
             moved_off.add(ap.host or "")
             origin.relocate(ap, placement, now, out)
     return keep
+
+
+def slot_floor(origin: RelocatingOrigin, ap: AutonomousProgram, now: float) -> float:
+    """The fastest ``ap`` (running on a CPU) could end on a slot of its kind of
+    accelerator elsewhere, as its policy sees the slots (``Policy.pools``):
+    its learned accelerator work, from its checkpoint, alone on the fastest
+    slot (inf where there is none, or the policy prices no slots). Without it
+    a program that its declaration kept off a slot, and that its runs since
+    show faster there, is priced by CPUs only and never moves there."""
+    sub = ap.submit
+    part = 1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0)
+    req = PlacementRequest(program_id=ap.program_id, work=origin.work_estimate(sub) * part,
+                           payload_size=sub.payload_size, result_size=sub.result_size, accelerator=sub.accelerator,
+                           accelerator_work=origin.accelerator_work_estimate(sub) * part)
+    try:
+        pools = origin.policy_for(sub).pools(req, origin.view, now, net=origin.net,
+                                             exclude=frozenset({ap.host or ""}))
+    except NotImplementedError:
+        return math.inf
+    return min((p.work / p.speed for p in pools if p.kind), default=math.inf)
 
 
 def time_here(origin: RelocatingOrigin, ap: AutonomousProgram, now: float,
