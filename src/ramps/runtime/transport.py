@@ -110,17 +110,40 @@ class Transport(Protocol):
 
 
 class _ZenohPublisher:
+    """A Zenoh publisher. Whether a subscriber matches its key is asked of
+    Zenoh once (``matching_status``, about 10 us in a node's session: a
+    client asks before each submission, a node before each outcome), then
+    kept by a matching listener, which Zenoh tells of every change."""
+
     #: publish ``data`` (Zenoh's own method: a node puts twice a program)
     put: Callable[[bytes], None]
 
     def __init__(self, pub: Any) -> None:
         self._pub = pub
         self.put = pub.put
+        self._listener: Any = None
+        self._matching = False
 
     def matching(self) -> bool:
-        return bool(self._pub.matching_status.matching)
+        if self._listener is None:
+            try:  # the listener first, so no change after the status asked is missed
+                self._listener = self._pub.declare_matching_listener(self._on_matching)
+            except Exception:  # cannot listen: ask each time
+                return bool(self._pub.matching_status.matching)
+            self._matching = bool(self._pub.matching_status.matching)
+        return self._matching
+
+    def _on_matching(self, status: Any) -> None:
+        """Zenoh's matching listener (on one of its threads): a subscriber came or the last went."""
+        self._matching = bool(status.matching)
 
     def undeclare(self) -> None:
+        if self._listener is not None:
+            try:
+                self._listener.undeclare()
+            except Exception:  # its session closed: gone with it
+                pass
+            self._listener = None
         self._pub.undeclare()
 
 
