@@ -418,7 +418,7 @@ class NodeRuntime:
         wait = max(0.0, min(wake, self.outbound.held_due(now)) - now)
         self.awake.sleep(wait)
         try:
-            item = q.get(timeout=wait) if block else q.get_nowait()
+            item = q.get(timeout=wait) if block else (None if q.empty() else q.get_nowait())
         except queue.Empty:
             item = None
         # every message queued before the timers fire: heartbeats and
@@ -449,10 +449,7 @@ class NodeRuntime:
                 behind = not q.empty()
                 self.rounds_cut += behind
                 break
-            try:
-                item = q.get_nowait()
-            except queue.Empty:
-                item = None
+            item = None if q.empty() else q.get_nowait()  # this thread alone takes: no queue.Empty raised
         now = clock()
         if self.awake.pending:
             actions.extend(self._stall_told(now))
