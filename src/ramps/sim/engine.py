@@ -9,8 +9,10 @@ node's actions: ``Send`` becomes a message on a link with latency, bandwidth
 and queueing; ``StartProgram`` a job on the CPU; ``Deliver`` a record. No
 placement or recovery logic lives here. In a fleet (more robots than
 ``placement_sample``) heartbeats go by mailbox, read in batches (``ramps.sim.fleet``).
+A robot with ``handling`` handles each message it receives up to that much
+later, in order, as a node on a throttled core does.
 
-Faults: ``crash`` removes the robot and all its state (a new incarnation
+Faults (``ramps.sim.faults``): ``crash`` removes the robot and all its state (a new incarnation
 starts on ``recover``); ``network`` isolates it while it keeps computing;
 ``freeze`` stops it entirely (SIGSTOP) with its state kept; ``battery`` sets its
 charge (``ramps.sim.battery``, read before each report); ``load`` changes
@@ -37,17 +39,16 @@ import time as _wallclock  # only for reporting how long a run took
 from typing import Any, Callable
 
 from ramps.core.accelerators import parse_accelerator
-from ramps.core.durable import decode_record, encode_record, program_of, record_of
 from ramps.core.cost import NetworkEstimate, nice_weight, program_cores
-from ramps.core.events import (Action, CheckpointSaved, Deliver, Note, PeerAlive, PeerLost, ProgramFinished,
+from ramps.core.events import (Action, CheckpointSaved, Deliver, Note, ProgramFinished,
                                PublishReport, Received, Send, StartProgram, StopProgram, Submit)
 from ramps.core.fanout import report_targets
 from ramps.core.messages import Heartbeat, LoadReport, Message
 from ramps.core.node import Node
-from ramps.core.program import FINAL
 from ramps.core.speed import REMEASURE_PERIOD, SpeedMeasured
 from ramps.sim.battery import Batteries
-from ramps.sim.cpu import CPU, next_completion, set_frozen, take_finished
+from ramps.sim.cpu import CPU, next_completion, take_finished
+from ramps.sim.faults import apply_fault
 from ramps.sim.fleet import Mailboxes
 from ramps.sim.results import ProgramRecord, SimResult, TraceEntry, running_where, tally
 from ramps.sim.scenario import FaultSpec, ProgramSpec, RobotSpec, Scenario
@@ -56,7 +57,7 @@ from ramps.sim.wire import wire_size
 
 class _Robot:
     __slots__ = ("spec", "node", "cpu", "accel", "alive", "net_up", "frozen", "incarnation", "epoch",
-                 "wake_at", "wake_token", "done_token", "pub_phase", "remeasure_at", "record")
+                 "wake_at", "wake_token", "done_token", "pub_phase", "remeasure_at", "record", "handled")
     #: the robot's node and CPU, made by each boot (``Simulator._setup`` boots
     #: every robot before the first event). A crashed robot keeps its last
     #: ones until it recovers, unused: everything that reaches them checks
@@ -79,6 +80,8 @@ class _Robot:
         self.remeasure_at = 0.0
         #: its durable record as its node last wrote it (``RobotSpec.record``)
         self.record: list[bytes] = []
+        #: when its node handles the last message it has received (``RobotSpec.handling``)
+        self.handled = 0.0
 
     @property
     def reachable(self) -> bool:
@@ -314,7 +317,21 @@ class Simulator:
         for dst in self._hearers(src):
             if not (dst.alive and dst.net_up and not dst.frozen) or (loss and self.rng.random() < loss):
                 continue
-            apply(dst, dst.node.handle(event, now))
+            if dst.spec.handling:
+                self._later(dst, event)
+            else:
+                apply(dst, dst.node.handle(event, now))
+
+    def _later(self, dst: _Robot, event: Received) -> None:
+        """A message that ``dst``'s node handles a random while later, in the order received (a node
+        on a throttled core waits for its next share of it: ``RobotSpec.handling``)."""
+        dst.handled = max(self.now + self.rng.random() * dst.spec.handling, dst.handled)
+        self._at(dst.handled, self._handle_late, (dst, dst.incarnation, dst.epoch, event))
+
+    def _handle_late(self, arg: tuple[_Robot, int, int, Received]) -> None:
+        dst, inc, epoch, event = arg
+        if inc == dst.incarnation and epoch == dst.epoch and dst.alive and dst.net_up and not dst.frozen:
+            self._apply(dst, dst.node.handle(event, self.now))
 
     def _hearers(self, src: _Robot) -> list[_Robot]:
         """The robots ``src``'s load reports go to (``_report_to``), but itself."""
@@ -349,8 +366,10 @@ class Simulator:
         src, se, dst, de, msg = arg
         if se != src.epoch or de != dst.epoch or not (dst.alive and dst.net_up and not dst.frozen):
             self.dropped += 1
-            return
-        self._apply(dst, dst.node.handle(Received(sender=src.spec.name, msg=msg), self.now))
+        elif dst.spec.handling:
+            self._later(dst, Received(sender=src.spec.name, msg=msg))
+        else:
+            self._apply(dst, dst.node.handle(Received(sender=src.spec.name, msg=msg), self.now))
 
     # ================================================================ workload
     def _submit(self, entries: list[ProgramSpec]) -> None:
@@ -396,79 +415,7 @@ class Simulator:
 
     # ================================================================ faults
     def _fault(self, f: FaultSpec) -> None:
-        r = self.robots[f.robot]
-        if self._trace_on:
-            self.trace.append(TraceEntry(self.now, f.robot, "fault", "", "", 0, f.kind))
-        if f.kind == "crash" and r.alive:
-            r.alive = False
-            r.epoch += 1
-            if r.spec.record:  # what the node had written, as bytes, as the runtime's store keeps them
-                r.record = [encode_record(record_of(ap)) for ap in r.node.origin.programs.values()
-                            if ap.state not in FINAL]
-            else:
-                self._orphan_programs_of(r)
-            self._liveliness(r, lost=True, delay=self.net.crash_detect)
-        elif f.kind == "network" and r.alive and r.net_up:
-            r.net_up = False
-            r.epoch += 1
-            self._liveliness(r, lost=True, delay=self.net.lease)
-        elif f.kind == "freeze" and r.alive and not r.frozen:
-            r.frozen = True
-            r.epoch += 1
-            set_frozen((r.cpu, *r.accel.values()), True, self.now)
-            self._liveliness(r, lost=True, delay=self.net.lease)
-        elif f.kind == "battery":
-            self.batteries.set_charge(f.robot, r.cpu, self.now, f.charge or 0.0)
-        elif f.kind == "load":
-            if r.alive and f.background is not None:
-                r.cpu.set_background(f.background, self.now)
-                r.node.executor.background = float(f.background)
-                self._cpu_changed(r)
-        elif f.kind == "recover":
-            if not r.alive:
-                self._boot(r, self.now)
-                if r.record:
-                    out: list = []
-                    r.node.origin.restore([program_of(decode_record(b), self.now) for b in r.record], self.now, out)
-                    r.record = []
-                    self._apply(r, out)
-            else:
-                if r.frozen:
-                    r.frozen = False
-                    set_frozen((r.cpu, *r.accel.values()), False, self.now)
-                    self._cpu_changed(r)
-                    r.wake_at = math.inf
-                    self._apply(r, [])  # its timers' wake
-                r.net_up = True
-            self._liveliness(r, lost=False, delay=self.net.crash_detect)
-
-    def _orphan_programs_of(self, r: _Robot) -> None:
-        """A crashed origin's programs are nobody's concern any more (paper 3.3)."""
-        for rec in self.records.values():
-            if rec.origin == r.spec.name and rec.deliveries == 0 and not rec.error:
-                rec.error = "origin crashed"
-                self._pending -= 1
-
-    def _liveliness(self, r: _Robot, *, lost: bool, delay: float) -> None:
-        if self.net.liveliness:
-            self._at(self.now + delay, self._notify_liveliness, (r, lost))
-
-    def _notify_liveliness(self, arg: tuple[_Robot, bool]) -> None:
-        r, lost = arg
-        name = r.spec.name
-        if lost and r.reachable:
-            return  # it came back before anybody noticed
-        for other in self.robots.values():
-            if other is r or not other.alive or other.frozen:
-                continue
-            if lost:
-                if other.net_up:
-                    self._handle(other, PeerLost(robot=name))
-                if r.alive and not r.net_up and not r.frozen:
-                    self._handle(r, PeerLost(robot=other.spec.name))
-            elif r.reachable and other.reachable:
-                self._handle(other, PeerAlive(robot=name))
-                self._handle(r, PeerAlive(robot=other.spec.name))
+        apply_fault(self, f)
 
     # ================================================================ results
     def _snapshot(self, label: float) -> None:

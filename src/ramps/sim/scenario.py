@@ -86,6 +86,10 @@ class RobotSpec(_Spec, frozen=True, kw_only=True, forbid_unknown_fields=True):
     #: latency (s) and bandwidth (bytes/s) of every message to or from it
     latency: float | None = None
     bandwidth: float | None = None
+    #: at most this long (s) before its node handles a message it receives,
+    #: drawn for each message, in the order received: a node on a throttled
+    #: core (a cgroup quota) waits for its next share of it (0: at once)
+    handling: float = 0.0
     #: free memory this robot reports, bytes (0: it reports none)
     memory: int = 0
     #: its node keeps a durable record of the programs it is origin of
@@ -249,6 +253,8 @@ def _check_robot(p: str, r: RobotSpec) -> None:
         raise ScenarioError(f"{p}.worker_nice", f"must be -20..19 (a Linux niceness), got {r.worker_nice}")
     if r.latency is not None and not r.latency >= 0:
         raise ScenarioError(f"{p}.latency", f"must be >= 0, got {r.latency}")
+    if not r.handling >= 0:
+        raise ScenarioError(f"{p}.handling", f"must be >= 0, got {r.handling}")
     if r.bandwidth is not None and not r.bandwidth > 0:
         raise ScenarioError(f"{p}.bandwidth", f"must be > 0, got {r.bandwidth}")
     if r.memory < 0:
