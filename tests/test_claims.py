@@ -61,7 +61,9 @@ def test_two_origins_bursts_at_one_instant_do_not_both_take_the_one_slot() -> No
     assert none == []
     assert [p.host for p in blind.programs if p.program_id in ("a#1", "b#3")] == ["g", "g"]  # the slot, as if free
     res, claims = _run(one_slot())
-    assert claims == [("a", "b", True)]  # a, first, claims at once; b has nobody after it to tell
+    # a, first, places at once and claims; b asks a (a has nothing held: it answers
+    # with an empty claim), places on a's claim and tells a where its burst went
+    assert claims == [("a", "b", True), ("b", "a", False), ("b", "a", True), ("a", "b", True)]
     hosts = {p.program_id: p.host for p in res.programs}
     assert hosts["a#1"] == "g" and hosts["b#3"] == "b"  # b counted a's claim on the slot
     latency, warmup = res_net(), one_slot().warmup
@@ -91,8 +93,12 @@ def test_three_origins_place_in_turn_each_after_the_claims_before_it() -> None:
              for p in (SHORT, CPU)]
     sc = msgspec.structs.replace(one_slot(tuple(progs)), robots=[*one_slot().robots, RobotSpec(name="c", cores=1)])
     res, claims = _run(sc)
-    # b tells c it has a burst and waits for a's claim; c waits for both
-    assert sorted(claims) == [("a", "b", True), ("a", "c", True), ("b", "c", False), ("b", "c", True)]
+    # b asks a and tells c it has a burst, and waits for a's claim; c asks both and waits
+    # for both; every claim goes to both others, and a answers each question
+    assert sorted(claims) == sorted([("a", "b", True), ("a", "c", True), ("b", "a", False), ("b", "c", False),
+                                     ("c", "a", False), ("c", "b", False), ("b", "a", True), ("b", "c", True),
+                                     ("a", "b", True), ("a", "c", True), ("c", "a", True), ("c", "b", True),
+                                     ("b", "c", True)])
     at = {e.robot: e.t for e in res.trace if e.what == "placed" and e.t < sc.warmup + 1}
     latency = res_net()
     assert at["a"] == sc.warmup < at["b"] < at["c"] < sc.warmup + 3 * latency
@@ -152,3 +158,64 @@ def test_an_application_connecting_makes_its_robot_an_origin_before_its_first_pr
         for c in clients:
             c.close()
         team.close()
+
+
+def _throttled(*, wait: float = 0.2, stagger: float = 0.0, robots: int = 10, seed: int = 0) -> Scenario:
+    """One-core robots whose nodes handle each message up to 0.1 s late (a
+    node on a throttled core), three origins bursting 2 programs each per
+    3 robots, ``stagger`` seconds apart: the hosts' reports show each
+    burst only after the next has been placed."""
+    team = [RobotSpec(name=f"r{i:02d}", cores=1, speed=0.1, handling=0.1) for i in range(1, robots + 1)]
+    per = robots // 3
+    programs = [ProgramSpec(origin=f"r{o:02d}", program="burn", count=per, work=2.0, payload=50, result=100,
+                            at=o * stagger) for o in range(1, 4)]
+    return Scenario(name="throttled", seed=seed, robots=team, programs=programs,
+                    config=RampsConfig(burst_claim_wait=wait))
+
+
+def _refusals(sc: Scenario) -> tuple[int, list[int]]:
+    res = Simulator(sc, seed=sc.seed).run()
+    assert res.completed == sum(p.count for p in sc.programs) and res.lost == res.duplicated == 0
+    return sum(s.rejections for s in res.statistics), sorted(res.distribution.values())
+
+
+def test_origins_wait_for_the_answers_of_teammates_on_throttled_cores() -> None:
+    """Answers that come a node's delay late are waited for: no host is offered
+    two programs of one instant where it has one core. Waiting only twice the
+    link's latency, the origins place blind and hosts refuse."""
+    for seed in range(3):
+        blind, _ = _refusals(_throttled(wait=0.0, seed=seed))
+        waited, spread = _refusals(_throttled(seed=seed))
+        assert blind > 0 and waited == 0
+        assert spread == [0] + [1] * 9
+
+
+def test_a_claim_heard_before_the_burst_still_counts(monkeypatch) -> None:
+    """A claim that came 30 ms before the next origin's burst counts until the
+    hosts' reports show its programs (a throttled host reports late), not only
+    for the instant: dropped after twice the latency, hosts refuse."""
+    import ramps.core.claims as claims
+
+    kept, spread = _refusals(_throttled(stagger=0.03))
+    assert kept == 0 and spread == [0] + [1] * 9
+    monkeypatch.setattr(claims, "KEEP", 0.0)
+    dropped, _ = _refusals(_throttled(stagger=0.03))
+    assert dropped > 0
+
+
+class _OldA(Simulator):
+    """Robot a is of a release before claims: it drops them and sends none."""
+
+    def _send(self, src, to, msg) -> None:
+        if isinstance(msg, BurstClaim) and "a" in (src.spec.name, to):
+            return
+        super()._send(src, to, msg)
+
+
+def test_a_teammate_that_never_answers_holds_a_burst_no_longer_than_the_wait() -> None:
+    sc = one_slot()
+    res = _OldA(sc, seed=sc.seed, trace=True).run()
+    assert res.completed == len(sc.programs)
+    at = max(e.t for e in res.trace if e.what == "placed" and e.robot == "b" and e.t < sc.warmup + 1)
+    bound = 2 * res_net() + sc.config.burst_claim_wait
+    assert sc.warmup + bound - 0.01 <= at <= sc.warmup + bound + 0.01

@@ -10,22 +10,27 @@ a burst that its policy plans (``Policy.plans``, ``RampsConfig.burst_claims``):
 - places it at once when it is one program (its host admits it against its
   next best robot, its time budget, which a plan's end does not), or when
   no teammate before it in the order of names could claim (a candidate
-  whose reports of the instant say an application submits there,
-  ``LoadReport.submits``);
-- else tells the teammates after it that could claim that it has a burst
-  (``BurstClaim``, ``planned`` False) and holds it: ``wait`` (twice the
-  link's latency: a claim of the same instant has come by then) to hear
-  which teammates before it have one, then until each of them has sent
-  where its programs went (``planned`` True), at most ``wait`` more per
-  teammate before it.
+  that says an application submits there: ``LoadReport.submits``, or a
+  claim of its own);
+- else tells every teammate that could claim that it has a burst
+  (``BurstClaim``, ``planned`` False) and holds it until each teammate
+  before it has answered: with where its own burst went (``planned``
+  True), or, holding none, with an empty claim at once. It waits at most
+  twice the link's latency plus ``RampsConfig.burst_claim_wait`` per
+  teammate before it: a teammate on a throttled core answers tens of
+  milliseconds late, and one that never answers (a node of an earlier
+  release) holds it no longer than that.
 
-Once placed, an origin sends the teammates after it that could claim
-where its burst of two programs or more went: the work it put on each pool
-(robot, accelerator kind). A plan counts a claim as work on its pools
-(``claimed``, ``Pool.known``) until the view shows it: on this robot, as
-the claimer's programs start here; on the claimer, once its reports reach
-the claim's ``accepted`` count; elsewhere, once a report comes a latency
-after the claim. An origin none of whose teammates submit never waits.
+Once placed, an origin sends every teammate that could claim where its
+burst of two programs or more went: the work it put on each pool (robot,
+accelerator kind). A plan counts a claim as work on its pools (``claimed``,
+``Pool.known``) until the view shows it, for at most ``KEEP`` seconds: on
+this robot, as the claimer's programs start here; on the claimer, once its
+reports reach the claim's ``accepted`` count; elsewhere, once the robot's
+reports have accepted as many programs since the claim came as the claims
+put there. So a claim that comes before the burst it matters to, or a
+throttled host that reports before it has handled its offers, still counts.
+An origin none of whose teammates submit never waits.
 
 Rules: no clock (``now`` comes in), no I/O.
 """
@@ -41,6 +46,11 @@ from ramps.core.messages import BurstClaim, ClaimedPool
 from ramps.core.program import FINAL
 
 
+#: how long (s) a claim counts at most, unless the view shows its work sooner:
+#: the reports of a publisher's period show every program a claim put anywhere
+KEEP = 2.0
+
+
 class ClaimingOrigin(BurstOrigin, Protocol):
     """What claims read and change of ``ramps.core.origin.Origin``."""
 
@@ -54,22 +64,41 @@ class Claims:
 
     def __init__(self, executor: Executor) -> None:
         self.executor = executor
-        #: robot -> (when its latest claim came, the claim)
-        self.heard: dict[str, tuple[float, BurstClaim]] = {}
+        #: robot -> (when its latest claim of a burst came, the claim, each
+        #: pool robot's accepted count in this robot's view then)
+        self.heard: dict[str, tuple[float, BurstClaim, dict[str, int]]] = {}
+        #: robot -> when its latest claim of a burst, or empty answer, came (``planned`` True)
+        self.answered: dict[str, float] = {}
+        #: robot -> when it last said that it plans a burst (``planned`` False)
+        self.bursting: dict[str, float] = {}
         #: when this robot's held burst began to wait (None: it does not)
         self.since: float | None = None
         #: the teammates before this robot that could claim, when it began
         self.earlier: tuple[str, ...] = ()
-        #: how long a claim of the same instant takes to come, at most (twice the latency)
+        #: twice the latency to the farthest of them: an answer takes this long at least
         self.wait = 0.0
+        #: when the held burst goes whether or not all have answered
+        self.limit = 0.0
         #: when to look again while waiting (``Node.next_deadline``)
         self.check: float | None = None
-        #: teammates whose reports say an application submits there
+        #: teammates that say an application submits there
         self.submitters: set[str] = set()
 
     def on_claim(self, origin: ClaimingOrigin, sender: str, msg: BurstClaim, now: float, out: list[Action]) -> None:
-        """A teammate's claim came: kept, and the burst held for it placed if it was the last awaited."""
-        self.heard[sender] = (now, msg)
+        """A teammate's claim came: kept; answered at once if it asks this robot
+        (before it by name) and this robot plans no burst; and the burst held
+        for it placed if it was the last awaited."""
+        self.submitters.add(sender)
+        if not msg.planned:
+            self.bursting[sender] = now
+            if sender > origin.me and self.since is None and not self._will_claim(origin):
+                out.append(Send(to=sender, msg=BurstClaim(planned=True, accepted=self.executor.accepted_total)))
+        else:
+            self.answered[sender] = now
+            if msg.pools:
+                reports = [origin.view.report_of(pool.robot) for pool in msg.pools]
+                self.heard[sender] = (now, msg, {pool.robot: -1 if report is None else report.accepted_total
+                                                 for pool, report in zip(msg.pools, reports)})
         if self.since is not None:
             self.flush(origin, now, out)
 
@@ -85,7 +114,7 @@ class Claims:
             return
         if self.since is None and not self._start(origin, now, out):
             self._place(origin, now, out)
-        elif self.since is not None and self._ready(origin, now):
+        elif self.since is not None and self._ready(now):
             self._place(origin, now, out)
 
     def _claimers(self, origin: ClaimingOrigin, now: float) -> list[str]:
@@ -98,10 +127,14 @@ class Claims:
         return origin.config.burst_claims and any(
             origin.policy_for(ap.submit).plans and not ap.submit.local_only for ap in origin.held)
 
+    def _will_claim(self, origin: ClaimingOrigin) -> bool:
+        """Whether the batch this robot holds will send a claim when placed."""
+        return len(origin.held) >= 2 and self._plans(origin)
+
     def _start(self, origin: ClaimingOrigin, now: float, out: list[Action]) -> bool:
-        """Begin the wait for the claims before this robot's; False when
-        there is nothing to wait for."""
-        if not self._plans(origin) or len(origin.held) < 2:
+        """Ask the teammates before this robot that could claim, and tell those
+        after it; False when there is nothing to wait for."""
+        if not self._will_claim(origin):
             return False  # one program goes as it comes: its host admits it against its next best
         claimers = self._claimers(origin, now)
         earlier = tuple(r for r in claimers if r < origin.me)
@@ -109,28 +142,20 @@ class Claims:
             return False
         self.since, self.earlier = now, earlier
         self.wait = 2.0 * max(_latency(origin, r) for r in earlier)
-        self.check = now + self.wait
+        self.limit = now + self.wait + origin.config.burst_claim_wait * len(earlier)
+        self.check = self.limit
         for r in claimers:
-            if r > origin.me:
-                out.append(Send(to=r, msg=BurstClaim(planned=False)))
+            out.append(Send(to=r, msg=BurstClaim(planned=False)))
         return True
 
-    def _ready(self, origin: ClaimingOrigin, now: float) -> bool:
-        """Whether every claim before this robot's that may come has come, or
-        the wait is over."""
+    def _ready(self, now: float) -> bool:
+        """Whether every teammate before this robot has answered since it
+        asked (or claimed just before), and none is still planning, or the wait is over."""
         assert self.since is not None
-        last = self.since + self.wait * (1 + len(self.earlier))
-        if now >= last - 1e-12:
+        if now >= self.limit - 1e-12:
             return True
-        recent = self.since - self.wait
-        bursting = [r for r in self.earlier if r in self.heard and self.heard[r][0] >= recent]
-        if any(not self.heard[r][1].planned for r in bursting):
-            self.check = last
-            return False
-        if len(bursting) == len(self.earlier) or now >= self.since + self.wait - 1e-12:
-            return True
-        self.check = self.since + self.wait
-        return False
+        recent, answered, bursting = self.since - self.wait, self.answered, self.bursting
+        return all(answered.get(r, -1.0) >= max(recent, bursting.get(r, -1.0)) for r in self.earlier)
 
     def _place(self, origin: ClaimingOrigin, now: float, out: list[Action]) -> None:
         """Place the held burst counting the claims heard, then claim its pools."""
@@ -144,8 +169,8 @@ class Claims:
             self.since = self.check = None
         if not plans or len(held) < 2:
             return  # one program: a claim for it would cost a message per teammate and program
-        later = [r for r in self._claimers(origin, now) if r > origin.me]
-        if not later:
+        others = self._claimers(origin, now)
+        if not others:
             return
         pools: dict[tuple[str, str], list[float]] = {}
         for ap in held:
@@ -154,20 +179,20 @@ class Claims:
         mine = sum(len(w) for (h, _), w in pools.items() if h == origin.me)
         claim = BurstClaim(planned=True, accepted=self.executor.accepted_total + mine,
                            pools=[ClaimedPool(h, k, w) for (h, k), w in pools.items()])
-        for r in later:
+        for r in others:
             out.append(Send(to=r, msg=claim))
 
     def claimed(self, origin: ClaimingOrigin, now: float) -> dict[tuple[str, str], list[float]]:
-        """The work the recent claims put on each pool that this origin's
-        view does not show yet: on this robot, less the claimer's programs
-        it runs that started since; on the claimer, unless a report of it
-        has reached the claim's ``accepted`` count; on another robot, unless
-        a report of it came a latency after the claim (made after the
-        claim's offers reached it)."""
+        """The work the claims of the last ``KEEP`` seconds put on each pool
+        that this origin's view does not show yet: on this robot, less the
+        claimer's programs it runs that started since; on the claimer, unless
+        a report of it has reached the claim's ``accepted`` count; on another
+        robot, less as many programs as its reports have accepted since the
+        claims came (the claims there in the order they came)."""
         out: dict[tuple[str, str], list[float]] = {}
-        horizon = (self.since if self.since is not None else now) - max(self.wait, 2.0 * origin.net.latency)
-        for sender, (at, msg) in self.heard.items():
-            if at < horizon or not msg.planned or sender == origin.me or sender not in self.submitters:
+        elsewhere: dict[str, list[tuple[float, int, str, list[float]]]] = {}
+        for sender, (at, msg, bases) in self.heard.items():
+            if at < now - KEEP or sender == origin.me or sender not in self.submitters:
                 continue
             lat = _latency(origin, sender)
             here = [job.accelerator for job in self.executor.running.values()
@@ -181,11 +206,20 @@ class Claims:
                     if report is not None and report.accepted_total >= msg.accepted:
                         continue
                 else:
-                    age = origin.view.report_age(pool.robot, now)
-                    if age is not None and now - age >= at + _latency(origin, pool.robot) - 1e-9:
-                        continue
+                    elsewhere.setdefault(pool.robot, []).append((at, bases[pool.robot], pool.kind, work))
+                    continue
                 if work:
                     out.setdefault((pool.robot, pool.kind), []).extend(work)
+        for robot, claims in elsewhere.items():
+            report = origin.view.report_of(robot)
+            claims.sort(key=lambda c: c[0])
+            known = [c[1] for c in claims if c[1] >= 0]
+            shown = 0 if report is None or not known else max(0, report.accepted_total - min(known))
+            for _, _, kind, work in claims:
+                left = work[shown:]
+                shown = max(0, shown - len(work))
+                if left:
+                    out.setdefault((robot, kind), []).extend(left)
         return out
 
 

@@ -111,9 +111,13 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     prompt_report_interval: float = 0.0
     #: origins whose bursts come at one instant place them in the order of
     #: their names, each counting where those before it put theirs: a wait
-    #: of about twice the link's latency, only where teammates submit too
+    #: for the answers of those before it, only where teammates submit too
     #: (``ramps.core.claims``; policies that plan only)
     burst_claims: bool = True
+    #: an origin's burst waits at most this long (s) per teammate before it
+    #: for their answers, beyond twice the link's latency: a teammate on a
+    #: throttled core answers late, one of an earlier release never
+    burst_claim_wait: float = 0.2
     #: a node probes each teammate's link this often to measure T_comm
     #: (``ramps.core.links``); 0 = assume the configured network estimate
     probe_period: float = 5.0
