@@ -19,7 +19,7 @@ import time
 import pytest
 from runtime_team import RobotCgroup, cgroup_mode, cgroup_support
 
-from ramps.runtime import measure, speed_probe
+from ramps.runtime import measure, runqueue, speed_probe
 
 SPIN = '''
 import hashlib, json, subprocess, sys, threading, time
@@ -47,7 +47,7 @@ child.kill()
 
 
 def test_own_threads_are_read_from_open_files_that_follow_threads_coming_and_going():
-    own = measure.OwnThreads()
+    own = runqueue.OwnThreads()
     own.running()
     listed = set(os.listdir("/proc/self/task"))
     assert set(own.fds) == listed
@@ -93,7 +93,7 @@ def test_a_cgroups_run_queue_follows_processes_that_join_and_leave_it():
     cg = RobotCgroup(f"measure-{time.monotonic_ns()}", 2.0, cgroup_mode())
     spinner = None
     try:
-        threads = measure.CgroupThreads(cg.dirs[0], cg.dirs[1] if len(cg.dirs) > 1 else None)
+        threads = runqueue.CgroupThreads(cg.dirs[0], cg.dirs[1] if len(cg.dirs) > 1 else None)
         assert threads.sample()[1] == 0
         spinner = subprocess.Popen(cg.wrap([sys.executable, "-c", "while True: pass"]))
         deadline = time.monotonic() + 10
@@ -121,12 +121,12 @@ def test_own_running_counts_this_processes_busy_threads():
             hashlib.sha256(data).digest()
 
     t = threading.Thread(target=spin, daemon=True)
-    before = measure.own_running()
+    before = runqueue.own_running()
     t.start()
     seen = 0
     try:
         for _ in range(50):
-            seen = max(seen, measure.own_running())
+            seen = max(seen, runqueue.own_running())
             time.sleep(0.01)
     finally:
         stop.set()
@@ -226,17 +226,17 @@ def test_the_measuring_child_is_the_nodes_own_work_not_the_robots_load(tmp_path,
         if pid == other.pid:
             return real_waitpid(pid, flags)
         (tmp_path / "tasks").write_text(f"{os.getpid()}\n{pid}\n{other.pid}\n")
-        threads = measure.CgroupThreads(tmp_path, None)
+        threads = runqueue.CgroupThreads(tmp_path, None)
         threads.sample()
         paths: list[str] = []
-        monkeypatch.setattr(measure, "_running", lambda ps: paths.extend(ps) or 0)
-        measure.own_running()
-        monkeypatch.setattr(measure, "_running", real_running)
+        monkeypatch.setattr(runqueue, "_running", lambda ps: paths.extend(ps) or 0)
+        runqueue.own_running()
+        monkeypatch.setattr(runqueue, "_running", real_running)
         seen.update(pid=pid, read=set(threads._stats), paths=paths, during=set(measure.MEASURING_PIDS))
         threads.close()
         return real_waitpid(pid, flags)
 
-    real_running = measure._running
+    real_running = runqueue._running
     monkeypatch.setattr(os, "waitpid", waitpid)
     try:
         speed_probe.chunk_rates_apart(0.02)
@@ -259,7 +259,7 @@ def test_a_cgroups_threads_are_read_from_open_files_that_follow_threads_and_cgro
     spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
     try:
         (tmp_path / "tasks").write_text(f"{sleeper.pid}\n")
-        threads = measure.CgroupThreads(tmp_path, None)
+        threads = runqueue.CgroupThreads(tmp_path, None)
         deadline = time.monotonic() + 10
         while threads.sample()[1] and time.monotonic() < deadline:  # until it sleeps (exec done)
             time.sleep(0.05)
@@ -298,3 +298,61 @@ def test_an_idle_robot_is_sampled_less_often_until_a_program_runs():
         s.stop()
     assert idle >= 1 and busy >= 2.5 * idle, (idle, busy)
     assert s.averages()[2] > 0  # the program was counted
+
+
+def test_a_worker_without_a_program_and_the_fork_server_are_the_nodes_not_the_robots_load(tmp_path):
+    """On a cgroup, a fork server's threads are never load, and its workers' only as many as
+    programs run: a worker starting (forked to be kept warm) read as work besides programs,
+    and a host of a fraction of a core refused programs for it."""
+    named = "import ctypes; ctypes.CDLL(None).prctl(15, {name!r}, 0, 0, 0)\nwhile True: pass"
+    procs = [subprocess.Popen([sys.executable, "-c", named.format(name=n)])
+             for n in (b"ramps-worker", b"ramps-forksrv", b"other")]
+    programs = [0]
+    try:
+        (tmp_path / "tasks").write_text("".join(f"{p.pid}\n" for p in procs))
+        threads = runqueue.CgroupThreads(tmp_path, None)
+        deadline = time.monotonic() + 10
+        while (threads.sample()[1], threads.workers) != (2, 1) and time.monotonic() < deadline:
+            time.sleep(0.05)  # until each has named itself
+        assert (threads.sample()[1], threads.workers) == (2, 1)  # the worker and the other; not the fork server
+        threads.close()
+        s = measure.LoadSampler(lambda: programs[0], scope="cgroup", cgroup=tmp_path, window=0.4, interval=0.02)
+        s.start()
+        try:
+            time.sleep(0.6)
+            idle = s.averages()
+            programs[0] = 1
+            time.sleep(0.6)
+            one = s.averages()
+        finally:
+            s.stop()
+        assert idle[1:] == (1.0, 0.0)  # the other process alone: the worker runs no program
+        assert one[1:] == (2.0, 1.0)  # the program's worker counts now
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait()
+
+
+def test_a_thread_the_node_starts_between_its_listings_is_not_the_robots_load(tmp_path):
+    """The node's own threads are listed every few reads; one it starts in between (a
+    burst's) is still its own, however busy, not work besides programs."""
+    runqueue.own_running()  # the node's threads listed now
+    done = threading.Event()
+    data = b"x" * (8 << 20)
+
+    def spin() -> None:  # sha256 of a big buffer runs without the GIL: in state R
+        while not done.is_set():
+            hashlib.sha256(data).digest()
+
+    t = threading.Thread(target=spin, daemon=True)
+    t.start()
+    try:
+        (tmp_path / "tasks").write_text(f"{t.native_id}\n")
+        threads = runqueue.CgroupThreads(tmp_path, None)
+        assert t.native_id is not None and str(t.native_id) not in runqueue._OWN.tids()  # not listed yet
+        assert [threads.sample()[1] for _ in range(20)] == [0] * 20
+        threads.close()
+    finally:
+        done.set()
+        t.join()

@@ -24,9 +24,12 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
-from typing import Callable, Iterable
+from typing import Callable
 
 import psutil
+
+# what runs now (``MEASURING_PIDS`` and ``cgroup_usage`` are read from here too)
+from ramps.runtime.runqueue import MEASURING_PIDS, CgroupThreads, cgroup_usage, own_running  # noqa: F401
 
 
 def _own_cgroups() -> dict[str, str]:
@@ -135,11 +138,6 @@ def cpu_model() -> str:
     return " / ".join(parts)[:128] or os.uname().machine[:128] or "unknown"
 
 
-#: pids of this process's measuring children (``speed_probe.chunk_rates_apart``) now running: the node's
-#: own work, not the robot's load (counted, a re-measurement made idle robots look busy for a second)
-MEASURING_PIDS: set[str] = set()
-
-
 def _procs_running() -> int:
     try:
         with open("/proc/stat", "rb") as f:
@@ -199,220 +197,6 @@ def cgroup_tree(d: Path | str) -> list[Path]:
     return sorted(dirs, key=lambda p: len(p.parts), reverse=True)
 
 
-def cgroup_usage(cpu: Path, acct: Path | None) -> float:
-    """CPU seconds used so far by a cgroup and its children (0.0 if unreadable):
-    cpuacct.usage on v1, cpu.stat's usage_usec on v2."""
-    try:
-        f = _usage_file(cpu, acct)
-        return 0.0 if f is None else _usage_seconds(f.read_bytes(), v2=f.name == "cpu.stat")
-    except (OSError, ValueError):
-        return 0.0
-
-
-def _usage_file(cpu: Path, acct: Path | None) -> Path | None:
-    """The file that counts a cgroup's CPU: ``cpuacct.usage`` (v1), else ``cpu.stat`` (v2), if either is there."""
-    if acct is not None and (acct / "cpuacct.usage").exists():
-        return acct / "cpuacct.usage"
-    return cpu / "cpu.stat" if (cpu / "cpu.stat").exists() else None
-
-
-def _usage_seconds(data: bytes, *, v2: bool) -> float:
-    """CPU seconds from ``_usage_file``'s text: nanoseconds (v1), or its ``usage_usec`` line (v2)."""
-    if not v2:
-        return int(data) / 1e9
-    for line in data.splitlines():
-        if line.startswith(b"usage_usec"):
-            return int(line.split()[1]) / 1e6
-    return 0.0
-
-
-def _running(paths: Iterable[str]) -> int:
-    """How many of these ``/proc/.../stat`` files say state R (running or runnable).
-    Plain ``os.open``/``os.read``: the sampler reads one per thread of the robot
-    ten times a second, and ``open()``'s buffered file objects doubled its CPU."""
-    running = 0
-    for path in paths:
-        try:
-            fd = os.open(path, os.O_RDONLY)
-        except OSError:
-            continue
-        try:
-            data = os.read(fd, 1024)  # a stat line is a few hundred bytes; the state follows the name
-        except OSError:
-            continue
-        finally:
-            os.close(fd)
-        running += _is_running(data)
-    return running
-
-
-def _cgroup_dirs(top: str) -> list[str]:
-    """A cgroup and every cgroup below it, in no particular order (cheaper than
-    ``cgroup_tree``, which the sampler called ten times a second)."""
-    out, stack = [], [top]
-    while stack:
-        d = stack.pop()
-        out.append(d)
-        try:
-            with os.scandir(d) as it:
-                stack.extend(e.path for e in it if e.is_dir(follow_symlinks=False))
-        except OSError:
-            continue
-    return out
-
-
-def _read_all(path: str) -> bytes:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        chunks = []
-        while chunk := os.read(fd, 65536):
-            chunks.append(chunk)
-        return b"".join(chunks)
-    finally:
-        os.close(fd)
-
-
-def _own_threads() -> set[str]:
-    try:
-        return set(os.listdir("/proc/self/task"))
-    except OSError:
-        return set()
-
-
-def _is_running(stat: bytes) -> bool:
-    """Whether a ``/proc/.../stat`` line says state R (it follows the name's ``)``)."""
-    end = stat.rfind(b")")
-    return end > 0 and stat[end + 2:end + 3] == b"R"
-
-
-class OwnThreads:
-    """This process's threads' ``stat`` files, kept open and read again with
-    ``pread`` (opening ~30 by path was 241 against 96 us a read); listed again
-    every ``RELIST`` reads (threads come and go), an ended one dropped."""
-
-    RELIST = 10
-
-    def __init__(self) -> None:
-        self.fds: dict[str, int] = {}
-        self._reads = 0
-        self._lock = threading.Lock()
-
-    def running(self) -> int:
-        """How many of this process's threads are in state R now."""
-        with self._lock:
-            if self._reads % self.RELIST == 0:
-                self._relist()
-            self._reads += 1
-            n = 0
-            for tid, fd in list(self.fds.items()):
-                try:
-                    data = os.pread(fd, 1024, 0)
-                except OSError:  # the thread ended
-                    os.close(fd)
-                    del self.fds[tid]
-                    continue
-                n += _is_running(data)
-            return n
-
-    def tids(self) -> set[str]:
-        """This process's thread ids as last listed (at most ``RELIST`` reads ago)."""
-        with self._lock:
-            if not self.fds:
-                self._relist()
-            return set(self.fds)
-
-    def _relist(self) -> None:
-        tids = _own_threads()
-        for tid in [t for t in self.fds if t not in tids]:
-            os.close(self.fds.pop(tid))
-        for tid in tids - self.fds.keys():
-            try:
-                self.fds[tid] = os.open(f"/proc/self/task/{tid}/stat", os.O_RDONLY)
-            except OSError:
-                continue
-
-
-_OWN = OwnThreads()
-
-
-def own_running() -> int:
-    """This process's threads in state R now (the sampler itself included),
-    and its measuring child if it runs one."""
-    return _OWN.running() + _running([f"/proc/{pid}/stat" for pid in list(MEASURING_PIDS)])
-
-
-class CgroupThreads:
-    """A cgroup's CPU usage and its threads in state R, other than this process's own (the node: see
-    ``LoadSampler``). The usage file and each thread's ``stat`` stay open, read again with ``pread`` (opening
-    each by path, some 250 us a sample, was most of an idle emulated robot's node); the ``tasks`` (v1) or
-    ``cgroup.threads`` (v2) files are opened afresh each sample (an open one keeps the list it first read), and
-    the cgroups below (per-program caps) listed again every ``RELIST`` samples."""
-
-    RELIST = 5
-
-    def __init__(self, cpu: Path, acct: Path | None) -> None:
-        self.cpu, self.acct = cpu, acct
-        self.v1 = not os.path.exists(os.path.join(cpu, "cgroup.threads"))  # v1 lists threads in ``tasks``
-        self._usage_fd: int | None = None
-        self._usage_v2 = False
-        self._lists: list[str] = []  # the tasks files of the cgroup and those below it
-        self._stats: dict[str, int] = {}  # thread id -> its open stat file
-        self._samples = 0
-        f = _usage_file(cpu, acct)
-        try:
-            if f is not None:
-                self._usage_fd, self._usage_v2 = os.open(f, os.O_RDONLY), f.name == "cpu.stat"
-        except OSError:
-            self._usage_fd = None
-
-    def usage(self) -> float:
-        """CPU seconds used so far by the cgroup and its children (0.0 if unreadable)."""
-        if self._usage_fd is None:
-            return cgroup_usage(self.cpu, self.acct)
-        try:
-            return _usage_seconds(os.pread(self._usage_fd, 4096, 0), v2=self._usage_v2)
-        except (OSError, ValueError):
-            return 0.0
-
-    def sample(self) -> tuple[float, int]:
-        """(CPU seconds so far, threads in state R now other than this process's)."""
-        usage = self.usage()
-        if self._samples % self.RELIST == 0:
-            self._relist()
-        self._samples += 1
-        own = _OWN.tids() | MEASURING_PIDS
-        listed: set[str] = set()
-        for path in self._lists:
-            try:
-                listed.update(_read_all(path).decode().split())
-            except OSError:  # the cgroup went away
-                continue
-        for tid in [t for t in self._stats if t not in listed]:
-            os.close(self._stats.pop(tid))
-        running = 0
-        for tid in listed - own:
-            if tid not in self._stats:
-                try:
-                    self._stats[tid] = os.open(f"/proc/{tid}/stat", os.O_RDONLY)
-                except OSError:
-                    continue
-            try:
-                running += _is_running(os.pread(self._stats[tid], 1024, 0))
-            except OSError:  # the thread ended
-                os.close(self._stats.pop(tid))
-        return usage, running
-
-    def close(self) -> None:
-        for fd in [*self._stats.values(), *([self._usage_fd] if self._usage_fd else [])]:
-            os.close(fd)
-        self._stats.clear()
-        self._usage_fd = None
-
-    def _relist(self) -> None:
-        name = "tasks" if self.v1 else "cgroup.threads"
-        self._lists = [os.path.join(d, name) for d in _cgroup_dirs(str(self.cpu))]
-
-
 class LoadSampler:
     """Samples busy cores and runnable tasks every ``interval`` seconds.
 
@@ -420,7 +204,11 @@ class LoadSampler:
     measurement's child are not counted as runnable: they wake together with every sample and report, so they
     biased an idle emulated robot's run queue to 0.1-0.6 tasks, which the
     weighted cost model reads as competing work. Worker processes (programs)
-    are counted.
+    are counted; on a cgroup, no more of their threads than programs run
+    here, and none of the fork server's: a worker starting (to be kept warm,
+    a fork server's fork) is the node's own work for a moment, which a robot
+    of a fraction of a core read as "0.7 besides programs" and refused a
+    program for (docs/lab/2026-11-28-claims-throttled.md).
 
     Every 0.2 s by default (5 samples a window), every ``idle_interval`` while
     no program runs here: a sample reads the node's ~30 threads' state
@@ -463,7 +251,8 @@ class LoadSampler:
                 usage, running = self._cg.sample()
                 busy = max(0.0, (usage - self._last_usage) / max(now - self._last_t, 1e-6))
                 self._last_usage = usage
-                runnable = float(running)
+                # a worker that runs no program (one starting, to be kept warm) is the node's, not load
+                runnable = float(running - self._cg.workers + min(self._cg.workers, ramps))
             else:
                 busy = psutil.cpu_percent(percpu=False) / 100.0 * ncpu
                 # less the node's own running threads, this sampler among them; reading
