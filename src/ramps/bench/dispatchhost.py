@@ -5,9 +5,10 @@
 
 How this works: one real ``NodeRuntime`` (driver, core, durable record,
 the real clock) on the in-process memory bus, with the memory worker pool
-(``ramps.testing.memory``), stepped by hand: for each program the bytes of
-an origin's offer reach it, a round, the program's end, a round, the
-origin's acknowledgement, a round. ``--batch`` programs go each way in one
+(``ramps.testing.memory``), its rounds run by hand as its driver thread
+runs them (``NodeRuntime._round``, each with items queued): for each
+program the bytes of an origin's offer reach it, a round, the program's
+end, a round, the origin's acknowledgement, a round. ``--batch`` programs go each way in one
 round (a burst; 1: calls one after another, each in rounds of its own).
 The figure is the CPU the stepping thread spent per program
 (``time.thread_time``), best of ``--rounds``: the driver's rounds, its
@@ -58,12 +59,12 @@ def host_cpu(programs: int = 10_000, batch: int = 1, rounds: int = 3) -> list[fl
             for i in range(0, programs, batch):
                 for data in offers[i:i + batch]:
                     rt._on_wire(data)
-                rt.step()
+                rt._round(block=True)  # something is queued: it does not wait
                 pools[0].complete()
-                rt.step()
+                rt._round(block=True)
                 for data in acks[i:i + batch]:
                     rt._on_wire(data)
-                rt.step()
+                rt._round(block=True)
             out.append((time.thread_time() - t0) / programs * 1e6)
     finally:
         rt.stop()
