@@ -159,6 +159,8 @@ class NodeRuntime:
         self.measured = RobotMeasure(settings, clock, self.robot)
         #: rounds that stopped handling queued items to send what was due (ROUND_SECONDS)
         self.rounds_cut = 0
+        #: the core's next deadline as the last round left it (its driver thread alone touches the core)
+        self._deadline: tuple[float | None] | None = None
         #: teammates whose liveliness went just after a stall, held a moment
         self.held_lost = HeldLosses(self.awake, STALL_GRACE)
         #: its clients' requests, their outcomes and updates
@@ -411,7 +413,8 @@ class NodeRuntime:
         clock = self._clock
         q = self._q
         now = clock()
-        deadline = node.next_deadline()
+        known, self._deadline = self._deadline, None  # stepped (tests), the core may have been touched between
+        deadline = known[0] if known is not None and block else node.next_deadline()
         next_pub = self._next_pub
         wake = next_pub if deadline is None else min(deadline, next_pub)
         wake = min(wake, self.held_lost.next_due()) if self.held_lost.held else wake
@@ -464,11 +467,12 @@ class NodeRuntime:
         deadline = node.next_deadline()
         if deadline is not None and deadline <= now:
             actions.extend(node.tick(now, origin=not behind))
+            deadline = node.next_deadline()
+        self._deadline = (deadline,)  # applying the actions leaves the core alone
         self.outbound.apply(actions)
         self.outbound.flush_held(now)
         if not block:  # the next round is due at the earliest of its timers
             wake = self._next_pub
-            deadline = node.next_deadline()
             wake = wake if deadline is None else min(wake, deadline)
             wake = min(wake, self.held_lost.next_due()) if self.held_lost.held else wake
             self.awake.sleep(max(0.0, min(wake, self.outbound.held_due(now)) - now))
