@@ -38,3 +38,20 @@ def test_no_ratio_without_a_finished_burst():
     out = compare({"makespan_s": None, "median_turnaround_s": None}, n=2, per_origin={"r1": 2}, units=1.0,
                   speed=1.0, node_cpu=0.0)
     assert "ratio_ideal" not in out and out["ideal"]["robots_by_programs"] == {"1": 2}
+
+
+def test_a_busy_origin_node_slows_its_own_robot_alone():
+    """Each node's share during the burst, robot by robot: the median one is already in the
+    programs' speed; a busier one (an origin's, a fifth of its core against a tenth) makes
+    its robot's two programs end later, the makespan with them."""
+    burst = {"makespan_s": 5.0, "median_turnaround_s": 4.0}
+    nodes = {"r1": 0.2, "r2": 0.1, "r3": 0.1, "r4": 0.1}
+    out = compare(burst, n=4, per_origin={"r1": 4, "r2": 4}, units=1.0, speed=1.0, node_cpu=0.1,
+                  burst_node_cpu=nodes)
+    assert out["burst_node_cpu"] == {"median": 0.1, "max": 0.2}
+    # the median robot's programs as fast as in ``corrected``; r1's at 0.8 of the core over 0.9
+    assert out["busy_node"]["makespan_s"] == pytest.approx(out["corrected"]["makespan_s"] * 0.9 / 0.8, rel=0.05)
+    assert out["ratio_busy_node"] == pytest.approx(5.0 / out["busy_node"]["makespan_s"], rel=1e-3)
+    even = compare(burst, n=4, per_origin={"r1": 4, "r2": 4}, units=1.0, speed=1.0, node_cpu=0.1,
+                   burst_node_cpu=dict.fromkeys(nodes, 0.1))
+    assert even["busy_node"]["makespan_s"] == pytest.approx(even["corrected"]["makespan_s"], rel=0.02)

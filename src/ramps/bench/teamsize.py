@@ -294,7 +294,11 @@ def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeou
         time.sleep(lead)  # ``lead``: the origins hear that the others submit before the burst
         first = clients[submitters[0]]
         before = _finished(first)
+        nodes = {r: psutil.Process(team.nodes[r].pid) for r in team.alive()}
+        node_s, t_burst = {r: cpu_seconds([p]) for r, p in nodes.items()}, time.monotonic()
         res["burst"] = run_burst(clients, 2 * n, units, burst_timeout)
+        span = max(time.monotonic() - t_burst, 1e-6)
+        busy = {r: (cpu_seconds([p]) - node_s[r]) / span for r, p in nodes.items()}  # each node alone, no worker
         time.sleep(2.5)  # the robots' next periodic reports count the runs
         res["burst"]["runs_counted"] = _finished(first) - before
         log(f"  {n} nodes burst: {res['burst']}")
@@ -303,7 +307,8 @@ def measure_size(n: int, *, idle: float = 20.0, units: float = 0.05, form_timeou
 
             node_cpu = res["idle"]["with_workers_cpu_pct"]["median"] / 100 / cpu_quota
             res["burst"]["simulator"] = compare(res["burst"], n=n, per_origin=res["burst"]["per_origin"],
-                                                units=units, speed=speed, node_cpu=node_cpu)
+                                                units=units, speed=speed, node_cpu=node_cpu,
+                                                burst_node_cpu={r: c / cpu_quota for r, c in busy.items()})
             log(f"  {n} nodes burst beside the simulator: {res['burst']['simulator']}")
         res["kill"] = _kill_phase(team, clients, submitters, n, units, burst_timeout, kill_at, seed)
         log(f"  {n} nodes, {res['kill']['killed']} killed: {res['kill']}")

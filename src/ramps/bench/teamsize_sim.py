@@ -16,7 +16,11 @@ three simulated makespans beside the real one:
 * ``corrected``: the ideal run with robots slower by the ratio of the real
   programs' median turnaround to the simulator's (the speed the programs
   actually got, the node's share and the host's load included), as the
-  testbed experiments correct for the host.
+  testbed experiments correct for the host;
+* ``busy_node``: each robot's node taking what it took during the burst,
+  robot by robot (an origin's node handles its application's calls and
+  watches its programs on other robots: on a robot of a fiftieth of a host
+  core that is a tenth of its core), the rest as in ``corrected``.
 
 A ratio is real over simulated. The distribution (programs per robot) is
 given for both, since with identical programs it is what placement decides.
@@ -41,13 +45,16 @@ def robot_speed(quota: float) -> float:
 
 
 def scenario(n: int, per_origin: dict[str, int], units: float, speed: float, node_cpu: float = 0.0,
-             seed: int = 0) -> Scenario:
+             seed: int = 0, nodes: dict[str, float] | None = None) -> Scenario:
     """``n`` robots r1..rN of one core at ``speed``, each origin submitting its
-    programs of ``units`` at once."""
+    programs of ``units`` at once; ``nodes``: each robot's node's share of its core
+    (else ``node_cpu`` each)."""
     programs = [ProgramSpec(program="burn", count=k, work=units, payload=50, result=100, origin=o, at=0.0)
                 for o, k in per_origin.items() if k]
-    return Scenario(name=f"team-size-{n}r-{sum(per_origin.values())}p", seed=seed,
-                    robots=[RobotSpec(name="r{i}", count=n, cores=1, speed=speed, node_cpu=node_cpu)],
+    robots = ([RobotSpec(name=f"r{i}", cores=1, speed=speed, node_cpu=min(nodes.get(f"r{i}", 0.0), 0.9))
+               for i in range(1, n + 1)] if nodes is not None else
+              [RobotSpec(name="r{i}", count=n, cores=1, speed=speed, node_cpu=node_cpu)])
+    return Scenario(name=f"team-size-{n}r-{sum(per_origin.values())}p", seed=seed, robots=robots,
                     programs=programs, config=RampsConfig())
 
 
@@ -61,9 +68,10 @@ def _run(sc: Scenario) -> dict[str, Any]:
 
 
 def compare(burst: dict[str, Any], *, n: int, per_origin: dict[str, int], units: float, speed: float,
-            node_cpu: float) -> dict[str, Any]:
+            node_cpu: float, burst_node_cpu: dict[str, float] | None = None) -> dict[str, Any]:
     """The simulator's makespans for the configuration of ``burst`` (``run_burst``'s
-    figures from the emulated team), and the real one over each."""
+    figures from the emulated team), and the real one over each; ``burst_node_cpu``:
+    each node's share of its core during the burst."""
     ideal = _run(scenario(n, per_origin, units, speed))
     with_node = _run(scenario(n, per_origin, units, speed, node_cpu=min(node_cpu, 0.9)))
     out: dict[str, Any] = {"speed": speed, "units": units, "node_cpu": round(node_cpu, 3),
@@ -74,6 +82,14 @@ def compare(burst: dict[str, Any], *, n: int, per_origin: dict[str, int], units:
         corrected = _run(scenario(n, per_origin, units, speed / factor))
         out["host_factor"] = round(factor, 3)
         out["corrected"] = corrected
-        for key in ("ideal", "with_node", "corrected"):
+        keys = ["ideal", "with_node", "corrected"]
+        if burst_node_cpu:
+            # the corrected speed already lost a median node's share: the core's speed without it
+            mid = statistics.median(burst_node_cpu.values())
+            out["burst_node_cpu"] = {"median": round(mid, 3), "max": round(max(burst_node_cpu.values()), 3)}
+            out["busy_node"] = _run(scenario(n, per_origin, units, speed / factor / (1.0 - min(mid, 0.9)),
+                                             nodes=burst_node_cpu))
+            keys.append("busy_node")
+        for key in keys:
             out[f"ratio_{key}"] = round(real / out[key]["makespan_s"], 3)
     return out
