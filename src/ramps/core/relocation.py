@@ -9,7 +9,11 @@ any, and from processor sharing at its host's reported load otherwise. A
 program moves when its remaining time where it runs exceeds the time to
 finish on the best other robot (from scratch, or from its last checkpoint,
 plus T_comm of parameters and checkpoint) by ``relocate_gain`` and
-``relocate_min_gain`` together (``worth_moving``), and has for
+``relocate_min_gain`` together (``worth_moving``), or, placing by the pool's
+end (``RampsConfig.place_by`` "pool_end") where programs share its host's
+cores, when the last program of its host's pool would end that much sooner
+without it than the later of the pool without it and the target's pool with
+it (a move for the programs it leaves, not for itself), and has for
 ``relocate_persist`` seconds (a brief spike of load moves nothing); at most
 ``relocate_max_moves`` times (a move the new host refuses as "late", to
 keep a deadline it runs, counts none), never within ``relocate_settle`` of an
@@ -70,7 +74,7 @@ from typing import Protocol
 import msgspec
 
 from ramps.core.config import RampsConfig
-from ramps.core.cost import NetworkEstimate, program_share, shared_finish_time
+from ramps.core.cost import NetworkEstimate, pool_finish_time, program_share, shared_finish_time
 from ramps.core.events import Action, Submit
 from ramps.core.links import Links
 from ramps.core.loadview import LoadView
@@ -132,7 +136,7 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
     stalled = now - origin.woke_at < cfg.relocate_calm  # this robot's view and clock were behind
     if best_rate <= 0.0:
         return any(ap.state is S.RUNNING or ap.state is S.MOVING for ap in programs)
-    priced: list[tuple[float, AutonomousProgram]] = []
+    priced: list[tuple[float, float, float, AutonomousProgram]] = []
     # what the loop reads of each host (and program) once: nothing it does changes them
     shares: dict[str, float] = {}
     ages: dict[str, float | None] = {}
@@ -170,31 +174,40 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
             ap.move_wanted_since = None
             continue
         left = max(0.0, ap.work - ap.done)
-        t_floor = origin.work_estimate(ap.submit) * (
-            1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0)) / best_rate
-        if ap.submit.accelerator:  # on a CPU, but it can use an accelerator: the fastest slot may be its floor
-            t_floor = min(t_floor, slot_floor(origin, ap, now))
-        rate = speed * share
-        if not worth_moving(origin, left / rate, t_floor):
+        t_floor = floor_of(origin, ap, now, best_rate)
+        # a host whose programs share its cores: a move frees some for the rest (``host_times``)
+        crowded = share < 1.0 and cfg.place_by == "pool_end"
+        if not crowded and not worth_moving(origin, left / (speed * share), t_floor):
             ap.move_wanted_since = None
             continue  # not even by the count of tasks here (an upper bound of the estimate below)
-        t_here = time_here(origin, ap, now, row, left)
-        if not worth_moving(origin, t_here, t_floor):
+        t_here, stay, freed = host_times(origin, ap, now, row, left)
+        if not (worth_moving(origin, t_here, t_floor) or worth_moving(origin, stay, max(freed, t_floor))):
             ap.move_wanted_since = None
         elif ap.move_wanted_since is None:
             ap.move_wanted_since = now  # a load spike must last before a program moves for it
         if ap.move_wanted_since is not None and now - ap.move_wanted_since >= cfg.relocate_persist:
-            priced.append((t_here, ap))
+            priced.append((t_here, stay, freed, ap))
     priced.sort(key=lambda x: -x[0])
     moved_off: set[str] = set()
-    for t_here, ap in priced[:RELOCATE_BATCH]:
+    for t_here, stay, freed, ap in priced[:RELOCATE_BATCH]:
         if ap.host in moved_off:
             continue  # one at a time off a host: the next check sees it lighter
-        placement = price_move(origin, ap, t_here, now)
+        placement = price_move(origin, ap, t_here, now, stay, freed)
         if placement is not None:
             moved_off.add(ap.host or "")
             origin.relocate(ap, placement, now, out)
     return keep
+
+
+def floor_of(origin: RelocatingOrigin, ap: AutonomousProgram, now: float, best_rate: float) -> float:
+    """The fastest ``ap`` could end anywhere: its learned work, from its
+    checkpoint, at ``best_rate`` (the team's best CPU rate by the count of
+    tasks), or on a slot (``slot_floor``) where it can use an accelerator."""
+    t_floor = origin.work_estimate(ap.submit) * (
+        1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0)) / best_rate
+    if ap.submit.accelerator:  # on a CPU, but it can use an accelerator: the fastest slot may be its floor
+        t_floor = min(t_floor, slot_floor(origin, ap, now))
+    return t_floor
 
 
 def slot_floor(origin: RelocatingOrigin, ap: AutonomousProgram, now: float) -> float:
@@ -217,15 +230,25 @@ def slot_floor(origin: RelocatingOrigin, ap: AutonomousProgram, now: float) -> f
     return min((p.work / p.speed for p in pools if p.kind), default=math.inf)
 
 
-def time_here(origin: RelocatingOrigin, ap: AutonomousProgram, now: float,
-              row: tuple[str, float, float, float, float, float], left: float) -> float:
+def host_times(origin: RelocatingOrigin, ap: AutonomousProgram, now: float,
+               row: tuple[str, float, float, float, float, float], left: float) -> tuple[float, float, float]:
     """When ``ap``, with ``left`` units to do, ends where it runs (its host's
-    ``row``): processor sharing with the work its host's report lists left."""
+    ``row``: processor sharing with the work its host's report lists left),
+    and, under ``RampsConfig.place_by`` "pool_end", when the last program of
+    its host's pool ends with it there and without it (else its own end
+    for both)."""
     _, cores, speed, ramps, background, weight = row
     others = origin.view.remaining_work(ap.placed_host, now, round(ramps), ap.work) or []
     if others:  # one of them is this program: the one closest to its estimate
         others.pop(min(range(len(others)), key=lambda i: abs(others[i] - left)))
-    return shared_finish_time(left, others, cores, speed, background, weight)
+    own = shared_finish_time(left, others, cores, speed, background, weight)
+    if origin.config.place_by != "pool_end" or not others:
+        return own, own, own
+    top = max(others)
+    rest = list(others)
+    rest.remove(top)
+    return (own, pool_finish_time(left, others, cores, speed, background, weight),
+            shared_finish_time(top, rest, cores, speed, background, weight))
 
 
 def doubt_of(origin: RelocatingOrigin, ap: AutonomousProgram, now: float,
@@ -252,8 +275,12 @@ def to_check(origin: RelocatingOrigin, now: float) -> list[AutonomousProgram] | 
     return programs
 
 
-def price_move(origin: RelocatingOrigin, ap: AutonomousProgram, t_here: float, now: float) -> Placement | None:
-    """Where ``ap`` would finish sooner by the relocation thresholds, or None."""
+def price_move(origin: RelocatingOrigin, ap: AutonomousProgram, t_here: float, now: float,
+               stay: float | None = None, freed: float | None = None) -> Placement | None:
+    """Where ``ap`` would finish sooner by the relocation thresholds, or None:
+    its own end there against ``t_here``, or, for a CPU program, the later of
+    its host's pool without it (``freed``) and the target's pool with it
+    against its host's pool with it (``stay``)."""
     sub = ap.submit
     work = origin.work_estimate(sub) * (1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0))
     # never back where it ran, nor onto a robot whose figures are in doubt
@@ -269,15 +296,33 @@ def price_move(origin: RelocatingOrigin, ap: AutonomousProgram, t_here: float, n
     )
     t_there = placement.expected_time
     # (a view that has only those robots left ignores the exclusion: nothing moves then)
-    if placement.host in never or t_there is None or not worth_moving(origin, t_here, t_there):
+    if placement.host in never or t_there is None:
         return None
     cfg = origin.config
     # the new host takes it if it finishes there within what staying costs
     # (less the thresholds), whatever the origin's view missed
-    budget = t_here / (1.0 + cfg.relocate_gain)
+    if worth_moving(origin, t_here, t_there):
+        budget = t_here / (1.0 + cfg.relocate_gain)
+    elif stay is not None and freed is not None and not sub.accelerator \
+            and worth_moving(origin, stay, max(freed, t_there, pool_there(origin, placement.host, work, now))):
+        budget = stay / (1.0 + cfg.relocate_gain)
+    else:
+        return None
     if placement.time_budget is not None:
         budget = min(budget, placement.time_budget)
     return msgspec.structs.replace(placement, time_budget=budget)
+
+
+def pool_there(origin: RelocatingOrigin, host: str, work: float, now: float) -> float:
+    """When the last program of ``host``'s pool would end with one of
+    ``work`` units more there (its report's work left, processor sharing)."""
+    row = origin.view.rows_and_best_rate(now)[0].get(host)
+    if row is None:
+        return math.inf
+    _, cores, speed, ramps, background, weight = row
+    others = origin.view.remaining_work(host, now, round(ramps), work) or []
+    return pool_finish_time(work, others, cores, speed, background, weight)
+
 
 def worth_moving(origin: RelocatingOrigin, t_here: float, t_there: float) -> bool:
     """Eq. (1) with hysteresis: the relative AND the absolute gain."""
