@@ -160,7 +160,7 @@ def test_an_application_connecting_makes_its_robot_an_origin_before_its_first_pr
         team.close()
 
 
-def _throttled(*, wait: float = 0.2, stagger: float = 0.0, robots: int = 10, seed: int = 0) -> Scenario:
+def _throttled(*, wait: float = 1.0, stagger: float = 0.0, robots: int = 10, seed: int = 0) -> Scenario:
     """One-core robots whose nodes handle each message up to 0.1 s late (a
     node on a throttled core), three origins bursting 2 programs each per
     3 robots, ``stagger`` seconds apart: the hosts' reports show each
@@ -216,6 +216,17 @@ def test_a_teammate_that_never_answers_holds_a_burst_no_longer_than_the_wait() -
     sc = one_slot()
     res = _OldA(sc, seed=sc.seed, trace=True).run()
     assert res.completed == len(sc.programs)
-    at = max(e.t for e in res.trace if e.what == "placed" and e.robot == "b" and e.t < sc.warmup + 1)
+    at = max(e.t for e in res.trace if e.what == "placed" and e.robot == "b" and e.t < sc.warmup + 3)
     bound = 2 * res_net() + sc.config.burst_claim_wait
     assert sc.warmup + bound - 0.01 <= at <= sc.warmup + bound + 0.01
+
+
+def test_a_burst_larger_than_a_plan_counts_the_claims_too() -> None:
+    """Three origins of 26 programs each (more than ``PLAN_MAX``, placed in parts) on
+    78 throttled robots: one program on every robot, no refusal."""
+    from ramps.core.burst import PLAN_MAX
+
+    sc = _throttled(robots=78)
+    assert sc.programs[0].count > PLAN_MAX
+    assert _refusals(sc) == (0, [1] * 78)
+    assert _refusals(_throttled(robots=78, wait=0.0))[0] > 0

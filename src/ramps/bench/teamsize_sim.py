@@ -20,7 +20,8 @@ three simulated makespans beside the real one:
 * ``busy_node``: each robot's node taking what it took during the burst,
   robot by robot (an origin's node handles its application's calls and
   watches its programs on other robots: on a robot of a fiftieth of a host
-  core that is a tenth of its core), the rest as in ``corrected``.
+  core that is a tenth of its core, or more), the rest as in ``corrected``. The
+  simulator takes at most half a core for a node (``NODE_CPU_MAX``).
 
 A ratio is real over simulated. The distribution (programs per robot) is
 given for both, since with identical programs it is what placement decides.
@@ -33,6 +34,7 @@ from collections import Counter
 from typing import Any
 
 from ramps.core.config import RampsConfig
+from ramps.core.cost import NODE_CPU_MAX
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario
 
@@ -51,7 +53,7 @@ def scenario(n: int, per_origin: dict[str, int], units: float, speed: float, nod
     (else ``node_cpu`` each)."""
     programs = [ProgramSpec(program="burn", count=k, work=units, payload=50, result=100, origin=o, at=0.0)
                 for o, k in per_origin.items() if k]
-    robots = ([RobotSpec(name=f"r{i}", cores=1, speed=speed, node_cpu=min(nodes.get(f"r{i}", 0.0), 0.9))
+    robots = ([RobotSpec(name=f"r{i}", cores=1, speed=speed, node_cpu=min(nodes.get(f"r{i}", 0.0), NODE_CPU_MAX))
                for i in range(1, n + 1)] if nodes is not None else
               [RobotSpec(name="r{i}", count=n, cores=1, speed=speed, node_cpu=node_cpu)])
     return Scenario(name=f"team-size-{n}r-{sum(per_origin.values())}p", seed=seed, robots=robots,
@@ -73,7 +75,7 @@ def compare(burst: dict[str, Any], *, n: int, per_origin: dict[str, int], units:
     figures from the emulated team), and the real one over each; ``burst_node_cpu``:
     each node's share of its core during the burst."""
     ideal = _run(scenario(n, per_origin, units, speed))
-    with_node = _run(scenario(n, per_origin, units, speed, node_cpu=min(node_cpu, 0.9)))
+    with_node = _run(scenario(n, per_origin, units, speed, node_cpu=min(node_cpu, NODE_CPU_MAX)))
     out: dict[str, Any] = {"speed": speed, "units": units, "node_cpu": round(node_cpu, 3),
                            "ideal": ideal, "with_node": with_node}
     real, turn = burst.get("makespan_s"), burst.get("median_turnaround_s")
@@ -87,7 +89,7 @@ def compare(burst: dict[str, Any], *, n: int, per_origin: dict[str, int], units:
             # the corrected speed already lost a median node's share: the core's speed without it
             mid = statistics.median(burst_node_cpu.values())
             out["burst_node_cpu"] = {"median": round(mid, 3), "max": round(max(burst_node_cpu.values()), 3)}
-            out["busy_node"] = _run(scenario(n, per_origin, units, speed / factor / (1.0 - min(mid, 0.9)),
+            out["busy_node"] = _run(scenario(n, per_origin, units, speed / factor / (1.0 - min(mid, NODE_CPU_MAX)),
                                              nodes=burst_node_cpu))
             keys.append("busy_node")
         for key in keys:

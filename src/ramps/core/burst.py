@@ -31,7 +31,9 @@ Without it every program is placed as it comes, a burst of one.
 
 Teammates' bursts of the same instant (``ramps.core.claims``) come as
 ``Origin.claimed``: their work counts on the pools they claimed, and a
-burst of equal programs is then planned too.
+burst of equal programs is then planned too; a larger burst is then planned
+``PLAN_MAX`` programs at a time, in the order submitted, each part after the
+bookings of those before it.
 
 A pool's end with the programs ``works`` planned there: when the largest of
 them ends under processor sharing with the rest and with the work left of
@@ -227,6 +229,10 @@ def _place_together(origin: BurstOrigin, group: list[AutonomousProgram], now: fl
     if len(kinds) == 1 and not claimed:
         for ap in group:
             origin.place(ap, now, out)
+        return
+    if len(group) > PLAN_MAX and claimed:  # planned in turn, each part's bookings before the next
+        for i in range(0, len(group), PLAN_MAX):
+            _place_together(origin, group[i:i + PLAN_MAX], now, out)
         return
     policy = origin.policy_for(group[0].submit)
     links = origin.links.estimate if origin.links is not None else None

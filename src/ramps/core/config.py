@@ -116,8 +116,10 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     burst_claims: bool = True
     #: an origin's burst waits at most this long (s) per teammate before it
     #: for their answers, beyond twice the link's latency: a teammate on a
-    #: throttled core answers late, one of an earlier release never
-    burst_claim_wait: float = 0.2
+    #: throttled core answers late (a node of a fiftieth of a core stalled
+    #: 2 s as a burst came), a lost one never; in a healthy team answers
+    #: come in milliseconds and the wait ends with them
+    burst_claim_wait: float = 1.0
     #: a node probes each teammate's link this often to measure T_comm
     #: (``ramps.core.links``); 0 = assume the configured network estimate
     probe_period: float = 5.0
