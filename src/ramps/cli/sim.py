@@ -254,7 +254,9 @@ def sim_accelerators(
     submitting at once programs that run 1x-30x faster on a slot, CPU-only ones, ones that need a slot;
     kinds with mis-declared accelerator work and with an accelerator robot that crashes or is cut off.
     The table shows each placement's makespan over the exact optimum of the same batch (or over its bound
-    where CP-SAT proves nothing in time), median and worst per kind; about a minute on two cores.
+    where CP-SAT proves nothing in time), median and worst per kind; about a minute on two cores. A second
+    table gives ramps over the optimum told only the declared accelerator work (its placement timed with
+    the true work): what an origin told only the declarations could best do, a reference and not a bound.
     """
     from ramps.experiments.accelerators import print_accelerators, run_family
 
