@@ -46,9 +46,11 @@ from ramps.core.messages import BurstClaim, ClaimedPool
 from ramps.core.program import FINAL
 
 
-#: how long (s) a claim counts at most, unless the view shows its work sooner:
-#: the reports of a publisher's period show every program a claim put anywhere
-KEEP = 2.0
+#: how long (s) a claim counts at most, unless the view shows its work sooner (a
+#: claim on a robot that refused its program shows there never): a throttled
+#: origin's view of a robot can be seconds old, and a claim dropped at 2 s let
+#: one put a third program on a robot of two (docs/lab/2026-11-28-claims-throttled.md)
+KEEP = 10.0
 
 
 class ClaimingOrigin(BurstOrigin, Protocol):
