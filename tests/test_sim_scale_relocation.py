@@ -1,0 +1,49 @@
+"""Relocation's reads of a fleet's view: ``LoadView.rows_and_best_rate`` and
+``row_of`` against ``scan``."""
+
+from __future__ import annotations
+
+import random
+
+from ramps.core.cost import program_share
+from ramps.core.loadview import LoadView
+from ramps.core.messages import LoadReport
+
+
+def view(seed: int, robots: int = 40) -> LoadView:
+    """A view with fresh, old, lost, blacklisted, booked and sped-up robots."""
+    rng = random.Random(seed)
+    v = LoadView("me", cores=4, speed=1.0, max_report_age=10.0)
+    for i in range(robots):
+        name = f"r{i}"
+        listed = sorted(rng.uniform(0.0, 50.0) for _ in range(rng.randrange(0, 5)))
+        running = len(listed) + rng.randrange(0, 3)
+        v.on_report(LoadReport(robot=name, incarnation=1, seq=1, cores=rng.choice([2, 4, 8]),
+                               speed=rng.uniform(0.5, 2.0), cpu_busy=1.0, runnable=float(running + rng.randrange(0, 3)),
+                               ramps_running=running, ramps_avg=float(running), accepted_total=running,
+                               finished_total=0, remaining=listed, node_cpu=rng.choice([0.0, 0.3])),
+                    rng.uniform(0.0, 20.0))
+        if rng.random() < 0.3:
+            v.book(name, f"p{i}", 1)
+        if rng.random() < 0.2:
+            v.speed_factor[name] = rng.uniform(0.5, 1.5)
+        if rng.random() < 0.1:
+            v.set_lost(name, True)
+        if rng.random() < 0.1:
+            v.blacklist(name)
+    return v
+
+
+def test_rows_and_best_rate_are_the_scan_and_its_best_rate_and_row_of_each_row() -> None:
+    for seed in range(20):
+        v = view(seed)
+        for now in (15.0, 22.0, 40.0):
+            rows = {r[0]: r for r in v.scan(now, frozenset())}
+            best = max((speed * program_share(cores, ramps + 1.0, bg, w) for _, cores, speed, ramps, bg, w
+                        in rows.values()), default=0.0)
+            for _ in range(2):  # made, then kept
+                assert v.rows_and_best_rate(now) == (rows, best)
+                assert {n: v.row_of(n, now) for n in [*rows, "r0", "r1", "nobody"]} == {
+                    n: rows.get(n) for n in [*rows, "r0", "r1", "nobody"]}
+            v.speed_factor["r3"] = v.speed_factor.get("r3", 1.0) * 1.25  # a kept row is made again
+            assert v.rows_and_best_rate(now)[0] == {r[0]: r for r in v.scan(now, frozenset())}
