@@ -1,13 +1,17 @@
 """Relocation's reads of a fleet's view: ``LoadView.rows_and_best_rate`` and
-``row_of`` against ``scan``."""
+``row_of`` against ``scan``, and ``relocation.pool_bound`` an upper bound of
+``host_times`` (what lets a check pass a crowded host's program over)."""
 
 from __future__ import annotations
 
 import random
+from types import SimpleNamespace
 
+from ramps.core.config import RampsConfig
 from ramps.core.cost import program_share
 from ramps.core.loadview import LoadView
 from ramps.core.messages import LoadReport
+from ramps.core.relocation import host_times, pool_bound
 
 
 def view(seed: int, robots: int = 40) -> LoadView:
@@ -47,3 +51,26 @@ def test_rows_and_best_rate_are_the_scan_and_its_best_rate_and_row_of_each_row()
                     n: rows.get(n) for n in [*rows, "r0", "r1", "nobody"]}
             v.speed_factor["r3"] = v.speed_factor.get("r3", 1.0) * 1.25  # a kept row is made again
             assert v.rows_and_best_rate(now)[0] == {r[0]: r for r in v.scan(now, frozenset())}
+
+
+def test_pool_bound_is_above_both_ends_host_times_gives() -> None:
+    rng = random.Random(7)
+    origin = SimpleNamespace(config=RampsConfig(place_by="pool_end"))
+    checked = 0
+    for seed in range(30):
+        origin.view = view(seed)
+        now = 16.0
+        for row in origin.view.rows_and_best_rate(now)[0].values():
+            host, cores, speed, ramps, bg, w = row
+            if row[0] == "me":
+                continue
+            share = program_share(cores, max(1.0, ramps), bg, w)
+            for _ in range(5):
+                work = rng.uniform(1.0, 60.0)
+                ap = SimpleNamespace(host=host, placed_host=host, work=work)
+                left = rng.uniform(0.0, work)
+                t_here, stay, _ = host_times(origin, ap, now, row, left)
+                bound = pool_bound(origin, ap, row, left, share, {})
+                assert bound >= t_here and bound >= stay
+                checked += 1
+    assert checked > 500

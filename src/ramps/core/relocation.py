@@ -141,6 +141,7 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
     shares: dict[str, float] = {}
     ages: dict[str, float | None] = {}
     doubts: dict[tuple[str, str], str | None] = {}
+    tops: dict[str, tuple[float, int]] = {}
     for ap in programs:
         if ap.state is not S.RUNNING and ap.state is not S.MOVING:
             continue
@@ -177,9 +178,10 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
         t_floor = floor_of(origin, ap, now, best_rate)
         # a host whose programs share its cores: a move frees some for the rest (``host_times``)
         crowded = share < 1.0 and cfg.place_by == "pool_end"
-        if not crowded and not worth_moving(origin, left / (speed * share), t_floor):
+        if not worth_moving(origin, pool_bound(origin, ap, row, left, share, tops) if crowded
+                            else left / (speed * share), t_floor):
             ap.move_wanted_since = None
-            continue  # not even by the count of tasks here (an upper bound of the estimate below)
+            continue  # not even by the count of tasks here (an upper bound of the estimates below)
         t_here, stay, freed = host_times(origin, ap, now, row, left)
         if not (worth_moving(origin, t_here, t_floor) or worth_moving(origin, stay, max(freed, t_floor))):
             ap.move_wanted_since = None
@@ -247,8 +249,36 @@ def host_times(origin: RelocatingOrigin, ap: AutonomousProgram, now: float,
     top = max(others)
     rest = list(others)
     rest.remove(top)
-    return (own, pool_finish_time(left, others, cores, speed, background, weight),
-            shared_finish_time(top, rest, cores, speed, background, weight))
+    freed = shared_finish_time(top, rest, cores, speed, background, weight)
+    if top <= left:  # ``pool_finish_time``: its own end is the pool's
+        return own, own, freed
+    rest.append(left)  # ``pool_finish_time`` of the pool with it, its list built once
+    return own, shared_finish_time(top, rest, cores, speed, background, weight), freed
+
+
+def pool_bound(origin: RelocatingOrigin, ap: AutonomousProgram, row: tuple[str, float, float, float, float, float],
+               left: float, share: float, tops: dict[str, tuple[float, int]]) -> float:
+    """An upper bound of both ends ``host_times`` gives for ``ap`` (``left``
+    units to do, its host's ``row`` and ``share``), without the host's work
+    list: every program of the pool runs at least at the share of them all
+    (``program_share`` only falls as programs are added), so none ends later
+    than the pool's largest work left at that share. The largest is ``ap``'s,
+    its host's largest listed (``LoadReport.remaining``, which only ages down)
+    or, where the view counts programs the report does not list, ``ap.work``
+    (``LoadView.remaining_work``'s guess for them). ``tops`` keeps each host's
+    largest listed and their count for the rest of a check. A count of
+    programs that is not whole gets no bound (inf)."""
+    host, _, speed, ramps, _, _ = row
+    programs = max(1, round(ramps))
+    if programs != max(1.0, ramps):
+        return math.inf
+    top = tops.get(host)
+    if top is None:
+        rep = origin.view.report_of(host)
+        listed = rep.remaining if rep is not None else []
+        top = tops[host] = (max(max(listed, default=0.0), 0.0), len(listed))
+    most = max(left, top[0], ap.work) if programs > top[1] else max(left, top[0])
+    return most / (speed * share) * (1.0 + 1e-9)
 
 
 def doubt_of(origin: RelocatingOrigin, ap: AutonomousProgram, now: float,
