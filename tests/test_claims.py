@@ -230,3 +230,26 @@ def test_a_burst_larger_than_a_plan_counts_the_claims_too() -> None:
     assert sc.programs[0].count > PLAN_MAX
     assert _refusals(sc) == (0, [1] * 78)
     assert _refusals(_throttled(robots=78, wait=0.0))[0] > 0
+
+
+def test_an_offer_planned_onto_a_claimed_robot_expects_the_claimed_program_there() -> None:
+    """Hosts that handle messages a second late have not reported a's programs when b, which
+    has a's claims, plans its own second on each: b's offers say it expects a's program
+    there, so a host that took it does not refuse b's for being busier than expected."""
+    from ramps.core.messages import OffloadRequest
+
+    class _Offers(Simulator):
+        def _send(self, src, to, msg) -> None:
+            if isinstance(msg, OffloadRequest):
+                self.offers.append((src.spec.name, to, msg.expected_runnable))
+            super()._send(src, to, msg)
+
+    robots = ([RobotSpec(name=n, cores=1, speed=0.05) for n in ("a", "b")]
+              + [RobotSpec(name=f"h{i}", cores=1, handling=1.0) for i in range(1, 5)])
+    programs = [ProgramSpec(origin=o, program="burn", count=4, work=10.0, payload=50, result=100) for o in "ab"]
+    sc = Scenario(name="claimed-offers", seed=1, robots=robots, programs=programs)
+    sim = _Offers(sc, seed=sc.seed)
+    sim.offers = []
+    res = sim.run()
+    assert res.completed == 8 and sorted(res.distribution.values()) == [0, 0, 2, 2, 2, 2]
+    assert sorted((o, e) for o, _, e in sim.offers) == [("a", 0.0)] * 4 + [("b", 1.0)] * 4

@@ -58,6 +58,8 @@ class PlacingOrigin(deadlines.DeliveringOrigin, Protocol):
     timers: Timers
     stalled_s: float
     placements: int
+    #: (robot, accelerator kind) -> work teammates' bursts claimed there (``ramps.core.claims``)
+    claimed: dict[tuple[str, str], list[float]]
 
     def work_estimate(self, sub: Submit) -> float: ...
 
@@ -99,6 +101,9 @@ def place(origin: PlacingOrigin, ap: AutonomousProgram, now: float, out: list[Ac
         if policy.negotiates:
             expected = placement.expected_runnable
             budget = placement.time_budget
+            if expected is not None and host == prefer[0] and not sub.accelerator and origin.claimed:
+                # the plan counted teammates' claims there, which the view may not show yet: so does the host
+                expected += len(origin.claimed.get((host, ""), ()))
         if left is not None and (placement.late or left <= 0.0):
             host = deadlines.unmet(origin, ap, placement, left, now, out)
             if host is None:
