@@ -1,5 +1,4 @@
-"""Relocation's reads of a fleet's view: ``LoadView.rows_and_best_rate`` and
-``row_of`` against ``scan``, and ``relocation.pool_bound`` an upper bound of
+"""Relocation in a fleet: ``relocation.pool_bound`` an upper bound of
 ``host_times`` (what lets a check pass a crowded host's program over)."""
 
 from __future__ import annotations
@@ -36,21 +35,6 @@ def view(seed: int, robots: int = 40) -> LoadView:
         if rng.random() < 0.1:
             v.blacklist(name)
     return v
-
-
-def test_rows_and_best_rate_are_the_scan_and_its_best_rate_and_row_of_each_row() -> None:
-    for seed in range(20):
-        v = view(seed)
-        for now in (15.0, 22.0, 40.0):
-            rows = {r[0]: r for r in v.scan(now, frozenset())}
-            best = max((speed * program_share(cores, ramps + 1.0, bg, w) for _, cores, speed, ramps, bg, w
-                        in rows.values()), default=0.0)
-            for _ in range(2):  # made, then kept
-                assert v.rows_and_best_rate(now) == (rows, best)
-                assert {n: v.row_of(n, now) for n in [*rows, "r0", "r1", "nobody"]} == {
-                    n: rows.get(n) for n in [*rows, "r0", "r1", "nobody"]}
-            v.speed_factor["r3"] = v.speed_factor.get("r3", 1.0) * 1.25  # a kept row is made again
-            assert v.rows_and_best_rate(now)[0] == {r[0]: r for r in v.scan(now, frozenset())}
 
 
 def test_pool_bound_is_above_both_ends_host_times_gives() -> None:

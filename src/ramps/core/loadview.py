@@ -152,15 +152,11 @@ class LoadView(Scanning):
         self.reports_received += 1
         if report.robot != self.me:
             self.last_remote_report = now
+        wa, wf, (was_acc, was_fin) = rob.waiting_accept, rob.waiting_finish, rob.counted
         acc_total, fin_total = report.accepted_total, report.finished_total
-        wa, wf = rob.waiting_accept, rob.waiting_finish
-        # ``_count_report``'s common cases, without a call: nothing booked there (most robots an origin
-        # hears: none unseen, as ``_recount`` would count, and what the waiting heaps still hold is of
-        # bookings gone, skipped when taken out), or no booking's number passed
-        if not rob.stale and (not rob.bookings or (
-                rob.counted[0] <= acc_total and rob.counted[1] <= fin_total
-                and (not wa or wa[0][0] > acc_total) and (not wf or wf[0][0] > fin_total))):
-            rob.counted = (acc_total, fin_total)
+        if (not rob.stale and was_acc <= acc_total and was_fin <= fin_total and (not wa or wa[0][0] > acc_total)
+                and (not wf or wf[0][0] > fin_total)):
+            rob.counted = (acc_total, fin_total)  # ``_count_report``'s common case, without a call
         else:
             self._count_report(rob)
         bl = self._blacklist.get(report.robot)

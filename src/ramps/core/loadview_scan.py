@@ -110,46 +110,20 @@ class Scanning:
         """``scan``'s rows by robot (nothing excluded), and the fastest a new
         program could run on any of them by the count of tasks: the most of
         ``speed * program_share(cores, ramps + 1, background, weight)``, 0.0
-        with no robot (relocation's first estimate, ``ramps.core.relocation``).
-        One pass over the view (relocation's, once a second), rows and their
-        rates kept as ``_rows`` keeps them."""
-        horizon, factors, me, blacklist = now - self.max_report_age, self.speed_factor, self.me, self._blacklist
+        with no robot (relocation's first estimate, ``ramps.core.relocation``)."""
         rows = {}
         best = 0.0
-        for name, rob in self._robots.items():
-            rep = rob.report
-            if rep is None:
-                if name != me:
-                    continue
-                row, rate = self._row(name, rob, False), None  # this robot before its first report: not kept
-            elif name != me and (rob.lost or rob.received_at < horizon or name in blacklist):
-                continue
-            else:
-                row, factor = rob.row, factors.get(name, 1.0)
-                if row is None or rob.row_factor != factor:
-                    row = rob.row = self._row(name, rob, False)
-                    rob.row_factor, rob.row_rate = factor, None
-                rate = rob.row_rate
+        robots = self._robots
+        for row in self._rows(now, False, None):
+            name = row[0]
+            rob = robots[name]
+            rate = rob.row_rate if rob.row is row else None
             if rate is None:
                 _, cores, speed, ramps, background, weight = row
                 rate = speed * program_share(cores, ramps + 1.0, background, weight)
-                if rep is not None:
+                if rob.row is row:
                     rob.row_rate = rate
             rows[name] = row
             if rate > best:
                 best = rate
         return rows, best
-
-    def row_of(self, name: str, now: float) -> Row | None:
-        """``rows_and_best_rate``'s row of one robot, None where it has none."""
-        rob = self._robots.get(name)
-        if rob is None or (name != self.me and self._passed_over(name, rob, now - self.max_report_age)):
-            return None
-        if rob.report is None:
-            return self._row(name, rob, False)
-        row: Row | None = rob.row
-        factor = self.speed_factor.get(name, 1.0)
-        if row is None or rob.row_factor != factor:
-            row = rob.row = self._row(name, rob, False)
-            rob.row_factor, rob.row_rate = factor, None
-        return row

@@ -184,7 +184,7 @@ class Node:
         self._now = now
         out: list[Action] = []
         self._dispatch(event, now, out)
-        return self._prompt_report(self._loopback(out, now) if out else out, now)  # no action: most events
+        return self._prompt_report(self._loopback(out, now), now)
 
     def handle_all(self, events: Sequence[Event], now: float) -> list[Action]:
         """Events of one instant, in order (a driver's batch of messages):
@@ -366,12 +366,12 @@ class Node:
         self.speed = self.view.speed = speed
 
     def _receive(self, sender: str, msg: object, now: float, out: list[Action]) -> None:
-        if isinstance(msg, LoadReport) and msg.incarnation != self.incarnation and msg.robot == self.robot:
+        if isinstance(msg, LoadReport) and msg.robot == self.robot and msg.incarnation != self.incarnation:
             taken = self.same_name.heard(msg, now)  # another node under this name, or this one's previous process
             if taken is not None:
                 out.append(taken)
             return
-        if now < self.origin.relink.until and self.origin.relink.heard(sender, now):  # ``Relink.active``
+        if self.origin.relink.active(now) and self.origin.relink.heard(sender, now):
             self.origin.relinked(sender, now)
             out.append(Note(what="relinked", robot=sender, detail="heard again after this robot's stall"))
         if isinstance(msg, LoadReport):

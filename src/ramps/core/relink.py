@@ -60,7 +60,6 @@ class Relink:
         self.timeout = timeout
         self.settle = settle
         self.woke = -float("inf")
-        #: relinking lasts until then (``active``; a node's message path reads it without the call)
         self.until = -float("inf")
         #: teammates heard again since the last stall
         self.back: set[str] = set()

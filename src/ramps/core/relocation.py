@@ -346,7 +346,7 @@ def price_move(origin: RelocatingOrigin, ap: AutonomousProgram, t_here: float, n
 def pool_there(origin: RelocatingOrigin, host: str, work: float, now: float) -> float:
     """When the last program of ``host``'s pool would end with one of
     ``work`` units more there (its report's work left, processor sharing)."""
-    row = origin.view.row_of(host, now)
+    row = origin.view.rows_and_best_rate(now)[0].get(host)
     if row is None:
         return math.inf
     _, cores, speed, ramps, background, weight = row

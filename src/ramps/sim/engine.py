@@ -319,17 +319,8 @@ class Simulator:
                 continue
             if dst.spec.handling:
                 self._later(dst, event)
-                continue
-            node = dst.node
-            actions = node.handle(event, now)
-            if actions:
-                apply(dst, actions)
-                continue
-            d = node.next_deadline()  # ``_apply`` of no action (most reports heard): the wake alone
-            if d is not None and d < dst.wake_at:
-                dst.wake_at = d
-                dst.wake_token += 1
-                self._at(d if d > now else now, self._wake, (dst, dst.wake_token))
+            else:
+                apply(dst, dst.node.handle(event, now))
 
     def _later(self, dst: _Robot, event: Received) -> None:
         """A message that ``dst``'s node handles a random while later, in the order received (a node
