@@ -74,6 +74,9 @@ from ramps.runtime.frames import frame
 
 PR_SET_NAME = 15
 PR_SET_PDEATHSIG = 1
+#: what the fork server and its workers call themselves (``comm``: ``ps``, ``top``, and the
+#: node's load sampler, which counts them as the node's own: ``ramps.runtime.runqueue``)
+FORK_SERVER_NAME, WORKER_NAME = b"ramps-forksrv", b"ramps-worker"
 #: bytes of a worker's stderr kept to say how it ended, and of that the last
 #: lines sent (a crash's "Extension modules: ..." list left out), each cut
 #: short: the frame stays within one atomic pipe write (PIPE_BUF, 4096)
@@ -328,7 +331,7 @@ def serve(sock: socket.socket, parent: int, run: Callable[[BinaryIO, BinaryIO], 
     """Fork a worker for each request on ``sock`` until it closes; each runs
     ``run`` over its two pipes (``ramps.runtime.worker.run``)."""
     die_with_parent(parent)
-    name_process(b"ramps-forksrv")
+    name_process(FORK_SERVER_NAME)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the node's (see the module's docstring)
     init = sock.recv(1 << 20)
     if not init:
@@ -365,7 +368,7 @@ def serve(sock: socket.socket, parent: int, run: Callable[[BinaryIO, BinaryIO], 
                     os.close(err_w)
                 signal.signal(signal.SIGCHLD, signal.SIG_DFL)
                 die_with_parent(me)
-                name_process(b"ramps-worker")
+                name_process(WORKER_NAME)
                 inp = os.fdopen(job_r, "rb", buffering=0)
                 out = os.fdopen(res_w, "wb", buffering=0)
                 run(inp, out)

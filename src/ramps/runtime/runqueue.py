@@ -12,6 +12,8 @@ import threading
 from pathlib import Path
 from typing import Iterable
 
+from ramps.runtime.forkserver import FORK_SERVER_NAME, WORKER_NAME
+
 #: pids of this process's measuring children (``speed_probe.chunk_rates_apart``) now running: the node's
 #: own work, not the robot's load (counted, a re-measurement made idle robots look busy for a second)
 MEASURING_PIDS: set[str] = set()
@@ -103,17 +105,14 @@ def _is_running(stat: bytes) -> bool:
     return end > 0 and stat[end + 2:end + 3] == b"R"
 
 
-#: the names (``comm``) of a node's fork server and its workers (``ramps.runtime.forkserver``)
-FORK_SERVER, WORKER = b"ramps-forksrv", b"ramps-worker"
-
-
 def _kind(stat: bytes) -> int:
-    """0: not running; 1: running; 2: a fork server's thread running; 3: a worker's."""
+    """0: not running; 1: running; 2: a fork server's thread running; 3: a worker's
+    (by the names ``ramps.runtime.forkserver`` gives them)."""
     end = stat.rfind(b")")
     if end <= 0 or stat[end + 2:end + 3] != b"R":
         return 0
     name = stat[stat.find(b"(") + 1:end]
-    return 2 if name == FORK_SERVER else 3 if name == WORKER else 1
+    return 2 if name == FORK_SERVER_NAME else 3 if name == WORKER_NAME else 1
 
 
 class OwnThreads:
