@@ -25,7 +25,7 @@ team's traffic and nothing else on the host. Per N, in order:
 * **kill**: a fifth of the robots other than the origins SIGKILLed at once
   ``kill_at`` seconds into a second burst (``during_burst`` False: that
   burst had ended by then, and they were killed after it): seconds until every survivor's report says it
-  sees exactly the survivors and is at most ``HEARD_AGE`` seconds old
+  sees exactly the survivors and is at most ``heard_age`` seconds old
   (where that takes longer than the burst, which survivors it waited for
   and why), and whether every program of that burst still came back;
 * **idle after**: the survivors idle again for ``idle_after`` seconds, the
@@ -61,6 +61,8 @@ from pathlib import Path
 from typing import Any
 
 import psutil
+
+from ramps.core.config import RampsConfig
 
 #: a survivor "hears" the team when its newest report is at most this old (seconds)
 HEARD_AGE = 3.0
@@ -213,9 +215,18 @@ def run_burst(clients: dict[str, Any], programs: int, units: float, timeout: flo
             "per_robot": dict(sorted(done.items()))}
 
 
+def heard_age(teammates: int) -> float:
+    """How old a survivor's newest report may be for it to hear the team:
+    ``HEARD_AGE`` where reports go every second, as much more as its periodic
+    reports go less often in a team of ``teammates`` besides it
+    (``RampsConfig.report_period``)."""
+    return HEARD_AGE + RampsConfig().report_period(1.0, teammates) - 1.0
+
+
 def late(client: Any, survivors: set[str]) -> dict[str, str]:
     """Each survivor that ``hears`` still waits for, and why."""
     rows = {r.robot: r for r in client.status().robots}
+    oldest = heard_age(len(survivors) - 1)
     out = {}
     for s in sorted(survivors):
         r = rows.get(s)
@@ -223,7 +234,7 @@ def late(client: Any, survivors: set[str]) -> dict[str, str]:
             out[s] = "not seen alive"
         elif r.sees != len(survivors) - 1:
             out[s] = f"sees {r.sees} of {len(survivors) - 1}"
-        elif r.report_age is None or r.report_age > HEARD_AGE:
+        elif r.report_age is None or r.report_age > oldest:
             out[s] = f"report {r.report_age if r.report_age is None else round(r.report_age, 1)} s old"
     return out
 

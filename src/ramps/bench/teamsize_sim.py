@@ -36,7 +36,7 @@ from typing import Any
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NODE_CPU_MAX
 from ramps.sim.engine import simulate
-from ramps.sim.scenario import ProgramSpec, RobotSpec, Scenario
+from ramps.sim.scenario import ProgramSpec, PublisherSpec, RobotSpec, Scenario
 
 
 def robot_speed(quota: float) -> float:
@@ -50,14 +50,18 @@ def scenario(n: int, per_origin: dict[str, int], units: float, speed: float, nod
              seed: int = 0, nodes: dict[str, float] | None = None) -> Scenario:
     """``n`` robots r1..rN of one core at ``speed``, each origin submitting its
     programs of ``units`` at once; ``nodes``: each robot's node's share of its core
-    (else ``node_cpu`` each)."""
+    (else ``node_cpu`` each). Periodic reports go every ``PublisherSpec``'s period, or
+    every ``RampsConfig.report_period`` where that is longer, as the real nodes' do in a
+    team of ``n``."""
     programs = [ProgramSpec(program="burn", count=k, work=units, payload=50, result=100, origin=o, at=0.0)
                 for o, k in per_origin.items() if k]
     robots = ([RobotSpec(name=f"r{i}", cores=1, speed=speed, node_cpu=min(nodes.get(f"r{i}", 0.0), NODE_CPU_MAX))
                for i in range(1, n + 1)] if nodes is not None else
               [RobotSpec(name="r{i}", count=n, cores=1, speed=speed, node_cpu=node_cpu)])
+    config = RampsConfig()
     return Scenario(name=f"team-size-{n}r-{sum(per_origin.values())}p", seed=seed, robots=robots,
-                    programs=programs, config=RampsConfig())
+                    programs=programs, config=config,
+                    publisher=PublisherSpec(period=max(PublisherSpec().period, config.report_period(1.0, n - 1))))
 
 
 def _run(sc: Scenario) -> dict[str, Any]:

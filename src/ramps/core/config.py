@@ -65,6 +65,15 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: per robot, at a cost to placement where the team is nearly full
     #: (docs/lab/2026-11-27-sim-scale-2.md). 0: to all
     report_fanout: int = 0
+    #: periodic load reports a second a robot that places programs hears at
+    #: most from its teammates: in a team of more teammates than this, each
+    #: robot makes its periodic report go every ``teammates / report_rate``
+    #: seconds instead of every report period (``report_period``), at most
+    #: three quarters of ``relocate_stale`` and of ``max_report_age``, so
+    #: that no view holds it stale; a change (its programs, its view of the
+    #: team, its battery, speed or blacklist) still goes at the next period.
+    #: 0: every period
+    report_rate: float = 32.0
     #: a host busier than the origin expected still takes a program that
     #: computes there within its time budget plus this relative margin
     #: (ramps negotiation)
@@ -208,6 +217,17 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
                 raise ValueError(f"{name} must be 0..1, got {getattr(self, name)}")
         if self.speed_max_correction < 1:
             raise ValueError(f"speed_max_correction must be >= 1, got {self.speed_max_correction}")
+
+    def report_period(self, period: float, teammates: int) -> float:
+        """Seconds between a robot's periodic load reports on the wire, in a
+        team of ``teammates`` besides it, where the publisher's period is
+        ``period``: an origin then hears at most ``report_rate`` of them a
+        second, or, in a team too large for that, one from each teammate
+        every three quarters of the report age at which a view holds a
+        report stale (``relocate_stale``, ``max_report_age``)."""
+        if self.report_rate <= 0 or teammates <= self.report_rate * period:
+            return period
+        return max(period, min(teammates / self.report_rate, 0.75 * min(self.relocate_stale, self.max_report_age)))
 
     @classmethod
     def paper(cls) -> "RampsConfig":

@@ -1,0 +1,75 @@
+"""Periodic load reports in a large team (``RampsConfig.report_rate``): each
+robot's go on the wire less often, so an origin hears a bounded number a
+second, and a change still goes at once. The real driver and core over the
+in-memory bus (``ramps.testing.memory``)."""
+
+from __future__ import annotations
+
+import pytest
+
+from ramps.core.config import RampsConfig
+from ramps.core.messages import LoadReport
+from ramps.runtime import keys
+from ramps.runtime.node_reports import moved
+from ramps.testing.memory import MemoryTeam
+
+
+def test_period_grows_with_the_team_up_to_a_bound() -> None:
+    c = RampsConfig()
+    assert c.report_period(1.0, 4) == 1.0
+    assert c.report_period(1.0, 32) == 1.0  # an origin of 33 robots hears 32 a second
+    assert c.report_period(1.0, 64) == pytest.approx(2.0)
+    # never as old as a view holds stale: three quarters of relocate_stale (4 s)
+    assert c.report_period(1.0, 999) == pytest.approx(3.0)
+    assert RampsConfig(relocate_stale=2.0).report_period(1.0, 999) == pytest.approx(1.5)
+    assert RampsConfig(report_rate=0).report_period(1.0, 999) == 1.0
+    assert c.report_period(5.0, 999) == 5.0  # never more often than the publisher's own period
+
+
+def _report(**kw) -> LoadReport:
+    base = dict(robot="r2", incarnation=1, seq=1, cores=2, speed=1.0, cpu_busy=0.1, runnable=0.2,
+                ramps_running=0, ramps_avg=0.0, accepted_total=0, finished_total=0, sees=3)
+    return LoadReport(**{**base, **kw})
+
+
+def test_what_moves_a_report_out_at_once() -> None:
+    sent = _report()
+    assert not moved(sent, _report(seq=9, cpu_busy=0.4, runnable=0.6, load_avg=1.0))
+    for change in (dict(accepted_total=1), dict(finished_total=1), dict(ramps_running=1), dict(sees=2),
+                   dict(speed=1.2), dict(cores=1), dict(low_battery=True), dict(blacklisted=["r3"]),
+                   dict(runnable=0.8), dict(incarnation=2), dict(submits=True)):
+        assert moved(sent, _report(**change)), change
+
+
+def _team(rate: float) -> MemoryTeam:
+    return MemoryTeam({f"r{i}": (1, 1.0) for i in range(1, 6)}, settings={"core": {"report_rate": rate}})
+
+
+def _periodic_heard(listener) -> int:
+    return sum(n for key, n in listener.heard.items() if "/load/" in key and not key.endswith("/now"))
+
+
+def test_a_large_team_reports_less_often_and_a_change_goes_at_once() -> None:
+    """Four teammates and a rate of one report a second: every 3 s instead of every 1 s."""
+    every, bounded = _team(0.0), _team(1.0)
+    try:
+        listeners = {}
+        for t in (every, bounded):
+            t.run(5.0)
+            listeners[id(t)] = app = t.bus.transport("listener")  # hears the periodic reports, as an application
+            app.subscribe(keys.load(t.team), lambda data: None)
+            t.run(12.0)
+        n_every, n_bounded = (_periodic_heard(listeners[id(t)]) for t in (every, bounded))
+        assert n_every >= 5 * 11  # five robots, one a second
+        assert n_bounded <= n_every / 2.5
+        # a teammate's node stops: the others' view of the team changed, their reports go at the next
+        # publish (every second) instead of waiting for their 3 s
+        before = _periodic_heard(listeners[id(bounded)])
+        at = bounded.clock.t
+        bounded.kill("r5")
+        bounded.run(1.05)
+        went = _periodic_heard(listeners[id(bounded)]) - before
+        assert went >= 4, f"{went} reports within {bounded.clock.t - at:.1f} s of a teammate going"
+    finally:
+        every.close()
+        bounded.close()
