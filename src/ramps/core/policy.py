@@ -332,7 +332,7 @@ class RampsPolicy(Policy):
             t = shared_finish_time(work, left, row[6], row[7], row[4], row[8]) + row[9]
             row[0] = min(row[0], t)
             if pooled:
-                row[10] = (work, left)
+                row[10] = (work, left, t)
         times = rank_by_energy(view, rows, config.energy_weight)  # energy against time (ramps.core.battery)
         if pooled:  # by the pool's end, then the program's own (RampsConfig.place_by)
             times = _rank_by_pool_end(rows)
@@ -387,14 +387,20 @@ def _rank_by_pool_end(rows: list[list[Any]]) -> list[float]:
     there (``pool_finish_time``, plus T_comm), and the own times are returned
     (``unrank`` puts them back). A pool is known by ``row[10]``: the
     program's work there and the work left of the programs on the slots of
-    its accelerator, or on the cores where ``choose`` read them; where it is
-    not, every program there counts as the new one's size, and the pool
-    ends with the new program."""
+    its accelerator, or on the cores where ``choose`` read them (with the
+    program's own end there, plus T_comm: the pool's where no program there
+    has more work left than it); where it is not, every program there
+    counts as the new one's size, and the pool ends with the new program."""
     times = [row[0] for row in rows]
     for row in rows:
-        if row[10] is not None and row[10][1]:
-            work, left = row[10]
-            row[0] = max(row[0], pool_finish_time(work, left, row[6], row[7], row[4], row[8]) + row[9])
+        pool = row[10]
+        if pool is not None and pool[1]:
+            work, left = pool[0], pool[1]
+            if len(pool) > 2 and max(left) <= work:  # ``pool_finish_time``'s own case, priced already
+                end = pool[2]
+            else:
+                end = pool_finish_time(work, left, row[6], row[7], row[4], row[8]) + row[9]
+            row[0] = max(row[0], end)
     return times
 
 
