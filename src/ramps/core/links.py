@@ -56,6 +56,8 @@ PLAIN_WINDOW = 5
 PADDED_WINDOW = 3
 #: padding that adds less than this many seconds: a link faster than a probe can tell
 MIN_TRANSFER = 1e-4
+#: sizes of (parameters, result) whose T_comm per robot ``Links.comm_times`` keeps
+COMM_SIZES = 8
 
 
 def in_turn(items: list[str], turn: int, most: int) -> tuple[list[str], int]:
@@ -104,6 +106,25 @@ class Links:
         self._links: dict[str, _Link] = {}
         #: where the next round of probes starts in a list of too many candidates (``probes``)
         self._turn = 0
+        #: T_comm by (parameter bytes, result bytes), then by robot (``comm_times``)
+        self._comm: dict[tuple[int, int], dict[str, float]] = {}
+
+    def __call__(self, robot: str) -> NetworkEstimate:
+        """``estimate``: a ``Links`` is what placement's ``links`` asks (``ramps.core.policy``)."""
+        return self.estimate(robot)
+
+    def comm_times(self, payload: int, result: int) -> dict[str, float]:
+        """T_comm (``comm_time``) of ``payload`` and ``result`` bytes by robot, as far as its
+        caller filled it in from ``estimate``: each robot's figure stands until its link's
+        figures change (a probe's reply), so placement prices a link once, not at every
+        scan. At most ``COMM_SIZES`` sizes are kept."""
+        key = (payload, result)
+        out = self._comm.get(key)
+        if out is None:
+            if len(self._comm) >= COMM_SIZES:
+                self._comm.clear()
+            out = self._comm[key] = {}
+        return out
 
     def probes(self, candidates: list[str], me: str, now: float, most: int, refresh: float = 0.0) -> list[Send]:
         """The probes of one ``probe_period``: one to each candidate but
@@ -152,6 +173,8 @@ class Links:
             link.padded.append(rtt)
             link.size = size
         link.update()
+        for times in self._comm.values():
+            times.pop(robot, None)
 
     def estimate(self, robot: str) -> NetworkEstimate:
         """What a message to ``robot`` costs, measured where it was."""

@@ -95,7 +95,7 @@ def place(origin: PlacingOrigin, ap: AutonomousProgram, now: float, out: list[Ac
         placement = policy.choose(
             request(ap, work, accel_work, left, prefer),
             origin.view, now, origin.rng, net=origin.net, config=origin.config, exclude=exclude,
-            links=origin.links.estimate if origin.links is not None else None,
+            links=origin.links,
         )
         host = placement.host
         if policy.negotiates:

@@ -67,6 +67,7 @@ import msgspec
 from ramps.core.battery import rank_by_energy, unrank
 from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate, comm_time, pool_finish_time, program_share, shared_finish_time
+from ramps.core.links import Links
 from ramps.core.loadview import LoadView
 
 
@@ -231,7 +232,10 @@ class RampsPolicy(Policy):
         of its accelerator, where it runs on them there (None on CPUs)."""
         me = view.me
         work = req.work
-        t_comm_default = comm_time(req.payload_size, req.result_size, net)
+        payload, result = req.payload_size, req.result_size
+        t_comm_default = comm_time(payload, result, net)
+        # a ``Links``: its T_comm per robot, kept until that link's figures change
+        kept = links.comm_times(payload, result) if isinstance(links, Links) else None
         rows: list[list[Any]] = []
         for robot, cores, speed, ramps, background, weight in scanned:
             runnable = ramps + background
@@ -249,8 +253,15 @@ class RampsPolicy(Policy):
                 t = work / (speed * program_share(cores, ramps + 1.0, background, weight))
             t_comm = 0.0
             if robot != me:
-                t_comm = t_comm_default if links is None else comm_time(req.payload_size, req.result_size,
-                                                                         links(robot))
+                if links is None:
+                    t_comm = t_comm_default
+                elif kept is None:
+                    t_comm = comm_time(payload, result, links(robot))
+                else:
+                    known = kept.get(robot)
+                    if known is None:
+                        known = kept[robot] = comm_time(payload, result, links(robot))
+                    t_comm = known
                 t += t_comm
             rows.append([t, (runnable + 1.0) / cores, robot, runnable, background, ramps, cores, speed, weight,
                          t_comm, pool])
@@ -379,6 +390,15 @@ class RampsPolicy(Policy):
             budget = max(budget or 0.0, req.plan_end - pick[9])  # the plan's end: the burst ends no later there
         return Placement(host=pick[2], expected_runnable=pick[3], expected_time=pick[0], time_budget=budget,
                          late=req.deadline is not None and pick[0] > req.deadline)
+
+
+def _cheapest(n: int, rows: list[list[Any]], rng: random.Random) -> list[list[Any]]:
+    """The ``n`` rows of least time (``row[0]``), ties drawn at random: one
+    draw per row, in order, and the rows in order of (time, draw, position),
+    as ``heapq.nsmallest`` with the key (time, draw) gives them."""
+    draw = rng.random
+    keyed = [(row[0], draw(), i) for i, row in enumerate(rows)]
+    return [rows[k[2]] for k in heapq.nsmallest(n, keyed)]
 
 
 def _rank_by_pool_end(rows: list[list[Any]]) -> list[float]:

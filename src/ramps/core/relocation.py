@@ -322,7 +322,7 @@ def price_move(origin: RelocatingOrigin, ap: AutonomousProgram, t_here: float, n
                              1.0 - (ap.checkpoint_fraction if ap.checkpoint is not None else 0.0))),
         origin.view, now, origin.relocation_rng, net=origin.net, config=origin.config,
         exclude=never | origin.view.short_of_memory(sub.memory) | origin.relink.excluded(origin.view.robots(), now),
-        links=origin.links.estimate if origin.links is not None else None,
+        links=origin.links,
     )
     t_there = placement.expected_time
     # (a view that has only those robots left ignores the exclusion: nothing moves then)
