@@ -109,13 +109,17 @@ class LocalTeam:
         self.trace = trace
         self.visible_timeout = visible_timeout
         self.graceful = graceful
-        self.log_dir = Path(log_dir) if log_dir is not None else Path(tempfile.mkdtemp(prefix="ramps-team-"))
-        self.log_dir.mkdir(parents=True, exist_ok=True)
-        # a log dir made here goes with a clean close; kept when asked, or when the team ends in an error
-        self._own_logs = log_dir is None and not keep_logs
         self.mode = cgroup_mode() if cpu_quota is not None else None
         if cpu_quota is not None and self.mode is None:
             raise PermissionError("emulated robots need root and writable cpu cgroups (v1 or v2)")
+        if router and secure:
+            raise ValueError("LocalTeam: a router of a secured team needs its own credentials; not offered here")
+        self.log_dir = Path(log_dir) if log_dir is not None else Path(tempfile.mkdtemp(prefix="ramps-team-"))
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        # a log dir made here goes with a clean close; kept when asked, or when the team ends in an error
+        # (unless nothing was written in it)
+        self._own_logs = log_dir is None and not keep_logs
+        self._made_log_dir = log_dir is None
         self.nodes: dict[str, NodeProc] = {}
         self.loads: dict[str, list[subprocess.Popen[bytes]]] = {}
         self.cgroups: dict[str, RobotCgroup] = {}
@@ -123,8 +127,6 @@ class LocalTeam:
         self._clients: list[Any] = []
         self._seed: str | None = None
         self.secure = secure
-        if router and secure:
-            raise ValueError("LocalTeam: a router of a secured team needs its own credentials; not offered here")
         self.router = router
         #: the router's endpoint and process, once started (``router``)
         self.router_endpoint: str | None = None
@@ -224,7 +226,7 @@ class LocalTeam:
         if left:
             self._own_logs = False
             raise AssertionError(f"processes of team {self.team} survived: {describe(left)}")
-        if self._own_logs:
+        if self._own_logs or (self._made_log_dir and not any(self.log_dir.iterdir())):
             shutil.rmtree(self.log_dir, ignore_errors=True)
 
     def leftovers(self) -> list[psutil.Process]:
