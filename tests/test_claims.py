@@ -253,3 +253,25 @@ def test_an_offer_planned_onto_a_claimed_robot_expects_the_claimed_program_there
     res = sim.run()
     assert res.completed == 8 and sorted(res.distribution.values()) == [0, 0, 2, 2, 2, 2]
     assert sorted((o, e) for o, _, e in sim.offers) == [("a", 0.0)] * 4 + [("b", 1.0)] * 4
+
+
+def test_alike_programs_of_a_planned_burst_are_priced_once_a_part(monkeypatch) -> None:
+    """A burst of equal programs planned with teammates' claims prices each
+    candidate once for all of them (once a part of ``PLAN_MAX``), not once a
+    program, and places as before: one program on every robot, no refusal."""
+    from ramps.core.burst import PLAN_MAX
+    from ramps.core.policy import RampsPolicy
+
+    calls = []
+    pools = RampsPolicy.pools
+
+    def counted(self, req, *a, **kw):
+        calls.append(req.program_id)
+        return pools(self, req, *a, **kw)
+
+    monkeypatch.setattr(RampsPolicy, "pools", counted)
+    sc = _throttled(robots=78)
+    assert _refusals(sc) == (0, [1] * 78)
+    # the first origin by name has no claims to count and places one by one (no plan); the two
+    # after it plan their 26 programs in two parts each
+    assert len(calls) == 2 * -(-sc.programs[0].count // PLAN_MAX) == 4

@@ -103,10 +103,16 @@ def plan(options: list[dict[tuple[str, str], Pool]], whole: bool = False
         for key, p in opts.items():
             pools.setdefault(key, p)
     on: dict[tuple[str, str], list[int]] = {key: [] for key in pools}
+    known: dict[tuple[object, ...], float] = {}  # alike programs make the same ends over and over
 
     def end(key: tuple[str, str], jobs: list[int], whole: bool = whole) -> float:
-        return pool_end(pools[key], [options[j][key].work for j in jobs], [options[j][key].comm for j in jobs],
-                        whole)
+        works = tuple([options[j][key].work for j in jobs])
+        comms = tuple([options[j][key].comm for j in jobs])
+        memo = (key, whole, works, comms)
+        e = known.get(memo)
+        if e is None:
+            e = known[memo] = pool_end(pools[key], list(works), list(comms), whole)
+        return e
 
     alone = [min(end(key, [j], False) for key in opts) for j, opts in enumerate(options)]
     where: list[tuple[str, str]] = [("", "")] * len(options)
@@ -245,23 +251,35 @@ def _place_together(origin: BurstOrigin, group: list[AutonomousProgram], now: fl
             origin.place(ap, now, out)
         return
     planned, options = [], []
+    priced: dict[tuple[object, ...], dict[tuple[str, str], Pool]] = {}  # alike programs share their pools
     for ap in group:
         exclude = origin.exclusions(ap, now, out)
         if exclude is None:
             continue  # nowhere it may go now: it waits, or failed
-        pools = policy.pools(_request(origin, ap), origin.view, now, net=origin.net, exclude=exclude, links=links)
-        if claimed:  # teammates' bursts of the instant, as work there
-            pools = [msgspec.structs.replace(p, known=p.known + tuple(claimed[p.robot, p.kind]))
-                     if (p.robot, p.kind) in claimed else p for p in pools]
-        if len(pools) > PLAN_POOLS:
-            pools = heapq.nsmallest(PLAN_POOLS, pools, key=lambda p: pool_end(p, [p.work], [p.comm]))
+        key = (_alike(ap.submit), len(ap.checkpoint or b""), exclude)
+        if key not in priced:
+            priced[key] = _pools(origin, policy, ap, now, exclude, claimed, links)
         planned.append(ap)
-        options.append({(p.robot, p.kind): p for p in pools})
+        options.append(priced[key])
     where, ends = plan(options, origin.config.place_by == "pool_end")
     took = [pool_end(options[j][w], [options[j][w].work], [options[j][w].comm]) for j, w in enumerate(where)]
     last = max(ends.values())
     for j in sorted(range(len(planned)), key=lambda j: -took[j]):
         origin.place(planned[j], now, out, prefer=(where[j][0], last))
+
+
+def _pools(origin: BurstOrigin, policy: Policy, ap: AutonomousProgram, now: float, exclude: frozenset[str],
+           claimed: dict[tuple[str, str], list[float]], links: Callable[[str], NetworkEstimate] | None
+           ) -> dict[tuple[str, str], Pool]:
+    """The pools ``ap`` may share, by (robot, kind), with the teammates'
+    claimed work on them: the ``PLAN_POOLS`` where it alone would end first."""
+    pools = policy.pools(_request(origin, ap), origin.view, now, net=origin.net, exclude=exclude, links=links)
+    if claimed:  # teammates' bursts of the instant, as work there
+        pools = [msgspec.structs.replace(p, known=p.known + tuple(claimed[p.robot, p.kind]))
+                 if (p.robot, p.kind) in claimed else p for p in pools]
+    if len(pools) > PLAN_POOLS:
+        pools = heapq.nsmallest(PLAN_POOLS, pools, key=lambda p: pool_end(p, [p.work], [p.comm]))
+    return {(p.robot, p.kind): p for p in pools}
 
 
 def _request(origin: BurstOrigin, ap: AutonomousProgram) -> PlacementRequest:
