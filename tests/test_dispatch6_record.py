@@ -1,17 +1,20 @@
 """The durable record's tables (``ramps.runtime.store``): a new record keys
-its tables by their primary keys alone (``WITHOUT ROWID``), and a record
-made with the earlier tables (rowid tables) is resumed, written and bounded
-the same way."""
+its programs by their primary key alone (``WITHOUT ROWID``) and keeps the
+outcomes' rowid, which an older node bounds them by; a record made with
+other tables (all rowid tables, or both without) is resumed, written and
+bounded the same way."""
 
 from __future__ import annotations
 
 import sqlite3
 
+import pytest
+
 from ramps.core.durable import OriginRecord
 from ramps.core.events import Submit
 from ramps.runtime.store import OriginStore
 
-#: the tables as records made before ``WITHOUT ROWID`` hold them
+#: the tables as records made before ``WITHOUT ROWID`` hold them (rowid tables)
 OLD_SCHEMA = """
 CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE programs (
@@ -42,32 +45,39 @@ def _write_and_bound(store: OriginStore) -> None:
         store.save({}, [(f"r1#1-{i}", "app", i, b"o%d" % i)])
 
 
-def test_a_new_record_keys_its_tables_by_their_primary_keys(tmp_path, monkeypatch):
+def test_a_new_record_keys_its_programs_by_their_primary_key(tmp_path, monkeypatch):
     import ramps.runtime.store as st
 
     monkeypatch.setattr(st, "OUTCOMES_MAX", 3)
     store = OriginStore(tmp_path, team="t", robot="r1")
-    assert _without_rowid(store.path) == {"programs": True, "outcomes": True}
+    assert _without_rowid(store.path) == {"programs": True, "outcomes": False}
     _write_and_bound(store)
     store.save({"r1#1-9": ("app", 9, _record(9))}, [])
     found = store.load()
     assert list(found.programs) == ["r1#1-9"] and found.programs["r1#1-9"][2] == _record(9)
     assert sorted(found.outcomes) == [("app", 2), ("app", 3), ("app", 4)]
     store.close()
+    with sqlite3.connect(store.path) as db:  # an older node's bound of the outcomes
+        db.execute("DELETE FROM outcomes WHERE rowid IN (SELECT rowid FROM outcomes ORDER BY at LIMIT 1)")
+        assert db.execute("SELECT count(*) FROM outcomes").fetchone()[0] == 2
 
 
-def test_a_record_with_the_earlier_tables_is_resumed_and_written(tmp_path, monkeypatch):
+@pytest.mark.parametrize("without_rowid", [False, True], ids=["rowid-tables", "both-without-rowid"])
+def test_a_record_with_other_tables_is_resumed_and_written(tmp_path, monkeypatch, without_rowid):
     import ramps.runtime.store as st
 
     monkeypatch.setattr(st, "OUTCOMES_MAX", 3)
     path = tmp_path / "t" / "r1.sqlite"
     path.parent.mkdir()
+    schema = OLD_SCHEMA.replace("record BLOB NOT NULL);", "record BLOB NOT NULL) WITHOUT ROWID;").replace(
+        "PRIMARY KEY (client, request_id));", "PRIMARY KEY (client, request_id)) WITHOUT ROWID;") \
+        if without_rowid else OLD_SCHEMA
     with sqlite3.connect(path) as db:
         db.execute("PRAGMA journal_mode=WAL")
-        db.executescript(OLD_SCHEMA)
+        db.executescript(schema)
         db.execute("INSERT INTO programs VALUES ('r1#1-7', 'app', 7, ?)", (st.encode_record(_record(7)),))
     store = OriginStore(tmp_path, team="t", robot="r1")
-    assert _without_rowid(store.path) == {"programs": False, "outcomes": False}  # left as they were
+    assert _without_rowid(store.path) == {"programs": without_rowid, "outcomes": without_rowid}  # as they were
     assert list(store.load().programs) == ["r1#1-7"]
     _write_and_bound(store)
     store.save({}, [("r1#1-7", "app", 7, b"o7")])

@@ -68,9 +68,10 @@ STATE_FILE = "{team}/{robot}.sqlite"
 #: seconds, and rows, of delivered outcomes kept for clients that ask again
 OUTCOME_KEEP = 3600.0
 OUTCOMES_MAX = 10_000
-#: the tables, keyed by their primary keys alone (``WITHOUT ROWID``: one
-#: B-tree each, so a write touches fewer pages); a record made before they
-#: were is read and written the same way (the statements name no rowid)
+#: the tables; ``programs`` is keyed by its primary key alone (``WITHOUT
+#: ROWID``: one B-tree, so each write touches a page less). ``outcomes``
+#: keeps its rowid, which an older node bounds it by. No statement here names
+#: a rowid, so a record made with other tables is read and written the same way
 SCHEMA = """
 CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS programs (
@@ -78,7 +79,7 @@ CREATE TABLE IF NOT EXISTS programs (
     WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS outcomes (
     client TEXT NOT NULL, request_id INTEGER NOT NULL, outcome BLOB NOT NULL, at REAL NOT NULL,
-    PRIMARY KEY (client, request_id)) WITHOUT ROWID;
+    PRIMARY KEY (client, request_id));
 CREATE INDEX IF NOT EXISTS outcomes_at ON outcomes (at);
 """
 
