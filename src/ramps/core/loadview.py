@@ -250,6 +250,17 @@ class LoadView(Scanning):
     def robots(self) -> list[str]:
         return list(self._robots)
 
+    def holds(self, robot: str) -> bool:
+        """Whether ``robot`` is one of ``robots``."""
+        return robot in self._robots
+
+    def stale(self, now: float, seconds: float) -> list[str]:
+        """The teammates whose latest report is older than ``seconds`` (``report_age``), or that
+        sent none."""
+        me = self.me
+        return [name for name, rob in self._robots.items()
+                if name != me and (rob.report is None or now - rob.received_at > seconds)]
+
     def size(self) -> int:
         """How many robots the view holds (``robots``' length, without the list)."""
         return len(self._robots)

@@ -70,7 +70,9 @@ class Scanning:
         horizon, factors, robots, me, blacklist = (now - self.max_report_age, self.speed_factor, self._robots,
                                                    self.me, self._blacklist)
         out = []
-        for name, rob in robots.items() if only is None else [(n, robots[n]) for n in only if n in robots]:
+        for name, rob in robots.items() if only is None else zip(only, map(robots.get, only)):
+            if rob is None:  # a name of ``only`` not in the view
+                continue
             rep = rob.report
             if name != me and (rep is None or rob.lost or rob.received_at < horizon or name in blacklist):
                 continue
@@ -113,15 +115,25 @@ class Scanning:
         with no robot (relocation's first estimate, ``ramps.core.relocation``)."""
         rows = {}
         best = 0.0
-        robots = self._robots
-        for row in self._rows(now, False, None):
-            name = row[0]
-            rob = robots[name]
-            rate = rob.row_rate if rob.row is row else None
+        horizon, factors, me, blacklist = now - self.max_report_age, self.speed_factor, self.me, self._blacklist
+        for name, rob in self._robots.items():  # ``_rows``' pass, with the rates
+            rep = rob.report
+            if name != me and (rep is None or rob.lost or rob.received_at < horizon or name in blacklist):
+                continue
+            rate = None
+            if rep is None:
+                row = self._row(name, rob, False)
+            else:
+                row = rob.row
+                factor = factors.get(name, 1.0)
+                if row is None or rob.row_factor != factor:
+                    row = rob.row = self._row(name, rob, False)
+                    rob.row_factor, rob.row_rate = factor, None
+                rate = rob.row_rate
             if rate is None:
                 _, cores, speed, ramps, background, weight = row
                 rate = speed * program_share(cores, ramps + 1.0, background, weight)
-                if rob.row is row:
+                if rep is not None:
                     rob.row_rate = rate
             rows[name] = row
             if rate > best:

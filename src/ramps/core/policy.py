@@ -248,7 +248,8 @@ class RampsPolicy(Policy):
                 pool = (req.accelerator_work, others)
                 runnable, background, ramps, cores, speed, weight = on_it, 0.0, 0.0, count, a_speed, 1.0
             elif background == 0.0 or weight == 1.0:  # equal sharing (the common, fast case)
-                t = work / (speed * min(1.0, cores / (runnable + 1.0)))
+                share = cores / (runnable + 1.0)
+                t = work / (speed * (share if share < 1.0 else 1.0))  # min(1.0, share), without a call
             else:  # the robot's own busy software outweighs the program
                 t = work / (speed * program_share(cores, ramps + 1.0, background, weight))
             t_comm = 0.0

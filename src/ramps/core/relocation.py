@@ -126,10 +126,9 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
     programs = to_check(origin, now)
     if isinstance(programs, bool):
         return programs
-    # the rows, and the fastest a new program could run anywhere by the
-    # count of tasks (the policy's first estimate): a program that would
-    # not gain by the thresholds even at that rate is not priced (most
-    # checks in a balanced team end here, at O(programs))
+    # the rows, and the fastest a new program could run anywhere by the count of tasks (the policy's
+    # first estimate): a program that would not gain by the thresholds even at that rate is not
+    # priced (most checks in a balanced team end here, at O(programs))
     rows, best_rate = origin.view.rows_and_best_rate(now)
     keep = False
     see_factors(origin, now)
@@ -142,6 +141,7 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
     ages: dict[str, float | None] = {}
     doubts: dict[tuple[str, str], str | None] = {}
     tops: dict[str, tuple[float, int]] = {}
+    floors: dict[tuple[str, float], float] = {}
     for ap in programs:
         if ap.state is not S.RUNNING and ap.state is not S.MOVING:
             continue
@@ -175,14 +175,14 @@ def relocation_check(origin: RelocatingOrigin, now: float, out: list[Action]) ->
             ap.move_wanted_since = None
             continue
         left = max(0.0, ap.work - ap.done)
-        t_floor = floor_of(origin, ap, now, best_rate)
+        t_floor = floor_kept(origin, ap, now, best_rate, floors)
         # a host whose programs share its cores: a move frees some for the rest (``host_times``)
         crowded = share < 1.0 and cfg.place_by == "pool_end"
         if not worth_moving(origin, pool_bound(origin, ap, row, left, share, tops) if crowded
                             else left / (speed * share), t_floor):
             ap.move_wanted_since = None
             continue  # not even by the count of tasks here (an upper bound of the estimates below)
-        t_here, stay, freed = host_times(origin, ap, now, row, left)
+        t_here, stay, freed = host_times(origin, ap, now, row, left, t_floor)
         if not (worth_moving(origin, t_here, t_floor) or worth_moving(origin, stay, max(freed, t_floor))):
             ap.move_wanted_since = None
         elif ap.move_wanted_since is None:
@@ -212,6 +212,21 @@ def floor_of(origin: RelocatingOrigin, ap: AutonomousProgram, now: float, best_r
     return t_floor
 
 
+def floor_kept(origin: RelocatingOrigin, ap: AutonomousProgram, now: float, best_rate: float,
+               floors: dict[tuple[str, float], float]) -> float:
+    """``floor_of``, kept in ``floors`` for the rest of a check: the same for
+    every program of one name and declared work without a checkpoint or an
+    accelerator (its learned work, at ``best_rate``)."""
+    sub = ap.submit
+    if ap.checkpoint is not None or sub.accelerator:
+        return floor_of(origin, ap, now, best_rate)
+    key = (sub.program, sub.work)
+    t = floors.get(key)
+    if t is None:
+        t = floors[key] = floor_of(origin, ap, now, best_rate)
+    return t
+
+
 def slot_floor(origin: RelocatingOrigin, ap: AutonomousProgram, now: float) -> float:
     """The fastest ``ap`` (running on a CPU) could end on a slot of its kind of
     accelerator elsewhere, as its policy sees the slots (``Policy.pools``):
@@ -233,27 +248,36 @@ def slot_floor(origin: RelocatingOrigin, ap: AutonomousProgram, now: float) -> f
 
 
 def host_times(origin: RelocatingOrigin, ap: AutonomousProgram, now: float,
-               row: tuple[str, float, float, float, float, float], left: float) -> tuple[float, float, float]:
+               row: tuple[str, float, float, float, float, float], left: float,
+               floor: float | None = None) -> tuple[float, float, float]:
     """When ``ap``, with ``left`` units to do, ends where it runs (its host's
     ``row``: processor sharing with the work its host's report lists left),
     and, under ``RampsConfig.place_by`` "pool_end", when the last program of
     its host's pool ends with it there and without it (else its own end
-    for both)."""
+    for both). With ``floor`` (the soonest it could end anywhere), the end
+    without it is inf where neither end with it beats ``floor`` by the
+    thresholds (``worth_moving``, which a later floor passes no sooner):
+    no move is wanted then, whatever that end."""
     _, cores, speed, ramps, background, weight = row
     others = origin.view.remaining_work(ap.placed_host, now, round(ramps), ap.work) or []
-    if others:  # one of them is this program: the one closest to its estimate
-        others.pop(min(range(len(others)), key=lambda i: abs(others[i] - left)))
+    if others:  # one of them is this program: the one closest to its estimate (the first of equals)
+        gaps = [abs(x - left) for x in others]
+        others.pop(gaps.index(min(gaps)))
     own = shared_finish_time(left, others, cores, speed, background, weight)
     if origin.config.place_by != "pool_end" or not others:
         return own, own, own
     top = max(others)
     rest = list(others)
     rest.remove(top)
-    freed = shared_finish_time(top, rest, cores, speed, background, weight)
-    if top <= left:  # ``pool_finish_time``: its own end is the pool's
-        return own, own, freed
-    rest.append(left)  # ``pool_finish_time`` of the pool with it, its list built once
-    return own, shared_finish_time(top, rest, cores, speed, background, weight), freed
+    stay = own  # ``pool_finish_time``: its own end is the pool's
+    if top > left:  # ``pool_finish_time`` of the pool with it, its list built once
+        rest.append(left)
+        stay = shared_finish_time(top, rest, cores, speed, background, weight)
+        rest.pop()
+    if (floor is not None and floor == floor and 1.0 + origin.config.relocate_gain >= 0.0
+            and not worth_moving(origin, own, floor) and not worth_moving(origin, stay, floor)):
+        return own, stay, math.inf
+    return own, stay, shared_finish_time(top, rest, cores, speed, background, weight)
 
 
 def pool_bound(origin: RelocatingOrigin, ap: AutonomousProgram, row: tuple[str, float, float, float, float, float],
@@ -405,11 +429,8 @@ def unsettled(origin: RelocatingOrigin, now: float) -> frozenset[str]:
     """Robots no program moves to now: their speed correction changed within
     ``relocate_calm``, or their latest report is older than ``relocate_stale``."""
     cfg = origin.config
-    out = set()
-    for robot in origin.view.robots():
-        if robot == origin.me:
-            continue
-        age = origin.view.report_age(robot, now)
-        if age is None or age > cfg.relocate_stale or not factor_settled(origin, robot, now):
-            out.add(robot)
+    view, me, calm = origin.view, origin.me, cfg.relocate_calm
+    out = set(view.stale(now, cfg.relocate_stale))
+    out.update(robot for robot, (_, since) in origin.factor_seen.items()
+               if not now - since >= calm and robot != me and view.holds(robot))  # not ``factor_settled``
     return frozenset(out)
