@@ -319,8 +319,10 @@ class Simulator:
                 continue
             if dst.spec.handling:
                 self._later(dst, event)
-            else:
-                apply(dst, dst.node.handle(event, now))
+                continue
+            actions = dst.node.handle(event, now)
+            if actions:  # a report heard with no action sets no timer: its node's wake stands
+                apply(dst, actions)
 
     def _later(self, dst: _Robot, event: Received) -> None:
         """A message that ``dst``'s node handles a random while later, in the order received (a node
