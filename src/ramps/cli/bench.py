@@ -234,7 +234,8 @@ def _first_calls_on_testbed(robots: int, cores: int, calls: int, rounds: int, qu
               f"each ({q / cores:.2f} a core, a CFS period of {period_us / 1000:g} ms), {calls} route_plan calls "
               f"at once (cold), one after another, at once (warm) ...")
     try:
-        res = bench_first_calls_testbed(lambda: Testbed(robots, cores=cores, quota=q, speed=1.0, period_us=period_us),
+        res = bench_first_calls_testbed(lambda: Testbed(robots, cores=cores, quota=q, speed=1.0, period_us=period_us,
+                                                        config={"preload_bundled": True}),
                                         robots=robots, cores=cores, quota=q, calls=calls, rounds=rounds,
                                         keep_logs=keep_logs)
         return res | {"period_ms": period_us / 1000}

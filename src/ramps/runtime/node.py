@@ -219,7 +219,8 @@ class NodeRuntime:
             self.node.origin.changed = set()
         self.pool = self._worker_pool(self.cores, self.registry.targets(), self.inbound.finished,
                                       nice=worker_increment(s.worker_nice), on_progress=self.inbound.progress_reported,
-                                      on_checkpoint=self.inbound.checkpoint_saved, core_share=m.core_fraction())
+                                      on_checkpoint=self.inbound.checkpoint_saved, core_share=m.core_fraction(),
+                                      bundled=s.preload_bundled)
         self.pool.start()
         # programs on an accelerator are not CPU programs (ramps.core.accelerators)
         self.sampler = self._load_sampler(lambda: self.pool.busy() + self.pool.queued() - self.accel.held(),

@@ -158,12 +158,12 @@ class WorkerPool:
     def __init__(self, size: int, targets: dict[str, str], on_finished: Finished, *,
                  env: dict[str, str] | None = None, nice: int = 0, max_size: int | None = None,
                  on_progress: Progress | None = None, on_checkpoint: Checkpoint | None = None,
-                 core_share: float = 1.0) -> None:
+                 core_share: float = 1.0, bundled: bool = True) -> None:
         if size < 1:
             raise ValueError("a worker pool needs at least one worker")
         self.size = size
         self.max_size = max(size, max_size if max_size is not None else 8 * size)
-        self.targets = dict(targets)
+        self.targets, self.bundled = dict(targets), bundled  # bundled: the fork server preloads theirs too
         self.on_finished = on_finished
         self.on_progress, self.on_checkpoint = on_progress, on_checkpoint
         self.env, self.nice = env, nice
@@ -204,7 +204,7 @@ class WorkerPool:
         finally:
             theirs.close()
         ours.settimeout(FORK_TIMEOUT)
-        ours.send(_enc.encode({"targets": self.targets}))
+        ours.send(_enc.encode({"targets": self.targets, "bundled": self.bundled}))
         self._server_sock = ours
         return ours
 

@@ -325,7 +325,8 @@ class MemoryPool:
 
     def __init__(self, size: int, targets: dict[str, str], on_finished: Callable[..., None], *, nice: int = 0,
                  on_progress: Callable[..., None] | None = None,
-                 on_checkpoint: Callable[..., None] | None = None, core_share: float = 1.0) -> None:
+                 on_checkpoint: Callable[..., None] | None = None, core_share: float = 1.0,
+                 bundled: bool = True) -> None:
         self.size, self.targets, self.on_finished = size, targets, on_finished
         self.jobs: dict[tuple[str, int], tuple[str, bytes]] = {}
         self.started = self.stopped = False
