@@ -34,10 +34,10 @@ def _report(**kw) -> LoadReport:
 
 def test_what_moves_a_report_out_at_once() -> None:
     sent = _report()
-    assert not moved(sent, _report(seq=9, cpu_busy=0.4, runnable=0.6, load_avg=1.0))
+    assert not moved(sent, _report(seq=9, cpu_busy=0.9, runnable=1.6, load_avg=1.0))  # load: within the period
     for change in (dict(accepted_total=1), dict(finished_total=1), dict(ramps_running=1), dict(sees=2),
                    dict(speed=1.2), dict(cores=1), dict(low_battery=True), dict(blacklisted=["r3"]),
-                   dict(runnable=0.8), dict(incarnation=2), dict(submits=True)):
+                   dict(incarnation=2), dict(submits=True)):
         assert moved(sent, _report(**change)), change
 
 

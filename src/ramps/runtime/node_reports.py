@@ -82,22 +82,18 @@ class ReportsDriver(Protocol):
 LINKS_PER_REPORT = 8
 
 
-#: a runnable load moved by at least this since the last periodic report on the wire: the next goes, whatever its period
-RUNNABLE_MOVED = 0.5
-
-
 def moved(sent: LoadReport, report: LoadReport) -> bool:
     """Whether ``report`` says what a teammate decides on differently from
     ``sent``, the last that went: its programs (started, ended), its view of
-    the team, cores, speed, battery, blacklist or accelerators, whether it
-    submits, or a runnable load moved by ``RUNNABLE_MOVED``."""
+    the team, cores, speed, battery, blacklist or accelerators, or whether it
+    submits. Not its load besides programs: on a busy robot that moves every
+    second, and it reaches the teammates within the period."""
     return (report.accepted_total != sent.accepted_total or report.finished_total != sent.finished_total
             or report.ramps_running != sent.ramps_running or report.sees != sent.sees
             or report.cores != sent.cores or report.speed != sent.speed or report.low_battery != sent.low_battery
             or report.blacklisted != sent.blacklisted or report.incarnation != sent.incarnation
             or report.submits != sent.submits or report.speed_class != sent.speed_class
-            or [a[:4] for a in map(astuple, report.accelerators)] != [a[:4] for a in map(astuple, sent.accelerators)]
-            or abs(report.runnable - sent.runnable) >= RUNNABLE_MOVED)
+            or [a[:4] for a in map(astuple, report.accelerators)] != [a[:4] for a in map(astuple, sent.accelerators)])
 
 
 class LoadReports:
