@@ -57,7 +57,7 @@ from ramps.sim.wire import wire_size
 
 class _Robot:
     __slots__ = ("spec", "node", "cpu", "accel", "alive", "net_up", "frozen", "incarnation", "epoch",
-                 "wake_at", "wake_token", "done_token", "pub_phase", "remeasure_at", "record", "handled")
+                 "wake_at", "wake_token", "done_token", "pub_phase", "remeasure_at", "record", "handled", "timed")
     #: the robot's node and CPU, made by each boot (``Simulator._setup`` boots
     #: every robot before the first event). A crashed robot keeps its last
     #: ones until it recovers, unused: everything that reaches them checks
@@ -74,6 +74,8 @@ class _Robot:
         #: bumped whenever the robot's links break, to drop messages in flight
         self.epoch = 0
         self.wake_at = math.inf
+        #: its node's deadline was read since its boot (``Simulator._apply``): its wake is scheduled
+        self.timed = False
         self.wake_token = self.done_token = 0
         self.pub_phase = 0.0
         #: when its node measures its speed again (``ramps.core.speed``)
@@ -192,7 +194,7 @@ class Simulator:
             accelerators=accels, bursts=True, submits=spec.name in self._submitters,
         )
         r.node.executor.background = float(spec.background)
-        r.wake_at = math.inf
+        r.wake_at, r.timed = math.inf, False
         r.remeasure_at = now + REMEASURE_PERIOD
         r.pub_phase = self.rng.uniform(0.0, self.sc.publisher.period)
         self._at(now + r.pub_phase, self._publish, (r, r.incarnation))
@@ -226,6 +228,7 @@ class Simulator:
             elif isinstance(a, Note):
                 if self._trace_on:
                     self.trace.append(TraceEntry(self.now, node.robot, a.what, a.program_id, a.robot, a.attempt, a.detail))
+        r.timed = True
         d = node.next_deadline()  # when to wake it next
         if d is not None and d < r.wake_at:
             r.wake_at = d
@@ -321,7 +324,7 @@ class Simulator:
                 self._later(dst, event)
                 continue
             actions = dst.node.handle(event, now)
-            if actions:  # a report heard with no action sets no timer: its node's wake stands
+            if actions or not dst.timed:  # a report heard with no action sets no timer: the wake stands
                 apply(dst, actions)
 
     def _later(self, dst: _Robot, event: Received) -> None:
