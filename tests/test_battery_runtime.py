@@ -161,7 +161,10 @@ def test_robots_emulated_on_one_machine_do_not_read_its_battery() -> None:
     from ramps.testing.local import LocalTeam
 
     local = LocalTeam(2)  # nothing starts before ``start``
-    # by variable, which a 0.1.0 node (tests/test_wire_mixed_e2e.py) ignores, where it would refuse the flag
-    env = local._env("r1")
-    assert "--no-battery-sysfs" not in local.node_argv("r1", 7447, None, None)
-    assert load_settings(flags={"robot": "r1"}, environ=env).battery_sysfs is False
+    try:
+        # by variable, which a 0.1.0 node (tests/test_wire_mixed_e2e.py) ignores, where it would refuse the flag
+        env = local._env("r1")
+        assert "--no-battery-sysfs" not in local.node_argv("r1", 7447, None, None)
+        assert load_settings(flags={"robot": "r1"}, environ=env).battery_sysfs is False
+    finally:
+        local.close()

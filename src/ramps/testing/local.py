@@ -97,51 +97,50 @@ class LocalTeam:
                  router: bool = False, trace: bool = False) -> None:
         self.names = [f"r{i}" for i in range(1, robots + 1)] if isinstance(robots, int) else list(robots)
         self.team = team or f"local-{uuid.uuid4().hex[:8]}"
-        self.default_cores = cores
-        self.speed = speed
-        self.lease_ms = lease_ms
-        self.policy = policy
-        self.programs = tuple(programs)
-        self.cpu_quota = cpu_quota
+        self.default_cores, self.speed, self.lease_ms, self.policy = cores, speed, lease_ms, policy
+        self.programs, self.cpu_quota, self.verbose = tuple(programs), cpu_quota, verbose
         self.env = dict(os.environ if env is None else env)
-        self.verbose = verbose
         #: every node writes its decisions to ``<log_dir>/<robot>.trace.jsonl`` (``ramps node --trace``)
         self.trace = trace
-        self.visible_timeout = visible_timeout
-        self.graceful = graceful
+        self.visible_timeout, self.graceful = visible_timeout, graceful
         self.mode = cgroup_mode() if cpu_quota is not None else None
         if cpu_quota is not None and self.mode is None:
             raise PermissionError("emulated robots need root and writable cpu cgroups (v1 or v2)")
         if router and secure:
             raise ValueError("LocalTeam: a router of a secured team needs its own credentials; not offered here")
-        self.log_dir = Path(log_dir) if log_dir is not None else Path(tempfile.mkdtemp(prefix="ramps-team-"))
-        self.log_dir.mkdir(parents=True, exist_ok=True)
-        # a log dir made here goes with a clean close; kept when asked, or when the team ends in an error
-        # (unless nothing was written in it)
-        self._own_logs = log_dir is None and not keep_logs
-        self._made_log_dir = log_dir is None
+        #: made at its first use when none is given (a team that never starts leaves none behind)
+        self._log_dir = Path(log_dir) if log_dir is not None else None
+        if self._log_dir is not None:
+            self._log_dir.mkdir(parents=True, exist_ok=True)
+        # a log dir made here goes with a clean close; kept when asked, or when the team ends in an
+        # error (unless nothing was written in it)
+        self._own_logs, self._made_log_dir = log_dir is None and not keep_logs, log_dir is None
         self.nodes: dict[str, NodeProc] = {}
         self.loads: dict[str, list[subprocess.Popen[bytes]]] = {}
         self.cgroups: dict[str, RobotCgroup] = {}
         self._procs: list[subprocess.Popen[Any]] = []
         self._clients: list[Any] = []
         self._seed: str | None = None
-        self.secure = secure
-        self.router = router
+        self.secure, self.router = secure, router
         #: the router's endpoint and process, once started (``router``)
         self.router_endpoint: str | None = None
         self.router_proc: subprocess.Popen[bytes] | None = None
         self.scheme = "tls" if secure else "tcp"
-        self.ca_dir = self.log_dir / "team-ca"
         if secure:
             from ramps.runtime.security import create_ca
 
             create_ca(self.ca_dir, self.team)
 
     @property
-    def tmp(self) -> Path:
-        """The directory of the logs (and of processes' working directory)."""
-        return self.log_dir
+    def log_dir(self) -> Path:
+        """Where the nodes' logs, traces and records go: the folder given, or a
+        temporary one made at the first use."""
+        if self._log_dir is None:
+            self._log_dir = Path(tempfile.mkdtemp(prefix="ramps-team-"))
+        return self._log_dir
+
+    ca_dir = property(lambda self: self.log_dir / "team-ca", doc="the team's certificate authority (``secure``)")
+    tmp = property(lambda self: self.log_dir, doc="the directory of the logs (and processes' working directory)")
 
     @property
     def procs(self) -> dict[str, subprocess.Popen[bytes]]:
@@ -226,8 +225,8 @@ class LocalTeam:
         if left:
             self._own_logs = False
             raise AssertionError(f"processes of team {self.team} survived: {describe(left)}")
-        if self._own_logs or (self._made_log_dir and not any(self.log_dir.iterdir())):
-            shutil.rmtree(self.log_dir, ignore_errors=True)
+        if self._log_dir is not None and (self._own_logs or (self._made_log_dir and not any(self._log_dir.iterdir()))):
+            shutil.rmtree(self._log_dir, ignore_errors=True)
 
     def leftovers(self) -> list[psutil.Process]:
         """Live processes started by this team (tagged in their environment)."""
