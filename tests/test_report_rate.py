@@ -73,3 +73,27 @@ def test_a_large_team_reports_less_often_and_a_change_goes_at_once() -> None:
     finally:
         every.close()
         bounded.close()
+
+
+def test_a_teammates_periodic_report_waits_for_the_next_round_without_waking_it() -> None:
+    """On a robot that places programs, a teammate's periodic report is held
+    (``WireIntake.later``), not queued: it wakes no round of the driver, and
+    the next round reads it first. A report of the instant still wakes it."""
+    team = MemoryTeam({"r1": (1, 1.0), "r2": (1, 1.0)})
+    try:
+        app = team.connect("r1")  # r1 places programs: it hears r2's periodic reports
+        team.run(3.0)
+        r1, r2 = team.nodes["r1"], team.nodes["r2"]
+        assert r1.membership.wide
+        seq = r1.node.view.report_of("r2").seq
+        r2.reports.sent = None  # its next periodic report goes on the wire
+        r2.reports.publish(r2._clock())
+        assert len(r1.intake.later) == 1 and r1._q.empty()  # held, and nothing woke r1
+        r1.step()
+        assert not r1.intake.later and r1.node.view.report_of("r2").seq > seq
+        r2.node.executor.accepted_total += 1  # its programs changed: a report of the instant
+        r2.reports.publish_prompt(r2.node.current_report())
+        assert not r1._q.empty() and not r1.intake.later
+        app.close()
+    finally:
+        team.close()

@@ -50,9 +50,6 @@ import random
 import threading
 from typing import TYPE_CHECKING, Any, Callable
 
-import msgspec
-
-from ramps.core.config import RampsConfig
 from ramps.core.cost import nice_weight
 from ramps.core.events import Action, Note
 from ramps.core.identity import new_incarnation
@@ -78,7 +75,7 @@ from ramps.runtime.node_outbox import Outbox
 from ramps.runtime.node_name import SameName
 from ramps.runtime.node_reports import PROMPT_HOLD, LoadReports
 from ramps.runtime.node_revoked import Revoked
-from ramps.runtime.node_robot import RobotMeasure
+from ramps.runtime.node_robot import RobotMeasure, core_config
 from ramps.runtime.node_team import Membership, join_checks
 from ramps.runtime.node_trace import NodeTrace
 from ramps.runtime.node_seams import SamplerLike, WorkerPoolLike
@@ -99,15 +96,6 @@ MAX_ITEMS_PER_ROUND = 10_000
 #: heartbeats they wait for (issue 23: a saturated robot's node)
 ROUND_SECONDS = 0.1
 
-
-def core_config(s: NodeSettings) -> RampsConfig:
-    """The core's settings for a node of ``s``: on a node that measures its own
-    speed (no ``speed`` given), costs tie within ``measured_tie_tolerance``,
-    the noise of identical robots' self-measured speeds."""
-    core = s.core
-    if not s.speed and core.measured_tie_tolerance > core.tie_tolerance:
-        core = msgspec.structs.replace(core, tie_tolerance=core.measured_tie_tolerance)
-    return core
 
 class NodeRuntime:
     """One robot's node. ``transport`` (default: a Zenoh session opened
@@ -259,7 +247,8 @@ class NodeRuntime:
             self.transport = self._given_transport or ZenohTransport.open(self.s, credentials=creds,
                                                                           fail_fast=exit_on_failure)
             self.membership.join(self.transport, self.incarnation, on_wire=self._on_wire, put=self._q.put,
-                                 on_where=self.same_name.on_where, revocations=self.revoked.secured)
+                                 on_where=self.same_name.on_where, revocations=self.revoked.secured,
+                                 on_periodic=lambda data: self._on_wire(data, True))
         except TransportError as exc:
             self._teardown()
             raise TransportError(f"cannot join team {self.team!r} over Zenoh: {exc}") from exc
@@ -370,14 +359,16 @@ class NodeRuntime:
         self._stopped.set()
 
     # ================================================================ inputs
-    def _on_wire(self, data: bytes) -> None:
+    def _on_wire(self, data: bytes, periodic: bool = False) -> None:
         """Transport callback: queue the bytes for the driver, unless the backlog
         already holds MAX_BACKLOG_BYTES (a flood, or a driver that cannot keep
         up): then drop and count (``WireIntake.admit``), so memory stays
-        bounded. Small messages (submits, heartbeats) pass any realistic burst."""
+        bounded. Small messages (submits, heartbeats) pass any realistic burst.
+        A teammate's ``periodic`` report waits for the next round without
+        waking the driver (``WireIntake.later``)."""
         self.heap.note(len(data))
         if self.intake.admit(len(data), MAX_BACKLOG_BYTES):
-            self._q.put(("wire", data, self.clock.monotonic()))
+            (self.intake.later.append if periodic else self._q.put)(("wire", data, self.clock.monotonic()))
 
     # ================================================================ driver
     def _clock(self) -> float:
@@ -425,6 +416,11 @@ class NodeRuntime:
             item = q.get(timeout=wait) if block else (None if q.empty() else q.get_nowait())
         except queue.Empty:
             item = None
+        later = self.intake.later  # teammates' periodic reports, held: older than what woke this round
+        if later:
+            if item is not None:
+                later.append(item)
+            item = later.popleft()
         # every message queued before the timers fire: heartbeats and
         # results that piled up while the node stalled count first
         actions: list[Action] = []
@@ -450,10 +446,10 @@ class NodeRuntime:
                 actions = []
             budget -= 1
             if budget <= 0 or self.clock.monotonic() >= until:
-                behind = not q.empty()
+                behind = bool(later) or not q.empty()
                 self.rounds_cut += behind
                 break
-            item = None if q.empty() else q.get_nowait()  # this thread alone takes: no queue.Empty raised
+            item = later.popleft() if later else None if q.empty() else q.get_nowait()  # this thread alone takes
         now = clock()
         if self.awake.pending:
             actions.extend(self._stall_told(now))

@@ -14,11 +14,21 @@ too (``version_refused``, ``unknown_types``) and logged naming the sender
 and the version or type the first time (``VERSION_LOG_KEYS`` pairs at most:
 a hostile sender inventing names is only counted). Other remote bad input
 the driver finds (``refused``) counts the same.
+
+Teammates' periodic load reports do not wake the driver: they wait in
+``later`` for its next round, which takes them before anything else. A
+round comes at least every report period (a report is then read up to that
+late, within the period it stands for), so an origin hearing a hundred
+teammates runs a round for many of their reports instead of one each.
+Everything else wakes it: heartbeats (a timeout counts from when one is
+read), reports of the instant, offers and results.
 """
 
 from __future__ import annotations
 
 import logging
+from collections import deque
+from typing import Any
 
 from ramps.core.messages import Envelope, UnknownMessageType, VersionRefused, WireError, decode
 
@@ -49,6 +59,8 @@ class WireIntake:
         #: dropped because they did not fit
         self.backlog = 0
         self.overflow = 0
+        #: teammates' periodic reports admitted, for the driver's next round
+        self.later: deque[tuple[Any, ...]] = deque()
 
     def admit(self, size: int, limit: int) -> bool:
         """Whether a message of ``size`` bytes fits in a backlog of ``limit``

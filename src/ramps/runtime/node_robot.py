@@ -25,6 +25,10 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
+import msgspec
+
+from ramps.core.config import RampsConfig
+
 from ramps.core.speed import REMEASURE_CPU, REMEASURE_EARLY_COUNT, SpeedMeasured, next_remeasure, speed_moved
 from ramps.runtime.measure import cgroup_dirs, cpu_limit, cpu_model, detect_cores
 from ramps.runtime.settings import NodeSettings
@@ -37,6 +41,16 @@ REMEASURE_LEAD = 1.5
 #: weight of the latest report period in the node's averaged own CPU (about 10 reports)
 NODE_CPU_ALPHA = 0.1
 
+
+
+def core_config(s: NodeSettings) -> RampsConfig:
+    """The core's settings for a node of ``s``: on a node that measures its own
+    speed (no ``speed`` given), costs tie within ``measured_tie_tolerance``,
+    the noise of identical robots' self-measured speeds."""
+    core = s.core
+    if not s.speed and core.measured_tie_tolerance > core.tie_tolerance:
+        core = msgspec.structs.replace(core, tie_tolerance=core.measured_tie_tolerance)
+    return core
 
 class RobotMeasure:
     """The measures of robot ``robot`` (settings ``s``), taken at ``measure``."""

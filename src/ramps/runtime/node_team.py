@@ -74,6 +74,7 @@ class Membership:
         #: the subscription to this robot's own name's periodic reports (until ``widen``)
         self._own: Declared | None = None
         self._on_wire: Callable[[bytes], None] = lambda data: None
+        self._on_periodic: Callable[[bytes], None] = self._on_wire
         self._put: Callable[[tuple[Any, ...]], None] = lambda item: None
         #: this robot's newest load report as published (periodic or of the instant): the queryable's answer
         self.newest: bytes | None = None
@@ -86,13 +87,16 @@ class Membership:
 
     def join(self, t: Transport, incarnation: int, *, on_wire: Callable[[bytes], None],
              put: Callable[[tuple[Any, ...]], None], on_where: Callable[[str, bool], None],
-             revocations: bool) -> None:
+             revocations: bool, on_periodic: Callable[[bytes], None] | None = None) -> None:
         """Subscribe and declare on ``t``: messages and reports go to
         ``on_wire``, liveliness (and revocation lists, if ``revocations``) to
         the driver's queue through ``put``, ``where`` tokens to ``on_where``.
-        Raises what the transport raises (the driver then leaves)."""
+        Raises what the transport raises (the driver then leaves). Once it
+        places programs (``widen``), every teammate's periodic reports go to
+        ``on_periodic`` (default ``on_wire``)."""
         team, robot = self.team, self.robot
         self._on_wire, self._put = on_wire, put
+        self._on_periodic = on_periodic or on_wire
         self._own = t.subscribe(keys.load(team, robot), on_wire)
         self._subs = [
             t.subscribe(keys.inbox(team, robot), on_wire),
@@ -127,7 +131,7 @@ class Membership:
 
         try:
             assert t is not None
-            self._subs.append(t.subscribe(keys.load(self.team), self._on_wire))
+            self._subs.append(t.subscribe(keys.load(self.team), self._on_periodic))
             if self._own is not None:  # the subscription above has its reports too
                 self._own.undeclare()
                 self._subs.remove(self._own)

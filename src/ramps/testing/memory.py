@@ -449,7 +449,7 @@ class MemoryTeam:
             for rt in list(self.nodes.values()):
                 if rt.transport is not None:
                     rt.step()
-            if all(rt._q.empty() for rt in self.nodes.values() if rt.transport is not None):
+            if all(rt._q.empty() and not rt.intake.later for rt in self.nodes.values() if rt.transport is not None):
                 return
 
     def run(self, seconds: float, *, complete: bool = True, until: Callable[[], bool] | None = None) -> None:
