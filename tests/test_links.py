@@ -111,3 +111,46 @@ def test_an_idle_robot_measures_each_link_once_then_rarely_and_a_submitter_every
         later += [t for a in node.tick(t) if isinstance(getattr(a, "msg", None), LinkProbe)]
         t += period
     assert later == [t - 4 * period + k * period for k in range(4)]  # every period once an application submits
+
+
+def test_probes_per_robot_do_not_grow_with_the_team() -> None:
+    """In a view of 120 teammates, a submitter probes at most ``probe_rate`` x
+    ``probe_period`` of them a period (the next ones in turn: every link
+    within a few periods), and an idle robot, once its links are measured,
+    about a sixth of that; in a team of 40 nothing changes."""
+    from corehelpers import report
+
+    from ramps.core.config import RampsConfig
+    from ramps.core.events import Received, Submit
+    from ramps.core.links import IDLE_REFRESH, probe_budget
+    from ramps.core.messages import LinkProbe
+    from ramps.core.node import Node
+
+    cfg = RampsConfig()
+    assert probe_budget(cfg, 40, True) == (40, 0.0) and probe_budget(cfg, 40, False) == (40, IDLE_REFRESH * 5.0)
+    assert probe_budget(cfg, 120, True) == (40, 0.0)
+    assert probe_budget(cfg, 120, False) == (40, IDLE_REFRESH * 15.0)
+    assert probe_budget(RampsConfig(probe_rate=0), 120, True) == (64, 0.0)
+
+    def run(submits: bool, seconds: float) -> tuple[int, set[str]]:
+        node = Node("r0", cores=1, speed=1.0, config=cfg, rng=random.Random(0))
+        if submits:
+            node.handle(Submit(program_id="p1", program="noop", work=0.001), 0.0)
+        sent, to = 0, set()
+        t = 0.0
+        while t < seconds:
+            for i in range(1, 121):
+                node.handle(Received(sender=f"r{i}", msg=report(f"r{i}", seq=int(t) + 1)), t)
+            for a in node.tick(t):
+                if isinstance(getattr(a, "msg", None), LinkProbe):
+                    sent += 1
+                    to.add(a.to)
+                    node.handle(Received(sender=a.to, msg=LinkProbeReply(sent_at=a.msg.sent_at,
+                                                                         size=len(a.msg.padding))), t + 0.001)
+            t += cfg.probe_period
+        return sent, to
+
+    sent, to = run(True, 100.0)
+    assert sent <= 40 * 20 and len(to) == 120  # 20 periods; every teammate in turn
+    idle, _ = run(False, 300.0)
+    assert idle / 300.0 <= 8.0 / IDLE_REFRESH * 1.5  # past the first measurements: a sixth of a submitter's

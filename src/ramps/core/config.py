@@ -132,6 +132,13 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: a node probes each teammate's link this often to measure T_comm
     #: (``ramps.core.links``); 0 = assume the configured network estimate
     probe_period: float = 5.0
+    #: link probes a second a robot sends at most: one an application
+    #: submits to probes at most this many teammates each ``probe_period``
+    #: (the next ones in turn), one no application submits to re-measures a
+    #: link every ``IDLE_REFRESH`` times as long as a submitter would, so
+    #: probes per robot do not grow with the team (``links.probe_budget``).
+    #: 0: no limit
+    probe_rate: float = 8.0
     #: relocation after placement (the ramps policy): an origin re-evaluates
     #: the cost model for its running programs with what it now knows, and
     #: moves one when its remaining time where it runs exceeds the time to

@@ -12,7 +12,10 @@ gives the bandwidth. A link not measured yet costs the configured
 once (a plain probe and a padded one) and then only every
 ``IDLE_REFRESH`` probe periods: its links are ready when an application
 starts submitting there (it probes every period from then on), without
-every idle robot of a large team probing every teammate every period.
+every idle robot of a large team probing every teammate every period. In a
+team of more than ``probe_rate`` x ``probe_period`` candidates, a robot
+probes that many a period, the next ones in turn, and an idle one waits
+longer still (``probe_budget``): probes per robot do not grow with the team.
 
 The figures are the *least* round trips among the latest few: the latency
 is half the least of the last ``PLAIN_WINDOW`` plain round trips, the
@@ -40,6 +43,7 @@ from collections import deque
 
 import msgspec
 
+from ramps.core.config import RampsConfig
 from ramps.core.cost import NetworkEstimate
 from ramps.core.events import Send
 from ramps.core.messages import LinkProbe, LinkProbeReply
@@ -58,6 +62,26 @@ PADDED_WINDOW = 3
 MIN_TRANSFER = 1e-4
 #: sizes of (parameters, result) whose T_comm per robot ``Links.comm_times`` keeps
 COMM_SIZES = 8
+
+
+def probe_budget(config: RampsConfig, teammates: int, submits: bool) -> tuple[int, float]:
+    """(``most``, ``refresh``) for ``Links.probes`` of one probe period on
+    a robot of ``teammates`` candidates besides it: at most
+    ``placement_sample`` and ``probe_rate`` x ``probe_period`` probes; a robot
+    no application ``submits`` to probes a link again only after
+    ``IDLE_REFRESH`` times the period, or the time the team's links take at
+    ``probe_rate`` when longer, so it sends at most a ``IDLE_REFRESH``-th of
+    that rate whatever the team's size."""
+    most = config.placement_sample
+    if config.probe_rate > 0:
+        budget = max(1, round(config.probe_rate * config.probe_period))
+        most = budget if most <= 0 else min(most, budget)
+    if submits:
+        return most, 0.0
+    period = config.probe_period
+    if config.probe_rate > 0:
+        period = max(period, teammates / config.probe_rate)
+    return most, IDLE_REFRESH * period
 
 
 def in_turn(items: list[str], turn: int, most: int) -> tuple[list[str], int]:

@@ -69,7 +69,7 @@ from ramps.core.events import (
 )
 from ramps.core.executor import Executor
 from ramps.core.identity import SameName
-from ramps.core.links import IDLE_REFRESH, Links
+from ramps.core.links import Links, probe_budget
 from ramps.core.loadview import LoadView, report_problem
 from ramps.core.node_accelerators import accelerators_seen
 from ramps.core.oneway import OneWay
@@ -216,9 +216,9 @@ class Node:
         self.origin.tick(now, more)
         out.extend(self._loopback(more, now))
         if self._probe_due is not None and now >= self._probe_due:
-            refresh = 0.0 if self.submits else IDLE_REFRESH * self.config.probe_period
-            out.extend(self.links.probes(self.view.candidates(now), self.robot, now, self.config.placement_sample,
-                                         refresh))
+            candidates = self.view.candidates(now)
+            most, refresh = probe_budget(self.config, len(candidates) - 1, self.submits)
+            out.extend(self.links.probes(candidates, self.robot, now, most, refresh))
             self._probe_due = now + self.config.probe_period
             out.extend(self.oneway.check(self.view, now, self.submits and not self.config.report_fanout))
         return self._prompt_report(out, now)
