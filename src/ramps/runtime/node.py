@@ -145,8 +145,9 @@ class NodeRuntime:
         self.awake = AwakeClock(clock, lease_s=settings.lease_ms / 1000.0, robot=self.robot, trace=self.trace)
         #: the robot's cores, speed and quota, where its load is measured (``RobotMeasure.measure`` at start)
         self.measured = RobotMeasure(settings, clock, self.robot)
-        #: rounds that stopped handling queued items to send what was due (ROUND_SECONDS)
-        self.rounds_cut = 0
+        #: rounds that stopped handling queued items to send what was due (ROUND_SECONDS), and whether
+        #: the last left held reports (``WireIntake.later``) for the next round, which then waits for nothing
+        self.rounds_cut, self.rounds_behind = 0, False
         #: the core's next deadline as the last round left it (its driver thread alone touches the core)
         self._deadline: tuple[float | None] | None = None
         #: teammates whose liveliness went just after a stall, held a moment
@@ -410,7 +411,7 @@ class NodeRuntime:
         next_pub = self._next_pub
         wake = next_pub if deadline is None else min(deadline, next_pub)
         wake = min(wake, self.held_lost.next_due()) if self.held_lost.held else wake
-        wait = max(0.0, min(wake, self.outbound.held_due(now)) - now)
+        wait = 0.0 if self.rounds_behind else max(0.0, min(wake, self.outbound.held_due(now)) - now)
         self.awake.sleep(wait)
         try:
             item = q.get(timeout=wait) if block else (None if q.empty() else q.get_nowait())
@@ -450,6 +451,7 @@ class NodeRuntime:
                 self.rounds_cut += behind
                 break
             item = later.popleft() if later else None if q.empty() else q.get_nowait()  # this thread alone takes
+        self.rounds_behind = behind and bool(later)  # what is held: the next round at once, not at a timer
         now = clock()
         if self.awake.pending:
             actions.extend(self._stall_told(now))
