@@ -15,13 +15,14 @@ from ramps.testing.memory import MemoryTeam
 
 
 def test_period_grows_with_the_team_up_to_a_bound() -> None:
-    c = RampsConfig()
+    assert RampsConfig().report_period(1.0, 999) == 1.0  # off by default
+    c = RampsConfig(report_rate=32.0)
     assert c.report_period(1.0, 4) == 1.0
     assert c.report_period(1.0, 32) == 1.0  # an origin of 33 robots hears 32 a second
     assert c.report_period(1.0, 64) == pytest.approx(2.0)
     # never as old as a view holds stale: three quarters of relocate_stale (4 s)
     assert c.report_period(1.0, 999) == pytest.approx(3.0)
-    assert RampsConfig(relocate_stale=2.0).report_period(1.0, 999) == pytest.approx(1.5)
+    assert RampsConfig(report_rate=32.0, relocate_stale=2.0).report_period(1.0, 999) == pytest.approx(1.5)
     assert RampsConfig(report_rate=0).report_period(1.0, 999) == 1.0
     assert c.report_period(5.0, 999) == 5.0  # never more often than the publisher's own period
 
