@@ -126,7 +126,8 @@ def test_probes_per_robot_do_not_grow_with_the_team() -> None:
     from ramps.core.messages import LinkProbe
     from ramps.core.node import Node
 
-    cfg = RampsConfig()
+    assert probe_budget(RampsConfig(), 120, False) == (64, IDLE_REFRESH * 5.0)  # off by default
+    cfg = RampsConfig(probe_rate=8.0)
     assert probe_budget(cfg, 40, True) == (40, 0.0) and probe_budget(cfg, 40, False) == (40, IDLE_REFRESH * 5.0)
     assert probe_budget(cfg, 120, True) == (40, 0.0)
     assert probe_budget(cfg, 120, False) == (40, IDLE_REFRESH * 15.0)

@@ -141,8 +141,10 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: (the next ones in turn), one no application submits to re-measures a
     #: link every ``IDLE_REFRESH`` times as long as a submitter would, so
     #: probes per robot do not grow with the team (``links.probe_budget``).
-    #: 0: no limit
-    probe_rate: float = 8.0
+    #: 0 (the default): no limit. Fewer probes are fewer replies, which an
+    #: origin back from a stall counts as a host heard again (``relink``),
+    #: so it is off until that is measured, as ``report_rate`` is
+    probe_rate: float = 0.0
     #: relocation after placement (the ramps policy): an origin re-evaluates
     #: the cost model for its running programs with what it now knows, and
     #: moves one when its remaining time where it runs exceeds the time to
