@@ -153,7 +153,7 @@ class LoadReports:
                                 reports_received=st.reports_received)
         try:
             m.newest = data = encode(self.robot, report)
-            if self._due(report, now, node.config.report_period(self.s.publish_period, len(m.alive - {self.robot}))):
+            if self._due(report, now, node.config.report_period(self.s.publish_period, len(m.alive))):
                 m.load_pub.put(data)
                 if self.trace.wire:
                     self.trace.write("tx", "", "*", 0, "LoadReport")

@@ -28,7 +28,6 @@ from typing import Any, Callable
 import msgspec
 
 from ramps.core.config import RampsConfig
-
 from ramps.core.speed import REMEASURE_CPU, REMEASURE_EARLY_COUNT, SpeedMeasured, next_remeasure, speed_moved
 from ramps.runtime.measure import cgroup_dirs, cpu_limit, cpu_model, detect_cores
 from ramps.runtime.settings import NodeSettings
@@ -42,7 +41,6 @@ REMEASURE_LEAD = 1.5
 NODE_CPU_ALPHA = 0.1
 
 
-
 def core_config(s: NodeSettings) -> RampsConfig:
     """The core's settings for a node of ``s``: on a node that measures its own
     speed (no ``speed`` given), costs tie within ``measured_tie_tolerance``,
@@ -51,6 +49,7 @@ def core_config(s: NodeSettings) -> RampsConfig:
     if not s.speed and core.measured_tie_tolerance > core.tie_tolerance:
         core = msgspec.structs.replace(core, tie_tolerance=core.measured_tie_tolerance)
     return core
+
 
 class RobotMeasure:
     """The measures of robot ``robot`` (settings ``s``), taken at ``measure``."""
