@@ -110,9 +110,11 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     speed_max_correction: float = 2.0
     #: a program that lost this many hosts or workers ends with an error
     max_attempts: int = 50
-    #: a host whose heartbeats (or acceptance) stop while its load reports
-    #: keep arriving is suspected, not written off: its copy stays wanted and
-    #: the program is also placed elsewhere at once; the first result wins
+    #: a host whose heartbeats (or acceptance) stop while it is still heard
+    #: from (any message since, or a load report not yet overdue:
+    #: ``ramps.core.liveness``) is suspected, not written off: its copy stays
+    #: wanted and the program is also placed elsewhere at once; the first
+    #: result wins
     hedge_suspects: bool = True
     #: a host publishes a report of the instant whenever the programs it runs
     #: change, so origins deciding at once see each other's placements within
@@ -240,7 +242,13 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
         report stale (``relocate_stale``, ``max_report_age``)."""
         if self.report_rate <= 0 or teammates <= self.report_rate * period:
             return period
-        return max(period, min(teammates / self.report_rate, 0.75 * min(self.relocate_stale, self.max_report_age)))
+        return max(period, min(teammates / self.report_rate, self.longest_report_period))
+
+    @property
+    def longest_report_period(self) -> float:
+        """The longest time ``report_rate`` puts between a robot's periodic
+        reports: three quarters of the age at which a view holds a report stale."""
+        return 0.75 * min(self.relocate_stale, self.max_report_age)
 
     @classmethod
     def paper(cls) -> "RampsConfig":

@@ -9,8 +9,9 @@ will not deliver (``ramps.core.program.TRANSITIONS``):
   once, or after a random contention back-off (doubling) when turned away
   again and again, as several origins place on the same few robots;
 - **host failed** (``on_host_failed``: no acceptance in time, silence, or
-  its session gone): a host that still publishes lost messages, not the
-  program, so its copy stays wanted while the program runs elsewhere too;
+  its session gone): a host still heard from (``ramps.core.liveness``:
+  anything since, or a load report not yet overdue) lost messages, not
+  the program, so its copy stays wanted while the program runs elsewhere too;
   an origin cut off from everyone keeps the remote copy wanted and runs
   the program here; otherwise the attempt is written off
   (``ramps.core.isolation`` may revive it), the host blacklisted, and the
@@ -33,6 +34,7 @@ from typing import Protocol
 from ramps.core.config import RampsConfig
 from ramps.core.events import Action, Note, Send
 from ramps.core.isolation import Isolation
+from ramps.core.liveness import Liveness
 from ramps.core.loadview import LoadView
 from ramps.core.messages import CancelProgram, OffloadRejected, ProgramResult
 from ramps.core.policy import Placement
@@ -52,6 +54,7 @@ class FailingOrigin(Protocol):
     rng: random.Random
     timers: Timers
     isolation: Isolation
+    liveness: Liveness
     host_failures: int
     rejections: int
 
@@ -147,15 +150,23 @@ def on_host_failed(origin: FailingOrigin, ap: AutonomousProgram, now: float, out
 
 
 def _still_publishing(origin: FailingOrigin, host: str | None, reason: Event, now: float) -> bool:
+    """Whether ``host`` outlived the silence about a program (``ramps.core.liveness``)."""
     config, view = origin.config, origin.view
     if not config.hedge_suspects or host is None or host == origin.me or view.is_lost(host):
         return False
     window = {E.HEARTBEAT_TIMEOUT: config.heartbeat_timeout, E.CONNECT_TIMEOUT: config.connect_timeout}.get(reason)
-    age = view.report_age(host, now)
-    # a report that arrived at least a heartbeat period after we last heard
-    # about the program (or offered it): the host outlived the silence. A
-    # cut or frozen host's last report is older than that.
-    return window is not None and age is not None and age < window - config.heartbeat_period
+    if window is None:
+        return False
+    # anything from the host at least a heartbeat period after we last heard
+    # about the program (or offered it) says it lives; so does a load report
+    # not yet overdue where its reports come further apart than that. A cut
+    # or frozen host's last message is older than both.
+    since = window - config.heartbeat_period
+    heard, age = origin.liveness.heard_age(host, now), view.report_age(host, now)
+    if heard is not None and heard < since:
+        return True
+    gap = min(origin.liveness.report_gap(host), config.longest_report_period)
+    return age is not None and age < max(since, gap + config.heartbeat_period)
 
 
 def backoff(origin: FailingOrigin, ap: AutonomousProgram, now: float, out: list[Action], *,

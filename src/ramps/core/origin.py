@@ -51,6 +51,7 @@ from ramps.core.events import Action, Deliver, Note, Send, Submit
 from ramps.core.isolation import Isolation
 from ramps.core.learning import Learning
 from ramps.core.links import Links
+from ramps.core.liveness import Liveness
 from ramps.core.loadview import LoadView
 from ramps.core.messages import (
     CancelProgram,
@@ -63,16 +64,8 @@ from ramps.core.messages import (
     ResultAck,
 )
 from ramps.core.policy import Placement, Policy, PlacementRequest, make_policy
-from ramps.core.program import (
-    FINAL,
-    TRANSITIONS,
-    AutonomousProgram,
-    Event,
-    IllegalTransition,
-    ProgramState,
-    ProtocolError,
-    resolve_handlers as resolve_handlers,
-)
+from ramps.core.program import (FINAL, TRANSITIONS, AutonomousProgram, Event, IllegalTransition, ProgramState,
+                                ProtocolError, resolve_handlers as resolve_handlers)
 from ramps.core.relink import Relink
 from ramps.core.relocation import relocation_check
 from ramps.core.timers import Timers
@@ -118,6 +111,8 @@ class Origin(Learning):
         self.links: Links | None = None
         #: after this robot's own stall, the hosts whose links are not back yet
         self.relink = Relink(me)
+        #: when each teammate was last heard from, how far apart its reports come
+        self.liveness = Liveness(config.max_report_age)
         #: when the next relocation check is due (None: nothing running to move)
         self._relocate_due: float | None = None
         #: relocation checks price moves with a generator of their own, so
