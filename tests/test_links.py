@@ -126,7 +126,7 @@ def test_probes_per_robot_do_not_grow_with_the_team() -> None:
     from ramps.core.messages import LinkProbe
     from ramps.core.node import Node
 
-    assert probe_budget(RampsConfig(), 120, False) == (64, IDLE_REFRESH * 5.0)  # off by default
+    assert probe_budget(RampsConfig(probe_rate=0), 120, False) == (64, IDLE_REFRESH * 5.0)  # no limit
     cfg = RampsConfig(probe_rate=8.0)
     assert probe_budget(cfg, 40, True) == (40, 0.0) and probe_budget(cfg, 40, False) == (40, IDLE_REFRESH * 5.0)
     assert probe_budget(cfg, 120, True) == (40, 0.0)

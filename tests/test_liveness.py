@@ -10,7 +10,7 @@ import pytest
 
 from ramps.core.events import Deliver, Received
 from ramps.core.liveness import GAP_DECAY, Liveness
-from ramps.core.messages import Heartbeat, LinkProbeReply
+from ramps.core.messages import Heartbeat, LinkProbeReply, ProgramRef
 
 from corehelpers import CFG, busy_origin_team, submit
 
@@ -115,3 +115,30 @@ def test_without_it_the_same_silence_writes_the_host_off() -> None:
     assert not team.notes("suspected")
     assert team.nodes["o"].view.is_blacklisted("a")
     assert CFG.hedge_suspects
+
+
+# ---------------------------------------------------------------- heartbeats read later
+def test_a_heartbeat_read_later_counts_from_its_arrival() -> None:
+    # a driver that reads a heartbeat at a later round says when it arrived
+    # (``Received.at``): the program's silence counts from then, not from the
+    # round, so holding heartbeats for a round does not slow failure detection
+    def beat(team) -> Heartbeat:
+        return Heartbeat(host="a", incarnation=team.nodes["a"].incarnation, programs=[ProgramRef(program_id="p", attempt=1)])
+
+    def silent_until(team, t: float) -> None:
+        team.advance(t, hold=no_beats)
+
+    arrived, read = busy_origin_team(), busy_origin_team()
+    for team in (arrived, read):
+        submit(team)
+        team.deliver()
+        team.advance(1.0)  # heartbeats until 1.0, then none
+        silent_until(team, 2.9)
+    arrived.handle("o", Received(sender="a", msg=beat(arrived), at=2.0))  # arrived at 2.0, read at 2.9
+    read.handle("o", Received(sender="a", msg=beat(read)))  # the same, heard at 2.9
+    for team in (arrived, read):
+        silent_until(team, 2.5 + CFG.heartbeat_timeout)
+    assert [n.detail for n in arrived.notes("failed")] == ["heartbeat_timeout"]
+    assert not read.notes("failed")
+    silent_until(read, 3.0 + CFG.heartbeat_timeout)
+    assert [n.detail for n in read.notes("failed")] == ["heartbeat_timeout"]

@@ -8,14 +8,17 @@ from __future__ import annotations
 import pytest
 
 from ramps.core.config import RampsConfig
-from ramps.core.messages import LoadReport
+from ramps.core.events import Received
+from ramps.core.messages import (Heartbeat, LinkProbeReply, LoadReport, OffloadRejected, ProgramRef, encode,
+                                 is_heartbeat)
 from ramps.runtime import keys
 from ramps.runtime.node_reports import moved
 from ramps.testing.memory import MemoryTeam
 
 
 def test_period_grows_with_the_team_up_to_a_bound() -> None:
-    assert RampsConfig().report_period(1.0, 999) == 1.0  # off by default
+    assert RampsConfig().report_rate == 32.0 and RampsConfig.paper().report_rate == 0.0
+    assert RampsConfig.paper().report_period(1.0, 999) == 1.0  # the paper's: every period
     c = RampsConfig(report_rate=32.0)
     assert c.report_period(1.0, 4) == 1.0
     assert c.report_period(1.0, 32) == 1.0  # an origin of 33 robots hears 32 a second
@@ -96,5 +99,37 @@ def test_a_teammates_periodic_report_waits_for_the_next_round_without_waking_it(
         r2.reports.publish_prompt(r2.node.current_report())
         assert not r1._q.empty() and not r1.intake.later
         app.close()
+    finally:
+        team.close()
+
+
+def test_a_heartbeat_is_told_by_its_bytes_alone() -> None:
+    beat = Heartbeat(host="r2", incarnation=7, programs=[ProgramRef(program_id="p", attempt=1)])
+    for sender in ("r2", "x" * 128, "ロボット" * 32, "heartbeat"):
+        assert is_heartbeat(encode(sender, beat))
+    others = [_report(robot="heartbeat"), LinkProbeReply(sent_at=1.0), OffloadRejected(program_id="heartbeat", attempt=1,
+                                                                                       reason="busy", host="h", permanent=False)]
+    for msg in others:
+        assert not is_heartbeat(encode("heartbeat", msg)), msg
+
+
+def test_a_heartbeat_waits_for_the_next_round_and_counts_from_its_arrival() -> None:
+    """An origin reads its hosts' heartbeats at the driver's next round (two a
+    second from each host: waking for each cost more than reading it); the
+    core is told when each arrived, so a program's silence counts from then."""
+    team = MemoryTeam({"r1": (1, 1.0), "r2": (1, 1.0)})
+    try:
+        team.run(2.0)
+        r1 = team.nodes["r1"]
+        r1._on_wire(encode("r2", Heartbeat(host="r2", incarnation=1, programs=[])))
+        assert len(r1.intake.later) == 1 and r1._q.empty()  # held, and nothing woke r1
+        seen: list[Received] = []
+        handle = r1.node.handle
+        r1.node.handle = lambda event, now: (seen.append(event), handle(event, now))[1]  # type: ignore[method-assign]
+        team.clock.advance(0.3)
+        r1.step()
+        assert not r1.intake.later
+        [got] = [e for e in seen if isinstance(e, Received) and isinstance(e.msg, Heartbeat)]
+        assert got.at == pytest.approx(r1._clock() - 0.3, abs=1e-6)
     finally:
         team.close()

@@ -72,12 +72,11 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: three quarters of ``relocate_stale`` and of ``max_report_age``, so
     #: that no view holds it stale; a change (its programs, its view of the
     #: team, its battery, speed or blacklist) still goes at the next period.
-    #: 0 (the default): every period. The trade: a report up to 3 s old no
-    #: longer tells an origin that a host whose heartbeats are late still
-    #: runs (``hedge_suspects``): on 100 robots of a fiftieth of a core, 26
-    #: healthy hosts were written off and 34 programs moved with 32, 1 and 0
-    #: without (docs/lab/2026-11-28-report-rate.md)
-    report_rate: float = 0.0
+    #: An origin knows a report is not overdue until the longest recent gap
+    #: between a robot's reports (``ramps.core.liveness``), so a host with
+    #: late heartbeats is still suspected, not written off. 0: every period
+    #: (docs/lab/2026-11-28-liveness.md)
+    report_rate: float = 32.0
     #: a host busier than the origin expected still takes a program that
     #: computes there within its time budget plus this relative margin
     #: (ramps negotiation)
@@ -143,10 +142,8 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: (the next ones in turn), one no application submits to re-measures a
     #: link every ``IDLE_REFRESH`` times as long as a submitter would, so
     #: probes per robot do not grow with the team (``links.probe_budget``).
-    #: 0 (the default): no limit. Fewer probes are fewer replies, which an
-    #: origin back from a stall counts as a host heard again (``relink``),
-    #: so it is off until that is measured, as ``report_rate`` is
-    probe_rate: float = 0.0
+    #: 0: no limit
+    probe_rate: float = 8.0
     #: relocation after placement (the ramps policy): an origin re-evaluates
     #: the cost model for its running programs with what it now knows, and
     #: moves one when its remaining time where it runs exceeds the time to
@@ -263,5 +260,6 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             hedge_suspects=False,
             prompt_reports=False,
             probe_period=0.0,
+            report_rate=0.0,
             relocate=False,
         )

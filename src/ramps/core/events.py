@@ -146,6 +146,9 @@ class Received(_Rec, frozen=True, kw_only=True):
 
     sender: str
     msg: Message
+    #: when it arrived, where the driver read it at a later round (a
+    #: heartbeat: the program's silence counts from then); None: now
+    at: float | None = None
 
 
 Event = (Submit | Cancel | ProgramFinished | ProgressReported | CheckpointSaved | PeerLost | PeerAlive | Received

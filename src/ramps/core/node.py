@@ -284,7 +284,7 @@ class Node:
 
     def _dispatch(self, event: Event, now: float, out: list[Action]) -> None:
         if isinstance(event, Received):
-            self._receive(event.sender, event.msg, now, out)
+            self._receive(event.sender, event.msg, now, out, event.at)
         elif isinstance(event, (Submit, ApplicationHere)):
             if not self.submits:  # an application submits here: teammates hear it now (ramps.core.claims)
                 self.submits, self._published = True, (-1, -1)
@@ -365,7 +365,7 @@ class Node:
         self.executor.set_speed(speed, now)
         self.speed = self.view.speed = speed
 
-    def _receive(self, sender: str, msg: object, now: float, out: list[Action]) -> None:
+    def _receive(self, sender: str, msg: object, now: float, out: list[Action], at: float | None = None) -> None:
         if isinstance(msg, LoadReport) and msg.robot == self.robot and msg.incarnation != self.incarnation:
             taken = self.same_name.heard(msg, now)  # another node under this name, or this one's previous process
             if taken is not None:
@@ -399,7 +399,7 @@ class Node:
         elif isinstance(msg, OffloadRejected):
             self.origin.on_rejected(msg, now, out)
         elif isinstance(msg, Heartbeat):
-            self.origin.on_heartbeat(msg, now, out)
+            self.origin.on_heartbeat(msg, now, out, heard=now if at is None else min(at, now))
         elif isinstance(msg, ProgramResult):
             if self.host_speeds is not None:
                 self._compare_speed(msg, now, out)

@@ -202,13 +202,15 @@ class Origin(Learning):
     def on_result(self, msg: ProgramResult, now: float, out: list[Action]) -> None:
         self._route(msg.program_id, msg.attempt, msg.host, E.RESULT, now, out, msg)
 
-    def on_heartbeat(self, msg: Heartbeat, now: float, out: list[Action]) -> None:
-        host, programs = msg.host, self.programs
+    def on_heartbeat(self, msg: Heartbeat, now: float, out: list[Action], *, heard: float | None = None) -> None:
+        """``heard``: when it arrived, if the driver read it later (the silence counts from then)."""
+        host, programs, heard = msg.host, self.programs, now if heard is None else heard
         for ref in msg.programs:
             ap = programs.get(ref.program_id)
             if (ap is not None and ap.state is S.RUNNING and ref.attempt == ap.attempt and host == ap.host
                     and ap.live.get(ref.attempt) == host):
-                ap.last_heard = now  # the table's RUNNING + heartbeat, the most common message of all, inline
+                if heard > ap.last_heard:  # the table's RUNNING + heartbeat, the most common message of all, inline
+                    ap.last_heard = heard
                 continue
             self._route(ref.program_id, ref.attempt, host, E.HEARTBEAT, now, out, None)
 

@@ -46,6 +46,7 @@ from ramps.core.events import (
 )
 from ramps.core.messages import (
     CancelSubmitted,
+    Heartbeat,
     LoadReport,
     ProgramOutcome,
     ProgramUpdate,
@@ -65,7 +66,7 @@ if TYPE_CHECKING:
     from ramps.runtime.node_team import Membership
     from ramps.runtime.node_trace import NodeTrace
     from ramps.runtime.settings import NodeSettings
-    from ramps.runtime.transport import Transport
+    from ramps.runtime.transport import Clock, Transport
 
 log = logging.getLogger("ramps.node")
 #: seconds after a stall during which a teammate's lost liveliness is held,
@@ -86,6 +87,7 @@ class InboundDriver(Protocol):
     accel: AcceleratorProbe
     metrics: NodeMetrics | None
     membership: Membership
+    clock: Clock
 
     def endpoints(self) -> list[str]: ...
 
@@ -214,6 +216,9 @@ class Inbound:
             if isinstance(msg, LoadReport) and msg.robot != env.sender:
                 self.intake.refused("a load report in another robot's name", None, now)
                 return []
+            if type(msg) is Heartbeat:  # read at this round: its silence counts from its arrival
+                return node.handle(Received(sender=env.sender, msg=msg,
+                                            at=now - max(0.0, self.d.clock.monotonic() - item[2])), now)
             return node.handle(Received(sender=env.sender, msg=msg), now)
         assert node is not None
         if kind == "finished":
