@@ -9,10 +9,11 @@ from __future__ import annotations
 import pytest
 
 from ramps.core.events import Deliver, Received
-from ramps.core.liveness import GAP_DECAY, Liveness
+from ramps.core.liveness import GAP_DECAY
+from ramps.core.loadview import LoadView
 from ramps.core.messages import Heartbeat, LinkProbeReply, ProgramRef
 
-from corehelpers import CFG, busy_origin_team, submit
+from corehelpers import CFG, busy_origin_team, report, submit
 
 
 def no_beats(sender: str, to: str, msg: object) -> bool:
@@ -35,24 +36,26 @@ def run(team, until: float, *, a_every: float, beats_until: float, step: float =
 
 # ---------------------------------------------------------------- the estimate
 def test_the_report_gap_follows_the_period_and_leaves_out_outages() -> None:
-    live = Liveness(longest=10.0)
-    assert live.report_gap("a") == 0.0 and live.heard_age("a", 5.0) is None
+    view = LoadView("o", cores=1, speed=1.0, max_report_age=10.0)
+    seq = iter(range(1, 100))
+
+    def at(t: float, incarnation: int = 0) -> None:
+        view.on_report(report("a", seq=next(seq), incarnation=incarnation), t)
+
+    assert view.report_gap("a") == 0.0
     for t in (1.0, 4.0, 7.0, 10.0):
-        live.heard("a", t, True)
-    assert live.report_gap("a") == pytest.approx(3.0)
+        at(t)
+    assert view.report_gap("a") == pytest.approx(3.0)
     # reports on change in between shrink it by a tenth of the time that passes only
     for t in (10.2, 10.4, 10.6):
-        live.heard("a", t, True)
-    assert live.report_gap("a") == pytest.approx(3.0 - 3 * GAP_DECAY * 0.2)
-    # a 30 s silence is an outage, not a period
-    live.heard("a", 40.6, True)
-    assert live.report_gap("a") == pytest.approx(3.0 - 3 * GAP_DECAY * 0.2)
-    # other messages count as heard, not as reports
-    live.heard("a", 41.0, False)
-    assert live.heard_age("a", 42.0) == pytest.approx(1.0)
-    assert live.report_gap("a") == pytest.approx(3.0 - 3 * GAP_DECAY * 0.2)
-    with pytest.raises(ValueError):
-        Liveness(longest=0.0)
+        at(t)
+    assert view.report_gap("a") == pytest.approx(3.0 - 3 * GAP_DECAY * 0.2)
+    # a 30 s silence is an outage, not a period; nor is a restart
+    at(40.6)
+    at(41.0, incarnation=1)
+    assert view.report_gap("a") == pytest.approx(3.0 - 3 * GAP_DECAY * 0.2)
+    at(42.0, incarnation=1)
+    assert view.report_gap("a") == pytest.approx(3.0 - 3 * GAP_DECAY * 0.2 - GAP_DECAY * 1.0)
 
 
 # ---------------------------------------------------------------- the hedge

@@ -9,8 +9,9 @@ import pytest
 
 from ramps.core.config import RampsConfig
 from ramps.core.events import Received
-from ramps.core.messages import (Heartbeat, LinkProbeReply, LoadReport, OffloadRejected, ProgramRef, encode,
-                                 is_heartbeat)
+from ramps.core.messages import (KNOWN_TYPES, Heartbeat, LinkProbeReply, LoadReport, OffloadAccepted,
+                                 OffloadRejected, ProgramProgress, ProgramRef, ProgramResult, ResultAck, encode)
+from ramps.core.wirepeek import WAIT_TAGS, can_wait
 from ramps.runtime import keys
 from ramps.runtime.node_reports import moved
 from ramps.testing.memory import MemoryTeam
@@ -103,14 +104,29 @@ def test_a_teammates_periodic_report_waits_for_the_next_round_without_waking_it(
         team.close()
 
 
-def test_a_heartbeat_is_told_by_its_bytes_alone() -> None:
-    beat = Heartbeat(host="r2", incarnation=7, programs=[ProgramRef(program_id="p", attempt=1)])
-    for sender in ("r2", "x" * 128, "ロボット" * 32, "heartbeat"):
-        assert is_heartbeat(encode(sender, beat))
-    others = [_report(robot="heartbeat"), LinkProbeReply(sent_at=1.0), OffloadRejected(program_id="heartbeat", attempt=1,
-                                                                                       reason="busy", host="h", permanent=False)]
-    for msg in others:
-        assert not is_heartbeat(encode("heartbeat", msg)), msg
+def test_messages_that_can_wait_are_told_by_their_bytes_alone() -> None:
+    """Heartbeats, acceptances, acknowledgements and progress wait for the driver's next round;
+    a result, an offer's refusal, a report or a probe's reply wakes it."""
+    wait = [Heartbeat(host="r2", incarnation=7, programs=[ProgramRef(program_id="p", attempt=1)]),
+            OffloadAccepted(program_id="p", attempt=1, host="r2", accept_seq=1),
+            ResultAck(program_id="p", attempt=1, origin="r1"),
+            ProgramProgress(program_id="p", attempt=1, host="r2", fraction=0.5)]
+    wake = [_report(robot="heartbeat"), LinkProbeReply(sent_at=1.0), ProgramResult(program_id="accept", attempt=1,
+                                                                                    host="h", ok=True),
+            OffloadRejected(program_id="heartbeat", attempt=1, reason="busy", host="h", permanent=False)]
+    assert {type(m).__struct_config__.tag for m in wait} == set(WAIT_TAGS) <= KNOWN_TYPES
+    for sender in ("r2", "x" * 31, "x" * 128, "ロボット" * 32, "heartbeat", "¤type©heartbeat", "£msg\x84¤type©ack"):
+        for msg in wait:
+            assert can_wait(encode(sender, msg)), (sender, msg)
+        for msg in wake:
+            assert not can_wait(encode(sender, msg)), (sender, msg)
+    # a result whose value spells a heartbeat's head is not one; nor are bytes cut short
+    trap = b"\x83\xa1v\x01\xa6sender\xa2r2\xa3msg\x84\xa4type\xa9heartbeat"
+    assert not can_wait(encode("r2", ProgramResult(program_id="p", attempt=1, host="h", ok=True, value=trap)))
+    beat = encode("r2", wait[0])
+    end = beat.index(b"heartbeat") + len(b"heartbeat")  # cut before its tag ends: not told (decoding refuses it)
+    assert not any(can_wait(beat[:n]) for n in range(end)) and can_wait(beat[:end])
+    assert not can_wait(b"") and not can_wait(b"\x83\xa1v\x02" + beat[4:])  # another major: read at once
 
 
 def test_a_heartbeat_waits_for_the_next_round_and_counts_from_its_arrival() -> None:

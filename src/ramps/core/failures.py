@@ -34,7 +34,7 @@ from typing import Protocol
 from ramps.core.config import RampsConfig
 from ramps.core.events import Action, Note, Send
 from ramps.core.isolation import Isolation
-from ramps.core.liveness import Liveness
+from ramps.core.liveness import still_heard
 from ramps.core.loadview import LoadView
 from ramps.core.messages import CancelProgram, OffloadRejected, ProgramResult
 from ramps.core.policy import Placement
@@ -54,7 +54,7 @@ class FailingOrigin(Protocol):
     rng: random.Random
     timers: Timers
     isolation: Isolation
-    liveness: Liveness
+    heard: dict[str, float]
     host_failures: int
     rejections: int
 
@@ -157,16 +157,9 @@ def _still_publishing(origin: FailingOrigin, host: str | None, reason: Event, no
     window = {E.HEARTBEAT_TIMEOUT: config.heartbeat_timeout, E.CONNECT_TIMEOUT: config.connect_timeout}.get(reason)
     if window is None:
         return False
-    # anything from the host at least a heartbeat period after we last heard
-    # about the program (or offered it) says it lives; so does a load report
-    # not yet overdue where its reports come further apart than that. A cut
-    # or frozen host's last message is older than both.
-    since = window - config.heartbeat_period
-    heard, age = origin.liveness.heard_age(host, now), view.report_age(host, now)
-    if heard is not None and heard < since:
-        return True
-    gap = min(origin.liveness.report_gap(host), config.longest_report_period)
-    return age is not None and age < max(since, gap + config.heartbeat_period)
+    at = origin.heard.get(host)
+    return still_heard(config, window, None if at is None else now - at, view.report_age(host, now),
+                       view.report_gap(host))
 
 
 def backoff(origin: FailingOrigin, ap: AutonomousProgram, now: float, out: list[Action], *,

@@ -24,6 +24,7 @@ import itertools
 
 from ramps.core.accelerators import reported_left, work_left
 from ramps.core.cost import program_share
+from ramps.core.liveness import GAP_DECAY
 from ramps.core.loadview_scan import Scanning
 from ramps.core.messages import MAX_LISTED, AcceleratorSeen, LoadReport
 from ramps.core.reportcheck import report_problem
@@ -57,11 +58,13 @@ def _kind(b: _Booking, acc_total: int, fin_total: int) -> int:
 
 class _Robot:
     __slots__ = ("report", "received_at", "bookings", "unseen_accept", "unseen_finish", "paper_booked", "lost",
-                 "counted", "waiting_accept", "waiting_finish", "stale", "accel", "row", "row_factor", "row_rate")
+                 "counted", "waiting_accept", "waiting_finish", "stale", "accel", "row", "row_factor", "row_rate", "gap")
 
     def __init__(self) -> None:
         self.report: LoadReport | None = None
         self.received_at = 0.0
+        #: the longest recent time between two of its reports (``ramps.core.liveness``)
+        self.gap = 0.0
         self.bookings: dict[tuple[str, int], _Booking] = {}
         #: bookings a report does not include yet / finished ones it still shows
         self.unseen_accept = 0
@@ -142,6 +145,9 @@ class LoadView(Scanning):
             rob.bookings.clear()
             rob.accel.clear()
             rob.stale = True
+        elif old is not None and (gap := now - rob.received_at) <= self.max_report_age:
+            shrunk = rob.gap - GAP_DECAY * gap  # an outage is no period (``ramps.core.liveness``)
+            rob.gap = gap if gap > shrunk else shrunk
         rob.report, rob.received_at, rob.row = report, now, None
         if report.low_battery and report.robot != self.me:
             self.low_battery.add(report.robot)
@@ -246,6 +252,11 @@ class LoadView(Scanning):
     def report_age(self, robot: str, now: float) -> float | None:
         rob = self._robots.get(robot)
         return None if rob is None or rob.report is None else now - rob.received_at
+
+    def report_gap(self, robot: str) -> float:
+        """The longest recent time between two of ``robot``'s reports (0 before two arrived)."""
+        rob = self._robots.get(robot)
+        return 0.0 if rob is None else rob.gap
 
     def robots(self) -> list[str]:
         return list(self._robots)

@@ -387,9 +387,7 @@ class _Unknown(msgspec.Struct):
 
 
 #: every message type this node knows, by its tag
-KNOWN_TYPES: frozenset[str] = frozenset(
-    t.__struct_config__.tag for t in Message.__args__  # type: ignore[attr-defined]
-)
+KNOWN_TYPES: frozenset[str] = frozenset(t.__struct_config__.tag for t in Message.__args__)  # type: ignore[attr-defined]
 
 
 
@@ -486,14 +484,3 @@ def _unknown_type(data: bytes) -> UnknownMessageType | None:
     return UnknownMessageType(
         f"unknown message type {env.msg.type!r} from {env.sender!r} (a newer protocol {PROTOCOL_MAJOR}.x "
         f"node's, skipped; this node speaks {PROTOCOL})", tag=env.msg.type, sender=env.sender)
-
-
-#: a heartbeat's type tag as encoded: the first thing in the envelope's ``msg`` map
-_HEARTBEAT_TAG = msgspec.msgpack.encode("type") + msgspec.msgpack.encode(Heartbeat.__struct_config__.tag)
-
-
-def is_heartbeat(data: bytes) -> bool:
-    """Whether ``data`` looks like an encoded Heartbeat, without decoding it (its tag after the
-    envelope's head, which a name's UTF-8 cannot spell): a driver may read it at its next round.
-    A wrong guess changes only when a message is read."""
-    return data.find(_HEARTBEAT_TAG, 0, 32 + 4 * MAX_NAME) >= 0

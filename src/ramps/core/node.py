@@ -371,7 +371,8 @@ class Node:
             if taken is not None:
                 out.append(taken)
             return
-        self.origin.liveness.heard(sender, now, isinstance(msg, LoadReport))
+        if type(msg) is not LoadReport:  # reports are in the view (``ramps.core.liveness``)
+            self.origin.heard[sender] = now
         if self.origin.relink.active(now) and self.origin.relink.heard(sender, now):
             self.origin.relinked(sender, now)
             out.append(Note(what="relinked", robot=sender, detail="heard again after this robot's stall"))

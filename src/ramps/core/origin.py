@@ -51,7 +51,6 @@ from ramps.core.events import Action, Deliver, Note, Send, Submit
 from ramps.core.isolation import Isolation
 from ramps.core.learning import Learning
 from ramps.core.links import Links
-from ramps.core.liveness import Liveness
 from ramps.core.loadview import LoadView
 from ramps.core.messages import (
     CancelProgram,
@@ -111,8 +110,8 @@ class Origin(Learning):
         self.links: Links | None = None
         #: after this robot's own stall, the hosts whose links are not back yet
         self.relink = Relink(me)
-        #: when each teammate was last heard from, how far apart its reports come
-        self.liveness = Liveness(config.max_report_age)
+        #: when anything but a load report last came from each teammate (``ramps.core.liveness``)
+        self.heard: dict[str, float] = {}
         #: when the next relocation check is due (None: nothing running to move)
         self._relocate_due: float | None = None
         #: relocation checks price moves with a generator of their own, so

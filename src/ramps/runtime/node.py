@@ -53,7 +53,7 @@ from typing import TYPE_CHECKING, Any, Callable
 from ramps.core.cost import nice_weight
 from ramps.core.events import Action, Note
 from ramps.core.identity import new_incarnation
-from ramps.core.messages import is_heartbeat
+from ramps.core.wirepeek import can_wait
 from ramps.core.node import Node
 from ramps.errors import ConfigError, NotAdmitted, TransportError
 from ramps.runtime.accelerators import AcceleratorProbe
@@ -366,11 +366,11 @@ class NodeRuntime:
         already holds MAX_BACKLOG_BYTES (a flood, or a driver that cannot keep
         up): then drop and count (``WireIntake.admit``), so memory stays
         bounded. Small messages (submits, heartbeats) pass any realistic burst.
-        A teammate's ``periodic`` report, and a heartbeat, wait for the next
-        round without waking the driver (``WireIntake.later``)."""
+        A teammate's ``periodic`` report, and a message that ``can_wait``, wait
+        for the next round without waking the driver (``WireIntake.later``)."""
         self.heap.note(len(data))
         if self.intake.admit(len(data), MAX_BACKLOG_BYTES):
-            (self.intake.later.append if periodic or is_heartbeat(data) else self._q.put)(
+            (self.intake.later.append if periodic or can_wait(data) else self._q.put)(
                 ("wire", data, self.clock.monotonic()))
 
     # ================================================================ driver
