@@ -53,8 +53,8 @@ from typing import TYPE_CHECKING, Any, Callable
 from ramps.core.cost import nice_weight
 from ramps.core.events import Action, Note
 from ramps.core.identity import new_incarnation
-from ramps.core.wirepeek import can_wait
 from ramps.core.node import Node
+from ramps.core.wirepeek import can_wait
 from ramps.errors import ConfigError, NotAdmitted, TransportError
 from ramps.runtime.accelerators import AcceleratorProbe
 from ramps.runtime.accelerators import resolve as resolve_accelerators
