@@ -139,6 +139,7 @@ def test_a_heartbeat_read_later_counts_from_its_arrival() -> None:
         silent_until(team, 2.9)
     arrived.handle("o", Received(sender="a", msg=beat(arrived), at=2.0))  # arrived at 2.0, read at 2.9
     read.handle("o", Received(sender="a", msg=beat(read)))  # the same, heard at 2.9
+    assert (arrived.nodes["o"].origin.heard["a"], read.nodes["o"].origin.heard["a"]) == (2.0, 2.9)
     for team in (arrived, read):
         silent_until(team, 2.5 + CFG.heartbeat_timeout)
     assert [n.detail for n in arrived.notes("failed")] == ["heartbeat_timeout"]

@@ -371,8 +371,9 @@ class Node:
             if taken is not None:
                 out.append(taken)
             return
+        arrived = now if at is None else min(at, now)
         if type(msg) is not LoadReport:  # reports are in the view (``ramps.core.liveness``)
-            self.origin.heard[sender] = now
+            self.origin.heard[sender] = arrived
         if self.origin.relink.active(now) and self.origin.relink.heard(sender, now):
             self.origin.relinked(sender, now)
             out.append(Note(what="relinked", robot=sender, detail="heard again after this robot's stall"))
@@ -400,7 +401,7 @@ class Node:
         elif isinstance(msg, OffloadRejected):
             self.origin.on_rejected(msg, now, out)
         elif isinstance(msg, Heartbeat):
-            self.origin.on_heartbeat(msg, now, out, heard=now if at is None else min(at, now))
+            self.origin.on_heartbeat(msg, now, out, heard=arrived)
         elif isinstance(msg, ProgramResult):
             if self.host_speeds is not None:
                 self._compare_speed(msg, now, out)

@@ -147,7 +147,7 @@ class NodeRuntime:
         #: the robot's cores, speed and quota, where its load is measured (``RobotMeasure.measure`` at start)
         self.measured = RobotMeasure(settings, clock, self.robot)
         #: rounds that stopped handling queued items to send what was due (ROUND_SECONDS), and whether
-        #: the last left held reports (``WireIntake.later``) for the next round, which then waits for nothing
+        #: the last left held messages (``WireIntake.later``) for the next round, which then waits for nothing
         self.rounds_cut, self.rounds_behind = 0, False
         #: the core's next deadline as the last round left it (its driver thread alone touches the core)
         self._deadline: tuple[float | None] | None = None
@@ -419,7 +419,7 @@ class NodeRuntime:
             item = q.get(timeout=wait) if block else (None if q.empty() else q.get_nowait())
         except queue.Empty:
             item = None
-        later = self.intake.later  # teammates' periodic reports, held: older than what woke this round
+        later = self.intake.later  # messages held (``_on_wire``): older than what woke this round
         if later:
             if item is not None:
                 later.append(item)

@@ -16,12 +16,14 @@ a hostile sender inventing names is only counted). Other remote bad input
 the driver finds (``refused``) counts the same.
 
 Teammates' periodic load reports do not wake the driver: they wait in
-``later`` for its next round, which takes them before anything else. A
-round comes at least every report period (a report is then read up to that
-late, within the period it stands for), so an origin hearing a hundred
-teammates runs a round for many of their reports instead of one each.
-Everything else wakes it: heartbeats (a timeout counts from when one is
-read), reports of the instant, offers and results.
+``later`` for its next round, which takes them before anything else. So do
+heartbeats, acceptances, progress and results' acknowledgements
+(``ramps.core.wirepeek.can_wait``; a heartbeat's silence counts from its
+arrival, ``Received.at``). A round comes at least every report period (a
+report is then read up to that late, within the period it stands for), so
+an origin hearing a hundred teammates runs a round for many of their
+messages instead of one each. Everything else wakes it: reports of the
+instant, offers, refusals and results.
 """
 
 from __future__ import annotations
@@ -59,7 +61,7 @@ class WireIntake:
         #: dropped because they did not fit
         self.backlog = 0
         self.overflow = 0
-        #: teammates' periodic reports admitted, for the driver's next round
+        #: teammates' periodic reports and messages that can wait, admitted, for the driver's next round
         self.later: deque[tuple[Any, ...]] = deque()
 
     def admit(self, size: int, limit: int) -> bool:
