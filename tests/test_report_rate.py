@@ -13,7 +13,7 @@ from ramps.core.messages import (KNOWN_TYPES, Heartbeat, LinkProbeReply, LoadRep
                                  OffloadRejected, ProgramProgress, ProgramRef, ProgramResult, ResultAck, encode)
 from ramps.core.wirepeek import WAIT_TAGS, can_wait
 from ramps.runtime import keys
-from ramps.runtime.node_reports import moved
+from ramps.core.cadence import moved
 from ramps.testing.memory import MemoryTeam
 
 
@@ -91,7 +91,7 @@ def test_a_teammates_periodic_report_waits_for_the_next_round_without_waking_it(
         r1, r2 = team.nodes["r1"], team.nodes["r2"]
         assert r1.membership.wide
         seq = r1.node.view.report_of("r2").seq
-        r2.reports.sent = None  # its next periodic report goes on the wire
+        r2.reports.cadence.sent = None  # its next periodic report goes on the wire
         r2.reports.publish(r2._clock())
         assert len(r1.intake.later) == 1 and r1._q.empty()  # held, and nothing woke r1
         r1.step()

@@ -15,7 +15,7 @@ In a team of more teammates than ``RampsConfig.report_rate``, a periodic
 report goes on the wire every ``RampsConfig.report_period`` instead (up to
 3 s), so that an origin of a large team hears a bounded number a second,
 and at the next publish when it differs in what a teammate decides on
-(``moved``).
+(``ramps.core.cadence``).
 The links go ``LINKS_PER_REPORT`` teammates a report, in turn, so a
 report's size does not grow with the team; a client keeps the newest of
 each (``ramps.runtime.futures.TeamReports``).
@@ -40,9 +40,9 @@ from itertools import islice
 from typing import TYPE_CHECKING, Any, Callable, Protocol
 
 import msgspec
-from msgspec.structs import astuple
 
 from ramps.core.battery import BatteryMeasured
+from ramps.core.cadence import ReportCadence
 from ramps.core.events import Action
 from ramps.core.links import in_turn
 from ramps.core.messages import MAX_LISTED, LearnedWork, LinkSeen, LoadReport, RunningProgram, encode
@@ -82,20 +82,6 @@ class ReportsDriver(Protocol):
 LINKS_PER_REPORT = 8
 
 
-def moved(sent: LoadReport, report: LoadReport) -> bool:
-    """Whether ``report`` says what a teammate decides on differently from
-    ``sent``, the last that went: its programs (started, ended), its view of
-    the team, cores, speed, battery, blacklist or accelerators, or whether it
-    submits. Not its load besides programs: on a busy robot that moves every
-    second, and it reaches the teammates within the period."""
-    return (report.accepted_total != sent.accepted_total or report.finished_total != sent.finished_total
-            or report.ramps_running != sent.ramps_running or report.sees != sent.sees
-            or report.cores != sent.cores or report.speed != sent.speed or report.low_battery != sent.low_battery
-            or report.blacklisted != sent.blacklisted or report.incarnation != sent.incarnation
-            or report.submits != sent.submits or report.speed_class != sent.speed_class
-            or [a[:4] for a in map(astuple, report.accelerators)] != [a[:4] for a in map(astuple, sent.accelerators)])
-
-
 class LoadReports:
     """The load reports of ``driver``'s node, of settings ``s``, which
     ``apply`` the core's actions and queue the driver's items with ``put``."""
@@ -116,9 +102,8 @@ class LoadReports:
         self._battery: BatteryReader | None = None
         #: where the next report's links start in the sorted teammates measured
         self._links_turn = 0
-        #: the last periodic report that went on the wire, and when (``_due``)
-        self.sent: LoadReport | None = None
-        self._sent_at = 0.0
+        #: the last periodic report that went on the wire, and when
+        self.cadence = ReportCadence()
 
     def publish(self, now: float) -> None:
         """The periodic load report, at the core's time ``now``."""
@@ -153,25 +138,13 @@ class LoadReports:
                                 reports_received=st.reports_received)
         try:
             m.newest = data = encode(self.robot, report)
-            if self._due(report, now, node.config.report_period(self.s.publish_period, len(m.alive))):
+            period = node.config.report_period(self.s.publish_period, len(m.alive))
+            if self.cadence.due(report, now, period, self.s.publish_period):
                 m.load_pub.put(data)
                 if self.trace.wire:
                     self.trace.write("tx", "", "*", 0, "LoadReport")
         except Exception as exc:
             log.warning("node %s could not publish its load: %s", self.robot, exc)
-
-    def _due(self, report: LoadReport, now: float, period: float) -> bool:
-        """Whether the periodic ``report`` goes on the wire at ``now``: once
-        ``period`` (``RampsConfig.report_period``: longer than the publisher's
-        in a large team) has passed since the last that went, to the nearest
-        publish, or now when it says something a teammate decides on
-        differently (``moved``). The others are this node's answer to a
-        teammate's query all the same (``Membership.newest``)."""
-        sent = self.sent
-        if sent is None or now >= self._sent_at + period - self.s.publish_period / 2 or moved(sent, report):
-            self.sent, self._sent_at = report, now
-            return True
-        return False
 
     def _read_battery(self, now: float, busy: float) -> None:
         """Hand the core this robot's battery (``ramps.core.battery``): below

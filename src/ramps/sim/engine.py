@@ -39,6 +39,7 @@ import time as _wallclock  # only for reporting how long a run took
 from typing import Any, Callable
 
 from ramps.core.accelerators import parse_accelerator
+from ramps.core.cadence import ReportCadence
 from ramps.core.cost import NetworkEstimate, nice_weight, program_cores
 from ramps.core.events import (Action, CheckpointSaved, Deliver, Note, ProgramFinished,
                                PublishReport, Received, Send, StartProgram, StopProgram, Submit)
@@ -57,7 +58,8 @@ from ramps.sim.wire import wire_size
 
 class _Robot:
     __slots__ = ("spec", "node", "cpu", "accel", "alive", "net_up", "frozen", "incarnation", "epoch",
-                 "wake_at", "wake_token", "done_token", "pub_phase", "remeasure_at", "record", "handled", "timed")
+                 "wake_at", "wake_token", "done_token", "pub_phase", "remeasure_at", "record", "handled", "timed",
+                 "cadence")
     #: the robot's node and CPU, made by each boot (``Simulator._setup`` boots
     #: every robot before the first event). A crashed robot keeps its last
     #: ones until it recovers, unused: everything that reaches them checks
@@ -78,6 +80,8 @@ class _Robot:
         self.timed = False
         self.wake_token = self.done_token = 0
         self.pub_phase = 0.0
+        #: which of its periodic reports go on the wire (``ramps.core.cadence``), made by each boot
+        self.cadence = ReportCadence()
         #: when its node measures its speed again (``ramps.core.speed``)
         self.remeasure_at = 0.0
         #: its durable record as its node last wrote it (``RobotSpec.record``)
@@ -119,6 +123,8 @@ class Simulator:
         #: the origins each robot's load reports go to (all of them but in a fleet: ``ramps.core.fanout``)
         self._report_to = {name: report_targets(name, self.subscribers, len(self.robots), self.sc.config)
                            or self.subscribers for name in self.robots}
+        #: seconds between two periodic reports on the wire, as a node's in a team of this size
+        self._report_period = self.sc.config.report_period(self.sc.publisher.period, len(self.robots) - 1)
         self._hearing: dict[_Robot, list[_Robot]] = {}  # ``_report_to`` as robots, made as needed
         #: a fleet's heartbeats go by mailbox, read in batches (``ramps.sim.fleet``); None: a team
         self.mail = Mailboxes(self) if 0 < self.sc.config.placement_sample < len(self.robots) else None
@@ -197,6 +203,7 @@ class Simulator:
         r.wake_at, r.timed = math.inf, False
         r.remeasure_at = now + REMEASURE_PERIOD
         r.pub_phase = self.rng.uniform(0.0, self.sc.publisher.period)
+        r.cadence = ReportCadence()
         self._at(now + r.pub_phase, self._publish, (r, r.incarnation))
 
     # ================================================================ node driving
@@ -301,7 +308,8 @@ class Simulator:
                                     mem_free=r.spec.memory, node_cpu=r.spec.node_cpu)
         if r.spec.name in self._submitters:
             self._handle(r, Received(sender=r.spec.name, msg=report))
-        self._broadcast(r, report)
+        if r.cadence.due(report, self.now, self._report_period, pub.period):
+            self._broadcast(r, report)
 
     def _broadcast(self, r: _Robot, report: LoadReport) -> None:
         """A load report on its way to every robot that places programs (in
