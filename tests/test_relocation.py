@@ -5,6 +5,8 @@ failing, the new host refusing). Driven by the real core in ``FakeTeam``."""
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from ramps.core.config import RampsConfig
@@ -59,6 +61,11 @@ def test_a_program_leaves_a_host_that_became_loaded():
         team.publish()
     ap = team.program("p")
     assert ap.host == other and ap.state is ProgramState.RUNNING and ap.moves == 1
+    # the note says why: 60 units expected in 60 s there, where staying was priced at 135 s (the
+    # budget: what staying costs less the thresholds, 135 / 1.2)
+    [note] = team.notes("moving")
+    expected, budget = (float(x) for x in re.findall(r"([0-9.]+) s", note.detail))
+    assert note.detail.startswith(f"from {first}: ") and expected < budget == pytest.approx(135 / 1.2, rel=0.1)
     # the old copy was stopped once the new host had taken it
     cancels = [m for m in team.sent(CancelProgram, to=first) if m.attempt == 1]
     assert cancels and not team.nodes[first].executor.running

@@ -65,8 +65,10 @@ def start(origin: MovingOrigin, ap: AutonomousProgram, placement: Placement, now
     origin.moves += 1
     ap.move_wanted_since = None
     ap.moving_from = old
+    # the budget is what staying costs, less the thresholds (``ramps.core.relocation.price_move``)
+    budget = "" if placement.time_budget is None else f", budget {placement.time_budget:.1f} s"
     out.append(Note(what="moving", program_id=ap.program_id, robot=placement.host, attempt=ap.attempt,
-                    detail=f"from {ap.host}: expected {placement.expected_time:.1f} s there"))
+                    detail=f"from {ap.host}: expected {placement.expected_time:.1f} s there{budget}"))
     origin.place(ap, now, out, placement=placement)
     ap.state = S.MOVING
 
