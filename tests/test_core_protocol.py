@@ -272,16 +272,19 @@ def test_origin_cut_off_without_liveliness_revives_once_all_teammates_fall_silen
     assert [d.host for d in team.delivered("p")] == ["a"]
 
 
-def test_a_host_written_off_while_others_stay_is_not_revived() -> None:
-    team = busy_origin_team()
+@pytest.mark.parametrize("late_results", [True, False])
+def test_a_host_written_off_while_others_stay_is_not_revived(late_results: bool) -> None:
+    team = busy_origin_team(config=RampsConfig(late_results=late_results))
     submit(team)
     team.deliver()
     team.handle("o", PeerLost(robot="a"))
     team.advance(team.now + CFG.backoff_max + 0.1)
     assert not team.notes("isolated")
     team.handle("o", Received(sender="a", msg=ProgramResult(program_id="p", attempt=1, host="a", ok=True)))
-    assert not team.delivered("p")  # the late result of the written-off copy is discarded
-    assert team.nodes["o"].origin.discarded == 1
+    if late_results:  # the written-off copy's result is the program's: delivered once
+        assert [d.host for d in team.delivered("p")] == ["a"] and team.nodes["o"].origin.discarded == 0
+    else:  # the paper's: discarded
+        assert not team.delivered("p") and team.nodes["o"].origin.discarded == 1
 
 
 def test_a_host_that_still_publishes_is_suspected_not_written_off() -> None:

@@ -115,6 +115,13 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     #: wanted and the program is also placed elsewhere at once; the first
     #: result wins
     hedge_suspects: bool = True
+    #: a copy written off because its host fell silent or its session went
+    #: (starved, frozen, cut for a while) is still the program's: its result,
+    #: if it comes before the program ended, is delivered (the copy placed
+    #: since is stopped), and a heartbeat from it makes it wanted again beside
+    #: that copy (``ramps.core.isolation``). False (the paper): its result is
+    #: discarded and its heartbeat answered with a cancel
+    late_results: bool = True
     #: a host publishes a report of the instant whenever the programs it runs
     #: change, so origins deciding at once see each other's placements within
     #: a network latency instead of a report period (policies that share
@@ -258,6 +265,7 @@ class RampsConfig(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             backoff_max=10.0,
             backoff_lost_max=10.0,
             hedge_suspects=False,
+            late_results=False,
             prompt_reports=False,
             probe_period=0.0,
             report_rate=0.0,

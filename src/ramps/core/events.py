@@ -225,7 +225,7 @@ class PublishReport(_Rec, frozen=True, kw_only=True):
 class Note(_Rec, frozen=True, kw_only=True):
     """Something the core decided, for traces and logs. ``what`` is one of:
     placed, accepted, rejected, blacklisted, unblacklisted, failed, backoff,
-    discarded, anomaly, isolated, suspected, moving, moved, move_aborted,
+    discarded, anomaly, isolated, revived, suspected, moving, moved, move_aborted,
     checkpoint, restored, deadline_unmet, deadline_missed, battery_low, battery_ok,
     one_way, two_way (``ramps.core.oneway``)."""
 

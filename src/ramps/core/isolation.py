@@ -13,6 +13,12 @@ first result wins. ``due`` tells the origin's ``next_deadline`` when that
 silence would show; at a ``tick`` past the window, programs too old to be
 explained by an isolation are no longer revivable.
 
+A copy written off is not forgotten where the origin was not cut off
+either (``late``, ``RampsConfig.late_results``): its host may only have
+been starved or frozen for a while. A result from it that comes before the
+program ended is delivered, and a heartbeat from it makes it wanted again
+(``heard_again``) beside the copy placed since.
+
 Rules: no clock (``now`` comes in), no I/O. It shares the origin's program
 table, view and configuration, and tells the origin of each program it
 changes through ``changed``.
@@ -46,6 +52,21 @@ class Isolation:
         """The origin gave up on ``ap``'s ``attempt`` on ``host``, lost or silent, at ``now``."""
         ap.written_off.append((attempt, host, now))
         self.revivable[ap.program_id] = None
+
+    def late(self, ap: AutonomousProgram, attempt: int, host: str) -> bool:
+        """Whether ``ap``'s ``attempt`` on ``host`` is a copy this origin wrote off
+        and still wants word of (``RampsConfig.late_results``): its result is
+        the program's, and a heartbeat from it makes it wanted again."""
+        return self.config.late_results and ap.state not in FINAL and any(
+            a == attempt and h == host for a, h, _ in ap.written_off)
+
+    def heard_again(self, ap: AutonomousProgram, attempt: int, host: str, out: list[Action]) -> None:
+        """A written-off copy (``late``) is heard from: wanted again beside the
+        copy placed since, the first result wins."""
+        ap.live[attempt] = host
+        self.changed(ap)
+        out.append(Note(what="revived", program_id=ap.program_id, robot=host, attempt=attempt,
+                        detail="written off, heard from again: its copy is wanted beside the new one"))
 
     def window(self) -> float:
         """How long before the isolation shows a host may have been written off for it."""

@@ -301,14 +301,14 @@ class Origin(Learning):
             if event == E.RESULT:
                 out.append(Send(to=host, msg=ResultAck(program_id=pid, attempt=attempt, origin=self.me)))
             return
-        if attempt == ap.attempt and host == ap.host and ap.live.get(attempt) == host:
-            # the current attempt, still wanted (not written off while backing off)
+        if attempt == ap.attempt and host == ap.host and ap.live.get(attempt) == host and ap.state is not S.BACKOFF:
+            # the current attempt, still wanted (backing off, it is a copy kept or revived: below)
             self._step(ap, event, now, out, msg)
             return
         # about an attempt that is not the current one
         if event == E.RESULT:
             out.append(Send(to=host, msg=ResultAck(program_id=pid, attempt=attempt, origin=self.me)))
-            if ap.state not in FINAL and ap.live.get(attempt) == host:
+            if ap.state not in FINAL and (ap.live.get(attempt) == host or self.isolation.late(ap, attempt, host)):
                 self._finish_with(ap, msg, now, out)
                 self._changed(ap)
             else:
@@ -320,6 +320,9 @@ class Origin(Learning):
                 if ap.moving_from is not None and ap.moving_from[0] == attempt:
                     ap.moving_from[2] = now  # the copy a move takes over from still runs
                 return  # an attempt kept alive while the origin was cut off, or moving away
+            if self.isolation.late(ap, attempt, host):
+                self.isolation.heard_again(ap, attempt, host, out)
+                return
             # the host runs a copy nobody wants: stop it
             out.append(Send(to=host, msg=CancelProgram(program_id=pid, attempt=attempt, origin=self.me)))
         # a rejection of an old attempt needs nothing
