@@ -1,8 +1,8 @@
 """When a robot's periodic load report goes on the wire (``ReportCadence``).
 
-The publisher makes a report every period, the robot's own view takes each
-one, but in a team of more teammates than ``RampsConfig.report_rate`` one goes
-on the wire every ``RampsConfig.report_period`` (up to 3 s), so that an origin
+A robot's publisher makes a report every period; in a team of more
+teammates than ``RampsConfig.report_rate`` one goes on the wire every
+``RampsConfig.report_period`` instead (up to 3 s), so that an origin
 of a large team hears a bounded number a second; one that says something a
 teammate decides on differently (``moved``) goes at once. The runtime's
 publisher (``ramps.runtime.node_reports``) and the simulator's

@@ -137,7 +137,7 @@ class LoadReports:
                                 blacklisted=len(st.blacklisted), dropped=report.bad_messages,
                                 reports_received=st.reports_received)
         try:
-            m.newest = data = encode(self.robot, report)
+            m.newest = data = encode(self.robot, report)  # a teammate's query gets it, due or not
             period = node.config.report_period(self.s.publish_period, len(m.alive))
             if self.cadence.due(report, now, period, self.s.publish_period):
                 m.load_pub.put(data)
