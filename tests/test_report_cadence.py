@@ -5,17 +5,12 @@ from __future__ import annotations
 
 import msgspec
 
+from test_report_rate import _report
+
 from ramps.core.cadence import ReportCadence
 from ramps.core.config import RampsConfig
-from ramps.core.messages import LoadReport
 from ramps.sim.engine import simulate
 from ramps.sim.scenario import ProgramSpec, PublisherSpec, RobotSpec, Scenario
-
-
-def _report(**kw: object) -> LoadReport:
-    base = dict(robot="r2", incarnation=1, seq=1, cores=1, speed=1.0, cpu_busy=0.2, runnable=0.3,
-                ramps_running=0, ramps_avg=0.0, accepted_total=0, finished_total=0, sees=3)
-    return LoadReport(**{**base, **kw})  # type: ignore[arg-type]
 
 
 def test_one_report_in_three_goes_and_a_change_goes_at_once() -> None:
